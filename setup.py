@@ -1,0 +1,47 @@
+"""ament_python package srmosaic_ros, also pip-installable into a virtual environment."""
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = 'srmosaic_ros'
+
+# Exact pins: the environment `make` builds is the one the tests ran in.
+# torch==2.13.0 is the local CPU build; any other spec pulls gigabytes of CUDA wheels.
+INSTALL_REQUIRES = [
+    'ros-jazzy-rclpy==7.1.6',
+    'ros-jazzy-common-interfaces==5.3.6',
+    'ros-jazzy-rmw-fastrtps-cpp==8.4.3',
+    'torch==2.13.0',
+    'opencv-python-headless==5.0.0.93',
+    'numpy==2.4.6',
+    'scipy==1.17.1',
+    'filterpy==2.0.0',
+    'rosbags==0.11.9',
+    'PyYAML==6.0.4',   # params/*.yaml and ground-truth files
+    'tqdm==4.70.1',    # progress of long offline jobs
+]
+
+setup(
+    name=PACKAGE,
+    version='0.1.0',
+    packages=find_packages(include=[PACKAGE, PACKAGE + '.*', 'msg_adapters', 'msg_adapters.*']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
+        ('share/' + PACKAGE, ['package.xml']),
+        ('share/' + PACKAGE + '/params', glob('params/*.yaml')),
+    ],
+    install_requires=INSTALL_REQUIRES,
+    extras_require={
+        'test': ['pytest==9.2.0', 'pytest-timeout==2.4.0'],
+    },
+    python_requires='>=3.11',
+    zip_safe=False,
+    maintainer='srmosaic_ros developers',
+    description='Super-resolution mosaicking of UAS video for ROS 2',
+    license='BSD-3-Clause',
+    entry_points={
+        'console_scripts': [
+            'srmosaic = srmosaic_ros.cli:main',
+        ],
+    },
+)

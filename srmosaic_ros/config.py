@@ -1,0 +1,112 @@
+"""Parameters: load params/*.yaml (ros__parameters) into the frozen config dataclasses of the core.
+
+params/default.yaml is the one source of defaults. A user file overrides any subset of its keys;
+an unknown key is refused with the list of known ones, so a typo never silently does nothing.
+"""
+from __future__ import annotations
+
+import os
+import sys
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from .core.mosaic.config import MosaicConfig
+from .core.registration import RegistrationConfig
+from .errors import ConfigError
+
+__all__ = ['PipelineConfig', 'default_params_path', 'load_params', 'pipeline_config']
+
+DEVICES = ('auto', 'cpu', 'cuda')
+
+
+@dataclass(frozen=True)
+class PipelineConfig:
+    """Everything the offline and live pipelines need; mirrors params/default.yaml."""
+
+    device: str = 'auto'
+    registration: RegistrationConfig = RegistrationConfig()
+    mosaic: MosaicConfig = MosaicConfig()
+
+
+def default_params_path() -> Path:
+    """params/default.yaml of the source tree, or of the installed share/ directory."""
+    candidates = [
+        Path(__file__).resolve().parent.parent / 'params' / 'default.yaml',
+        Path(sys.prefix) / 'share' / 'srmosaic_ros' / 'params' / 'default.yaml',
+    ]
+    env = os.environ.get('AMENT_PREFIX_PATH', '')
+    candidates += [Path(p) / 'share' / 'srmosaic_ros' / 'params' / 'default.yaml' for p in env.split(os.pathsep) if p]
+    for path in candidates:
+        if path.is_file():
+            return path
+    msg = 'params/default.yaml not found; reinstall the package (make venv) or pass --params.'
+    raise ConfigError(msg)
+
+
+def _flatten(tree: dict[str, Any], prefix: str = '') -> dict[str, Any]:
+    flat: dict[str, Any] = {}
+    for key, value in tree.items():
+        name = f'{prefix}{key}'
+        if isinstance(value, dict):
+            flat.update(_flatten(value, name + '.'))
+        else:
+            flat[name] = value
+    return flat
+
+
+def load_params(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """Read a ROS 2 parameter file; return dotted names -> values, merged over all node sections."""
+    path = Path(path)
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except FileNotFoundError:
+        msg = f'parameter file {path} does not exist.'
+        raise ConfigError(msg) from None
+    except yaml.YAMLError as exc:
+        msg = f'parameter file {path} is not valid YAML: {exc}'
+        raise ConfigError(msg) from None
+    if not isinstance(doc, dict):
+        msg = f'parameter file {path} must map node names to {{ros__parameters: ...}}.'
+        raise ConfigError(msg)
+    flat: dict[str, Any] = {}
+    for node, section in doc.items():
+        if not isinstance(section, dict) or 'ros__parameters' not in section:
+            msg = f'parameter file {path}: section {node!r} has no ros__parameters.'
+            raise ConfigError(msg)
+        flat.update(_flatten(section['ros__parameters'] or {}))
+    return flat
+
+
+def _build(cls: type, prefix: str, flat: dict[str, Any]) -> Any:
+    kwargs = {f.name: flat[prefix + f.name] for f in fields(cls) if prefix + f.name in flat}
+    try:
+        return cls(**kwargs)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(str(exc)) from None
+
+
+def pipeline_config(overrides: dict[str, Any] | None = None, *, defaults: dict[str, Any] | None = None) -> PipelineConfig:
+    """PipelineConfig from the defaults file, overridden by `overrides` (dotted names).
+
+    Keys that the pipeline does not know are refused; keys of other stages (nodes, topics, ...)
+    that appear in default.yaml are accepted and ignored here.
+    """
+    flat = dict(defaults if defaults is not None else load_params(default_params_path()))
+    for key, value in (overrides or {}).items():
+        if key not in flat:
+            known = ', '.join(sorted(flat))
+            msg = f'unknown parameter {key!r}; known parameters: {known}.'
+            raise ConfigError(msg)
+        flat[key] = value
+    device = flat.get('device', 'auto')
+    if device not in DEVICES:
+        msg = f"device must be one of {', '.join(DEVICES)}, got {device!r}."
+        raise ConfigError(msg)
+    return PipelineConfig(
+        device=device,
+        registration=_build(RegistrationConfig, 'registration.', flat),
+        mosaic=_build(MosaicConfig, 'mosaic.', flat),
+    )

@@ -1,0 +1,80 @@
+"""Flat-ground homographies of a pinhole camera (dissertation 4.23-4.29).
+
+Pure numpy, float64. Convention: image pixels (x right, y down, pixel centres at integer
+coordinates, as K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] assumes); ground points (east, north)
+in metres on the horizontal plane z = ``ground_z_m`` of the ENU frame; camera poses as in
+:mod:`srmosaic_ros.core.georef.frames` (``X_enu = R_enu_from_cam @ X_cam + C_enu``). Every returned
+homography is normalised so that h33 = 1 (4.29).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = [
+    'image_H_ground',
+    'ground_H_image',
+    'frame2_H_frame1',
+    'apply_H',
+    'normalize_H',
+]
+
+
+def normalize_H(H: np.ndarray) -> np.ndarray:  # noqa: N802, N803
+    """H / h33 (4.29)."""
+    H = np.asarray(H, dtype=np.float64)  # noqa: N806
+    return H / H[2, 2]
+
+
+def apply_H(H: np.ndarray, pts: np.ndarray) -> np.ndarray:  # noqa: N802, N803
+    """Map points (..., 2) through a homography (3, 3); returns (..., 2) float64."""
+    pts = np.asarray(pts, dtype=np.float64)
+    hom = pts @ H[:, :2].T + H[:, 2]
+    return hom[..., :2] / hom[..., 2:3]
+
+
+def image_H_ground(K: np.ndarray, R_enu_from_cam: np.ndarray, C_enu: np.ndarray, *,  # noqa: N802, N803
+                   ground_z_m: float = 0.0) -> np.ndarray:
+    """(3, 3) homography from ground (east, north, 1) to image pixels (x, y, 1).
+
+    A ground point X = (e, n, z0) projects to x ~ K R_cam_from_enu (X - C). With
+    X - C = M (e, n, 1), M = [[1, 0, -Cx], [0, 1, -Cy], [0, 0, z0 - Cz]]:
+    image_H_ground = K R_enu_from_cam^T M.
+    """
+    C = np.asarray(C_enu, dtype=np.float64)  # noqa: N806
+    M = np.array([[1.0, 0.0, -C[0]], [0.0, 1.0, -C[1]], [0.0, 0.0, ground_z_m - C[2]]])  # noqa: N806
+    return normalize_H(np.asarray(K, dtype=np.float64) @ np.asarray(R_enu_from_cam, dtype=np.float64).T @ M)
+
+
+def ground_H_image(K: np.ndarray, R_enu_from_cam: np.ndarray, C_enu: np.ndarray, *,  # noqa: N802, N803
+                   ground_z_m: float = 0.0) -> np.ndarray:
+    """(3, 3) homography from image pixels (x, y, 1) to ground (east, north, 1) in metres.
+
+    The inverse of :func:`image_H_ground`. Only pixels whose ray points below the horizon
+    (third homogeneous coordinate of the result > 0 before normalisation) reach the ground.
+    """
+    return normalize_H(np.linalg.inv(image_H_ground(K, R_enu_from_cam, C_enu, ground_z_m=ground_z_m)))
+
+
+def frame2_H_frame1(K: np.ndarray, R1_enu_from_cam: np.ndarray, C1_enu: np.ndarray,  # noqa: N802, N803
+                    R2_enu_from_cam: np.ndarray, C2_enu: np.ndarray, *, K2: np.ndarray | None = None,  # noqa: N803
+                    ground_z_m: float = 0.0) -> np.ndarray:
+    """(3, 3) homography from frame-1 pixels to frame-2 pixels induced by the ground plane.
+
+    4.28 in this module's conventions: with R_i = R_cam_i_from_enu, N_w = (0, 0, 1) and
+    d = C1_z - ground_z_m the height of camera 1 above the plane,
+    H = K2 R_2 (I - (C1 - C2) N_w^T / d) R_1^T K^-1, then normalised (4.29). K2 defaults to K
+    (one camera, 4.24).
+    """
+    K1 = np.asarray(K, dtype=np.float64)  # noqa: N806
+    K2 = K1 if K2 is None else np.asarray(K2, dtype=np.float64)  # noqa: N806
+    R1 = np.asarray(R1_enu_from_cam, dtype=np.float64).T  # noqa: N806
+    R2 = np.asarray(R2_enu_from_cam, dtype=np.float64).T  # noqa: N806
+    C1 = np.asarray(C1_enu, dtype=np.float64)  # noqa: N806
+    C2 = np.asarray(C2_enu, dtype=np.float64)  # noqa: N806
+    d = C1[2] - ground_z_m
+    if abs(d) < 1e-12:
+        msg = 'camera 1 lies on the ground plane; the plane-induced homography is undefined.'
+        raise ValueError(msg)
+    n_w = np.array([0.0, 0.0, 1.0])
+    H = K2 @ R2 @ (np.eye(3) - np.outer(C1 - C2, n_w) / d) @ R1.T @ np.linalg.inv(K1)  # noqa: N806
+    return normalize_H(H)

@@ -1,0 +1,201 @@
+"""Blending helpers of the mosaic canvas: feather weights and multi-band (Laplacian pyramid) blending.
+
+Pure numpy / OpenCV; every array is float32.
+
+Feather weights
+---------------
+``feather_weight(h, w)`` is, by default, the dissertation's ``W(x, y) = w(x) w(y)`` (section
+4.2.5: each factor linear from 1 at the centre to ~0 at the edge; with pixel centres at integers
+``w(u) = min(u + 1, W - u) / max``). The ``'distance'`` profile is the distance to the frame
+border, ``min(u + 1, v + 1, W - u, H - v) / max``; it is worse where two frames share an edge
+(both weigh the same next to it, so the blend jumps to 50/50 there). With a validity mask the
+weight also fades to 0 towards invalid pixels (``cv2.distanceTransform``).
+
+Multi-band blending on an incremental canvas
+--------------------------------------------
+Burt and Adelson's multi-band blend (dissertation Table 2, eqs 4.8 to 4.10) needs every frame's
+image at render time, which a growing canvas cannot keep. The canvas keeps two composites
+instead, both updated frame by frame:
+
+- ``F``, the feather composite: ``sum_i W_i I_i / sum_i W_i`` (smooth, no seams, but
+  misregistration shows as ghosting of fine detail);
+- ``S``, the max-weight composite of eq. 4.7: each mosaic pixel holds the pixel of the frame with
+  the largest warped feather weight ``W_H^i`` (sharp, one frame per pixel, but hard seams), and
+  the label map of which frame that was.
+
+``multiband_blend`` then runs Table 2 with A = S and B = F: it forms the Laplacian pyramids
+(``cv2.pyrDown`` / ``cv2.pyrUp``: the 5x5 Burt kernel of eqs 4.8, 4.9; ``L_l = G_l - expand(G_{l+1})``,
+eq. 4.10) and blends level by level, ``LS_l = GR_l LA_l + (1 - GR_l) LB_l``. The region weights
+``GR_l`` come from the distance ``d`` (mosaic pixels) to the nearest seam of the label map:
+``GR_l = clip((d / 2**l - SEAM_NEAR) / SEAM_RAMP, 0, 1)``, so level ``l`` switches from the
+feather composite at a seam to the max-weight composite over a transition about ``2**l`` pixels
+wide, which is what blending with Gaussian-pyramid masks does (the transition width of band ``l``
+grows as ``2**l``). The coarsest level always comes from ``F``. Consequences:
+
+- where only one frame covers a pixel, ``S == F`` and the output is that frame;
+- far from seams the output keeps the single best frame's fine detail (no ghosting) on top of
+  the feather composite's low frequencies (brightness differences spread over the overlap);
+- at seams, a brightness step is spread over about ``2**l`` pixels in band ``l``: no hard edge.
+
+Since the pyramids are linear, this is computed as
+``out = F + sum_{l < N} GR_l * L_l(S - F)`` (expanded and summed), which is also what makes
+uncovered pixels harmless: ``S - F`` is zero there.
+"""
+from __future__ import annotations
+
+from functools import lru_cache
+
+import cv2
+import numpy as np
+
+__all__ = [
+    'FEATHER_PROFILES',
+    'SEAM_NEAR',
+    'SEAM_RAMP',
+    'auto_bands',
+    'feather_weight',
+    'multiband_blend',
+    'seam_distance',
+]
+
+FEATHER_PROFILES = ('distance', 'separable')
+
+#: At pyramid level l the max-weight composite is not used within SEAM_NEAR * 2**l pixels of a
+#: seam and fully used beyond (SEAM_NEAR + SEAM_RAMP) * 2**l pixels.
+SEAM_NEAR = 2.0
+SEAM_RAMP = 2.0
+
+#: Most pyramid levels chosen automatically (coarsest band spacing 2**MAX_AUTO_BANDS pixels).
+MAX_AUTO_BANDS = 6
+
+
+def _profile_norm(h: int, w: int) -> np.float32:
+    """Largest distance of a pixel centre of an (h, w) frame to its border, + 0.5 px."""
+    return np.float32(min((w + 1) // 2, (h + 1) // 2))
+
+
+@lru_cache(maxsize=16)
+def _profile(h: int, w: int, kind: str) -> np.ndarray:
+    """(h, w) float32 feather profile in (0, 1], read-only (cached)."""
+    u = np.arange(w, dtype=np.float32)
+    v = np.arange(h, dtype=np.float32)
+    du = np.minimum(u + 1.0, w - u)  # distance of the pixel centre to the border at -0.5 / w - 0.5, + 0.5
+    dv = np.minimum(v + 1.0, h - v)
+    if kind == 'distance':
+        out = np.minimum(dv[:, None], du[None, :]) / np.float32(min(du.max(), dv.max()))
+    else:  # separable, eq. W(x, y) = w(x) w(y) of section 4.2.5
+        out = (dv / dv.max())[:, None] * (du / du.max())[None, :]
+    out = np.ascontiguousarray(out, dtype=np.float32)
+    out.setflags(write=False)
+    return out
+
+
+def feather_weight(
+    h: int,
+    w: int,
+    *,
+    profile: str = 'separable',
+    power: float = 1.0,
+    mask: np.ndarray | None = None,
+) -> np.ndarray:
+    """Feather weight of an (h, w) frame, float32 (h, w) in [0, 1].
+
+    ``profile='separable'`` (default): ``w(u) w(v)`` with ``w(u) = min(u + 1, w - u) / max``, the
+    dissertation's ``W(x, y) = w(x) w(y)``; ``'distance'``: ``min(u + 1, v + 1, w - u, h - v) / max``
+    (distance to the frame border, + 0.5 px). Pixel centres at integers. ``mask`` (bool (h, w),
+    True = valid): invalid pixels weigh 0, and the profile is multiplied by ``d_mask / d_border``
+    (distance to the nearest invalid pixel or border over distance to the border alone,
+    ``cv2.distanceTransform``), so the frame fades out around masked areas as it does at its
+    border. The result is raised to ``power``.
+    """
+    if profile not in FEATHER_PROFILES:
+        msg = f"feather profile must be one of {', '.join(FEATHER_PROFILES)}, got {profile!r}."
+        raise ValueError(msg)
+    base = _profile(h, w, profile)
+    if mask is None:
+        out = base if power == 1.0 else np.power(base, np.float32(power))
+        return out
+    padded = np.zeros((h + 2, w + 2), np.uint8)
+    padded[1:-1, 1:-1] = mask
+    dist = cv2.distanceTransform(padded, cv2.DIST_L2, cv2.DIST_MASK_5)[1:-1, 1:-1]
+    # dist / (distance to the border alone): 1 away from invalid pixels, -> 0 next to them.
+    fade = np.minimum(dist / (_profile(h, w, 'distance') * _profile_norm(h, w)), np.float32(1.0))
+    out = base * fade
+    if power != 1.0:
+        out = np.power(out, np.float32(power))
+    return np.ascontiguousarray(out, dtype=np.float32)
+
+
+def auto_bands(h: int, w: int) -> int:
+    """Number of pyramid levels for an (h, w) render: ``clip(floor(log2(min(h, w))) - 3, 1, 6)``."""
+    side = max(1, min(h, w))
+    return int(np.clip(int(np.floor(np.log2(side))) - 3, 1, MAX_AUTO_BANDS))
+
+
+def seam_distance(labels: np.ndarray) -> np.ndarray:
+    """Distance (px, float32 (h, w)) of each pixel to the nearest seam of a label map.
+
+    ``labels``: int (h, w), the frame that wins each pixel (eq. 4.7), -1 where uncovered. A seam
+    pixel is a covered pixel whose right or lower covered neighbour has another label (the
+    coverage border is no seam). Without any seam the distance is +inf.
+    """
+    seam = np.zeros(labels.shape, bool)
+    a, b = labels[:, :-1], labels[:, 1:]
+    diff = (a != b) & (a >= 0) & (b >= 0)
+    seam[:, :-1] |= diff
+    a, b = labels[:-1, :], labels[1:, :]
+    diff = (a != b) & (a >= 0) & (b >= 0)
+    seam[:-1, :] |= diff
+    if not seam.any():
+        return np.full(labels.shape, np.inf, np.float32)
+    return cv2.distanceTransform((~seam).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5)
+
+
+def _pyr_down(img: np.ndarray) -> np.ndarray:
+    return cv2.pyrDown(img).reshape(((img.shape[0] + 1) // 2, (img.shape[1] + 1) // 2, *img.shape[2:]))
+
+
+def _pyr_up(img: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    return cv2.pyrUp(img, dstsize=(shape[1], shape[0])).reshape(shape)
+
+
+def multiband_blend(
+    feather: np.ndarray,
+    seam_image: np.ndarray,
+    labels: np.ndarray,
+    bands: int,
+) -> np.ndarray:
+    """Multi-band blend of the max-weight composite over the feather composite (Table 2).
+
+    ``feather`` F and ``seam_image`` S: float32 (h, w, C), equal to each other (or both 0) where
+    a single frame or none covers; ``labels``: int32 (h, w), winning frame per pixel (eq. 4.7),
+    -1 where uncovered; ``bands``: pyramid levels N >= 1. Returns float32 (h, w, C):
+    ``F + collapse(GR_l * L_l(S - F) for l < N)``, see the module docstring.
+    """
+    diff = (seam_image - feather).astype(np.float32, copy=False)
+    if not diff.any():
+        return feather.copy()
+    dist = seam_distance(labels)
+    # Laplacian pyramid of the difference (eqs 4.8 to 4.10).
+    gauss = [diff]
+    for _ in range(bands):
+        if min(gauss[-1].shape[:2]) < 2:
+            break
+        gauss.append(_pyr_down(gauss[-1]))
+    levels = len(gauss) - 1
+    if levels == 0:
+        return feather.copy()
+    acc: np.ndarray | None = None  # collapsed blend of levels > l; coarsest band dropped (comes from F)
+    for lev in range(levels - 1, -1, -1):
+        g = gauss[lev]
+        lap = g - _pyr_up(gauss[lev + 1], g.shape)
+        scale = float(2**lev)
+        if np.isinf(dist).all():
+            region = np.ones(g.shape[:2], np.float32)
+        else:
+            d = dist if lev == 0 else cv2.resize(dist, (g.shape[1], g.shape[0]), interpolation=cv2.INTER_AREA)
+            region = np.clip((d / scale - SEAM_NEAR) / SEAM_RAMP, 0.0, 1.0).astype(np.float32)
+        band = lap * region[..., None]
+        acc = band if acc is None else band + _pyr_up(acc, g.shape)
+    assert acc is not None
+    return feather + acc

@@ -1,0 +1,526 @@
+"""A mosaic canvas that grows without bound in every direction, stored as square tiles.
+
+Convention: "mosaic pixels", x right, y down, pixel centres at integer coordinates; negative
+coordinates are fine. Tile ``(tx, ty)`` holds the mosaic pixels
+``x in [tx * T, (tx + 1) * T)``, ``y in [ty * T, (ty + 1) * T)`` (T = ``tile_size``), so tile keys
+are ``floor(x / T), floor(y / T)``. Tiles are created only where a frame puts non-zero weight.
+
+Each tile keeps, in float32:
+
+- ``acc`` (T, T, C): the feather-weighted colour sum ``sum_i W_H^i I_H^i``;
+- ``wsum`` (T, T): the weight sum ``sum_i W_H^i`` (``I_H^i``, ``W_H^i``: frame i and its feather
+  weight warped into the mosaic);
+- with ``blend='multiband'`` also the max-weight composite of eq. 4.7: ``best`` (T, T, C), the
+  colour of the frame with the largest ``W_H^i`` so far, ``best_w`` (T, T) that weight and
+  ``best_id`` (T, T) int32 the index of that frame (-1: none).
+
+Painting (``paint``) warps the frame and its feather weight once onto the bounding box of the
+frame's footprint (``cv2.warpPerspective``, INTER_LINEAR, whose convention is the one above: frame
+pixel (u, v) lands at ``mosaic_H_frame @ (u, v, 1)``) and adds the result into the tiles that box
+overlaps, skipping tiles where the warped weight is zero. The image is warped with replicated
+borders and the weight with a zero border, and the two are multiplied after warping: inside the
+frame the colour is exactly ``cv2.warpPerspective`` of the frame, and at the frame edge the colour
+does not fade to black, only its weight fades to zero.
+
+Rendering (``render``) divides ``acc`` by ``wsum`` (feather blending) or, in multiband mode,
+blends the max-weight composite over the feather composite band by band (see :mod:`.blend`).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from srmosaic_ros.errors import SrMosaicError
+
+from .blend import FEATHER_PROFILES, auto_bands, feather_weight, multiband_blend
+from .config import BLEND_MODES
+
+__all__ = ['CanvasError', 'PaintResult', 'TileKey', 'TiledCanvas']
+
+TileKey = tuple[int, int]
+
+#: Largest side (px) rendered in one piece in multiband mode; larger regions go in blocks.
+RENDER_BLOCK_PX = 2048
+#: Multiband renders read this many times 2**bands pixels around the region (pyramid support).
+MULTIBAND_MARGIN = 2
+
+
+class CanvasError(SrMosaicError, ValueError):
+    """A frame cannot be painted or a region rendered (absurd homography, bad image or mask)."""
+
+
+@dataclass(frozen=True, eq=False)
+class PaintResult:
+    """What one ``TiledCanvas.paint`` did.
+
+    ``frame_index``: 0-based count of frames painted into this canvas before this one (the label
+    used by the max-weight masks). ``touched_tiles``: keys (tx, ty) of the tiles the frame wrote,
+    sorted. ``footprint_xy``: (4, 2) float64 mosaic-pixel corners of the frame's pixel area
+    (frame points (-0.5, -0.5), (W - 0.5, -0.5), (W - 0.5, H - 0.5), (-0.5, H - 0.5), in that order).
+    ``bbox``: (x0, y0, x1, y1) mosaic pixels that received non-zero weight, inclusive-exclusive
+    ((0, 0, 0, 0) when none did).
+    """
+
+    frame_index: int
+    touched_tiles: tuple[TileKey, ...]
+    footprint_xy: np.ndarray = field(repr=False)
+    bbox: tuple[int, int, int, int]
+
+
+class _Tile:
+    """Storage of one tile; see the module docstring."""
+
+    __slots__ = ('acc', 'best', 'best_id', 'best_w', 'frames', 'wsum')
+
+    def __init__(self, size: int, channels: int, *, multiband: bool) -> None:
+        self.acc = np.zeros((size, size, channels), np.float32)
+        self.wsum = np.zeros((size, size), np.float32)
+        self.frames = 0
+        if multiband:
+            self.best: np.ndarray | None = np.zeros((size, size, channels), np.float32)
+            self.best_w: np.ndarray | None = np.zeros((size, size), np.float32)
+            self.best_id: np.ndarray | None = np.full((size, size), -1, np.int32)
+        else:
+            self.best = self.best_w = self.best_id = None
+
+    @property
+    def nbytes(self) -> int:
+        arrays = (self.acc, self.wsum, self.best, self.best_w, self.best_id)
+        return sum(a.nbytes for a in arrays if a is not None)
+
+
+def _project(h_mat: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Points (N, 2) through a homography: ((N, 2) projected, (N,) homogeneous w)."""
+    ph = np.hstack([pts, np.ones((len(pts), 1))]) @ h_mat.T
+    return ph[:, :2] / ph[:, 2:3], ph[:, 2]
+
+
+def _fill_invalid(img: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Replace invalid pixels by the mean of their valid 8-neighbours (0 where none).
+
+    Bilinear interpolation only reads an invalid pixel next to a valid one where the warped weight
+    is non-zero, so this is all the fill that the colour needs (garbage or NaN never leaks in).
+    """
+    m = valid.astype(np.float32)
+    clean = np.where(valid[..., None], img, np.float32(0.0))
+    num = cv2.boxFilter(clean, -1, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT)
+    den = cv2.boxFilter(m, -1, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT)
+    num = num.reshape(img.shape)
+    fill = num / np.maximum(den, np.float32(1.0))[..., None]
+    return np.where(valid[..., None], clean, fill).astype(np.float32, copy=False)
+
+
+class TiledCanvas:
+    """Growing tiled canvas with feather or multi-band blending.
+
+    Args:
+        channels: C, colour channels of every painted image (1 mono, 3 RGB, any C >= 1).
+        tile_size: tile side T in mosaic pixels (16 .. 4096).
+        blend: ``'feather'`` (weighted average, eq. W(x, y) of section 4.2.5) or ``'multiband'``
+            (max-weight masks, eq. 4.7, and Laplacian-pyramid blending, Table 2 / eqs 4.8 to 4.10).
+        feather_profile: ``'separable'`` (w(x) w(y), the dissertation's form, the default) or
+            ``'distance'`` (distance to the frame border); see :func:`.blend.feather_weight`.
+            The separable form blends frames that share an edge without a jump along it (with
+            the distance form both weigh the same next to the shared edge).
+        feather_power: exponent applied to the normalised feather weight (> 0); larger values
+            narrow the transitions.
+        max_canvas_side_px: a frame whose footprint would make the painted area wider or taller
+            than this is refused (CanvasError) instead of allocating memory for it.
+        max_area_ratio: a frame whose footprint bounding box exceeds this many times the frame's
+            own area is refused (an absurd homography, e.g. close to the horizon).
+        bands: pyramid levels of multiband rendering; 0 chooses them from the region size
+            (:func:`.blend.auto_bands`).
+        background: value of uncovered pixels in ``render``.
+
+    Not thread-safe: paint and render from one thread (or hold a lock around both).
+    """
+
+    def __init__(
+        self,
+        channels: int,
+        tile_size: int = 256,
+        *,
+        blend: str = 'feather',
+        feather_profile: str = 'separable',
+        feather_power: float = 1.0,
+        max_canvas_side_px: int = 100000,
+        max_area_ratio: float = 50.0,
+        bands: int = 0,
+        background: float = 0.0,
+    ) -> None:
+        if int(channels) != channels or channels < 1:
+            msg = f'channels must be a positive integer, got {channels!r}.'
+            raise CanvasError(msg)
+        if int(tile_size) != tile_size or not 16 <= tile_size <= 4096:
+            msg = f'tile_size must be an integer in 16..4096, got {tile_size!r}.'
+            raise CanvasError(msg)
+        if blend not in BLEND_MODES:
+            msg = f"blend must be one of {', '.join(BLEND_MODES)}, got {blend!r}."
+            raise CanvasError(msg)
+        if feather_profile not in FEATHER_PROFILES:
+            msg = f"feather_profile must be one of {', '.join(FEATHER_PROFILES)}, got {feather_profile!r}."
+            raise CanvasError(msg)
+        if not (math.isfinite(feather_power) and feather_power > 0):
+            msg = f'feather_power must be a positive number, got {feather_power!r}.'
+            raise CanvasError(msg)
+        if max_canvas_side_px < 16:
+            msg = f'max_canvas_side_px must be >= 16, got {max_canvas_side_px!r}.'
+            raise CanvasError(msg)
+        if not max_area_ratio > 1.0:
+            msg = f'max_area_ratio must be > 1, got {max_area_ratio!r}.'
+            raise CanvasError(msg)
+        if int(bands) != bands or not 0 <= bands <= 12:
+            msg = f'bands must be an integer in 0..12 (0: automatic), got {bands!r}.'
+            raise CanvasError(msg)
+        self._channels = int(channels)
+        self._tile_size = int(tile_size)
+        self._blend = blend
+        self._profile = feather_profile
+        self._power = float(feather_power)
+        self._max_side = int(max_canvas_side_px)
+        self._max_area_ratio = float(max_area_ratio)
+        self._bands = int(bands)
+        self._background = np.float32(background)
+        self._tiles: dict[TileKey, _Tile] = {}
+        self._touched: set[TileKey] = set()
+        self._frames = 0
+        self._bounds: tuple[int, int, int, int] | None = None
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def channels(self) -> int:
+        return self._channels
+
+    @property
+    def tile_size(self) -> int:
+        return self._tile_size
+
+    @property
+    def blend(self) -> str:
+        return self._blend
+
+    @property
+    def frames_painted(self) -> int:
+        """Number of ``paint`` calls that succeeded."""
+        return self._frames
+
+    @property
+    def is_empty(self) -> bool:
+        return self._bounds is None
+
+    @property
+    def touched_tiles(self) -> frozenset[TileKey]:
+        """Keys of tiles written since the canvas was created or ``pop_touched`` last ran."""
+        return frozenset(self._touched)
+
+    def pop_touched(self) -> frozenset[TileKey]:
+        """Return ``touched_tiles`` and start a new record (for incremental previews)."""
+        out = frozenset(self._touched)
+        self._touched.clear()
+        return out
+
+    def tile_keys(self) -> list[TileKey]:
+        """Keys (tx, ty) of all tiles, sorted by (ty, tx) (raster order)."""
+        return sorted(self._tiles, key=lambda k: (k[1], k[0]))
+
+    def tile_region(self, key: TileKey) -> tuple[int, int, int, int]:
+        """Mosaic-pixel region (x0, y0, x1, y1) of tile ``key``, inclusive-exclusive."""
+        t = self._tile_size
+        return key[0] * t, key[1] * t, (key[0] + 1) * t, (key[1] + 1) * t
+
+    def frames_per_tile(self) -> dict[TileKey, int]:
+        """How many painted frames wrote into each tile."""
+        return {k: t.frames for k, t in self._tiles.items()}
+
+    @property
+    def memory_bytes(self) -> int:
+        """Bytes held by tile arrays."""
+        return sum(t.nbytes for t in self._tiles.values())
+
+    def bounds(self) -> tuple[int, int, int, int]:
+        """(x0, y0, x1, y1) mosaic pixels with non-zero weight, inclusive-exclusive.
+
+        (0, 0, 0, 0) while nothing is painted.
+        """
+        return self._bounds if self._bounds is not None else (0, 0, 0, 0)
+
+    # ------------------------------------------------------------------ paint
+    def _as_image(self, image: np.ndarray) -> np.ndarray:
+        if not isinstance(image, np.ndarray):
+            msg = f'image must be a numpy array, got {type(image).__name__}.'
+            raise CanvasError(msg)
+        if not np.issubdtype(image.dtype, np.floating):
+            msg = (f'image dtype {image.dtype} is not floating point; convert it to float32 in [0, 1] '
+                   '(e.g. core.image_ops.to_float01).')
+            raise CanvasError(msg)
+        if image.ndim == 2 and self._channels == 1:
+            image = image[:, :, None]
+        if image.ndim != 3 or image.shape[2] != self._channels:
+            msg = (f'image shape {image.shape} does not match the canvas: expected (H, W, {self._channels})'
+                   + (' or (H, W)' if self._channels == 1 else '') + '.')
+            raise CanvasError(msg)
+        if image.shape[0] < 1 or image.shape[1] < 1:
+            msg = f'image shape {image.shape} is empty.'
+            raise CanvasError(msg)
+        return np.ascontiguousarray(image, dtype=np.float32)
+
+    def _as_mask(self, mask: np.ndarray | None, img: np.ndarray) -> np.ndarray | None:
+        """Valid-pixel mask (bool (H, W)) or None when every pixel is valid and finite."""
+        valid = None
+        if mask is not None:
+            mask = np.asarray(mask)
+            if mask.shape != img.shape[:2]:
+                msg = f'mask shape {mask.shape} differs from the image shape {img.shape[:2]}.'
+                raise CanvasError(msg)
+            valid = mask.astype(bool)
+        if not np.isfinite(img.sum(dtype=np.float64)):  # fast path: one sum, full check only if needed
+            finite = np.isfinite(img).all(axis=2)
+            if not finite.all():
+                valid = finite if valid is None else valid & finite
+        return valid
+
+    def _as_homography(self, mosaic_h_frame: np.ndarray, w: int, h: int) -> np.ndarray:
+        """Checked float64 homography with positive projective depth over the frame."""
+        m = np.asarray(mosaic_h_frame, dtype=np.float64)
+        if m.shape != (3, 3):
+            msg = f'mosaic_H_frame must be a 3x3 matrix, got shape {m.shape}.'
+            raise CanvasError(msg)
+        if not np.isfinite(m).all():
+            msg = f'mosaic_H_frame has non-finite entries:\n{m}\nthe registration or chain diverged; skip this frame.'
+            raise CanvasError(msg)
+        if not np.abs(m).max() > 0:
+            msg = 'mosaic_H_frame is the zero matrix; skip this frame.'
+            raise CanvasError(msg)
+        corners = np.array([[-1.0, -1.0], [w, -1.0], [w, h], [-1.0, h]])
+        _, depth = _project(m, corners)
+        if (depth < 0).all():
+            m = -m
+            depth = -depth
+        tol = 1e-9 * np.abs(depth).max()
+        if not (depth > tol).all():
+            msg = ('mosaic_H_frame maps part of the frame beyond the horizon (the projective depth '
+                   f'changes sign over the frame: {depth.tolist()}); the homography is absurd, skip this frame.')
+            raise CanvasError(msg)
+        pts, _ = _project(m, corners)
+        x, y = pts[:, 0], pts[:, 1]
+        area = 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
+        if not area > 1e-6 * (w + 1) * (h + 1):
+            msg = f'mosaic_H_frame is (nearly) singular, it collapses the frame to area {area:.3g} px^2:\n{m}\nskip this frame.'
+            raise CanvasError(msg)
+        return m
+
+    def paint(
+        self,
+        image: np.ndarray,
+        mosaic_H_frame: np.ndarray,  # noqa: N803 - frames in the name
+        *,
+        mask: np.ndarray | None = None,
+    ) -> PaintResult:
+        """Warp a frame into the canvas and accumulate it with its feather weight.
+
+        Args:
+            image: float32 (H, W, C) or, for C == 1, (H, W); values nominally in [0, 1].
+                Non-finite pixels are treated as invalid.
+            mosaic_H_frame: (3, 3) float64 homography from frame pixels to mosaic pixels (pixel
+                centres at integers): frame pixel (u, v) lands at ``mosaic_H_frame @ (u, v, 1)``.
+            mask: optional bool (H, W), True where the pixel is valid; invalid pixels weigh 0.
+
+        Returns:
+            PaintResult: the frame index, the tiles written, the footprint and its bbox.
+
+        Raises:
+            CanvasError (a ValueError): bad image or mask, or an absurd homography (non-finite,
+            singular, crossing the horizon, footprint bbox larger than ``max_area_ratio`` times
+            the frame or making the canvas exceed ``max_canvas_side_px``).
+        """
+        img = self._as_image(image)
+        h, w = img.shape[:2]
+        m = self._as_homography(mosaic_H_frame, w, h)
+        valid = self._as_mask(mask, img)
+
+        footprint, _ = _project(m, np.array([[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5], [-0.5, h - 0.5]]))
+        # Bilinear sampling gives non-zero weight to mosaic pixels mapping inside (-1, W) x (-1, H).
+        support, _ = _project(m, np.array([[-1.0, -1.0], [w, -1.0], [w, h], [-1.0, h]]))
+        lo = support.min(axis=0)
+        hi = support.max(axis=0)
+        bw_f, bh_f = hi[0] - lo[0], hi[1] - lo[1]
+        if bw_f * bh_f > self._max_area_ratio * max(w * h, 64):
+            msg = (f'the footprint of a {w}x{h} frame spans {bw_f:.0f}x{bh_f:.0f} mosaic pixels, more than '
+                   f'{self._max_area_ratio:g} times the frame area; mosaic_H_frame is absurd:\n{m}\n'
+                   'skip this frame (or raise max_area_ratio if such a zoom is intended).')
+            raise CanvasError(msg)
+        x0, y0 = math.floor(lo[0]), math.floor(lo[1])
+        x1, y1 = math.floor(hi[0]) + 1, math.floor(hi[1]) + 1
+        ux0, uy0, ux1, uy1 = (x0, y0, x1, y1) if self._bounds is None else (
+            min(x0, self._bounds[0]), min(y0, self._bounds[1]), max(x1, self._bounds[2]), max(y1, self._bounds[3]))
+        if max(ux1 - ux0, uy1 - uy0) > self._max_side:
+            msg = (f'painting this frame would make the canvas {ux1 - ux0}x{uy1 - uy0} px, beyond '
+                   f'max_canvas_side_px={self._max_side} (footprint bbox x [{x0}, {x1}), y [{y0}, {y1})); '
+                   'the chain has drifted or the homography is absurd: skip the frame or start a new segment.')
+            raise CanvasError(msg)
+
+        weight = feather_weight(h, w, profile=self._profile, power=self._power, mask=valid)
+        if valid is not None:
+            img = _fill_invalid(img, valid)
+        bw, bh = x1 - x0, y1 - y0
+        box_h_frame = np.array([[1.0, 0.0, -x0], [0.0, 1.0, -y0], [0.0, 0.0, 1.0]]) @ m
+        src = img[:, :, 0] if self._channels == 1 else img
+        img_w = cv2.warpPerspective(src, box_h_frame, (bw, bh), flags=cv2.INTER_LINEAR,
+                                    borderMode=cv2.BORDER_REPLICATE).reshape(bh, bw, self._channels)
+        w_w = cv2.warpPerspective(weight, box_h_frame, (bw, bh), flags=cv2.INTER_LINEAR,
+                                  borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+        index = self._frames
+        self._frames += 1
+        cols = np.flatnonzero(w_w.any(axis=0))
+        rows = np.flatnonzero(w_w.any(axis=1))
+        if cols.size == 0:
+            return PaintResult(index, (), footprint, (0, 0, 0, 0))
+        # Tight box of non-zero weight, in box coordinates.
+        c0, c1, r0, r1 = int(cols[0]), int(cols[-1]) + 1, int(rows[0]), int(rows[-1]) + 1
+        multiband = self._blend == 'multiband'
+        wimg = img_w * w_w[..., None] if multiband else np.multiply(img_w, w_w[..., None], out=img_w)
+
+        t = self._tile_size
+        touched: list[TileKey] = []
+        gx0, gy0, gx1, gy1 = x0 + c0, y0 + r0, x0 + c1, y0 + r1
+        for ty in range(gy0 // t, (gy1 - 1) // t + 1):
+            ys, ye = max(gy0, ty * t), min(gy1, (ty + 1) * t)
+            for tx in range(gx0 // t, (gx1 - 1) // t + 1):
+                xs, xe = max(gx0, tx * t), min(gx1, (tx + 1) * t)
+                box = (slice(ys - y0, ye - y0), slice(xs - x0, xe - x0))
+                sub_w = w_w[box]
+                if not sub_w.any():
+                    continue
+                key = (tx, ty)
+                tile = self._tiles.get(key)
+                if tile is None:
+                    tile = self._tiles[key] = _Tile(t, self._channels, multiband=multiband)
+                loc = (slice(ys - ty * t, ye - ty * t), slice(xs - tx * t, xe - tx * t))
+                tile.acc[loc] += wimg[box]
+                tile.wsum[loc] += sub_w
+                if multiband:
+                    assert tile.best is not None and tile.best_w is not None and tile.best_id is not None
+                    best_w = tile.best_w[loc]
+                    upd = sub_w > best_w  # eq. 4.7: the frame of largest weight wins; ties keep the first
+                    if upd.any():
+                        np.copyto(tile.best[loc], img_w[box], where=upd[..., None])
+                        np.copyto(best_w, sub_w, where=upd)
+                        tile.best_id[loc][upd] = index
+                tile.frames += 1
+                touched.append(key)
+        self._touched.update(touched)
+        bbox = (gx0, gy0, gx1, gy1)
+        self._bounds = bbox if self._bounds is None else (
+            min(gx0, self._bounds[0]), min(gy0, self._bounds[1]),
+            max(gx1, self._bounds[2]), max(gy1, self._bounds[3]))
+        return PaintResult(index, tuple(sorted(touched, key=lambda k: (k[1], k[0]))), footprint, bbox)
+
+    # ------------------------------------------------------------------ render
+    def _region(self, region: tuple[int, int, int, int] | None) -> tuple[int, int, int, int]:
+        if region is None:
+            return self.bounds()
+        if len(region) != 4 or any(int(v) != v for v in region):
+            msg = f'region must be four integers (x0, y0, x1, y1), got {region!r}.'
+            raise CanvasError(msg)
+        x0, y0, x1, y1 = (int(v) for v in region)
+        if x1 < x0 or y1 < y0:
+            msg = f'region {region!r} is inverted: need x0 <= x1 and y0 <= y1 (inclusive-exclusive).'
+            raise CanvasError(msg)
+        if max(x1 - x0, y1 - y0) > self._max_side:
+            msg = f'region {region!r} is larger than max_canvas_side_px={self._max_side}; render it in pieces.'
+            raise CanvasError(msg)
+        return x0, y0, x1, y1
+
+    def _keys_in(self, x0: int, y0: int, x1: int, y1: int) -> list[TileKey]:
+        t = self._tile_size
+        if x1 <= x0 or y1 <= y0:
+            return []
+        kx0, ky0, kx1, ky1 = x0 // t, y0 // t, (x1 - 1) // t, (y1 - 1) // t
+        if (kx1 - kx0 + 1) * (ky1 - ky0 + 1) <= len(self._tiles):
+            return [(kx, ky) for ky in range(ky0, ky1 + 1) for kx in range(kx0, kx1 + 1) if (kx, ky) in self._tiles]
+        return [k for k in self._tiles if kx0 <= k[0] <= kx1 and ky0 <= k[1] <= ky1]
+
+    def _gather(self, region: tuple[int, int, int, int], names: tuple[str, ...]) -> list[np.ndarray]:
+        """Tile arrays ``names`` assembled over ``region``; zeros (best_id: -1) where no tile."""
+        x0, y0, x1, y1 = region
+        h, w = y1 - y0, x1 - x0
+        shapes = {'acc': (h, w, self._channels), 'best': (h, w, self._channels),
+                  'wsum': (h, w), 'best_w': (h, w), 'best_id': (h, w)}
+        outs = [np.full(shapes[n], -1, np.int32) if n == 'best_id' else np.zeros(shapes[n], np.float32)
+                for n in names]
+        t = self._tile_size
+        for kx, ky in self._keys_in(x0, y0, x1, y1):
+            tile = self._tiles[(kx, ky)]
+            xs, xe = max(x0, kx * t), min(x1, (kx + 1) * t)
+            ys, ye = max(y0, ky * t), min(y1, (ky + 1) * t)
+            dst = (slice(ys - y0, ye - y0), slice(xs - x0, xe - x0))
+            src = (slice(ys - ky * t, ye - ky * t), slice(xs - kx * t, xe - kx * t))
+            for out, n in zip(outs, names):
+                out[dst] = getattr(tile, n)[src]
+        return outs
+
+    def weights(self, region: tuple[int, int, int, int] | None = None) -> np.ndarray:
+        """Feather weight sum ``sum_i W_H^i``, float32 (h, w), over ``region`` (default: bounds)."""
+        return self._gather(self._region(region), ('wsum',))[0]
+
+    def render(self, region: tuple[int, int, int, int] | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The blended mosaic over ``region`` = (x0, y0, x1, y1) mosaic pixels (default: ``bounds()``).
+
+        Returns ``(image, covered)``: image float32 (h, w, C), or (h, w) when C == 1, with
+        ``background`` where nothing is painted; covered bool (h, w), True where some frame put
+        non-zero weight. Image pixel (i, j) is mosaic pixel (x0 + j, y0 + i).
+
+        Feather: ``sum_i W_H^i I_H^i / sum_i W_H^i``. Multiband: see :mod:`.blend`; the result may
+        overshoot the input range slightly at strong edges near seams. Its pyramids run on a grid
+        fixed in mosaic coordinates over the region plus a margin, in blocks of RENDER_BLOCK_PX, so
+        a pixel renders nearly the same (~1e-4) whatever region it is rendered in, as long as the
+        band count is the same (fix ``bands`` for that; automatic bands follow the region size).
+        """
+        x0, y0, x1, y1 = self._region(region)
+        h, w = y1 - y0, x1 - x0
+        if self._blend == 'feather' or h == 0 or w == 0:
+            acc, wsum = self._gather((x0, y0, x1, y1), ('acc', 'wsum'))
+            covered = wsum > 0
+            out = self._feather(acc, wsum, covered)
+        else:
+            bands = self._bands or auto_bands(h, w)
+            out = np.empty((h, w, self._channels), np.float32)
+            covered = np.empty((h, w), bool)
+            for by in range(y0, y1, RENDER_BLOCK_PX):
+                for bx in range(x0, x1, RENDER_BLOCK_PX):
+                    bx1, by1 = min(bx + RENDER_BLOCK_PX, x1), min(by + RENDER_BLOCK_PX, y1)
+                    o, c = self._render_multiband((bx, by, bx1, by1), bands)
+                    out[by - y0:by1 - y0, bx - x0:bx1 - x0] = o
+                    covered[by - y0:by1 - y0, bx - x0:bx1 - x0] = c
+            out[~covered] = self._background
+        if self._channels == 1:
+            out = out[:, :, 0]
+        return out, covered
+
+    def _feather(self, acc: np.ndarray, wsum: np.ndarray, covered: np.ndarray) -> np.ndarray:
+        out = np.full(acc.shape, self._background, np.float32)
+        np.divide(acc, wsum[..., None], out=out, where=covered[..., None])
+        return out
+
+    def _render_multiband(self, region: tuple[int, int, int, int], bands: int) -> tuple[np.ndarray, np.ndarray]:
+        """Multiband render of ``region`` with ``bands`` levels.
+
+        The pyramids run over the region grown by MULTIBAND_MARGIN * 2**bands pixels and snapped to
+        multiples of 2**bands in mosaic coordinates, so every render samples the same pyramid grid
+        and a region renders the same (to ~1e-5) alone, inside a larger region or in blocks.
+        """
+        x0, y0, x1, y1 = region
+        step = 2**bands
+        margin = MULTIBAND_MARGIN * step
+        ex0, ey0 = (x0 - margin) // step * step, (y0 - margin) // step * step
+        ex1, ey1 = -((-(x1 + margin)) // step) * step, -((-(y1 + margin)) // step) * step
+        acc, wsum, best, best_id = self._gather((ex0, ey0, ex1, ey1), ('acc', 'wsum', 'best', 'best_id'))
+        covered = wsum > 0
+        feather = np.zeros(acc.shape, np.float32)
+        np.divide(acc, wsum[..., None], out=feather, where=covered[..., None])
+        out = multiband_blend(feather, best, best_id, bands)
+        crop = (slice(y0 - ey0, y1 - ey0), slice(x0 - ex0, x1 - ex0))
+        return out[crop], covered[crop]

@@ -1,0 +1,38 @@
+"""Mosaic segments: the frames chained into one common plane (eq. 4.6) and their canvas.
+
+A frame that fails to register does not smear the mosaic: it is held as an orphan. The next frame
+is tried against the last good frame first (a single bad frame is skipped), then against the
+orphan (the scene changed: the orphan starts a new segment with the next frame). Segment planes
+are the pixel plane of their first frame.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .canvas import TiledCanvas
+from .config import MosaicConfig
+
+__all__ = ['Segment']
+
+
+@dataclass
+class Segment:
+    """One connected mosaic: frame indices and their seg_H_frame homographies, and the canvas."""
+
+    index: int
+    canvas: TiledCanvas
+    frames: list[int] = field(default_factory=list)
+    seg_H_frames: dict[int, np.ndarray] = field(default_factory=dict)
+
+    @classmethod
+    def create(cls, index: int, channels: int, config: MosaicConfig) -> Segment:
+        return cls(index, TiledCanvas(channels, tile_size=config.tile_size, blend=config.blend,
+                                      max_canvas_side_px=config.max_canvas_side_px))
+
+    def add(self, frame_index: int, image: np.ndarray, seg_H_frame: np.ndarray) -> None:  # noqa: N803
+        """Paint a frame (float32 (H, W, C) in [0, 1]) into the segment at seg_H_frame."""
+        self.canvas.paint(image, seg_H_frame)
+        self.frames.append(frame_index)
+        self.seg_H_frames[frame_index] = seg_H_frame

@@ -1,0 +1,7 @@
+"""Frame-to-frame registration: features, matching, robust homography estimation."""
+from __future__ import annotations
+
+from .registrar import Features, Registrar, Registration, RegistrationConfig
+from .validity import check_homography
+
+__all__ = ['Features', 'Registrar', 'Registration', 'RegistrationConfig', 'check_homography']

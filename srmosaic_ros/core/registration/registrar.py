@@ -1,0 +1,218 @@
+"""Registrar: the homography between consecutive frames (Table 1 of the reference).
+
+First version, OpenCV based: SIFT keypoints (sub-pixel by construction), ratio-test + mutual
+nearest-neighbour matching, MAGSAC++ robust estimation, least-squares re-estimation on all inliers
+(Levenberg-Marquardt on the reprojection error, inside cv2.findHomography), one round of guided
+matching with the estimate. The torch implementation of the registration issue replaces the
+internals behind the same interface.
+
+Convention: prev_H_cur maps current-frame pixels to previous-frame pixels, x right, y down, pixel
+centres at integers.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, fields
+
+import cv2
+import numpy as np
+
+from ..image_ops import to_gray_u8
+from .validity import check_homography
+
+__all__ = ['Features', 'Registrar', 'Registration', 'RegistrationConfig']
+
+
+@dataclass(frozen=True)
+class RegistrationConfig:
+    """Registration settings; the field names are the keys under `registration.` in params/*.yaml."""
+
+    max_features: int = 1000
+    contrast_threshold: float = 0.02
+    ratio: float = 0.8
+    ransac_threshold_px: float = 1.5
+    ransac_confidence: float = 0.999
+    ransac_max_iterations: int = 5000
+    min_inliers: int = 15
+    min_inlier_ratio: float = 0.15
+    max_rms_px: float = 1.5
+    max_scale_change: float = 1.6
+    max_perspective: float = 0.3
+    guided_radius_px: float = 3.0
+
+    def __post_init__(self) -> None:
+        checks = {
+            'max_features': self.max_features >= 8,
+            'contrast_threshold': 0.0 < self.contrast_threshold < 1.0,
+            'ratio': 0.0 < self.ratio <= 1.0,
+            'ransac_threshold_px': self.ransac_threshold_px > 0.0,
+            'ransac_confidence': 0.0 < self.ransac_confidence < 1.0,
+            'ransac_max_iterations': self.ransac_max_iterations >= 1,
+            'min_inliers': self.min_inliers >= 4,
+            'min_inlier_ratio': 0.0 <= self.min_inlier_ratio <= 1.0,
+            'max_rms_px': self.max_rms_px > 0.0,
+            'max_scale_change': self.max_scale_change >= 1.0,
+            'max_perspective': self.max_perspective > 0.0,
+            'guided_radius_px': self.guided_radius_px >= 0.0,
+        }
+        bad = [name for name, ok in checks.items() if not ok]
+        if bad:
+            values = ', '.join(f'{name}={getattr(self, name)!r}' for name in bad)
+            msg = f'invalid registration settings: {values}; see params/default.yaml for the valid ranges.'
+            raise ValueError(msg)
+
+    @classmethod
+    def keys(cls) -> list[str]:
+        return [f.name for f in fields(cls)]
+
+
+@dataclass
+class Features:
+    """Keypoints and descriptors of one frame.
+
+    keypoints_px: (N, 2) float32 (x, y) pixel positions; descriptors: (N, D) float32;
+    size: (width, height) of the frame.
+    """
+
+    keypoints_px: np.ndarray
+    descriptors: np.ndarray
+    size: tuple[int, int]
+
+    def __len__(self) -> int:
+        return len(self.keypoints_px)
+
+
+@dataclass(frozen=True)
+class Registration:
+    """Result of registering the current frame to the previous one.
+
+    prev_H_cur: (3, 3) float64, current pixels -> previous pixels (None when ok is False and no
+    estimate exists). covariance: (8, 8) covariance of (h00..h21) with h22 = 1, or None when the
+    registrar does not estimate it. rms_px: RMS transfer error of the inliers in pixels.
+    """
+
+    ok: bool
+    prev_H_cur: np.ndarray | None
+    matches: int = 0
+    inliers: int = 0
+    rms_px: float = float('nan')
+    reason: str = ''
+    covariance: np.ndarray | None = None
+    time_s: float = 0.0
+    extras: dict[str, float] = field(default_factory=dict)
+
+
+def _transfer(H: np.ndarray, pts: np.ndarray) -> np.ndarray:  # noqa: N803
+    ph = np.c_[pts, np.ones(len(pts))] @ H.T
+    return ph[:, :2] / ph[:, 2:3]
+
+
+class Registrar:
+    """Detects features and registers frame pairs. Stateless between calls: callers cache Features."""
+
+    def __init__(self, config: RegistrationConfig | None = None) -> None:
+        self.config = config or RegistrationConfig()
+        self._sift = cv2.SIFT_create(nfeatures=self.config.max_features,
+                                     contrastThreshold=self.config.contrast_threshold)
+        self._matcher = cv2.BFMatcher(cv2.NORM_L2)
+
+    def describe(self, image: np.ndarray) -> Features:
+        """Features of an edge image ((H, W) or (H, W, 3), uint8/uint16/float)."""
+        gray = to_gray_u8(image)
+        kps, desc = self._sift.detectAndCompute(gray, None)
+        pts = np.array([kp.pt for kp in kps], dtype=np.float32).reshape(-1, 2)
+        if desc is None:
+            desc = np.zeros((0, 128), dtype=np.float32)
+        return Features(pts, desc.astype(np.float32), (gray.shape[1], gray.shape[0]))
+
+    def _putative(self, prev: Features, cur: Features) -> tuple[np.ndarray, np.ndarray]:
+        """Ratio-test matches that are also mutual nearest neighbours: (M,) prev and cur indices."""
+        if len(prev) < 2 or len(cur) < 2:
+            return np.zeros(0, int), np.zeros(0, int)
+        fwd = self._matcher.knnMatch(cur.descriptors, prev.descriptors, k=2)
+        bwd = self._matcher.match(prev.descriptors, cur.descriptors)
+        back = {m.queryIdx: m.trainIdx for m in bwd}
+        ci, pi = [], []
+        for pair in fwd:
+            if len(pair) < 2:
+                continue
+            best, second = pair
+            if best.distance < self.config.ratio * second.distance and back.get(best.trainIdx) == best.queryIdx:
+                ci.append(best.queryIdx)
+                pi.append(best.trainIdx)
+        return np.asarray(pi, int), np.asarray(ci, int)
+
+    def _guided(self, prev: Features, cur: Features, prev_H_cur: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # noqa: N803
+        """Guided matching (Table 1, step 5): nearest descriptor among prev keypoints within a radius of the transfer."""
+        radius = self.config.guided_radius_px
+        pred = _transfer(prev_H_cur, cur.keypoints_px.astype(np.float64))
+        d2 = ((pred[:, None, :] - prev.keypoints_px[None, :, :].astype(np.float64)) ** 2).sum(-1)
+        near = d2 <= radius * radius
+        if not near.any():
+            return np.zeros(0, int), np.zeros(0, int)
+        a, b = cur.descriptors, prev.descriptors
+        desc_d = (a * a).sum(1)[:, None] + (b * b).sum(1)[None, :] - 2.0 * (a @ b.T)
+        desc_d = np.where(near, desc_d, np.inf)
+        pi = desc_d.argmin(axis=1)
+        ci = np.arange(len(cur))
+        keep = np.isfinite(desc_d[ci, pi])
+        # Mutual: each prev keypoint used once (the closest descriptor wins).
+        ci, pi = ci[keep], pi[keep]
+        order = np.argsort(desc_d[ci, pi])
+        _, first = np.unique(pi[order], return_index=True)
+        sel = order[first]
+        return pi[sel], ci[sel]
+
+    def register(self, prev: Features, cur: Features) -> Registration:
+        """Estimate prev_H_cur from the features of two frames."""
+        t0 = time.perf_counter()
+        cfg = self.config
+        pi, ci = self._putative(prev, cur)
+        n_matches = len(pi)
+        if n_matches < max(cfg.min_inliers, 4):
+            return Registration(False, None, n_matches, 0, reason=f'too few matches ({n_matches} < {cfg.min_inliers}); '
+                                'textureless frame or too little overlap', time_s=time.perf_counter() - t0)
+        src = cur.keypoints_px[ci].astype(np.float64)
+        dst = prev.keypoints_px[pi].astype(np.float64)
+        H, mask = cv2.findHomography(src, dst, cv2.USAC_MAGSAC, cfg.ransac_threshold_px,  # noqa: N806
+                                     maxIters=cfg.ransac_max_iterations, confidence=cfg.ransac_confidence)
+        if H is None or mask is None:
+            return Registration(False, None, n_matches, 0, reason='robust estimation found no consensus',
+                                time_s=time.perf_counter() - t0)
+        inl = mask.ravel().astype(bool)
+        # Optimal estimation (Table 1, step 4) and guided matching (step 5), iterated while the
+        # inlier set grows.
+        for _ in range(3):
+            if inl.sum() < 4:
+                break
+            H_ls, _ = cv2.findHomography(src[inl], dst[inl], 0)  # noqa: N806
+            if H_ls is not None:
+                H = H_ls  # noqa: N806
+            if cfg.guided_radius_px <= 0:
+                break
+            gpi, gci = self._guided(prev, cur, H)
+            if len(gpi) < 4:
+                break
+            gsrc = cur.keypoints_px[gci].astype(np.float64)
+            gdst = prev.keypoints_px[gpi].astype(np.float64)
+            err = np.linalg.norm(_transfer(H, gsrc) - gdst, axis=1)
+            ginl = err <= cfg.ransac_threshold_px
+            if ginl.sum() <= inl.sum():
+                break
+            src, dst, inl = gsrc, gdst, ginl
+            n_matches = max(n_matches, len(gpi))
+        H = H / H[2, 2]  # noqa: N806
+        err = np.linalg.norm(_transfer(H, src[inl]) - dst[inl], axis=1)
+        n_inl = int(inl.sum())
+        rms = float(np.sqrt(np.mean(err ** 2))) if n_inl else float('nan')
+        reason = ''
+        if n_inl < cfg.min_inliers:
+            reason = f'too few inliers ({n_inl} < {cfg.min_inliers})'
+        elif n_inl < cfg.min_inlier_ratio * n_matches:
+            reason = f'inlier ratio {n_inl / n_matches:.2f} below {cfg.min_inlier_ratio:.2f}'
+        elif rms > cfg.max_rms_px:
+            reason = f'inlier RMS {rms:.2f} px above {cfg.max_rms_px:.2f} px'
+        else:
+            reason = check_homography(H, cur.size[0], cur.size[1], max_scale_change=cfg.max_scale_change,
+                                      max_perspective=cfg.max_perspective)
+        return Registration(not reason, H, n_matches, n_inl, rms, reason, None, time.perf_counter() - t0)

@@ -1,0 +1,67 @@
+"""Plausibility checks of an inter-frame homography.
+
+A homography between consecutive UAS frames is close to a similarity: small perspective, a scale
+change of at most a few tens of percent, no fold-over. Anything else is a misregistration and must
+be reported (Registration.ok = False) rather than painted.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ['check_homography', 'frame_corners']
+
+
+def frame_corners(width: int, height: int) -> np.ndarray:
+    """(4, 2) float64 corners of a width x height image, pixel centres at integers, clockwise."""
+    return np.array(
+        [[0.0, 0.0], [width - 1.0, 0.0], [width - 1.0, height - 1.0], [0.0, height - 1.0]],
+    )
+
+
+def _apply(H: np.ndarray, pts: np.ndarray) -> np.ndarray:  # noqa: N803
+    ph = np.c_[pts, np.ones(len(pts))] @ H.T
+    return ph[:, :2] / ph[:, 2:3]
+
+
+def check_homography(
+    prev_H_cur: np.ndarray,  # noqa: N803
+    width: int,
+    height: int,
+    *,
+    max_scale_change: float = 1.6,
+    max_perspective: float = 0.3,
+) -> str:
+    """Return '' if prev_H_cur is plausible for consecutive frames, else the reason.
+
+    Args:
+        prev_H_cur: (3, 3) homography from current-frame pixels to previous-frame pixels.
+        width, height: current frame size in pixels.
+        max_scale_change: largest accepted area scale factor change (and its inverse), per side.
+        max_perspective: largest accepted relative change of the projective depth w = h20 x + h21 y + h22
+            over the frame (0.3 means w varies by at most 30% between corners).
+    """
+    H = np.asarray(prev_H_cur, dtype=np.float64)  # noqa: N806
+    if H.shape != (3, 3) or not np.all(np.isfinite(H)) or abs(H[2, 2]) < 1e-12:
+        return 'homography is not finite or has h22 = 0'
+    H = H / H[2, 2]  # noqa: N806
+    corners = frame_corners(width, height)
+    w = np.c_[corners, np.ones(4)] @ H[2]
+    if np.any(w <= 0):
+        return 'homography maps part of the frame through the horizon (w <= 0)'
+    if w.max() / w.min() > 1.0 + max_perspective:
+        return f'perspective change {w.max() / w.min() - 1.0:.2f} exceeds {max_perspective:.2f}'
+    warped = _apply(H, corners)
+    # Convexity and orientation of the warped quadrilateral: the cross products of consecutive
+    # edges must all share the sign of the original (a fold-over flips one of them).
+    edges = np.roll(warped, -1, axis=0) - warped
+    cross = edges[:, 0] * np.roll(edges, -1, axis=0)[:, 1] - edges[:, 1] * np.roll(edges, -1, axis=0)[:, 0]
+    if not (np.all(cross > 0) or np.all(cross < 0)):
+        return 'warped frame is not convex (fold-over)'
+    if np.all(cross < 0):
+        return 'homography mirrors the frame'
+    area = 0.5 * abs(np.sum(warped[:, 0] * np.roll(warped[:, 1], -1) - np.roll(warped[:, 0], -1) * warped[:, 1]))
+    area0 = (width - 1.0) * (height - 1.0)
+    side_scale = float(np.sqrt(area / area0))
+    if not (1.0 / max_scale_change <= side_scale <= max_scale_change):
+        return f'scale change {side_scale:.2f} outside [{1.0 / max_scale_change:.2f}, {max_scale_change:.2f}]'
+    return ''

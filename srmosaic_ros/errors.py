@@ -1,0 +1,45 @@
+"""One error hierarchy for the package.
+
+Every message says what was wrong and what to try. Offline commands turn any
+:class:`SrMosaicError` into a one-line message and a non-zero exit; nodes log it
+(throttled) and keep spinning.
+"""
+from __future__ import annotations
+
+__all__ = [
+    'SrMosaicError',
+    'ConfigError',
+    'MessageError',
+    'BagError',
+    'InputError',
+    'RegistrationError',
+    'SimulationError',
+]
+
+
+class SrMosaicError(Exception):
+    """Base of all errors raised on purpose by srmosaic_ros."""
+
+
+class ConfigError(SrMosaicError):
+    """A parameter or configuration file is invalid."""
+
+
+class MessageError(SrMosaicError):
+    """A ROS message cannot be converted (bad encoding, size mismatch, NaN field...)."""
+
+
+class BagError(SrMosaicError):
+    """A bag cannot be read or written (missing, truncated, corrupt, missing topic, unknown type)."""
+
+
+class InputError(SrMosaicError):
+    """An input file or argument is unusable (missing file, unreadable image...)."""
+
+
+class RegistrationError(SrMosaicError):
+    """Registration cannot proceed at all (not a single failed frame: that is Registration.ok=False)."""
+
+
+class SimulationError(SrMosaicError):
+    """A synthetic flight cannot be generated with the given settings."""

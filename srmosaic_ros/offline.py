@@ -1,0 +1,115 @@
+"""`srmosaic process`: run the pipeline over a recorded flight and write the file contracts."""
+from __future__ import annotations
+
+import collections
+import resource
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from .config import PipelineConfig
+from .io.bags import TopicConfig, read_flight
+from .io.mosaic_files import write_frames_csv, write_json, write_png
+from .pipeline import Pipeline, PipelineResult
+from .core.types import Frame
+
+__all__ = ['process_bag', 'write_outputs']
+
+
+def _peak_rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # Linux: kB
+
+
+def _translation(dx: float, dy: float) -> np.ndarray:
+    return np.array([[1.0, 0.0, dx], [0.0, 1.0, dy], [0.0, 0.0, 1.0]])
+
+
+def _preview(image: np.ndarray, max_side: int) -> np.ndarray:
+    import cv2
+
+    h, w = image.shape[:2]
+    scale = min(1.0, max_side / max(h, w))
+    if scale >= 1.0:
+        return image
+    return cv2.resize(image, (max(1, round(w * scale)), max(1, round(h * scale))), interpolation=cv2.INTER_AREA)
+
+
+def write_outputs(result: PipelineResult, out: Path, config: PipelineConfig, extra: dict[str, Any]) -> dict[str, Any]:
+    """Write mosaic.png (main segment), segments/, frames.csv, report.json. Returns the report."""
+    out.mkdir(parents=True, exist_ok=True)
+    main = result.main_segment
+    mosaic_H_seg = np.eye(3)  # noqa: N806
+    segments_report = []
+    for seg in result.segments:
+        x0, y0, x1, y1 = seg.canvas.bounds()
+        image, coverage = seg.canvas.render()
+        if seg is main:
+            mosaic_H_seg = _translation(-x0, -y0)  # noqa: N806
+            write_png(out / 'mosaic.png', image, coverage)
+            write_png(out / 'preview.png', _preview(np.where(coverage[..., None] if image.ndim == 3 else coverage,
+                                                             image, 0.0), config.mosaic.preview_max_side_px))
+            name = 'mosaic.png'
+        elif len(seg.frames) >= 2:
+            name = f'segments/segment_{seg.index:03d}.png'
+            write_png(out / name, image, coverage)
+        else:
+            name = ''
+        segments_report.append({'index': seg.index, 'frames': len(seg.frames), 'file': name,
+                                'size_px': [int(x1 - x0), int(y1 - y0)], 'origin_px': [int(x0), int(y0)]})
+    rows = []
+    for rec in result.records:
+        in_main = main is not None and rec.segment == main.index
+        reg = rec.registration
+        rows.append({
+            'stamp_ns': rec.stamp_ns,
+            'ok': in_main,
+            'inliers': reg.inliers if reg is not None else 0,
+            'rms_px': reg.rms_px if reg is not None else float('nan'),
+            'mosaic_H_frame': mosaic_H_seg @ rec.seg_H_frame if in_main else None,
+        })
+    write_frames_csv(out / 'frames.csv', rows)
+    failures = collections.Counter(rec.reason.split(' (')[0] for rec in result.records if not rec.painted)
+    regs = [rec.registration for rec in result.records if rec.registration is not None and rec.registration.ok]
+    report = {
+        'frames_in': len(result.records),
+        'frames_registered': int(sum(r['ok'] for r in rows)),
+        'frames_painted_any_segment': int(sum(rec.painted for rec in result.records)),
+        'segments': segments_report,
+        'failure_reasons': dict(failures),
+        'registration': {
+            'median_inliers': float(np.median([r.inliers for r in regs])) if regs else None,
+            'median_rms_px': float(np.median([r.rms_px for r in regs])) if regs else None,
+            'median_ms': float(np.median([r.time_s for r in regs]) * 1e3) if regs else None,
+        },
+        'telemetry': {'fixes': len(result.fixes), 'imu': len(result.imus)},
+        'config': {'device': config.device, 'registration': vars(config.registration), 'mosaic': vars(config.mosaic)},
+    }
+    report.update(extra)
+    return report
+
+
+def process_bag(path: Path, out: Path, config: PipelineConfig, *, topics: TopicConfig | None = None,
+                progress: bool = True) -> dict[str, Any]:
+    """Run the pipeline over a bag and write the outputs; returns the report (also in report.json)."""
+    t0 = time.perf_counter()
+    reader = read_flight(path, topics=topics or TopicConfig())
+    pipeline = Pipeline(config)
+    bar = tqdm(total=reader.frame_count, unit='frame', desc='process', disable=not progress)
+    with bar:
+        for item in reader:
+            pipeline.feed(item)
+            if isinstance(item, Frame):
+                bar.update(1)
+                bar.set_postfix(segments=len(pipeline.segments), refresh=False)
+    result = pipeline.finish()
+    report_extra = {'input': str(path), 'skipped_messages': dict(reader.skipped)}
+    report = write_outputs(result, out, config, report_extra)
+    wall = time.perf_counter() - t0
+    report['wall_s'] = round(wall, 3)
+    report['frames_per_s'] = round(len(result.records) / wall, 2) if wall > 0 else None
+    report['peak_rss_mb'] = round(_peak_rss_mb(), 1)
+    write_json(out / 'report.json', report)
+    return report

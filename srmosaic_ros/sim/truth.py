@@ -1,0 +1,205 @@
+"""Ground truth of a simulated flight and its JSON file (ground_truth.json).
+
+File layout (format_version 1), all numbers in SI units except angles in degrees:
+
+    format_version, generator
+    config:               every SimConfig option
+    world:                {path (relative to the repository when inside it), width_px, height_px,
+                           gsd_m, origin: {latitude_deg, longitude_deg, altitude_m},
+                           enu_H_world_px (3x3)}
+    camera:               intrinsics of the published (decimated) frames {width, height, fx, fy, cx, cy,
+                          distortion_model, distortion} (no distortion: plumb_bob, zeros)
+    camera_gsd_m:         nominal ground sampling of the published frames at the nominal altitude
+    covered_bbox_world_px [x_min, y_min, x_max, y_max] of all frame footprints
+    frames: [{index, stamp_ns, position_enu_m [3], camera_enu_m [3], latitude_deg, longitude_deg,
+              altitude_m, roll_deg, pitch_deg, yaw_deg (body in ENU, REP 103),
+              R_enu_from_cam (3x3), world_px_H_frame (3x3), prev_H_cur (3x3 or null)}]
+
+Homographies map pixel coordinates (x right, y down, pixel centres at integers), normalised to
+h33 = 1: world_px_H_frame takes frame pixels to world image pixels, prev_H_cur takes frame k
+pixels to frame k-1 pixels. position_enu_m is the body origin (where the GNSS fix is), camera_enu_m
+the optical centre.
+"""
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..core.types import CameraIntrinsics
+from ..errors import InputError
+
+__all__ = ['TRUTH_FORMAT_VERSION', 'FrameTruth', 'Truth', 'save_truth', 'load_truth']
+
+TRUTH_FORMAT_VERSION = 1
+
+
+@dataclass(frozen=True)
+class FrameTruth:
+    """Truth of one frame (see the module docstring for units and conventions)."""
+
+    index: int
+    stamp_ns: int
+    position_enu_m: np.ndarray
+    camera_enu_m: np.ndarray
+    latitude_deg: float
+    longitude_deg: float
+    altitude_m: float
+    roll_deg: float
+    pitch_deg: float
+    yaw_deg: float
+    R_enu_from_cam: np.ndarray  # noqa: N815
+    world_px_H_frame: np.ndarray  # noqa: N815
+    prev_H_cur: np.ndarray | None  # noqa: N815
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            'index': self.index,
+            'stamp_ns': self.stamp_ns,
+            'position_enu_m': [float(v) for v in self.position_enu_m],
+            'camera_enu_m': [float(v) for v in self.camera_enu_m],
+            'latitude_deg': self.latitude_deg,
+            'longitude_deg': self.longitude_deg,
+            'altitude_m': self.altitude_m,
+            'roll_deg': self.roll_deg,
+            'pitch_deg': self.pitch_deg,
+            'yaw_deg': self.yaw_deg,
+            'R_enu_from_cam': np.asarray(self.R_enu_from_cam).tolist(),
+            'world_px_H_frame': np.asarray(self.world_px_H_frame).tolist(),
+            'prev_H_cur': None if self.prev_H_cur is None else np.asarray(self.prev_H_cur).tolist(),
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> FrameTruth:
+        return cls(
+            index=int(d['index']),
+            stamp_ns=int(d['stamp_ns']),
+            position_enu_m=np.array(d['position_enu_m'], dtype=np.float64),
+            camera_enu_m=np.array(d['camera_enu_m'], dtype=np.float64),
+            latitude_deg=float(d['latitude_deg']),
+            longitude_deg=float(d['longitude_deg']),
+            altitude_m=float(d['altitude_m']),
+            roll_deg=float(d['roll_deg']),
+            pitch_deg=float(d['pitch_deg']),
+            yaw_deg=float(d['yaw_deg']),
+            R_enu_from_cam=np.array(d['R_enu_from_cam'], dtype=np.float64),
+            world_px_H_frame=np.array(d['world_px_H_frame'], dtype=np.float64),
+            prev_H_cur=None if d['prev_H_cur'] is None else np.array(d['prev_H_cur'], dtype=np.float64),
+        )
+
+
+@dataclass(frozen=True)
+class Truth:
+    """Ground truth of a whole flight (see the module docstring)."""
+
+    config: dict[str, Any]
+    world_path: str
+    world_size_px: tuple[int, int]
+    world_gsd_m: float
+    origin: tuple[float, float, float]  # (latitude_deg, longitude_deg, altitude_m) of the ENU origin
+    camera: CameraIntrinsics
+    camera_gsd_m: float
+    covered_bbox_world_px: tuple[float, float, float, float]
+    frames: list[FrameTruth] = field(default_factory=list)
+    format_version: int = TRUTH_FORMAT_VERSION
+
+    @property
+    def enu_H_world_px(self) -> np.ndarray:  # noqa: N802
+        """(3, 3) world pixel -> ground (east, north) in metres."""
+        g = self.world_gsd_m
+        cx, cy = (self.world_size_px[0] - 1) / 2.0, (self.world_size_px[1] - 1) / 2.0
+        return np.array([[g, 0.0, -g * cx], [0.0, -g, g * cy], [0.0, 0.0, 1.0]])
+
+    @property
+    def stamps_ns(self) -> list[int]:
+        return [f.stamp_ns for f in self.frames]
+
+    def to_dict(self) -> dict[str, Any]:
+        cam = self.camera
+        return {
+            'format_version': self.format_version,
+            'generator': 'srmosaic simulate',
+            'config': self.config,
+            'world': {
+                'path': self.world_path,
+                'width_px': int(self.world_size_px[0]),
+                'height_px': int(self.world_size_px[1]),
+                'gsd_m': self.world_gsd_m,
+                'origin': {'latitude_deg': self.origin[0], 'longitude_deg': self.origin[1],
+                           'altitude_m': self.origin[2]},
+                'enu_H_world_px': self.enu_H_world_px.tolist(),
+            },
+            'camera': {'width': cam.width, 'height': cam.height, 'fx': cam.fx, 'fy': cam.fy, 'cx': cam.cx,
+                       'cy': cam.cy, 'distortion_model': cam.distortion_model,
+                       'distortion': [float(v) for v in cam.distortion]},
+            'camera_gsd_m': self.camera_gsd_m,
+            'covered_bbox_world_px': [float(v) for v in self.covered_bbox_world_px],
+            'frames': [f.to_dict() for f in self.frames],
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Truth:
+        version = d.get('format_version')
+        if version != TRUTH_FORMAT_VERSION:
+            msg = (f'ground truth format_version {version!r} is not supported (this srmosaic reads '
+                   f'{TRUTH_FORMAT_VERSION}); regenerate it with `srmosaic simulate`.')
+            raise InputError(msg)
+        world, cam, origin = d['world'], d['camera'], d['world']['origin']
+        return cls(
+            config=dict(d['config']),
+            world_path=str(world['path']),
+            world_size_px=(int(world['width_px']), int(world['height_px'])),
+            world_gsd_m=float(world['gsd_m']),
+            origin=(float(origin['latitude_deg']), float(origin['longitude_deg']), float(origin['altitude_m'])),
+            camera=CameraIntrinsics(width=int(cam['width']), height=int(cam['height']), fx=float(cam['fx']),
+                                    fy=float(cam['fy']), cx=float(cam['cx']), cy=float(cam['cy']),
+                                    distortion_model=str(cam.get('distortion_model', '')),
+                                    distortion=tuple(float(v) for v in cam.get('distortion', ()))),
+            camera_gsd_m=float(d['camera_gsd_m']),
+            covered_bbox_world_px=tuple(float(v) for v in d['covered_bbox_world_px']),  # type: ignore[arg-type]
+            frames=[FrameTruth.from_dict(f) for f in d['frames']],
+            format_version=int(version),
+        )
+
+
+def save_truth(truth: Truth, path: str | os.PathLike[str]) -> None:
+    """Write ground_truth.json atomically (a temporary file renamed into place)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix='.' + path.name, suffix='.tmp', dir=path.parent)
+    try:
+        with os.fdopen(fd, 'w', encoding='utf-8') as f:
+            json.dump(truth.to_dict(), f, indent=1)
+            f.write('\n')
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def load_truth(path: str | os.PathLike[str]) -> Truth:
+    """Read a ground_truth.json (or the bag folder that holds one) written by ``srmosaic simulate``."""
+    p = Path(path)
+    if p.is_dir():
+        p = p / 'ground_truth.json'
+    try:
+        with p.open(encoding='utf-8') as f:
+            data = json.load(f)
+    except FileNotFoundError:
+        msg = (f'ground truth {str(p)!r} not found; `srmosaic simulate --out DIR` writes it as '
+               'DIR/ground_truth.json.')
+        raise InputError(msg) from None
+    except (OSError, ValueError) as exc:
+        msg = f'cannot read ground truth {str(p)!r}: {exc}; regenerate it with `srmosaic simulate`.'
+        raise InputError(msg) from None
+    try:
+        return Truth.from_dict(data)
+    except (KeyError, TypeError, ValueError) as exc:
+        msg = f'ground truth {str(p)!r} is malformed ({exc!r}); regenerate it with `srmosaic simulate`.'
+        raise InputError(msg) from None

@@ -1,0 +1,111 @@
+"""`srmosaic process` and `srmosaic evaluate` as a user runs them, on the bundled demo bag and bad input."""
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from srmosaic_ros.io.mosaic_files import FRAMES_CSV_HEADER, read_frames_csv
+
+ROOT = Path(__file__).resolve().parent.parent
+DEMO = ROOT / 'bags' / 'demo'
+
+
+def srmosaic(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, '-m', 'srmosaic_ros.cli', *args], capture_output=True, text=True,
+                          timeout=600)
+
+
+@pytest.fixture(scope='module')
+def demo_out(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp('demo_out')
+    run = srmosaic('process', str(DEMO), '--out', str(out), '--no-progress')
+    assert run.returncode == 0, run.stderr
+    return out
+
+
+def test_process_writes_the_file_contracts(demo_out):
+    with open(demo_out / 'frames.csv', newline='') as handle:
+        rows = list(csv.reader(handle))
+    assert rows[0] == FRAMES_CSV_HEADER
+    assert len(rows) == 61
+    report = json.loads((demo_out / 'report.json').read_text())
+    for key in ('frames_in', 'frames_registered', 'wall_s', 'peak_rss_mb'):
+        assert key in report
+    assert report['frames_in'] == 60
+    assert report['frames_registered'] >= 58
+    assert 0 < report['wall_s'] < 300
+    mosaic = cv2.imread(str(demo_out / 'mosaic.png'), cv2.IMREAD_UNCHANGED)
+    assert mosaic.ndim == 3 and mosaic.shape[2] == 4
+    # Every registered frame's footprint lies inside mosaic.png, and its centre pixel is covered.
+    for row in read_frames_csv(demo_out / 'frames.csv'):
+        if not row['ok']:
+            continue
+        c = row['mosaic_H_frame'] @ np.array([319.5, 239.5, 1.0])
+        x, y = c[:2] / c[2]
+        assert 0 <= x < mosaic.shape[1] and 0 <= y < mosaic.shape[0]
+        assert mosaic[int(round(y)), int(round(x)), 3] == 255
+
+
+def test_process_mosaic_matches_the_ground(demo_out):
+    """The mosaic's pixels show the ground: compare frame 30 re-rendered from mosaic.png with the bag's frame."""
+    from srmosaic_ros.io.bags import read_flight
+    from srmosaic_ros.core.types import Frame
+
+    rows = read_frames_csv(demo_out / 'frames.csv')
+    frames = [f for f in read_flight(DEMO) if isinstance(f, Frame)]
+    mosaic = cv2.cvtColor(cv2.imread(str(demo_out / 'mosaic.png'), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+    k = 30
+    back = cv2.warpPerspective(mosaic, rows[k]['mosaic_H_frame'], (640, 480),
+                               flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP)
+    diff = np.abs(back[20:-20, 20:-20].astype(float) - frames[k].image[20:-20, 20:-20].astype(float))
+    assert diff.mean() < 6.0  # noise sigma 2 + JPEG + blending of overlapping frames
+
+
+def test_evaluate_reports_corner_error_under_2px(demo_out):
+    run = srmosaic('evaluate', str(demo_out), '--truth', str(DEMO / 'ground_truth.json'), '--json')
+    assert run.returncode == 0, run.stderr
+    figures = json.loads(run.stdout)
+    assert figures['fraction_registered'] > 0.95
+    assert figures['corner_error_mean_px'] < 2.0
+    assert figures['pair_corner_error_mean_px'] < 0.3
+
+
+def test_missing_bag_is_a_clear_error(tmp_path):
+    run = srmosaic('process', str(tmp_path / 'nope'), '--out', str(tmp_path / 'out'))
+    assert run.returncode == 2
+    assert 'error' in run.stderr and 'Traceback' not in run.stderr
+    assert not (tmp_path / 'out' / 'mosaic.png').exists()
+
+
+def test_truncated_bag_is_a_clear_error(tmp_path):
+    bag = tmp_path / 'cut'
+    shutil.copytree(DEMO, bag)
+    db = next(bag.glob('*.db3'))
+    data = db.read_bytes()
+    db.write_bytes(data[: len(data) // 2])
+    run = srmosaic('process', str(bag), '--out', str(tmp_path / 'out'))
+    assert run.returncode == 2, run.stderr
+    assert 'Traceback' not in run.stderr
+    assert str(bag) in run.stderr or 'cut' in run.stderr
+
+
+def test_missing_topic_names_the_way_out(tmp_path):
+    run = srmosaic('process', str(DEMO), '--out', str(tmp_path / 'out'), '--image-topic', '/nope')
+    assert run.returncode == 2
+    assert '--image-topic' in run.stderr and 'Traceback' not in run.stderr
+
+
+def test_bad_params_file_refused(tmp_path):
+    params = tmp_path / 'p.yaml'
+    params.write_text('/**:\n  ros__parameters:\n    registration:\n      ratioo: 0.7\n')
+    run = srmosaic('process', str(DEMO), '--out', str(tmp_path / 'out'), '--params', str(params))
+    assert run.returncode == 2
+    assert 'unknown parameter' in run.stderr
