@@ -1,4 +1,4 @@
-"""`srmosaic` command line: process, evaluate, simulate.
+"""`srmosaic` command line: process, evaluate, simulate, launch, play, node.
 
 Every SrMosaicError ends the command with a one-line message on stderr and exit status 2;
 nothing half-written is left under a final file name.
@@ -84,18 +84,78 @@ def _add_simulate(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=sim_cli.run)
 
 
+def _split_ros_args(argv: list[str]) -> tuple[list[str], list[str]]:
+    """Split `... --ros-args ...` off the command line: rclpy takes what follows it."""
+    if '--ros-args' in argv:
+        i = argv.index('--ros-args')
+        return argv[:i], argv[i:]
+    return argv, []
+
+
+def _add_node(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser('node', help='run named nodes in this process (then --ros-args ...)')
+    p.add_argument('nodes', nargs='+', help='node names: mosaic')
+    p.set_defaults(func=_run_node)
+
+
+def _run_node(args: argparse.Namespace) -> int:
+    from .nodes.launcher import run_named_nodes
+
+    return run_named_nodes(args.nodes, ['srmosaic', *args.ros_args])
+
+
+def _add_launch(sub: argparse._SubParsersAction) -> None:
+    from .nodes import launcher
+
+    p = sub.add_parser('launch', help='start the graph (all nodes in one process, or a YAML description)',
+                       description=launcher.__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument('description', nargs='?', type=Path, help='YAML launch description (default: all nodes here)')
+    p.add_argument('--params', action='append', default=[], help='extra parameter file (repeatable)')
+    p.set_defaults(func=_run_launch)
+
+
+def _run_launch(args: argparse.Namespace) -> int:
+    from .nodes.launcher import launch
+
+    return launch(args.description, args.params, args.ros_args)
+
+
+def _add_play(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser('play', help='publish a bag on its topics (the stand-in for ros2 bag play)')
+    p.add_argument('bag', type=Path)
+    p.add_argument('--rate', type=float, default=1.0, help='playback speed factor (2 = twice real time)')
+    p.add_argument('--topics', nargs='+', help='only these topics')
+    p.add_argument('--loop', action='store_true', help='start again at the end (until Ctrl-C)')
+    p.add_argument('--delay', type=float, default=1.0, help='at most this many seconds to wait for a subscriber on every topic before playing')
+    p.set_defaults(func=_run_play)
+
+
+def _run_play(args: argparse.Namespace) -> int:
+    from .nodes.player import play_bag
+
+    n = play_bag(args.bag, rate=args.rate, topics=args.topics, start_delay_s=args.delay, loop=args.loop,
+                 args=['srmosaic', *args.ros_args])
+    print(f'published {n} messages from {args.bag}')
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog='srmosaic', description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest='command', required=True)
     _add_process(sub)
     _add_evaluate(sub)
     _add_simulate(sub)
+    _add_node(sub)
+    _add_launch(sub)
+    _add_play(sub)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    own, ros_args = _split_ros_args(list(sys.argv[1:] if argv is None else argv))
+    args = parser.parse_args(own)
+    args.ros_args = ros_args
     try:
         return int(args.func(args) or 0)
     except SrMosaicError as exc:

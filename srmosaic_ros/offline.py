@@ -16,10 +16,10 @@ from .io.mosaic_files import write_frames_csv, write_json, write_png
 from .pipeline import Pipeline, PipelineResult
 from .core.types import Frame
 
-__all__ = ['process_bag', 'write_outputs']
+__all__ = ['peak_rss_mb', 'preview_image', 'process_bag', 'write_outputs']
 
 
-def _peak_rss_mb() -> float:
+def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # Linux: kB
 
 
@@ -27,9 +27,11 @@ def _translation(dx: float, dy: float) -> np.ndarray:
     return np.array([[1.0, 0.0, dx], [0.0, 1.0, dy], [0.0, 0.0, 1.0]])
 
 
-def _preview(image: np.ndarray, max_side: int) -> np.ndarray:
+def preview_image(image: np.ndarray, coverage: np.ndarray, max_side: int) -> np.ndarray:
+    """The mosaic downscaled so that its longer side is at most max_side, uncovered pixels black."""
     import cv2
 
+    image = np.where(coverage[..., None] if image.ndim == 3 else coverage, image, 0.0).astype(np.float32)
     h, w = image.shape[:2]
     scale = min(1.0, max_side / max(h, w))
     if scale >= 1.0:
@@ -49,8 +51,7 @@ def write_outputs(result: PipelineResult, out: Path, config: PipelineConfig, ext
         if seg is main:
             mosaic_H_seg = _translation(-x0, -y0)  # noqa: N806
             write_png(out / 'mosaic.png', image, coverage)
-            write_png(out / 'preview.png', _preview(np.where(coverage[..., None] if image.ndim == 3 else coverage,
-                                                             image, 0.0), config.mosaic.preview_max_side_px))
+            write_png(out / 'preview.png', preview_image(image, coverage, config.mosaic.preview_max_side_px))
             name = 'mosaic.png'
         elif len(seg.frames) >= 2:
             name = f'segments/segment_{seg.index:03d}.png'
@@ -110,6 +111,6 @@ def process_bag(path: Path, out: Path, config: PipelineConfig, *, topics: TopicC
     wall = time.perf_counter() - t0
     report['wall_s'] = round(wall, 3)
     report['frames_per_s'] = round(len(result.records) / wall, 2) if wall > 0 else None
-    report['peak_rss_mb'] = round(_peak_rss_mb(), 1)
+    report['peak_rss_mb'] = round(peak_rss_mb(), 1)
     write_json(out / 'report.json', report)
     return report

@@ -25,13 +25,14 @@ from srmosaic_ros.core.types import CameraIntrinsics, Frame, GeoFix, ImuSample
 from srmosaic_ros.errors import BagError, MessageError
 
 if TYPE_CHECKING:
-    from collections.abc import Generator, Iterator, Mapping
+    from collections.abc import Generator, Iterable, Iterator, Mapping
     from types import TracebackType
 
     from rosbags.highlevel import AnyReader
     from rosbags.interfaces import Connection
 
 __all__ = [
+    'iter_raw',
     'IMAGE_MSGTYPE',
     'COMPRESSED_IMAGE_MSGTYPE',
     'CAMERA_INFO_MSGTYPE',
@@ -453,6 +454,45 @@ def read_flight(
 
     """
     return FlightReader(path, topics=topics, require_image=require_image)
+
+
+def iter_raw(
+    path: str | Path, *, topics: Iterable[str] | None = None
+) -> Generator[tuple[str, str, int, bytes], None, None]:
+    """(topic, msgtype, log_time_ns, CDR bytes) of a bag in log-time order, for republishing.
+
+    rosbag2 messages are already CDR; ROS 1 messages are converted to CDR, so the bytes can be
+    published as they are (rclpy ``Publisher.publish(bytes)``). ``topics`` limits the topics read.
+
+    Raises:
+        BagError: as :func:`read_flight`, including damage found while iterating.
+    """
+    path = Path(path)
+    reader = _open_reader(path)
+    try:
+        wanted = set(topics) if topics is not None else None
+        connections = [c for c in reader.connections if wanted is None or c.topic in wanted]
+        ros1 = path.suffix == '.bag'
+        store = reader.typestore if hasattr(reader, 'typestore') else None
+        stream = reader.messages(connections=connections)
+        count = 0
+        while True:
+            try:
+                connection, log_ns, raw = next(stream)
+                if ros1 and store is not None:
+                    raw = bytes(store.ros1_to_cdr(raw, connection.msgtype))
+            except StopIteration:
+                return
+            except Exception as exc:
+                msg = (
+                    f'Bag {str(path)!r} is damaged: reading stopped after {count} messages '
+                    f'({_describe(exc)}); {_repair_hint(path)}.'
+                )
+                raise BagError(msg) from exc
+            count += 1
+            yield connection.topic, connection.msgtype, log_ns, bytes(raw)
+    finally:
+        reader.close()
 
 
 # --------------------------------------------------------------------------------------------

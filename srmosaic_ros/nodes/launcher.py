@@ -1,0 +1,136 @@
+"""`srmosaic launch`: start the graph, in one process or several (the stand-in for ros2 launch).
+
+With no description, every node runs in this process with params/default.yaml on the default
+topics. A description is a YAML file:
+
+    processes:
+      - name: onboard                       # a label for logs
+        nodes: [mosaic]                     # names from NODES
+        params: [params/eo_camera.yaml]     # parameter files, applied after params/default.yaml
+        parameters: {live.output_dir: /tmp/run}   # single overrides (-p name:=value)
+        remappings: {/camera/image_raw: /cam0/image_raw}
+      - name: ground
+        nodes: [mosaic]
+
+Each process of a description is a child `srmosaic node ...`; Ctrl-C (SIGINT) is forwarded to
+all of them and the launcher waits for their clean shutdown.
+"""
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from ..config import default_params_path
+from ..errors import ConfigError
+
+__all__ = ['NODES', 'load_description', 'node_command', 'launch']
+
+
+def _node_classes() -> dict[str, type]:
+    from .mosaic_node import MosaicNode
+
+    return {'mosaic': MosaicNode}
+
+
+NODES = ('mosaic',)
+
+
+def load_description(path: Path) -> list[dict[str, Any]]:
+    """Validate a launch description; returns its processes."""
+    try:
+        doc = yaml.safe_load(Path(path).read_text())
+    except FileNotFoundError:
+        msg = f'launch description {path} does not exist.'
+        raise ConfigError(msg) from None
+    except yaml.YAMLError as exc:
+        msg = f'launch description {path} is not valid YAML: {exc}'
+        raise ConfigError(msg) from None
+    if not isinstance(doc, dict) or not isinstance(doc.get('processes'), list) or not doc['processes']:
+        msg = f'launch description {path} needs a non-empty list `processes:` (see `srmosaic launch --help`).'
+        raise ConfigError(msg)
+    known = {'name', 'nodes', 'params', 'parameters', 'remappings'}
+    for i, proc in enumerate(doc['processes']):
+        if not isinstance(proc, dict):
+            msg = f'{path}: process {i} must be a mapping with nodes: [...]'
+            raise ConfigError(msg)
+        if unknown := set(proc) - known:
+            msg = f'{path}: process {i} has unknown keys {sorted(unknown)}; known: {sorted(known)}.'
+            raise ConfigError(msg)
+        nodes = proc.get('nodes') or []
+        if not nodes or any(n not in NODES for n in nodes):
+            msg = f'{path}: process {i} nodes {nodes} must be a non-empty list of {list(NODES)}.'
+            raise ConfigError(msg)
+        for f in proc.get('params') or []:
+            if not Path(f).is_file():
+                msg = f'{path}: process {i} parameter file {f} does not exist.'
+                raise ConfigError(msg)
+    return doc['processes']
+
+
+def ros_args(params: list[str], parameters: dict[str, Any] | None = None,
+             remappings: dict[str, str] | None = None) -> list[str]:
+    """--ros-args for params/default.yaml, then the given files, overrides and remappings."""
+    args = ['--ros-args', '--params-file', str(default_params_path())]
+    for f in params:
+        args += ['--params-file', str(f)]
+    for k, v in (parameters or {}).items():
+        args += ['-p', f'{k}:={v}']
+    for a, b in (remappings or {}).items():
+        args += ['-r', f'{a}:={b}']
+    return args
+
+
+def node_command(proc: dict[str, Any]) -> list[str]:
+    return [sys.executable, '-m', 'srmosaic_ros.cli', 'node', *proc['nodes'],
+            *ros_args(proc.get('params') or [], proc.get('parameters'), proc.get('remappings'))]
+
+
+def run_named_nodes(names: list[str], args: list[str] | None) -> int:
+    from .runner import run_nodes
+
+    classes = _node_classes()
+    unknown = [n for n in names if n not in classes]
+    if unknown:
+        msg = f'unknown node(s) {unknown}; available: {sorted(classes)}.'
+        raise ConfigError(msg)
+    return run_nodes([classes[n] for n in names], args)
+
+
+def launch(description: Path | None, extra_params: list[str], extra_ros_args: list[str]) -> int:
+    if description is None:
+        args = ['srmosaic', *ros_args(extra_params)] + [a for a in extra_ros_args if a != '--ros-args']
+        return run_named_nodes(list(NODES), args)
+    procs = load_description(description)
+    children = []
+    for proc in procs:
+        cmd = node_command({**proc, 'params': [*extra_params, *(proc.get('params') or [])]})
+        print(f"srmosaic launch: starting {proc.get('name', '+'.join(proc['nodes']))}: {' '.join(cmd[3:])}",
+              file=sys.stderr)
+        children.append(subprocess.Popen(cmd))
+
+    def forward(signum: int, frame: Any) -> None:  # noqa: ARG001, ANN401
+        for child in children:
+            if child.poll() is None:
+                child.send_signal(signal.SIGINT)
+
+    signal.signal(signal.SIGINT, forward)
+    signal.signal(signal.SIGTERM, forward)
+    status = 0
+    try:
+        while any(c.poll() is None for c in children):
+            time.sleep(0.2)
+    finally:
+        deadline = time.monotonic() + 30
+        for child in children:
+            try:
+                child.wait(timeout=max(0.1, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                child.kill()
+            status = status or (child.returncode or 0)
+    return status

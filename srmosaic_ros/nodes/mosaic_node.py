@@ -1,0 +1,265 @@
+"""MosaicNode: registration and the growing mosaic, live.
+
+Subscribes (sensor-data QoS) to /camera/image_raw (sensor_msgs/Image) and
+/camera/image_raw/compressed (CompressedImage), /camera/camera_info, /fix, /imu/data. Publishes
+/srmosaic/mosaic_preview (Image, downscaled) and /srmosaic/mosaic_preview/compressed (JPEG),
+/srmosaic/registration (std_msgs/Float64MultiArray, layout in REGISTRATION_LAYOUT) and
+/srmosaic/diagnostics (diagnostic_msgs/DiagnosticArray). All names are remappable.
+
+Back-pressure: image callbacks only convert and enqueue into a bounded queue (parameter
+`live.queue_size`); when it is full the oldest frame is dropped and counted (`dropped_frames` in the
+diagnostics). One worker thread runs the pipeline; the queue never grows without bound.
+Bad input (wrong encoding, empty image, NaN fix, time going backwards) is logged once per kind
+and skipped; the node keeps spinning.
+"""
+from __future__ import annotations
+
+import collections
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, NavSatFix
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+
+from msg_adapters import (
+    camera_info_to_intrinsics,
+    header_to_ns_frame,
+    image_to_rgb_or_mono,
+    imu_to_sample,
+    navsat_to_fix,
+    numpy_to_compressed,
+    numpy_to_image,
+)
+
+from ..errors import SrMosaicError
+from ..core.types import Frame
+from ..io.mosaic_files import write_json
+from ..offline import peak_rss_mb, preview_image, write_outputs
+from ..pipeline import FrameRecord, Pipeline
+from .parameters import declare_pipeline_parameters, read_pipeline_config
+
+__all__ = ['MosaicNode', 'REGISTRATION_LAYOUT', 'main']
+
+#: Float64MultiArray layout of /srmosaic/registration (one message per processed frame):
+#: stamp_sec, stamp_nanosec, ok, inliers, rms_px, segment, then mosaic_H_frame (9, row-major, the
+#: active segment's plane), then prev_H_cur (9; NaN for the first frame of a segment).
+REGISTRATION_LAYOUT = ['stamp_sec', 'stamp_nanosec', 'ok', 'inliers', 'rms_px', 'segment',
+                       *[f'seg_H_frame{r}{c}' for r in range(3) for c in range(3)],
+                       *[f'prev_H_cur{r}{c}' for r in range(3) for c in range(3)]]
+
+
+class MosaicNode(Node):
+    """Registration + mosaic stage (see module docstring)."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__('srmosaic_mosaic', **kwargs)
+        self._defaults = declare_pipeline_parameters(self)
+        config = read_pipeline_config(self, self._defaults)  # ConfigError refuses bad values at start
+        queue_size = int(self.get_parameter('live.queue_size').value)
+        period = float(self.get_parameter('live.preview_period_s').value)
+        if not 1 <= queue_size <= 100 or not 0.05 <= period <= 3600:
+            msg = f'live.queue_size must be in 1..100 and live.preview_period_s in 0.05..3600 (got {queue_size}, {period}).'
+            raise SrMosaicError(msg)
+        self.config = config
+        self.output_dir = str(self.get_parameter('live.output_dir').value)
+        self.pipeline = Pipeline(config)
+        self._lock = threading.Lock()  # guards the pipeline (worker vs preview/diagnostics timer)
+        self._queue: collections.deque[Frame] = collections.deque(maxlen=queue_size)
+        self._telemetry: collections.deque[Any] = collections.deque(maxlen=10000)
+        self._wake = threading.Condition()
+        self._stop = False
+        self._camera = None
+        self._warned: set[str] = set()
+        self._last_stamp: dict[str, int] = {}
+        self.stats = collections.Counter()
+        self._latency_ms: collections.deque[float] = collections.deque(maxlen=500)
+        self._last_record: FrameRecord | None = None
+
+        self.create_subscription(Image, '/camera/image_raw', self._on_image, qos_profile_sensor_data)
+        self.create_subscription(CompressedImage, '/camera/image_raw/compressed', self._on_image,
+                                 qos_profile_sensor_data)
+        self.create_subscription(CameraInfo, '/camera/camera_info', self._on_camera_info, qos_profile_sensor_data)
+        self.create_subscription(NavSatFix, '/fix', self._on_fix, qos_profile_sensor_data)
+        self.create_subscription(Imu, '/imu/data', self._on_imu, qos_profile_sensor_data)
+        self.pub_preview = self.create_publisher(Image, '/srmosaic/mosaic_preview', 1)
+        self.pub_preview_c = self.create_publisher(CompressedImage, '/srmosaic/mosaic_preview/compressed', 1)
+        self.pub_registration = self.create_publisher(Float64MultiArray, '/srmosaic/registration', 50)
+        self.pub_diag = self.create_publisher(DiagnosticArray, '/srmosaic/diagnostics', 10)
+        self.create_timer(period, self._publish_periodic)
+        self._worker = threading.Thread(target=self._work, name='srmosaic-mosaic-worker', daemon=True)
+        self._worker.start()
+
+    # -- input callbacks: convert, check, enqueue; never raise ------------------------------
+    def _warn_once(self, kind: str, text: str) -> None:
+        self.stats[f'rejected: {kind}'] += 1
+        if kind not in self._warned:
+            self._warned.add(kind)
+            self.get_logger().warning(f'{text} (logged once; further cases are counted in diagnostics)')
+
+    def _monotonic(self, stream: str, stamp_ns: int) -> bool:
+        last = self._last_stamp.get(stream)
+        if last is not None and stamp_ns < last:
+            self._warn_once(f'{stream} time going backwards',
+                            f'{stream} stamp {stamp_ns} is older than the previous {last}; message skipped')
+            return False
+        self._last_stamp[stream] = stamp_ns
+        return True
+
+    def _on_image(self, msg: Image | CompressedImage) -> None:
+        self.stats['frames_received'] += 1
+        try:
+            stamp_ns, frame_id = header_to_ns_frame(msg)
+            image = image_to_rgb_or_mono(msg)
+        except SrMosaicError as exc:
+            self._warn_once(f'image: {type(exc).__name__}', f'image skipped: {exc}')
+            return
+        if image.size == 0:
+            self._warn_once('image: empty', 'empty image skipped')
+            return
+        if not self._monotonic('image', stamp_ns):
+            return
+        with self._wake:
+            if len(self._queue) == self._queue.maxlen:
+                self.stats['dropped_frames'] += 1
+            self._queue.append(Frame(stamp_ns, image, self._camera, frame_id))
+            self._wake.notify()
+
+    def _on_camera_info(self, msg: CameraInfo) -> None:
+        try:
+            self._camera = camera_info_to_intrinsics(msg)
+        except SrMosaicError as exc:
+            self._warn_once('camera_info', f'camera info skipped: {exc}')
+
+    def _on_fix(self, msg: NavSatFix) -> None:
+        try:
+            fix = navsat_to_fix(msg)
+        except SrMosaicError as exc:
+            self._warn_once('fix', f'fix skipped: {exc}')
+            return
+        if self._monotonic('fix', fix.stamp_ns):
+            self._telemetry.append(fix)
+
+    def _on_imu(self, msg: Imu) -> None:
+        try:
+            sample = imu_to_sample(msg)
+        except SrMosaicError as exc:
+            self._warn_once('imu', f'imu skipped: {exc}')
+            return
+        if self._monotonic('imu', sample.stamp_ns):
+            self._telemetry.append(sample)
+
+    # -- worker ---------------------------------------------------------------------------------
+    def _work(self) -> None:
+        while True:
+            with self._wake:
+                while not self._queue and not self._stop:
+                    self._wake.wait(0.5)
+                if self._stop and not self._queue:
+                    return
+                frame = self._queue.popleft()
+            t0 = time.perf_counter()
+            with self._lock:
+                while self._telemetry:
+                    self.pipeline.feed(self._telemetry.popleft())
+                try:
+                    records = self.pipeline.feed(frame)
+                except SrMosaicError as exc:
+                    self._warn_once(f'pipeline: {type(exc).__name__}', f'frame skipped: {exc}')
+                    continue
+            self.stats['frames_processed'] += 1
+            self._latency_ms.append((time.perf_counter() - t0) * 1e3)
+            for record in records:
+                self._publish_registration(record)
+                self._last_record = record
+
+    def _publish_registration(self, record: FrameRecord) -> None:
+        reg = record.registration
+        seg_H = record.seg_H_frame if record.seg_H_frame is not None else np.full((3, 3), np.nan)  # noqa: N806
+        prev_H = reg.prev_H_cur if reg is not None and reg.prev_H_cur is not None else np.full((3, 3), np.nan)  # noqa: N806
+        values = [record.stamp_ns // 1_000_000_000, record.stamp_ns % 1_000_000_000, float(record.painted),
+                  reg.inliers if reg else 0, reg.rms_px if reg else float('nan'), record.segment,
+                  *seg_H.ravel(), *prev_H.ravel()]
+        msg = Float64MultiArray()
+        msg.layout.dim = [MultiArrayDimension(label='fields', size=len(values), stride=len(values))]
+        msg.data = [float(v) for v in values]
+        self.pub_registration.publish(msg)
+
+    # -- periodic output ------------------------------------------------------------------------
+    def _publish_periodic(self) -> None:
+        with self._lock:
+            seg = self.pipeline.segments[-1] if self.pipeline.segments else None
+            image = coverage = None
+            if seg is not None and not seg.canvas.is_empty:
+                image, coverage = seg.canvas.render()
+        if image is not None:
+            preview = preview_image(image, coverage, self.config.mosaic.preview_max_side_px)
+            stamp = self.get_clock().now().nanoseconds
+            u8 = np.clip(preview * 255.0 + 0.5, 0, 255).astype(np.uint8)
+            encoding = 'mono8' if u8.ndim == 2 else 'rgb8'
+            self.pub_preview.publish(numpy_to_image(u8, encoding, stamp_ns=stamp, frame_id='srmosaic_mosaic'))
+            self.pub_preview_c.publish(numpy_to_compressed(u8, stamp_ns=stamp, frame_id='srmosaic_mosaic'))
+        self.pub_diag.publish(self._diagnostics())
+
+    def _diagnostics(self) -> DiagnosticArray:
+        stats = dict(self.stats)
+        rec = self._last_record
+        reg = rec.registration if rec is not None else None
+        lat = np.array(self._latency_ms) if self._latency_ms else np.array([np.nan])
+        values = {
+            'frames_received': stats.get('frames_received', 0),
+            'frames_processed': stats.get('frames_processed', 0),
+            'dropped_frames': stats.get('dropped_frames', 0),
+            'frames_in_mosaic': sum(len(s.frames) for s in self.pipeline.segments),
+            'segments': len(self.pipeline.segments),
+            'last_ok': int(rec.painted) if rec else 0,
+            'last_inliers': reg.inliers if reg else 0,
+            'last_rms_px': f'{reg.rms_px:.3f}' if reg else 'nan',
+            'last_reason': rec.reason if rec else '',
+            'processing_ms_median': f'{np.median(lat):.1f}',
+            'processing_ms_p95': f'{np.percentile(lat, 95):.1f}',
+        }
+        values.update({k: v for k, v in stats.items() if k.startswith('rejected')})
+        level = DiagnosticStatus.OK
+        message = 'registering'
+        if rec is not None and not rec.painted:
+            level, message = DiagnosticStatus.WARN, f'last frame not registered: {rec.reason}'
+        if stats.get('dropped_frames', 0):
+            message += f"; {stats['dropped_frames']} frames dropped (falling behind)"
+        status = DiagnosticStatus(level=level, name='srmosaic: registration and mosaic', message=message,
+                                  hardware_id='srmosaic',
+                                  values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
+        out = DiagnosticArray()
+        out.header.stamp = self.get_clock().now().to_msg()
+        out.status = [status]
+        return out
+
+    # -- shutdown -------------------------------------------------------------------------------
+    def finish(self) -> None:
+        """Drain the queue, stop the worker and write the outputs when `output_dir` is set."""
+        with self._wake:
+            self._stop = True
+            self._wake.notify()
+        self._worker.join(timeout=60)
+        if self.output_dir:
+            with self._lock:
+                result = self.pipeline.finish()
+                report = write_outputs(result, Path(self.output_dir), self.config,
+                                       {'input': 'live', 'node_stats': dict(self.stats)})
+            report['wall_s'] = round(sum(r.time_s for r in result.records), 3)  # processing time
+            report['peak_rss_mb'] = round(peak_rss_mb(), 1)
+            write_json(Path(self.output_dir) / 'report.json', report)
+            self.get_logger().info(f"wrote {report['frames_registered']}/{report['frames_in']} frames to "
+                                   f'{self.output_dir}')
+
+
+def main(args: list[str] | None = None) -> int:
+    from .runner import run_nodes
+
+    return run_nodes([MosaicNode], args)

@@ -1,0 +1,87 @@
+"""Declare the pipeline's parameters on a node, with descriptions and ranges from params/default.yaml.
+
+params/default.yaml is the one source of defaults: every key in it is declared with its default,
+the comment after it as description, and a range where the config dataclass has one. Values
+given with `--ros-args --params-file FILE` or `-p name:=value` override them; invalid values are
+refused at start (ConfigError) with the dataclass's message.
+"""
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any
+
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.node import Node
+
+from ..config import PipelineConfig, default_params_path, load_params, pipeline_config
+
+__all__ = ['declare_pipeline_parameters', 'read_pipeline_config']
+
+# Ranges stated once here for the ROS parameter descriptors; the dataclasses check them again.
+_RANGES: dict[str, tuple[float, float]] = {
+    'registration.max_features': (8, 100000),
+    'registration.contrast_threshold': (0.0, 1.0),
+    'registration.ratio': (0.0, 1.0),
+    'registration.ransac_threshold_px': (0.01, 50.0),
+    'registration.ransac_confidence': (0.5, 0.999999),
+    'registration.ransac_max_iterations': (1, 1000000),
+    'registration.min_inliers': (4, 100000),
+    'registration.min_inlier_ratio': (0.0, 1.0),
+    'registration.max_rms_px': (0.01, 50.0),
+    'registration.max_scale_change': (1.0, 10.0),
+    'registration.max_perspective': (0.001, 10.0),
+    'registration.guided_radius_px': (0.0, 100.0),
+    'mosaic.tile_size': (64, 4096),
+    'mosaic.max_canvas_side_px': (256, 10000000),
+    'mosaic.preview_max_side_px': (16, 16384),
+    'live.queue_size': (1, 100),
+    'live.preview_period_s': (0.05, 3600.0),
+}
+
+
+def _comments(path: Path) -> dict[str, str]:
+    """Trailing comments of params/default.yaml keyed by dotted name (the descriptions)."""
+    out: dict[str, str] = {}
+    stack: list[tuple[int, str]] = []
+    for line in path.read_text().splitlines():
+        m = re.match(r'^(\s*)([A-Za-z_][\w]*):\s*([^#]*?)\s*(?:#\s*(.*))?$', line)
+        if not m:
+            continue
+        indent, key, value, comment = len(m.group(1)), m.group(2), m.group(3), m.group(4)
+        while stack and stack[-1][0] >= indent:
+            stack.pop()
+        if value == '':
+            stack.append((indent, key))
+            continue
+        parents = [k for _, k in stack if k not in ('ros__parameters',) and not k.startswith('/')]
+        out['.'.join([*parents, key])] = comment or ''
+    return out
+
+
+def _descriptor(name: str, value: Any, description: str) -> ParameterDescriptor:
+    desc = ParameterDescriptor(name=name, description=description)
+    if name in _RANGES and not isinstance(value, bool):
+        lo, hi = _RANGES[name]
+        if isinstance(value, int):
+            desc.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi), step=0)]
+        elif isinstance(value, float):
+            desc.floating_point_range = [FloatingPointRange(from_value=float(lo), to_value=float(hi), step=0.0)]
+    return desc
+
+
+def declare_pipeline_parameters(node: Node) -> dict[str, Any]:
+    """Declare every key of params/default.yaml on `node`; return the defaults (dotted names)."""
+    path = default_params_path()
+    defaults = load_params(path)
+    comments = _comments(path)
+    for name, value in defaults.items():
+        if not node.has_parameter(name):
+            node.declare_parameter(name, value, _descriptor(name, value, comments.get(name, '')))
+    return defaults
+
+
+def read_pipeline_config(node: Node, defaults: dict[str, Any]) -> PipelineConfig:
+    """PipelineConfig from the node's current parameter values (raises ConfigError when invalid)."""
+    values = {name: node.get_parameter(name).value for name in defaults}
+    return pipeline_config(values, defaults=defaults)

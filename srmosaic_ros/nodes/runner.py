@@ -1,0 +1,70 @@
+"""Run one or several nodes in this process until Ctrl-C (SIGINT) or SIGTERM, then shut down cleanly."""
+from __future__ import annotations
+
+import signal
+import sys
+from collections.abc import Sequence
+from typing import Any
+
+import rclpy
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.signals import SignalHandlerOptions
+
+from ..errors import SrMosaicError
+
+__all__ = ['run_nodes']
+
+
+class _Stop(Exception):
+    pass
+
+
+def _raise_stop(signum: int, frame: Any) -> None:  # noqa: ARG001, ANN401
+    raise _Stop
+
+
+def run_nodes(node_classes: Sequence[type], args: list[str] | None = None) -> int:
+    """Create the nodes (sharing the command line's --ros-args), spin them, finish them on exit.
+
+    Returns the exit status: 0 after a clean shutdown, 2 when a node refused its parameters.
+    Nodes with a `finish()` method get it called after spinning stops (drain queues, write files).
+    """
+    # Our own handlers: SIGINT and SIGTERM stop spinning; rclpy's would shut the context down
+    # before the nodes could finish.
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    signal.signal(signal.SIGINT, _raise_stop)
+    signal.signal(signal.SIGTERM, _raise_stop)
+    nodes = []
+    status = 0
+    try:
+        for cls in node_classes:
+            nodes.append(cls())
+        executor = MultiThreadedExecutor(num_threads=4)
+        for node in nodes:
+            executor.add_node(node)
+        executor.spin()
+    except (_Stop, KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except SrMosaicError as exc:
+        print(f'srmosaic: error: {exc}', file=sys.stderr)
+        status = 2
+    except Exception as exc:  # rclpy refuses a parameter outside its declared range, for instance
+        if type(exc).__name__ in {'InvalidParameterValueException', 'ParameterException',
+                                  'InvalidParameterTypeException', 'ParameterUninitializedException'}:
+            print(f'srmosaic: error: invalid parameter: {exc}', file=sys.stderr)
+            status = 2
+        else:
+            raise
+    finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        for node in nodes:
+            finish = getattr(node, 'finish', None)
+            if finish is not None:
+                try:
+                    finish()
+                except Exception as exc:  # noqa: BLE001 - report, then go on shutting the others down
+                    print(f'srmosaic: {node.get_name()} failed to finish: {exc}', file=sys.stderr)
+                    status = status or 1
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return status
