@@ -19,6 +19,7 @@ INSTALL_REQUIRES = [
     'rosbags==0.11.9',
     'PyYAML==6.0.4',   # params/*.yaml and ground-truth files
     'tqdm==4.70.1',    # progress of long offline jobs
+    'av==18.1.0',      # PyAV: video decoding with picture types (I-frame selection) and H.264 encoding
 ]
 
 setup(

@@ -16,8 +16,9 @@ __all__ = ['main']
 
 
 def _add_process(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser('process', help='build a mosaic from a recorded flight (rosbag2 folder or ROS 1 bag)')
-    p.add_argument('input', type=Path, help='rosbag2 folder (sqlite3 or mcap) or ROS 1 .bag file')
+    p = sub.add_parser('process', help='build a mosaic from a recorded flight (rosbag2 folder, ROS 1 bag or video)')
+    p.add_argument('input', type=Path, help='rosbag2 folder (sqlite3 or mcap), ROS 1 .bag file, or video '
+                   '(MP4, MKV, AVI, MPEG-TS, ...)')
     p.add_argument('--out', type=Path, required=True, help='output directory (created)')
     p.add_argument('--params', type=Path, help='YAML parameter file overriding params/default.yaml')
     p.add_argument('--image-topic', default='/camera/image_raw',
@@ -27,6 +28,15 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
     p.add_argument('--imu-topic', default='/imu/data')
     p.add_argument('--blend', choices=['feather', 'multiband'], help='override mosaic.blend')
     p.add_argument('--device', choices=['auto', 'cpu', 'cuda'], help='override device')
+    p.add_argument('--select', default='all', help='video frame selection: all, every:N, iframes (the '
+                   "reference's MPEG I-frame mosaics) or overlap:F (next frame when overlap drops below F)")
+    p.add_argument('--camera', type=Path, help='video: camera calibration YAML (ROS camera_calibration format)')
+    p.add_argument('--hfov', type=float, help='video: horizontal field of view in degrees (square pixels, '
+                   'centred principal point)')
+    p.add_argument('--telemetry', type=Path, help='video: flight log CSV (time_s,latitude,longitude,altitude,'
+                   'roll,pitch,yaw)')
+    p.add_argument('--mosaic-video', action='store_true', help='also write mosaic.mp4, the mosaic growing '
+                   'frame by frame with the current footprint outlined')
     p.add_argument('--no-progress', action='store_true', help='no progress bar')
     p.set_defaults(func=_run_process)
 
@@ -34,7 +44,7 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
 def _run_process(args: argparse.Namespace) -> int:
     from .config import load_params, pipeline_config
     from .io.bags import TopicConfig
-    from .offline import process_bag
+    from .offline import process_input
 
     overrides = load_params(args.params) if args.params else {}
     if args.blend:
@@ -44,7 +54,9 @@ def _run_process(args: argparse.Namespace) -> int:
     config = pipeline_config(overrides)
     topics = TopicConfig(image=args.image_topic, camera_info=args.camera_info_topic, fix=args.fix_topic,
                          imu=args.imu_topic)
-    report = process_bag(args.input, args.out, config, topics=topics, progress=not args.no_progress)
+    report = process_input(args.input, args.out, config, topics=topics, select=args.select, camera_yaml=args.camera,
+                           hfov_deg=args.hfov, telemetry_csv=args.telemetry, mosaic_video=args.mosaic_video,
+                           progress=not args.no_progress)
     print(f"{report['frames_registered']}/{report['frames_in']} frames in mosaic.png "
           f"({len(report['segments'])} segment(s)), {report['frames_per_s']} frames/s, "
           f"peak {report['peak_rss_mb']} MB -> {args.out}")

@@ -5,6 +5,7 @@ import collections
 import resource
 import time
 from pathlib import Path
+from collections.abc import Iterable, Iterator
 from typing import Any
 
 import numpy as np
@@ -13,10 +14,13 @@ from tqdm import tqdm
 from .config import PipelineConfig
 from .io.bags import TopicConfig, read_flight
 from .io.mosaic_files import write_frames_csv, write_json, write_png
+from .errors import InputError, SrMosaicError
+from .io.mosaic_video import MosaicVideoRecorder
 from .pipeline import Pipeline, PipelineResult
+from .core.image_ops import to_float01
 from .core.types import Frame
 
-__all__ = ['peak_rss_mb', 'preview_image', 'process_bag', 'write_outputs']
+__all__ = ['open_source', 'peak_rss_mb', 'preview_image', 'process_input', 'write_outputs']
 
 
 def peak_rss_mb() -> float:
@@ -92,25 +96,91 @@ def write_outputs(result: PipelineResult, out: Path, config: PipelineConfig, ext
     return report
 
 
-def process_bag(path: Path, out: Path, config: PipelineConfig, *, topics: TopicConfig | None = None,
-                progress: bool = True) -> dict[str, Any]:
-    """Run the pipeline over a bag and write the outputs; returns the report (also in report.json)."""
-    t0 = time.perf_counter()
+def _merge_by_time(frames: Iterable[Frame], telemetry: list[Any]) -> Iterator[Any]:
+    """Interleave telemetry (sorted by stamp) before the frames that follow it in time."""
+    i = 0
+    for frame in frames:
+        while i < len(telemetry) and telemetry[i].stamp_ns <= frame.stamp_ns:
+            yield telemetry[i]
+            i += 1
+        yield frame
+    yield from telemetry[i:]
+
+
+def open_source(path: Path, *, topics: TopicConfig | None = None, select: str = 'all',
+                camera_yaml: Path | None = None, hfov_deg: float | None = None,
+                telemetry_csv: Path | None = None) -> tuple[Iterable[Any], Any, str]:
+    """(items in time order, the reader (frame_count, skipped), 'bag' or 'video') for a bag or a video file."""
+    from .io.video import VideoReader, is_video, load_camera_yaml, parse_selection
+
+    if is_video(path):
+        camera = load_camera_yaml(camera_yaml) if camera_yaml else None
+        reader = VideoReader(path, selection=parse_selection(select), camera=camera, hfov_deg=hfov_deg)
+        items: Iterable[Any] = reader
+        if telemetry_csv is not None:
+            from .io.telemetry_csv import read_telemetry_csv
+
+            items = _merge_by_time(reader, read_telemetry_csv(telemetry_csv))
+        return items, reader, 'video'
+    if select != 'all' or camera_yaml or hfov_deg or telemetry_csv:
+        msg = ('--select, --camera, --hfov and --telemetry apply to video input; a bag carries its own camera '
+               'info and telemetry topics.')
+        raise InputError(msg)
     reader = read_flight(path, topics=topics or TopicConfig())
+    return reader, reader, 'bag'
+
+
+def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: TopicConfig | None = None,
+                  select: str = 'all', camera_yaml: Path | None = None, hfov_deg: float | None = None,
+                  telemetry_csv: Path | None = None, mosaic_video: bool = False,
+                  progress: bool = True) -> dict[str, Any]:
+    """Run the pipeline over a bag or video and write the outputs; returns the report (also in report.json).
+
+    If the input breaks mid-way (a damaged bag or video, a frame size change), everything processed
+    so far is written, the report records the error, and the error is raised again so the command
+    exits non-zero.
+    """
+    t0 = time.perf_counter()
+    items, reader, kind = open_source(path, topics=topics, select=select, camera_yaml=camera_yaml,
+                                      hfov_deg=hfov_deg, telemetry_csv=telemetry_csv)
     pipeline = Pipeline(config)
+    recorder = MosaicVideoRecorder() if mosaic_video else None
     bar = tqdm(total=reader.frame_count, unit='frame', desc='process', disable=not progress)
+    error: SrMosaicError | None = None
+    recent: dict[int, np.ndarray] = {}
     with bar:
-        for item in reader:
-            pipeline.feed(item)
-            if isinstance(item, Frame):
-                bar.update(1)
-                bar.set_postfix(segments=len(pipeline.segments), refresh=False)
+        try:
+            for item in items:
+                records = pipeline.feed(item)
+                if isinstance(item, Frame):
+                    bar.update(1)
+                    bar.set_postfix(segments=len(pipeline.segments), refresh=False)
+                    if recorder is not None:
+                        recent[len(pipeline.records) - 1] = item.image
+                        recent.pop(len(pipeline.records) - 4, None)  # decisions reach back one frame at most
+                if recorder is not None:
+                    for rec in records:
+                        if rec.painted and rec.index in recent:
+                            recorder.add(rec.segment, to_float01(recent[rec.index]), rec.seg_H_frame)
+        except SrMosaicError as exc:
+            error = exc
     result = pipeline.finish()
-    report_extra = {'input': str(path), 'skipped_messages': dict(reader.skipped)}
+    report_extra: dict[str, Any] = {'input': str(path), 'input_kind': kind,
+                                    'skipped_messages': dict(getattr(reader, 'skipped', {}))}
+    if kind == 'video':
+        report_extra['video'] = {'codec': reader.codec, 'fps': reader.fps, 'frames_decoded': reader.decoded,
+                                 'frames_selected': reader.selected, 'select': select}
+    if error is not None:
+        report_extra['error'] = str(error)
     report = write_outputs(result, out, config, report_extra)
+    if recorder is not None and result.main_segment is not None:
+        main = result.main_segment
+        report['mosaic_video_frames'] = recorder.write(out / 'mosaic.mp4', main.index, main.canvas.bounds())
     wall = time.perf_counter() - t0
     report['wall_s'] = round(wall, 3)
     report['frames_per_s'] = round(len(result.records) / wall, 2) if wall > 0 else None
     report['peak_rss_mb'] = round(peak_rss_mb(), 1)
     write_json(out / 'report.json', report)
+    if error is not None:
+        raise error
     return report

@@ -78,6 +78,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--jpeg-quality', type=int, default=92, help='JPEG quality for --transport compressed')
     parser.add_argument('--out', type=Path, required=True, help='bag folder to create (holds ground_truth.json)')
     parser.add_argument('--overwrite', action='store_true', help='replace an existing --out')
+    parser.add_argument('--video', type=Path, default=None,
+                        help='also write the frames as an H.264 video (e.g. flight.mp4) with a telemetry sidecar '
+                             '(flight.csv: time_s from the first frame, noisy fix and IMU attitude)')
+    parser.add_argument('--gop', type=int, default=12, help='--video: I-frame every N frames (default: 12)')
     parser.add_argument('--no-progress', action='store_true', help='no progress bar')
 
 
@@ -111,8 +115,34 @@ def run(args: argparse.Namespace) -> int:
     flight = simulate(config, progress=not getattr(args, 'no_progress', False))
     out = write_flight(flight, args.out, storage=args.storage, transport=args.transport, overwrite=args.overwrite,
                        jpeg_quality=args.jpeg_quality)
+    if getattr(args, 'video', None) is not None:
+        _write_video_and_sidecar(flight, args.video, args.gop)
     cam = flight.camera
     print(f'{len(flight.frames)} frames {cam.width}x{cam.height} ({config.mode}), {len(flight.fixes)} fixes, '
           f'{len(flight.imus)} IMU samples, camera gsd {flight.truth.camera_gsd_m:.3f} m/px, '
           f'{time.perf_counter() - t0:.1f} s -> {out} ({args.storage}, {args.transport}) + ground_truth.json')
     return 0
+
+
+def _write_video_and_sidecar(flight: Any, path: Path, gop: int) -> None:  # noqa: ANN401
+    """H.264 video of the frames (I-frame every `gop`) and its telemetry CSV beside it."""
+    import numpy as np
+
+    from ..core.georef.frames import matrix_from_quat_xyzw, rpy_from_R_enu_from_body
+    from ..errors import SimulationError
+    from ..io.telemetry_csv import write_telemetry_csv
+    from ..io.video import write_video
+
+    if gop < 1:
+        msg = f'--gop must be >= 1, got {gop}.'
+        raise SimulationError(msg)
+    write_video(path, (f.image for f in flight.frames), fps=flight.config.rate_hz, gop=gop)
+    t0 = flight.frames[0].stamp_ns
+    imu_t = np.array([s.stamp_ns for s in flight.imus])
+    rows = []
+    for fix in flight.fixes:
+        imu = flight.imus[int(np.argmin(np.abs(imu_t - fix.stamp_ns)))]
+        roll, pitch, yaw = np.degrees(rpy_from_R_enu_from_body(matrix_from_quat_xyzw(imu.orientation_xyzw)))
+        rows.append(((fix.stamp_ns - t0) * 1e-9, fix.latitude_deg, fix.longitude_deg, fix.altitude_m,
+                     roll, pitch, yaw))
+    write_telemetry_csv(Path(path).with_suffix('.csv'), rows)

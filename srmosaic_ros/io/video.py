@@ -1,0 +1,255 @@
+"""Video files in and out (PyAV): frame selection as in the reference (section 4.3, Appendix A).
+
+Selection modes (`--select`):
+- ``all``: every decoded frame;
+- ``every:N``: every N-th frame;
+- ``iframes``: intra-coded frames only (the reference's MPEG I-frame mosaics); the decoder is told
+  to skip non-key frames, so the others are not even decoded;
+- ``overlap:F``: adaptive: the next frame is selected when its overlap with the last selected
+  frame falls below F (0 < F < 1). The overlap is estimated from the global translation between
+  the two frames by phase correlation on a downscaled grey image (cv2.phaseCorrelate), which is
+  cheap and sufficient for the near-nadir translation-dominated motion of UAS video.
+
+Stamps: a frame's stamp_ns is its presentation time in ns from the first frame of the file.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass
+from fractions import Fraction
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ..core.image_ops import to_gray_float01
+from ..core.types import CameraIntrinsics, Frame
+from ..errors import InputError
+
+__all__ = ['VIDEO_SUFFIXES', 'FrameSelection', 'VideoReader', 'camera_from_hfov', 'is_video', 'load_camera_yaml',
+           'parse_selection', 'write_video']
+
+VIDEO_SUFFIXES = {'.mp4', '.m4v', '.mkv', '.avi', '.ts', '.mts', '.m2ts', '.mpg', '.mpeg', '.mov', '.webm'}
+
+
+class VideoError(InputError):
+    """A video file cannot be read (missing, empty, unsupported codec, truncated, size change)."""
+
+
+def is_video(path: Path) -> bool:
+    return Path(path).is_file() and Path(path).suffix.lower() in VIDEO_SUFFIXES
+
+
+@dataclass(frozen=True)
+class FrameSelection:
+    mode: str  # 'all' | 'every' | 'iframes' | 'overlap'
+    every: int = 1
+    overlap: float = 0.0
+
+
+def parse_selection(text: str) -> FrameSelection:
+    """'all' | 'every:N' | 'iframes' | 'overlap:F' -> FrameSelection (InputError when malformed)."""
+    mode, _, arg = text.partition(':')
+    try:
+        if mode == 'all' and not arg:
+            return FrameSelection('all')
+        if mode == 'iframes' and not arg:
+            return FrameSelection('iframes')
+        if mode == 'every' and int(arg) >= 1:
+            return FrameSelection('every', every=int(arg))
+        if mode == 'overlap' and 0.0 < float(arg) < 1.0:
+            return FrameSelection('overlap', overlap=float(arg))
+    except ValueError:
+        pass
+    msg = f"--select {text!r} is not valid; use all, every:N (N >= 1), iframes or overlap:F (0 < F < 1)."
+    raise InputError(msg)
+
+
+def camera_from_hfov(width: int, height: int, hfov_deg: float) -> CameraIntrinsics:
+    """Square pixels, centred principal point, focal length from the horizontal field of view."""
+    if not 1.0 <= hfov_deg < 179.0:
+        msg = f'--hfov {hfov_deg} is not a field of view in degrees (1 .. 179).'
+        raise InputError(msg)
+    f = (width / 2.0) / math.tan(math.radians(hfov_deg) / 2.0)
+    return CameraIntrinsics(width, height, f, f, (width - 1) / 2.0, (height - 1) / 2.0)
+
+
+def load_camera_yaml(path: Path) -> CameraIntrinsics:
+    """A ROS camera_calibration YAML (image_width, image_height, camera_matrix, distortion_*)."""
+    import yaml
+
+    try:
+        doc = yaml.safe_load(Path(path).read_text())
+        k = [float(v) for v in doc['camera_matrix']['data']]
+        dist = tuple(float(v) for v in (doc.get('distortion_coefficients') or {}).get('data', []))
+        return CameraIntrinsics(int(doc['image_width']), int(doc['image_height']), k[0], k[4], k[2], k[5],
+                                str(doc.get('distortion_model', '') or ''), dist)
+    except FileNotFoundError:
+        msg = f'--camera {path} does not exist.'
+        raise InputError(msg) from None
+    except (KeyError, TypeError, ValueError, IndexError, yaml.YAMLError) as exc:
+        msg = (f'--camera {path} is not a camera calibration YAML (needs image_width, image_height, '
+               f'camera_matrix.data): {exc}')
+        raise InputError(msg) from None
+
+
+class _OverlapSelector:
+    """Select a frame when its estimated overlap with the last selected frame falls below F."""
+
+    def __init__(self, threshold: float, work_width: int = 160) -> None:
+        self.threshold = threshold
+        self.work_width = work_width
+        self._ref: np.ndarray | None = None
+        self._prev: np.ndarray | None = None
+        self._shift = np.zeros(2)
+
+    def _small(self, image: np.ndarray) -> np.ndarray:
+        g = to_gray_float01(image)
+        s = self.work_width / g.shape[1]
+        small = cv2.resize(g, (self.work_width, max(8, round(g.shape[0] * s))), interpolation=cv2.INTER_AREA)
+        return small.astype(np.float32)
+
+    def __call__(self, image: np.ndarray) -> bool:
+        cur = self._small(image)
+        if self._ref is None:
+            self._ref, self._prev, self._shift = cur, cur, np.zeros(2)
+            return True
+        # Chain frame-to-frame shifts (robust at small motion) back to the last selected frame.
+        win = cv2.createHanningWindow(cur.shape[::-1], cv2.CV_32F)
+        (dx, dy), _ = cv2.phaseCorrelate(self._prev, cur, win)
+        self._shift += (dx, dy)
+        self._prev = cur
+        h, w = cur.shape
+        overlap = max(0.0, w - abs(self._shift[0])) * max(0.0, h - abs(self._shift[1])) / (w * h)
+        if overlap < self.threshold:
+            self._ref, self._shift = cur, np.zeros(2)
+            return True
+        return False
+
+
+class VideoReader:
+    """Frames of a video file, selected (see module docstring); iterable, with counts for progress."""
+
+    def __init__(self, path: str | Path, *, selection: FrameSelection = FrameSelection('all'),
+                 camera: CameraIntrinsics | None = None, hfov_deg: float | None = None) -> None:
+        import av
+
+        self.path = Path(path)
+        self.selection = selection
+        if not self.path.is_file():
+            msg = f'video {str(self.path)!r} does not exist; check the path.'
+            raise VideoError(msg)
+        if self.path.stat().st_size == 0:
+            msg = f'video {str(self.path)!r} is empty (0 bytes); the recording did not finish or the copy failed.'
+            raise VideoError(msg)
+        try:
+            with av.open(str(self.path)) as container:
+                if not container.streams.video:
+                    msg = f'{str(self.path)!r} has no video stream.'
+                    raise VideoError(msg)
+                stream = container.streams.video[0]
+                self.codec = stream.codec_context.name
+                self.width, self.height = stream.codec_context.width, stream.codec_context.height
+                self.frames_declared = int(stream.frames or 0)
+                rate = stream.average_rate or stream.guessed_rate
+                self.fps = float(rate) if rate else float('nan')
+        except VideoError:
+            raise
+        except Exception as exc:  # av.error.* : unsupported container or codec, corrupt header
+            msg = (f'cannot open video {str(self.path)!r}: {exc}. The file is corrupt, truncated or uses a codec '
+                   'FFmpeg does not decode; re-encode it (e.g. to H.264 MP4) or check the copy.')
+            raise VideoError(msg) from None
+        if camera is not None:
+            self.camera = camera
+        elif hfov_deg is not None:
+            self.camera = camera_from_hfov(self.width, self.height, hfov_deg)
+        else:
+            self.camera = None
+        self.decoded = 0
+        self.selected = 0
+        self.error: str = ''
+
+    @property
+    def frame_count(self) -> int | None:
+        """Frames the file declares (all of them, before selection), or None when unknown."""
+        return self.frames_declared or None
+
+    def __iter__(self) -> Iterator[Frame]:
+        import av
+
+        sel = self.selection
+        overlap = _OverlapSelector(sel.overlap) if sel.mode == 'overlap' else None
+        self.decoded = self.selected = 0
+        self.error = ''
+        with av.open(str(self.path)) as container:
+            stream = container.streams.video[0]
+            if sel.mode == 'iframes':
+                stream.codec_context.skip_frame = 'NONKEY'
+            time_base: Fraction = stream.time_base or Fraction(1, 90000)
+            first_pts = None
+            index = -1
+            try:
+                for vframe in container.decode(stream):
+                    index += 1
+                    self.decoded += 1
+                    if sel.mode == 'iframes' and not vframe.key_frame:
+                        continue
+                    if sel.mode == 'every' and index % sel.every:
+                        continue
+                    if vframe.width != self.width or vframe.height != self.height:
+                        msg = (f'{str(self.path)!r}: frame {index} is {vframe.width}x{vframe.height}, the stream '
+                               f'started at {self.width}x{self.height}; split the file where the size changes.')
+                        raise VideoError(msg)
+                    pts = vframe.pts if vframe.pts is not None else index
+                    if first_pts is None:
+                        first_pts = pts
+                    image = vframe.to_ndarray(format='rgb24')
+                    if overlap is not None and not overlap(image):
+                        continue
+                    self.selected += 1
+                    stamp_ns = round(float((pts - first_pts) * time_base) * 1e9)
+                    yield Frame(stamp_ns, image, self.camera, 'video')
+            except VideoError:
+                raise
+            except Exception as exc:  # av.error.InvalidDataError etc.: damage mid-stream
+                msg = (f'{str(self.path)!r} is damaged: decoding stopped after {self.decoded} frames ({exc}). '
+                       'The frames before the damage were processed.')
+                raise VideoError(msg) from None
+        if self.decoded == 0:
+            msg = f'{str(self.path)!r} holds no decodable video frame (codec {self.codec}); the file is truncated.'
+            raise VideoError(msg)
+
+
+def write_video(path: str | Path, frames: Iterator[np.ndarray], *, fps: float, gop: int = 12,
+                codec: str = 'libx264', crf: int = 18) -> int:
+    """Encode RGB (H, W, 3) or mono uint8 frames to H.264 with a fixed GOP (I-frame every `gop`).
+
+    No B-frames and no scene-cut keyframes, so I-frames fall exactly every `gop` frames. Returns
+    the number of frames written. Width and height are cropped to even numbers (yuv420p).
+    """
+    import av
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    n = 0
+    with av.open(str(path), 'w') as container:
+        stream = None
+        for image in frames:
+            if image.ndim == 2:
+                image = np.repeat(image[:, :, None], 3, axis=2)
+            h, w = image.shape[0] // 2 * 2, image.shape[1] // 2 * 2
+            if stream is None:
+                stream = container.add_stream(codec, rate=Fraction(fps).limit_denominator(1001))
+                stream.width, stream.height, stream.pix_fmt = w, h, 'yuv420p'
+                stream.codec_context.gop_size = gop
+                stream.options = {'g': str(gop), 'keyint_min': str(gop), 'sc_threshold': '0', 'bf': '0',
+                                  'crf': str(crf)}
+            vf = av.VideoFrame.from_ndarray(np.ascontiguousarray(image[:h, :w]), format='rgb24')
+            for packet in stream.encode(vf):
+                container.mux(packet)
+            n += 1
+        if stream is not None:
+            for packet in stream.encode():
+                container.mux(packet)
+    return n

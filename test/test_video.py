@@ -1,0 +1,150 @@
+"""Video input: frame selection modes, the growing-mosaic video, and bad video files."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from srmosaic_ros.errors import InputError
+from srmosaic_ros.io.mosaic_files import read_frames_csv
+from srmosaic_ros.io.telemetry_csv import read_telemetry_csv
+from srmosaic_ros.io.video import VideoReader, parse_selection, write_video
+from srmosaic_ros.sim import SimConfig, simulate
+from srmosaic_ros.sim.cli import _write_video_and_sidecar
+from srmosaic_ros.sim.truth import save_truth
+
+GOP = 12
+N = 48
+
+
+@pytest.fixture(scope='module')
+def flight_video(tmp_path_factory):
+    root = tmp_path_factory.mktemp('video')
+    flight = simulate(SimConfig(frames=N, width=320, height=240, seed=3))
+    video = root / 'flight.mp4'
+    _write_video_and_sidecar(flight, video, GOP)
+    save_truth(flight.truth, root / 'ground_truth.json')
+    return flight, video, root / 'ground_truth.json'
+
+
+def srmosaic(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, '-m', 'srmosaic_ros.cli', *args], capture_output=True, text=True,
+                          timeout=600)
+
+
+@pytest.mark.parametrize(('select', 'expected'), [('all', N), ('every:3', N // 3), ('iframes', N // GOP)])
+def test_selection_counts_and_stamps(flight_video, select, expected):
+    flight, video, _ = flight_video
+    frames = list(VideoReader(video, selection=parse_selection(select)))
+    assert len(frames) == expected
+    step = {'all': 1, 'every:3': 3, 'iframes': GOP}[select]
+    period_ns = 1e9 / flight.config.rate_hz
+    assert [f.stamp_ns for f in frames] == [round(i * step * period_ns) for i in range(expected)]
+    if select == 'iframes':  # I-frames are the frames at multiples of the GOP: compare pixels
+        for i, f in enumerate(frames):
+            ref = flight.frames[i * GOP].image.astype(float)
+            assert np.abs(f.image.astype(float) - ref).mean() < 4.0
+
+
+def test_overlap_selection_keeps_overlap_near_threshold(flight_video):
+    flight, video, _ = flight_video
+    frames = list(VideoReader(video, selection=parse_selection('overlap:0.7')))
+    assert 2 < len(frames) < N
+    # True overlap between successive selected frames, from the ground truth (translation part).
+    truth = {f.stamp_ns - flight.truth.frames[0].stamp_ns: f for f in flight.truth.frames}
+    for a, b in zip(frames, frames[1:]):
+        H = np.linalg.inv(truth[a.stamp_ns].world_px_H_frame) @ truth[b.stamp_ns].world_px_H_frame  # noqa: N806
+        c = H @ np.array([159.5, 119.5, 1.0])
+        dx, dy = np.abs(c[:2] / c[2] - (159.5, 119.5))
+        overlap = max(0, 320 - dx) * max(0, 240 - dy) / (320 * 240)
+        assert 0.55 < overlap < 0.85
+
+
+def test_parse_selection_refuses_garbage():
+    for text in ('every:0', 'overlap:1.5', 'iframe', 'all:3', 'every:x'):
+        with pytest.raises(InputError, match='--select'):
+            parse_selection(text)
+
+
+def test_process_video_iframes_with_telemetry_and_mosaic_video(flight_video, tmp_path):
+    _, video, truth = flight_video
+    out = tmp_path / 'out'
+    run = srmosaic('process', str(video), '--out', str(out), '--select', 'iframes', '--hfov', '60',
+                   '--telemetry', str(video.with_suffix('.csv')), '--mosaic-video', '--no-progress')
+    assert run.returncode == 0, run.stderr
+    rows = read_frames_csv(out / 'frames.csv')
+    assert [r['stamp_ns'] for r in rows] == [round(i * GOP * 0.25e9) for i in range(N // GOP)]
+    report = json.loads((out / 'report.json').read_text())
+    assert report['input_kind'] == 'video' and report['video']['frames_selected'] == N // GOP
+    assert report['telemetry']['fixes'] > 0
+    assert report['mosaic_video_frames'] == report['frames_registered']
+    assert (out / 'mosaic.mp4').stat().st_size > 1000
+    ev = srmosaic('evaluate', str(out), '--truth', str(truth), '--json')
+    assert ev.returncode == 0, ev.stderr
+    assert json.loads(ev.stdout)['corner_error_mean_px'] < 2.0
+
+
+def test_empty_video_is_a_clear_error(tmp_path):
+    empty = tmp_path / 'empty.mp4'
+    empty.write_bytes(b'')
+    run = srmosaic('process', str(empty), '--out', str(tmp_path / 'out'))
+    assert run.returncode == 2 and 'empty' in run.stderr and 'Traceback' not in run.stderr
+
+
+def test_garbage_video_is_a_clear_error(tmp_path):
+    bad = tmp_path / 'bad.mp4'
+    bad.write_bytes(np.random.default_rng(0).integers(0, 255, 20000, dtype=np.uint8).tobytes())
+    run = srmosaic('process', str(bad), '--out', str(tmp_path / 'out'))
+    assert run.returncode == 2 and 'Traceback' not in run.stderr
+    assert 'bad.mp4' in run.stderr
+
+
+def test_truncated_video_keeps_what_was_processed(flight_video, tmp_path):
+    _, video, _ = flight_video
+    cut = tmp_path / 'cut.ts'
+    # MPEG-TS survives truncation (no index at the end): write one, cut it in the middle.
+    write_video(cut, (f.image for f in flight_video[0].frames), fps=4.0, gop=GOP)
+    data = cut.read_bytes()
+    cut.write_bytes(data[: int(len(data) * 0.6)])
+    out = tmp_path / 'out'
+    run = srmosaic('process', str(cut), '--out', str(out), '--no-progress')
+    assert 'Traceback' not in run.stderr
+    rows = read_frames_csv(out / 'frames.csv')
+    assert 5 < len(rows) < N  # the frames before the cut were processed and written
+    if run.returncode != 0:  # the decoder may also just stop at the cut; either way nothing is lost
+        assert 'damaged' in run.stderr or 'truncated' in run.stderr
+
+
+def test_size_change_mid_stream_stops_with_message_and_keeps_frames(flight_video, tmp_path):
+    flight = flight_video[0]
+    a, b = tmp_path / 'a.ts', tmp_path / 'b.ts'
+    write_video(a, (f.image for f in flight.frames[:12]), fps=4.0, gop=GOP)
+    write_video(b, (f.image[::2, ::2] for f in flight.frames[12:24]), fps=4.0, gop=GOP)
+    joined = tmp_path / 'joined.ts'
+    joined.write_bytes(a.read_bytes() + b.read_bytes())
+    out = tmp_path / 'out'
+    run = srmosaic('process', str(joined), '--out', str(out), '--no-progress')
+    assert run.returncode == 2, run.stdout + run.stderr
+    assert '160x120' in run.stderr and 'Traceback' not in run.stderr
+    assert len(read_frames_csv(out / 'frames.csv')) == 12
+    assert 'error' in json.loads((out / 'report.json').read_text())
+
+
+def test_video_options_refused_for_bags(tmp_path):
+    demo = Path(__file__).resolve().parent.parent / 'bags' / 'demo'
+    run = srmosaic('process', str(demo), '--out', str(tmp_path / 'out'), '--select', 'iframes')
+    assert run.returncode == 2 and 'video input' in run.stderr
+
+
+def test_telemetry_csv_errors(tmp_path):
+    bad = tmp_path / 't.csv'
+    bad.write_text('time,lat\n0,1\n')
+    with pytest.raises(InputError, match='lacks columns'):
+        read_telemetry_csv(bad)
+    bad.write_text('time_s,latitude,longitude,altitude,roll,pitch,yaw\n0,x,1,1,0,0,0\n')
+    with pytest.raises(InputError, match='line 2'):
+        read_telemetry_csv(bad)
