@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import collections
 import resource
+import shutil
 import time
 from pathlib import Path
 from collections.abc import Iterable, Iterator
@@ -11,6 +12,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from .checkpoint import Checkpoint, checkpoint_path, fingerprint, load_checkpoint, save_checkpoint
 from .config import PipelineConfig
 from .io.bags import TopicConfig, read_flight
 from .io.mosaic_files import write_frames_csv, write_json, write_png
@@ -133,26 +135,44 @@ def open_source(path: Path, *, topics: TopicConfig | None = None, select: str = 
 def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: TopicConfig | None = None,
                   select: str = 'all', camera_yaml: Path | None = None, hfov_deg: float | None = None,
                   telemetry_csv: Path | None = None, mosaic_video: bool = False,
-                  progress: bool = True) -> dict[str, Any]:
+                  checkpoint_every: int = 0, resume: bool = False, progress: bool = True) -> dict[str, Any]:
     """Run the pipeline over a bag or video and write the outputs; returns the report (also in report.json).
 
     If the input breaks mid-way (a damaged bag or video, a frame size change), everything processed
     so far is written, the report records the error, and the error is raised again so the command
-    exits non-zero.
+    exits non-zero. With checkpoint_every > 0 the state is checkpointed every that many frames
+    (see checkpoint.py); resume=True continues from the last checkpoint in `out`.
     """
     t0 = time.perf_counter()
+    if checkpoint_every < 0:
+        msg = f'--checkpoint-every must be >= 0, got {checkpoint_every}.'
+        raise InputError(msg)
     items, reader, kind = open_source(path, topics=topics, select=select, camera_yaml=camera_yaml,
                                       hfov_deg=hfov_deg, telemetry_csv=telemetry_csv)
+    settings = {'select': select, 'topics': repr(topics), 'config': repr(config), 'mosaic_video': mosaic_video,
+                'camera': str(camera_yaml), 'hfov': hfov_deg, 'telemetry': str(telemetry_csv)}
+    run_id = fingerprint(path, settings)
     pipeline = Pipeline(config)
     recorder = MosaicVideoRecorder() if mosaic_video else None
-    bar = tqdm(total=reader.frame_count, unit='frame', desc='process', disable=not progress)
-    error: SrMosaicError | None = None
     recent: dict[int, np.ndarray] = {}
+    skip_items = frames_done = 0
+    if resume:
+        state = load_checkpoint(out, run_id)
+        pipeline, recorder = state.pipeline, state.recorder
+        recent = state.recent or {}
+        skip_items, frames_done = state.items_consumed, state.frames_consumed
+    bar = tqdm(total=reader.frame_count, initial=frames_done, unit='frame', desc='process', disable=not progress)
+    error: SrMosaicError | None = None
+    consumed = 0
     with bar:
         try:
             for item in items:
+                consumed += 1
+                if consumed <= skip_items:  # already in the checkpointed state
+                    continue
                 records = pipeline.feed(item)
                 if isinstance(item, Frame):
+                    frames_done += 1
                     bar.update(1)
                     bar.set_postfix(segments=len(pipeline.segments), refresh=False)
                     if recorder is not None:
@@ -162,6 +182,8 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
                     for rec in records:
                         if rec.painted and rec.index in recent:
                             recorder.add(rec.segment, to_float01(recent[rec.index]), rec.seg_H_frame)
+                if checkpoint_every and isinstance(item, Frame) and frames_done % checkpoint_every == 0:
+                    save_checkpoint(out, Checkpoint(run_id, consumed, frames_done, pipeline, recorder, recent))
         except SrMosaicError as exc:
             error = exc
     result = pipeline.finish()
@@ -180,7 +202,14 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
     report['wall_s'] = round(wall, 3)
     report['frames_per_s'] = round(len(result.records) / wall, 2) if wall > 0 else None
     report['peak_rss_mb'] = round(peak_rss_mb(), 1)
+    if resume:
+        report['resumed_after_frames'] = skip_frames_note(skip_items, frames_done)
     write_json(out / 'report.json', report)
     if error is not None:
         raise error
+    shutil.rmtree(checkpoint_path(out).parent, ignore_errors=True)  # complete: the checkpoint is spent
     return report
+
+
+def skip_frames_note(items: int, frames: int) -> dict[str, int]:
+    return {'input_items_skipped': items, 'frames_total': frames}

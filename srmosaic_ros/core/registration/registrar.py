@@ -112,9 +112,20 @@ class Registrar:
 
     def __init__(self, config: RegistrationConfig | None = None) -> None:
         self.config = config or RegistrationConfig()
+        self._make_tools()
+
+    def _make_tools(self) -> None:
         self._sift = cv2.SIFT_create(nfeatures=self.config.max_features,
                                      contrastThreshold=self.config.contrast_threshold)
         self._matcher = cv2.BFMatcher(cv2.NORM_L2)
+
+    def __getstate__(self) -> dict:
+        """Picklable (checkpoints): the OpenCV objects are rebuilt from the config."""
+        return {'config': self.config}
+
+    def __setstate__(self, state: dict) -> None:
+        self.config = state['config']
+        self._make_tools()
 
     def describe(self, image: np.ndarray) -> Features:
         """Features of an edge image ((H, W) or (H, W, 3), uint8/uint16/float)."""

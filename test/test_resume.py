@@ -1,0 +1,57 @@
+"""A run killed with SIGKILL resumes from its checkpoint and produces the same mosaic."""
+from __future__ import annotations
+
+import json
+import os
+import pickle
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+DEMO = ROOT / 'bags' / 'demo'
+CLI = [sys.executable, '-m', 'srmosaic_ros.cli']
+
+
+def _checkpointed_frames(out: Path) -> int:
+    path = out / '.checkpoint' / 'state.pkl'
+    try:
+        with open(path, 'rb') as handle:
+            return pickle.load(handle).frames_consumed
+    except (OSError, EOFError, pickle.UnpicklingError):
+        return 0
+
+
+def test_kill_9_then_resume_gives_the_same_mosaic(tmp_path):
+    full = tmp_path / 'full'
+    run = subprocess.run([*CLI, 'process', str(DEMO), '--out', str(full), '--no-progress'], capture_output=True,
+                         text=True, timeout=600)
+    assert run.returncode == 0, run.stderr
+    assert not (full / '.checkpoint').exists()  # a completed run leaves no checkpoint
+
+    out = tmp_path / 'interrupted'
+    proc = subprocess.Popen([*CLI, 'process', str(DEMO), '--out', str(out), '--checkpoint-every', '10',
+                             '--no-progress'], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 300
+    while _checkpointed_frames(out) < 20 and time.monotonic() < deadline:
+        assert proc.poll() is None, 'the run finished before it could be killed'
+        time.sleep(0.05)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert not (out / 'mosaic.png').exists() and not (out / 'frames.csv').exists()  # nothing that looks complete
+
+    resumed = subprocess.run([*CLI, 'process', str(DEMO), '--out', str(out), '--checkpoint-every', '10',
+                              '--resume', '--no-progress'], capture_output=True, text=True, timeout=600)
+    assert resumed.returncode == 0, resumed.stderr
+    report = json.loads((out / 'report.json').read_text())
+    assert report['resumed_after_frames']['input_items_skipped'] > 0
+    assert (out / 'frames.csv').read_bytes() == (full / 'frames.csv').read_bytes()
+    assert (out / 'mosaic.png').read_bytes() == (full / 'mosaic.png').read_bytes()
+
+
+def test_resume_refuses_other_input_or_missing_checkpoint(tmp_path):
+    run = subprocess.run([*CLI, 'process', str(DEMO), '--out', str(tmp_path / 'none'), '--resume'],
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 2 and 'no checkpoint' in run.stderr
