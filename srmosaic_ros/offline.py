@@ -113,8 +113,12 @@ def open_source(path: Path, *, topics: TopicConfig | None = None, select: str = 
                 camera_yaml: Path | None = None, hfov_deg: float | None = None,
                 telemetry_csv: Path | None = None) -> tuple[Iterable[Any], Any, str]:
     """(items in time order, the reader (frame_count, skipped), 'bag' or 'video') for a bag or a video file."""
+    from .io.image_folder import ImageFolderReader, is_image_folder
     from .io.video import VideoReader, is_video, load_camera_yaml, parse_selection
 
+    if is_image_folder(path):
+        reader = ImageFolderReader(path)
+        return reader, reader, 'images'
     if is_video(path):
         camera = load_camera_yaml(camera_yaml) if camera_yaml else None
         reader = VideoReader(path, selection=parse_selection(select), camera=camera, hfov_deg=hfov_deg)
