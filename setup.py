@@ -19,6 +19,8 @@ INSTALL_REQUIRES = [
     'rosbags==0.11.9',
     'PyYAML==6.0.4',   # params/*.yaml and ground-truth files
     'tqdm==4.70.1',    # progress of long offline jobs
+    'pyproj==3.7.2',   # UTM zones and WGS84 transforms of the georeferenced raster
+    'rasterio==1.4.4',  # GeoTIFF output that GDAL-based tools open in place
     'av==18.1.0',      # PyAV: video decoding with picture types (I-frame selection) and H.264 encoding
 ]
 
@@ -34,6 +36,7 @@ setup(
     install_requires=INSTALL_REQUIRES,
     extras_require={
         'test': ['pytest==9.2.0', 'pytest-timeout==2.4.0'],
+        'bench': ['matplotlib==3.11.2'],
     },
     python_requires='>=3.11',
     zip_safe=False,

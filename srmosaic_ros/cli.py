@@ -89,6 +89,12 @@ def _run_evaluate(args: argparse.Namespace) -> int:
         if figures.get('pair_corner_error_mean_px') is not None:
             print(f"consecutive-frame corner error: mean {figures['pair_corner_error_mean_px']:.4f} px, "
                   f"p90 {figures['pair_corner_error_p90_px']:.4f} px")
+        if 'georef_error_rms_m' in figures:
+            print(f"georeferencing error of mosaic points (EPSG:{figures['epsg']}): RMS "
+                  f"{figures['georef_error_rms_m']:.2f} m, max {figures['georef_error_max_m']:.2f} m")
+        if 'pose_rmse_horizontal_m' in figures:
+            print(f"fused position error (poses.csv): horizontal RMS {figures['pose_rmse_horizontal_m']:.2f} m, "
+                  f"vertical RMS {figures['pose_rmse_vertical_m']:.2f} m")
     return 0
 
 

@@ -7,12 +7,13 @@ from __future__ import annotations
 
 import os
 import sys
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
 import yaml
 
+from .core.georef.georeferencer import GeorefConfig
 from .core.mosaic.config import MosaicConfig
 from .core.registration import RegistrationConfig
 from .errors import ConfigError
@@ -29,6 +30,8 @@ class PipelineConfig:
     device: str = 'auto'
     registration: RegistrationConfig = RegistrationConfig()
     mosaic: MosaicConfig = MosaicConfig()
+    georef_enabled: bool = True
+    georef: GeorefConfig = field(default_factory=GeorefConfig)
 
 
 def default_params_path() -> Path:
@@ -109,4 +112,6 @@ def pipeline_config(overrides: dict[str, Any] | None = None, *, defaults: dict[s
         device=device,
         registration=_build(RegistrationConfig, 'registration.', flat),
         mosaic=_build(MosaicConfig, 'mosaic.', flat),
+        georef_enabled=bool(flat.get('georef.enabled', True)),
+        georef=_build(GeorefConfig, 'georef.', flat),
     )

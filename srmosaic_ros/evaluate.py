@@ -67,4 +67,46 @@ def evaluate_dir(out_dir: Path, truth_path: Path) -> dict[str, Any]:
     if pair_err:
         figures['pair_corner_error_mean_px'] = float(np.mean(pair_err))
         figures['pair_corner_error_p90_px'] = float(np.percentile(pair_err, 90))
+    if (Path(out_dir) / 'mosaic.tif').is_file() and ok:
+        figures.update(_georef_errors(Path(out_dir), truth, ok, by_stamp, w, h))
     return figures
+
+
+def _georef_errors(out_dir: Path, truth: Any, ok: list[dict[str, Any]], by_stamp: dict[int, Any],
+                   w: int, h: int) -> dict[str, Any]:
+    """Georeferencing error (m) of mosaic points, and position error of poses.csv, against the truth."""
+    import rasterio
+    from pyproj import Transformer
+
+    from .core.georef.geodetic import LocalTangentPlane
+    from .core.metrics import apply_homography
+    from .io.poses_csv import read_poses_csv
+
+    with rasterio.open(out_dir / 'mosaic.tif') as ds:
+        affine, epsg = ds.transform, ds.crs.to_epsg()
+    to_utm = Transformer.from_crs(4326, epsg, always_xy=True)
+    ltp = LocalTangentPlane(*truth.origin)
+    pts = np.array([[w / 2 - 0.5, h / 2 - 0.5], [0, 0], [w - 1, 0], [w - 1, h - 1], [0, h - 1]], dtype=float)
+    errors = []
+    for r in ok:
+        mos = apply_homography(r['mosaic_H_frame'], pts)
+        # rasterio's affine maps pixel corners: the centre of pixel (x, y) is at (x + 0.5, y + 0.5).
+        e_est = np.array([affine * (x + 0.5, y + 0.5) for x, y in mos])
+        world = apply_homography(by_stamp[r['stamp_ns']].world_px_H_frame, pts)
+        enu = apply_homography(truth.enu_H_world_px, world)
+        lat, lon, _ = ltp.geodetic_from_enu(np.c_[enu, np.zeros(len(enu))])
+        e_true = np.c_[to_utm.transform(lon, lat)]
+        errors.append(np.linalg.norm(e_est - e_true, axis=1))
+    err = np.concatenate(errors)
+    out: dict[str, Any] = {'georef_error_rms_m': float(np.sqrt(np.mean(err ** 2))), 'georef_error_max_m': float(err.max()),
+                           'epsg': epsg}
+    poses_csv = out_dir / 'poses.csv'
+    if poses_csv.is_file():
+        rows = [p for p in read_poses_csv(poses_csv) if p['stamp_ns'] in by_stamp and np.isfinite(p['latitude'])]
+        if rows:
+            est = np.array([ltp.enu_from_geodetic(p['latitude'], p['longitude'], p['altitude']) for p in rows])
+            tru = np.array([by_stamp[p['stamp_ns']].position_enu_m for p in rows])
+            d = est - tru
+            out['pose_rmse_horizontal_m'] = float(np.sqrt(np.mean(np.sum(d[:, :2] ** 2, axis=1))))
+            out['pose_rmse_vertical_m'] = float(np.sqrt(np.mean(d[:, 2] ** 2)))
+    return out

@@ -18,7 +18,7 @@ from .io.bags import TopicConfig, read_flight
 from .io.mosaic_files import write_frames_csv, write_json, write_png
 from .errors import InputError, SrMosaicError
 from .io.mosaic_video import MosaicVideoRecorder
-from .pipeline import Pipeline, PipelineResult
+from .pipeline import SYNC_HOLD_FRAMES, Pipeline, PipelineResult
 from .core.image_ops import to_float01
 from .core.types import Frame
 
@@ -46,29 +46,36 @@ def preview_image(image: np.ndarray, coverage: np.ndarray, max_side: int) -> np.
 
 
 def write_outputs(result: PipelineResult, out: Path, config: PipelineConfig, extra: dict[str, Any]) -> dict[str, Any]:
-    """Write mosaic.png (main segment), segments/, frames.csv, report.json. Returns the report."""
+    """Write mosaic.png (main canvas), segments/, frames.csv, and with georeferencing mosaic.tif,
+    mosaic.kml and poses.csv. Returns the report (the caller adds timings and writes it)."""
     out.mkdir(parents=True, exist_ok=True)
     main = result.main_segment
+    main_canvas = main.canvas if main is not None else None
     mosaic_H_seg = np.eye(3)  # noqa: N806
     segments_report = []
+    written: dict[int, str] = {}  # id(canvas) -> file
+    geo: dict[str, Any] = {}
     for seg in result.segments:
         x0, y0, x1, y1 = seg.canvas.bounds()
-        image, coverage = seg.canvas.render()
-        if seg is main:
-            mosaic_H_seg = _translation(-x0, -y0)  # noqa: N806
-            write_png(out / 'mosaic.png', image, coverage)
-            write_png(out / 'preview.png', preview_image(image, coverage, config.mosaic.preview_max_side_px))
-            name = 'mosaic.png'
-        elif len(seg.frames) >= 2:
-            name = f'segments/segment_{seg.index:03d}.png'
-            write_png(out / name, image, coverage)
-        else:
-            name = ''
-        segments_report.append({'index': seg.index, 'frames': len(seg.frames), 'file': name,
+        if id(seg.canvas) not in written:
+            image, coverage = seg.canvas.render()
+            if seg.canvas is main_canvas:
+                mosaic_H_seg = _translation(-x0, -y0)  # noqa: N806
+                write_png(out / 'mosaic.png', image, coverage)
+                write_png(out / 'preview.png', preview_image(image, coverage, config.mosaic.preview_max_side_px))
+                written[id(seg.canvas)] = 'mosaic.png'
+                if main.georeferenced and result.georef is not None and result.georef.raster is not None:
+                    geo = _write_georeferenced(out, result, image, coverage, (x0, y0))
+            elif len(seg.frames) >= 2:
+                written[id(seg.canvas)] = f'segments/segment_{seg.index:03d}.png'
+                write_png(out / written[id(seg.canvas)], image, coverage)
+        segments_report.append({'index': seg.index, 'frames': len(seg.frames), 'file': written.get(id(seg.canvas), ''),
+                                'georeferenced': seg.georeferenced,
                                 'size_px': [int(x1 - x0), int(y1 - y0)], 'origin_px': [int(x0), int(y0)]})
+    main_segments = {seg.index for seg in result.segments if seg.canvas is main_canvas}
     rows = []
     for rec in result.records:
-        in_main = main is not None and rec.segment == main.index
+        in_main = rec.segment in main_segments
         reg = rec.registration
         rows.append({
             'stamp_ns': rec.stamp_ns,
@@ -92,6 +99,7 @@ def write_outputs(result: PipelineResult, out: Path, config: PipelineConfig, ext
             'median_ms': float(np.median([r.time_s for r in regs]) * 1e3) if regs else None,
         },
         'telemetry': {'fixes': len(result.fixes), 'imu': len(result.imus)},
+        'georeferenced': geo or None,
         'config': {'device': config.device, 'registration': vars(config.registration), 'mosaic': vars(config.mosaic)},
     }
     report.update(extra)
@@ -134,6 +142,44 @@ def open_source(path: Path, *, topics: TopicConfig | None = None, select: str = 
         raise InputError(msg)
     reader = read_flight(path, topics=topics or TopicConfig())
     return reader, reader, 'bag'
+
+
+def _write_georeferenced(out: Path, result: PipelineResult, image: np.ndarray, coverage: np.ndarray,
+                         origin: tuple[int, int]) -> dict[str, Any]:
+    """mosaic.tif (same pixel grid as mosaic.png), mosaic.kml and poses.csv (smoothed poses)."""
+    from .io.geotiff import write_geotiff
+    from .io.kml import write_kml_for_raster
+    from .io.poses_csv import write_poses_csv
+
+    from .core.metrics import apply_homography
+
+    georef = result.georef
+    poses = georef.smoothed_poses()
+    # The mosaic plane was anchored by the first frame's (early, filtered) pose. With the smoothed
+    # poses of every frame, re-anchor it: the mean offset between each frame's chained corners and
+    # its pose-predicted corners is the anchor error (averaged over the flight), removed by shifting
+    # the geotransform. The mosaic's pixels do not move: mosaic.png and mosaic.tif stay one grid.
+    offsets = []
+    main_canvas = result.main_segment.canvas
+    seg_of = {seg.index: seg for seg in result.segments}
+    for rec, pose in zip(result.records, poses):
+        seg = seg_of.get(rec.segment)
+        if seg is None or seg.canvas is not main_canvas or not pose.valid or rec.seg_H_frame is None:
+            continue
+        w_f, h_f = rec.size
+        corners = np.array([[0, 0], [w_f - 1, 0], [w_f - 1, h_f - 1], [0, h_f - 1]], dtype=float)
+        by_pose = apply_homography(georef.raster_H_frame(pose), corners)
+        offsets.append(by_pose - apply_homography(rec.seg_H_frame, corners))
+    shift = np.concatenate(offsets).mean(axis=0) if offsets else np.zeros(2)
+    # mosaic pixel m is chained raster pixel m + origin, truly at raster pixel m + origin + shift.
+    raster = georef.raster.shifted(origin[0] + shift[0], origin[1] + shift[1])  # pixel (0, 0) of mosaic.png
+    write_geotiff(out / 'mosaic.tif', image, raster, coverage=coverage)
+    h, w = coverage.shape
+    write_kml_for_raster(out / 'mosaic.kml', 'mosaic.png', raster, w, h)
+    write_poses_csv(out / 'poses.csv', poses)
+    return {'epsg': raster.epsg, 'gsd_m_per_px': raster.gsd_m_per_px, 'geotransform': list(raster.geotransform),
+            'anchor_shift_px': [float(v) for v in shift], 'poses': len(poses),
+            'skipped_telemetry': dict(georef.skipped)}
 
 
 def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: TopicConfig | None = None,
@@ -180,16 +226,21 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
                     bar.update(1)
                     bar.set_postfix(segments=len(pipeline.segments), refresh=False)
                     if recorder is not None:
-                        recent[len(pipeline.records) - 1] = item.image
-                        recent.pop(len(pipeline.records) - 4, None)  # decisions reach back one frame at most
+                        recent[item.stamp_ns] = item.image
+                        while len(recent) > SYNC_HOLD_FRAMES + 3:  # frames are decided at most this late
+                            recent.pop(next(iter(recent)))
                 if recorder is not None:
                     for rec in records:
-                        if rec.painted and rec.index in recent:
-                            recorder.add(rec.segment, to_float01(recent[rec.index]), rec.seg_H_frame)
+                        if rec.painted and rec.stamp_ns in recent:
+                            recorder.add(rec.segment, to_float01(recent[rec.stamp_ns]), rec.seg_H_frame)
                 if checkpoint_every and isinstance(item, Frame) and frames_done % checkpoint_every == 0:
                     save_checkpoint(out, Checkpoint(run_id, consumed, frames_done, pipeline, recorder, recent))
         except SrMosaicError as exc:
             error = exc
+    if recorder is not None and error is None:
+        for rec in pipeline.flush():  # the last frames, held for telemetry that never came
+            if rec.painted and rec.stamp_ns in recent:
+                recorder.add(rec.segment, to_float01(recent[rec.stamp_ns]), rec.seg_H_frame)
     result = pipeline.finish()
     report_extra: dict[str, Any] = {'input': str(path), 'input_kind': kind,
                                     'skipped_messages': dict(getattr(reader, 'skipped', {}))}

@@ -7,9 +7,18 @@
     result = pipeline.finish()           # segments; the largest is the main mosaic
 
 Nodes and the CLI drive this class; it knows nothing of ROS, bags or files.
+
+Telemetry and frames are associated by time (approximate-time synchronisation): a frame waits
+until telemetry at or after its stamp has been seen (or until `SYNC_HOLD_FRAMES` more frames
+arrived with no telemetry at all), so the georeferencing filter always has the fixes and IMU
+samples that precede it. With fixes and camera intrinsics, segments live on one north-up UTM
+raster (the Georeferencer's), frames are placed by their fused pose, and chained homographies are
+pulled toward the pose-predicted placement (drift control); without them, a segment's plane is
+the pixel plane of its first frame.
 """
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 
@@ -19,9 +28,13 @@ from .config import PipelineConfig
 from .core.image_ops import to_float01
 from .core.mosaic.segments import Segment
 from .core.registration import Features, Registrar, Registration
-from .core.types import Frame, GeoFix, ImuSample
+from .core.georef.georeferencer import FramePose, Georeferencer
+from .core.types import CameraIntrinsics, Frame, GeoFix, ImuSample
 
-__all__ = ['FrameRecord', 'Pipeline', 'PipelineResult']
+__all__ = ['FrameRecord', 'Pipeline', 'PipelineResult', 'SYNC_HOLD_FRAMES']
+
+#: Frames kept waiting for telemetry when none has been seen after them (then they go on alone).
+SYNC_HOLD_FRAMES = 3
 
 
 @dataclass
@@ -41,6 +54,7 @@ class FrameRecord:
     registration: Registration | None = None
     reason: str = ''
     time_s: float = 0.0
+    pose: FramePose | None = None
 
     @property
     def painted(self) -> bool:
@@ -53,6 +67,7 @@ class PipelineResult:
     segments: list[Segment]
     fixes: list[GeoFix] = field(default_factory=list)
     imus: list[ImuSample] = field(default_factory=list)
+    georef: Georeferencer | None = None
 
     @property
     def main_segment(self) -> Segment | None:
@@ -69,6 +84,7 @@ class _Held:
     features: Features
     image: np.ndarray
     record: FrameRecord
+    camera: CameraIntrinsics | None = None
 
 
 class Pipeline:
@@ -81,24 +97,58 @@ class Pipeline:
         self.segments: list[Segment] = []
         self.fixes: list[GeoFix] = []
         self.imus: list[ImuSample] = []
+        self.georef: Georeferencer | None = None
+        self._geo_canvas: Segment | None = None  # the first georeferenced segment: owner of the shared canvas
         self._active: Segment | None = None
         self._last_good: _Held | None = None
         self._orphan: _Held | None = None
         self._channels: int | None = None
+        self._waiting: list[Frame] = []
+        self.camera: CameraIntrinsics | None = None
+        self._latest_telemetry_ns: int | None = None
 
     # -- input -------------------------------------------------------------------------------
-    def feed(self, item: Frame | GeoFix | ImuSample) -> list[FrameRecord]:
-        """Feed one input; return the frame records that were decided by it (possibly none or two)."""
+    def feed(self, item: Frame | GeoFix | ImuSample | CameraIntrinsics) -> list[FrameRecord]:
+        """Feed one input; return the frame records decided by it (none, one or several).
+
+        A CameraIntrinsics (live: from CameraInfo) becomes the camera of frames that carry none.
+        """
+        if isinstance(item, CameraIntrinsics):
+            self.camera = item
+            return []
         if isinstance(item, Frame):
-            return self.feed_frame(item)
+            self._waiting.append(item)
+            return self._drain()
         if isinstance(item, GeoFix):
             self.fixes.append(item)
+            if self.georef is None and self.config.georef_enabled:
+                self.georef = Georeferencer(self.config.georef)
+            if self.georef is not None:
+                self.georef.feed_fix(item)
         elif isinstance(item, ImuSample):
             self.imus.append(item)
+            if self.georef is not None:
+                self.georef.feed_imu(item)
         else:
             msg = f'Pipeline.feed takes Frame, GeoFix or ImuSample, not {type(item).__name__}.'
             raise TypeError(msg)
-        return []
+        self._latest_telemetry_ns = max(self._latest_telemetry_ns or item.stamp_ns, item.stamp_ns)
+        return self._drain()
+
+    def feed_frame(self, frame: Frame) -> list[FrameRecord]:
+        """Process a frame now, without waiting for telemetry (e.g. inputs without any)."""
+        return self._process(frame)
+
+    def _drain(self, *, all_frames: bool = False) -> list[FrameRecord]:
+        """Process the waiting frames whose telemetry has arrived (approximate-time association)."""
+        decided: list[FrameRecord] = []
+        while self._waiting:
+            frame = self._waiting[0]
+            seen = self._latest_telemetry_ns is not None and self._latest_telemetry_ns > frame.stamp_ns
+            if not (all_frames or seen or len(self._waiting) > SYNC_HOLD_FRAMES):
+                break
+            decided += self._process(self._waiting.pop(0))
+        return decided
 
     def _as_canvas_image(self, image: np.ndarray) -> np.ndarray:
         """Edge image -> float32 (H, W, C) in [0, 1] with the channel count of the first frame."""
@@ -111,11 +161,41 @@ class Pipeline:
             f = np.repeat(f, 3, axis=2) if f.shape[2] == 1 else f.mean(axis=2, keepdims=True)
         return np.ascontiguousarray(f, dtype=np.float32)
 
+    # -- placement -------------------------------------------------------------------------------
+    def _georeferenced_start(self, held: _Held) -> np.ndarray | None:
+        """seg_H_frame on the shared raster for the first frame of a segment, when its pose is valid."""
+        pose, camera = held.record.pose, held.camera
+        if self.georef is None or pose is None or not pose.valid or camera is None:
+            return None
+        if self.georef.raster is None:
+            self.georef.make_raster(pose, camera)
+        self.georef.reset_drift()
+        return self.georef.raster_H_frame(pose, camera)
+
     def _start_segment(self, held: _Held) -> Segment:
-        seg = Segment.create(len(self.segments), self._channels or 1, self.config.mosaic)
+        start = self._georeferenced_start(held)
+        shared = self._geo_canvas.canvas if (start is not None and self._geo_canvas is not None) else None
+        seg = Segment.create(len(self.segments), self._channels or 1, self.config.mosaic, canvas=shared)
+        seg.georeferenced = start is not None
+        if seg.georeferenced and self._geo_canvas is None:
+            self._geo_canvas = seg
         self.segments.append(seg)
-        self._paint(seg, held, np.eye(3))
+        self._paint(seg, held, start if start is not None else np.eye(3))
         return seg
+
+    def _chained(self, seg: Segment, prev_seg_H_frame: np.ndarray, reg: Registration, held: _Held) -> np.ndarray:  # noqa: N803
+        """seg_H_frame of a registered frame: the chain (4.6), with drift control on the raster."""
+        chained = prev_seg_H_frame @ reg.prev_H_cur
+        pose = held.record.pose
+        if not seg.georeferenced or self.georef is None or pose is None or not pose.valid or held.camera is None:
+            return chained
+        if reg.covariance is not None:
+            sigma = self.georef.corner_sigma_px(reg.prev_H_cur, reg.covariance)
+        else:
+            # Without a covariance: least-squares corner error from the inlier residuals, about
+            # rms * sqrt(8 / inliers) (8 parameters) times 2 for the extrapolation to the corners.
+            sigma = 2.0 * reg.rms_px * math.sqrt(8.0 / max(reg.inliers, 8))
+        return self.georef.correct(chained, pose, held.camera, chain_sigma_px=sigma)
 
     def _paint(self, seg: Segment, held: _Held, seg_H_frame: np.ndarray) -> bool:  # noqa: N803
         try:
@@ -127,7 +207,18 @@ class Pipeline:
         held.record.seg_H_frame = seg_H_frame
         return True
 
-    def feed_frame(self, frame: Frame) -> list[FrameRecord]:
+    # -- one frame -----------------------------------------------------------------------------
+    def _fuse(self, held: _Held, reg: Registration | None, ref: _Held | None) -> None:
+        """Feed the georeferencing filter with this frame (and its registration when it placed it)."""
+        if self.georef is None:
+            return
+        use = reg is not None and reg.ok and ref is not None
+        held.record.pose = self.georef.feed_frame(
+            held.record.stamp_ns, reg.prev_H_cur if use else None, reg.covariance if use else None,
+            rms_px=reg.rms_px if use else float('nan'), inliers=reg.inliers if use else 0, camera=held.camera,
+            ref_stamp_ns=ref.record.stamp_ns if use else None)
+
+    def _process(self, frame: Frame) -> list[FrameRecord]:
         t0 = time.perf_counter()
         h, w = frame.image.shape[:2]
         record = FrameRecord(len(self.records), frame.stamp_ns, (w, h))
@@ -136,15 +227,19 @@ class Pipeline:
             record.reason = f'frame of {w}x{h} pixels is too small to register'
             record.time_s = time.perf_counter() - t0
             return [record]
-        held = _Held(self.registrar.describe(frame.image), self._as_canvas_image(frame.image), record)
+        held = _Held(self.registrar.describe(frame.image), self._as_canvas_image(frame.image), record,
+                     frame.camera or self.camera)
         decided = [record]
         if self._last_good is None:
+            self._fuse(held, None, None)
             self._active = self._start_segment(held)
             self._last_good = held
         else:
             reg = self.registrar.register(self._last_good.features, held.features)
             record.registration = reg
-            if reg.ok and self._paint(self._active, held, self._last_good.record.seg_H_frame @ reg.prev_H_cur):
+            self._fuse(held, reg, self._last_good)
+            if reg.ok and self._paint(self._active, held,
+                                      self._chained(self._active, self._last_good.record.seg_H_frame, reg, held)):
                 self._last_good = held
                 self._orphan = None
             elif self._orphan is not None and self._try_new_segment(held):
@@ -166,11 +261,22 @@ class Pipeline:
         seg = self._start_segment(orphan)
         orphan.record.reason = ''
         held.record.registration = reg
-        if not self._paint(seg, held, reg.prev_H_cur):
+        if not self._paint(seg, held, self._chained(seg, orphan.record.seg_H_frame, reg, held)):
             return False
         self._active = seg
         self._last_good = held
         return True
 
+    def flush(self) -> list[FrameRecord]:
+        """Process every frame still waiting for telemetry (live: when telemetry stopped coming)."""
+        return self._drain(all_frames=True)
+
+    @property
+    def waiting(self) -> int:
+        """Frames waiting for telemetry at or after their stamp."""
+        return len(self._waiting)
+
     def finish(self) -> PipelineResult:
-        return PipelineResult(self.records, self.segments, self.fixes, self.imus)
+        """Process the frames still waiting for telemetry and return everything."""
+        self._drain(all_frames=True)
+        return PipelineResult(self.records, self.segments, self.fixes, self.imus, self.georef)

@@ -59,11 +59,18 @@ class Listener:
         self.compressed: list = []
         self.diagnostics: list = []
         self.registrations: list = []
+        self.poses: list = []
+        self.fixes: list = []
         self.node.create_subscription(Image, '/srmosaic/mosaic_preview', self.previews.append, 10)
         self.node.create_subscription(CompressedImage, '/srmosaic/mosaic_preview/compressed',
                                       self.compressed.append, 10)
         self.node.create_subscription(DiagnosticArray, '/srmosaic/diagnostics', self.diagnostics.append, 10)
         self.node.create_subscription(Float64MultiArray, '/srmosaic/registration', self.registrations.append, 100)
+        from geometry_msgs.msg import PoseWithCovarianceStamped
+        from sensor_msgs.msg import NavSatFix
+
+        self.node.create_subscription(PoseWithCovarianceStamped, '/srmosaic/pose', self.poses.append, 100)
+        self.node.create_subscription(NavSatFix, '/srmosaic/fix', self.fixes.append, 100)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self._thread = threading.Thread(target=self._spin, daemon=True)
@@ -114,7 +121,7 @@ def test_live_graph_matches_offline_process(ros_env, tmp_path):
         player = srmosaic('play', str(DEMO), '--rate', '2.0', '--delay', '15', env=ros_env)
         out, _ = player.communicate(timeout=120)
         assert player.returncode == 0, out
-        assert listener.wait_for(lambda: listener.diag_value('frames_processed') == '60', 60), \
+        assert listener.wait_for(lambda: listener.diag_value('frames_processed') == '60', 240), \
             f'graph did not process the 60 frames: {listener.diag_value("frames_processed")}'
         time.sleep(1.0)
         assert listener.previews and listener.compressed
@@ -122,6 +129,10 @@ def test_live_graph_matches_offline_process(ros_env, tmp_path):
         preview = listener.previews[-1]
         assert preview.encoding == 'rgb8' and max(preview.width, preview.height) <= 1024
         assert listener.diag_value('dropped_frames') == '0'
+        # The fused pose of every frame, near the simulated flight (100 m above the ground plane).
+        assert len(listener.poses) == 60 and len(listener.fixes) == 60
+        assert all(abs(p.pose.pose.position.z - 100.0) < 10.0 for p in listener.poses)
+        assert all(abs(f.latitude - 30.17) < 0.01 for f in listener.fixes)
     finally:
         log = _stop(graph)
         listener.close()
@@ -140,6 +151,7 @@ def test_live_graph_matches_offline_process(ros_env, tmp_path):
     errors = [corner_error_px(offline_H_live @ a['mosaic_H_frame'], b['mosaic_H_frame'], 640, 480)
               for a, b in zip(live, offline) if a['ok']]
     assert max(errors) < 1.0
+    assert (live_dir / 'mosaic.tif').is_file() and (live_dir / 'poses.csv').is_file()
     report = json.loads((live_dir / 'report.json').read_text())
     assert report['frames_in'] == 60 and 'wall_s' in report and 'peak_rss_mb' in report
 

@@ -3,8 +3,12 @@
 Subscribes (sensor-data QoS) to /camera/image_raw (sensor_msgs/Image) and
 /camera/image_raw/compressed (CompressedImage), /camera/camera_info, /fix, /imu/data. Publishes
 /srmosaic/mosaic_preview (Image, downscaled) and /srmosaic/mosaic_preview/compressed (JPEG),
-/srmosaic/registration (std_msgs/Float64MultiArray, layout in REGISTRATION_LAYOUT) and
-/srmosaic/diagnostics (diagnostic_msgs/DiagnosticArray). All names are remappable.
+/srmosaic/registration (std_msgs/Float64MultiArray, layout in REGISTRATION_LAYOUT),
+/srmosaic/pose (geometry_msgs/PoseWithCovarianceStamped: the fused body pose per frame, position
+in the local ENU plane tangent at the first fix, frame_id 'srmosaic_enu'; covariance of
+(east, north, up, roll, pitch, yaw)), /srmosaic/fix (NavSatFix of the same pose, covariance ENU)
+and /srmosaic/diagnostics (diagnostic_msgs/DiagnosticArray). All names are remappable.
+The georeferencing stage runs inside this node (registration and UKF share the frames).
 
 Back-pressure: image callbacks only convert and enqueue into a bounded queue (parameter
 `live.queue_size`); when it is full the oldest frame is dropped and counted (`dropped_frames` in the
@@ -23,6 +27,7 @@ from typing import Any
 import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PoseWithCovarianceStamped
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, NavSatFix
@@ -92,6 +97,8 @@ class MosaicNode(Node):
         self.pub_preview_c = self.create_publisher(CompressedImage, '/srmosaic/mosaic_preview/compressed', 1)
         self.pub_registration = self.create_publisher(Float64MultiArray, '/srmosaic/registration', 50)
         self.pub_diag = self.create_publisher(DiagnosticArray, '/srmosaic/diagnostics', 10)
+        self.pub_pose = self.create_publisher(PoseWithCovarianceStamped, '/srmosaic/pose', 50)
+        self.pub_fix = self.create_publisher(NavSatFix, '/srmosaic/fix', 50)
         self.create_timer(period, self._publish_periodic)
         self._worker = threading.Thread(target=self._work, name='srmosaic-mosaic-worker', daemon=True)
         self._worker.start()
@@ -133,7 +140,10 @@ class MosaicNode(Node):
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
         try:
-            self._camera = camera_info_to_intrinsics(msg)
+            camera = camera_info_to_intrinsics(msg)
+            if camera != self._camera:
+                self._camera = camera
+                self._telemetry.append(camera)  # in order with the telemetry: frames without one get it
         except SrMosaicError as exc:
             self._warn_once('camera_info', f'camera info skipped: {exc}')
 
@@ -159,24 +169,33 @@ class MosaicNode(Node):
     def _work(self) -> None:
         while True:
             with self._wake:
+                idle = False
                 while not self._queue and not self._stop:
-                    self._wake.wait(0.5)
+                    if not self._wake.wait(0.5):
+                        idle = True
+                        break
                 if self._stop and not self._queue:
                     return
-                frame = self._queue.popleft()
+                frame = self._queue.popleft() if self._queue else None
             t0 = time.perf_counter()
             with self._lock:
+                records = []
                 while self._telemetry:
-                    self.pipeline.feed(self._telemetry.popleft())
+                    records += self.pipeline.feed(self._telemetry.popleft())
                 try:
-                    records = self.pipeline.feed(frame)
+                    if frame is not None:
+                        records += self.pipeline.feed(frame)
+                    elif idle and self.pipeline.waiting:
+                        records += self.pipeline.flush()  # telemetry stopped: do not hold frames forever
                 except SrMosaicError as exc:
                     self._warn_once(f'pipeline: {type(exc).__name__}', f'frame skipped: {exc}')
                     continue
-            self.stats['frames_processed'] += 1
-            self._latency_ms.append((time.perf_counter() - t0) * 1e3)
+            if records:
+                self._latency_ms.append((time.perf_counter() - t0) * 1e3)
+            self.stats['frames_processed'] += len(records)
             for record in records:
                 self._publish_registration(record)
+                self._publish_pose(record)
                 self._last_record = record
 
     def _publish_registration(self, record: FrameRecord) -> None:
@@ -190,6 +209,31 @@ class MosaicNode(Node):
         msg.layout.dim = [MultiArrayDimension(label='fields', size=len(values), stride=len(values))]
         msg.data = [float(v) for v in values]
         self.pub_registration.publish(msg)
+
+    def _publish_pose(self, record: FrameRecord) -> None:
+        pose = record.pose
+        if pose is None or not pose.valid:
+            return
+        from ..core.georef.frames import R_enu_from_body, quat_xyzw_from_matrix
+
+        msg = PoseWithCovarianceStamped()
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(record.stamp_ns), 1_000_000_000)
+        msg.header.frame_id = 'srmosaic_enu'
+        e, n, u = (float(v) for v in pose.position_enu_m)
+        msg.pose.pose.position.x, msg.pose.pose.position.y, msg.pose.pose.position.z = e, n, u
+        q = quat_xyzw_from_matrix(R_enu_from_body(*pose.rpy_rad))
+        o = msg.pose.pose.orientation
+        o.x, o.y, o.z, o.w = (float(v) for v in q)
+        msg.pose.covariance = [float(v) for v in np.asarray(pose.covariance, dtype=float).ravel()]
+        self.pub_pose.publish(msg)
+        fix = NavSatFix()
+        fix.header = msg.header
+        fix.header.frame_id = 'srmosaic'
+        fix.status.status = 0
+        fix.latitude, fix.longitude, fix.altitude = pose.latitude_deg, pose.longitude_deg, pose.altitude_m
+        fix.position_covariance = [float(v) for v in np.asarray(pose.covariance, dtype=float)[:3, :3].ravel()]
+        fix.position_covariance_type = NavSatFix.COVARIANCE_TYPE_KNOWN
+        self.pub_fix.publish(fix)
 
     # -- periodic output ------------------------------------------------------------------------
     def _publish_periodic(self) -> None:

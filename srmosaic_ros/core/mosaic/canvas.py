@@ -24,11 +24,27 @@ does not fade to black, only its weight fades to zero.
 
 Rendering (``render``) divides ``acc`` by ``wsum`` (feather blending) or, in multiband mode,
 blends the max-weight composite over the feather composite band by band (see :mod:`.blend`).
+``render_blocks`` yields the same pixels in strips of rows, for writers of mosaics too large to
+hold whole.
+
+Bounded memory: with ``max_tiles_in_memory`` > 0 the tiles live in a :class:`.tile_store.TileStore`
+that keeps at most that many in memory and spills the least recently painted ones to disk
+(``spill_dir``), loading them back when a frame paints them again or a render reads them. Each
+paint fetches every tile it writes first, writes, then trims the store back to the bound (so the
+bound may be exceeded by the tiles of one frame for the duration of the paint); rendering reads
+spilled tiles one at a time without keeping them, so any region renders within the bound plus one
+tile (plus its own output). Spilled tiles come back byte for byte: the results are identical with
+and without the bound. ``close()`` (or ``with TiledCanvas(...) as canvas:``) releases the tiles and
+removes the spill files; a canvas that is garbage-collected, or still alive at interpreter exit,
+removes them too.
 """
 from __future__ import annotations
 
 import math
+import os
+from collections.abc import Iterator
 from dataclasses import dataclass, field
+from typing import Any
 
 import cv2
 import numpy as np
@@ -37,10 +53,9 @@ from srmosaic_ros.errors import SrMosaicError
 
 from .blend import FEATHER_PROFILES, auto_bands, feather_weight, multiband_blend
 from .config import BLEND_MODES
+from .tile_store import TileKey, TileLayout, TileStore, TileStoreError
 
-__all__ = ['CanvasError', 'PaintResult', 'TileKey', 'TiledCanvas']
-
-TileKey = tuple[int, int]
+__all__ = ['CanvasError', 'PaintResult', 'TileKey', 'TileStoreError', 'TiledCanvas']
 
 #: Largest side (px) rendered in one piece in multiband mode; larger regions go in blocks.
 RENDER_BLOCK_PX = 2048
@@ -68,28 +83,6 @@ class PaintResult:
     touched_tiles: tuple[TileKey, ...]
     footprint_xy: np.ndarray = field(repr=False)
     bbox: tuple[int, int, int, int]
-
-
-class _Tile:
-    """Storage of one tile; see the module docstring."""
-
-    __slots__ = ('acc', 'best', 'best_id', 'best_w', 'frames', 'wsum')
-
-    def __init__(self, size: int, channels: int, *, multiband: bool) -> None:
-        self.acc = np.zeros((size, size, channels), np.float32)
-        self.wsum = np.zeros((size, size), np.float32)
-        self.frames = 0
-        if multiband:
-            self.best: np.ndarray | None = np.zeros((size, size, channels), np.float32)
-            self.best_w: np.ndarray | None = np.zeros((size, size), np.float32)
-            self.best_id: np.ndarray | None = np.full((size, size), -1, np.int32)
-        else:
-            self.best = self.best_w = self.best_id = None
-
-    @property
-    def nbytes(self) -> int:
-        arrays = (self.acc, self.wsum, self.best, self.best_w, self.best_id)
-        return sum(a.nbytes for a in arrays if a is not None)
 
 
 def _project(h_mat: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -134,6 +127,12 @@ class TiledCanvas:
         bands: pyramid levels of multiband rendering; 0 chooses them from the region size
             (:func:`.blend.auto_bands`).
         background: value of uncovered pixels in ``render``.
+        max_tiles_in_memory: at most this many tiles are kept in memory, the least recently
+            painted ones are spilled to disk (0: no bound, nothing is ever written). One tile
+            holds ``4 T^2 (C + 1)`` bytes (feather) or ``4 T^2 (2 C + 3)`` (multiband): 1 MiB and
+            2.25 MiB for T = 256, C = 3.
+        spill_dir: directory under which the spill directory of this canvas is created ('': the
+            system temporary directory); created on the first spill, removed by ``close()``.
 
     Not thread-safe: paint and render from one thread (or hold a lock around both).
     """
@@ -150,6 +149,8 @@ class TiledCanvas:
         max_area_ratio: float = 50.0,
         bands: int = 0,
         background: float = 0.0,
+        max_tiles_in_memory: int = 0,
+        spill_dir: str | os.PathLike[str] = '',
     ) -> None:
         if int(channels) != channels or channels < 1:
             msg = f'channels must be a positive integer, got {channels!r}.'
@@ -175,6 +176,9 @@ class TiledCanvas:
         if int(bands) != bands or not 0 <= bands <= 12:
             msg = f'bands must be an integer in 0..12 (0: automatic), got {bands!r}.'
             raise CanvasError(msg)
+        if int(max_tiles_in_memory) != max_tiles_in_memory or max_tiles_in_memory < 0:
+            msg = f'max_tiles_in_memory must be an integer >= 0 (0: no bound), got {max_tiles_in_memory!r}.'
+            raise CanvasError(msg)
         self._channels = int(channels)
         self._tile_size = int(tile_size)
         self._blend = blend
@@ -184,7 +188,9 @@ class TiledCanvas:
         self._max_area_ratio = float(max_area_ratio)
         self._bands = int(bands)
         self._background = np.float32(background)
-        self._tiles: dict[TileKey, _Tile] = {}
+        self._store = TileStore(TileLayout(self._tile_size, self._channels, blend == 'multiband'),
+                                max_in_memory=int(max_tiles_in_memory), spill_dir=spill_dir)
+        self._tile_frames: dict[TileKey, int] = {}  # every tile: how many frames wrote into it
         self._touched: set[TileKey] = set()
         self._frames = 0
         self._bounds: tuple[int, int, int, int] | None = None
@@ -224,7 +230,7 @@ class TiledCanvas:
 
     def tile_keys(self) -> list[TileKey]:
         """Keys (tx, ty) of all tiles, sorted by (ty, tx) (raster order)."""
-        return sorted(self._tiles, key=lambda k: (k[1], k[0]))
+        return sorted(self._tile_frames, key=lambda k: (k[1], k[0]))
 
     def tile_region(self, key: TileKey) -> tuple[int, int, int, int]:
         """Mosaic-pixel region (x0, y0, x1, y1) of tile ``key``, inclusive-exclusive."""
@@ -233,12 +239,70 @@ class TiledCanvas:
 
     def frames_per_tile(self) -> dict[TileKey, int]:
         """How many painted frames wrote into each tile."""
-        return {k: t.frames for k, t in self._tiles.items()}
+        return dict(self._tile_frames)
 
     @property
     def memory_bytes(self) -> int:
-        """Bytes held by tile arrays."""
-        return sum(t.nbytes for t in self._tiles.values())
+        """Bytes held by the tile arrays in memory (spilled tiles not counted)."""
+        return self._store.memory_bytes
+
+    @property
+    def disk_bytes(self) -> int:
+        """Bytes of this canvas's spill files (0 while nothing was spilled)."""
+        return self._store.disk_bytes
+
+    @property
+    def max_tiles_in_memory(self) -> int:
+        """The bound on tiles in memory (0: none)."""
+        return self._store.max_in_memory
+
+    @property
+    def tiles_in_memory(self) -> int:
+        return self._store.in_memory
+
+    @property
+    def tiles_on_disk(self) -> int:
+        """Tiles held only in spill files (not in memory now)."""
+        return self._store.on_disk_only
+
+    @property
+    def spill_dir(self) -> str:
+        """This canvas's spill directory ('' while nothing was spilled, and after close)."""
+        d = self._store.directory
+        return str(d) if d is not None else ''
+
+    def tile_stats(self) -> dict[str, Any]:
+        """Tiles in memory and on disk, their bytes, and the loads and writes of spill files so far."""
+        return self._store.stats()
+
+    # ------------------------------------------------------------------ memory, life cycle
+    def spill(self, keep: int = 0) -> int:
+        """Spill the least recently painted tiles until at most ``keep`` remain in memory.
+
+        For a canvas that will not be painted for a while (e.g. a finished segment). Works with
+        or without ``max_tiles_in_memory``. Returns the number of tiles evicted.
+        """
+        self._check_open()
+        return self._store.trim(max(0, int(keep)))
+
+    @property
+    def closed(self) -> bool:
+        return self._store.closed
+
+    def close(self) -> None:
+        """Release every tile and remove the spill files. The canvas cannot be used afterwards."""
+        self._store.close()
+
+    def __enter__(self) -> TiledCanvas:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _check_open(self) -> None:
+        if self._store.closed:
+            msg = 'the canvas is closed (its tiles were released); paint and render before close().'
+            raise CanvasError(msg)
 
     def bounds(self) -> tuple[int, int, int, int]:
         """(x0, y0, x1, y1) mosaic pixels with non-zero weight, inclusive-exclusive.
@@ -336,6 +400,7 @@ class TiledCanvas:
             singular, crossing the horizon, footprint bbox larger than ``max_area_ratio`` times
             the frame or making the canvas exceed ``max_canvas_side_px``).
         """
+        self._check_open()
         img = self._as_image(image)
         h, w = img.shape[:2]
         m = self._as_homography(mosaic_H_frame, w, h)
@@ -373,10 +438,10 @@ class TiledCanvas:
         w_w = cv2.warpPerspective(weight, box_h_frame, (bw, bh), flags=cv2.INTER_LINEAR,
                                   borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
         index = self._frames
-        self._frames += 1
         cols = np.flatnonzero(w_w.any(axis=0))
         rows = np.flatnonzero(w_w.any(axis=1))
         if cols.size == 0:
+            self._frames += 1
             return PaintResult(index, (), footprint, (0, 0, 0, 0))
         # Tight box of non-zero weight, in box coordinates.
         c0, c1, r0, r1 = int(cols[0]), int(cols[-1]) + 1, int(rows[0]), int(rows[-1]) + 1
@@ -384,38 +449,42 @@ class TiledCanvas:
         wimg = img_w * w_w[..., None] if multiband else np.multiply(img_w, w_w[..., None], out=img_w)
 
         t = self._tile_size
-        touched: list[TileKey] = []
+        jobs: list[tuple[TileKey, tuple[slice, slice], tuple[slice, slice]]] = []
         gx0, gy0, gx1, gy1 = x0 + c0, y0 + r0, x0 + c1, y0 + r1
         for ty in range(gy0 // t, (gy1 - 1) // t + 1):
             ys, ye = max(gy0, ty * t), min(gy1, (ty + 1) * t)
             for tx in range(gx0 // t, (gx1 - 1) // t + 1):
                 xs, xe = max(gx0, tx * t), min(gx1, (tx + 1) * t)
                 box = (slice(ys - y0, ye - y0), slice(xs - x0, xe - x0))
-                sub_w = w_w[box]
-                if not sub_w.any():
+                if not w_w[box].any():
                     continue
-                key = (tx, ty)
-                tile = self._tiles.get(key)
-                if tile is None:
-                    tile = self._tiles[key] = _Tile(t, self._channels, multiband=multiband)
                 loc = (slice(ys - ty * t, ye - ty * t), slice(xs - tx * t, xe - tx * t))
-                tile.acc[loc] += wimg[box]
-                tile.wsum[loc] += sub_w
-                if multiband:
-                    assert tile.best is not None and tile.best_w is not None and tile.best_id is not None
-                    best_w = tile.best_w[loc]
-                    upd = sub_w > best_w  # eq. 4.7: the frame of largest weight wins; ties keep the first
-                    if upd.any():
-                        np.copyto(tile.best[loc], img_w[box], where=upd[..., None])
-                        np.copyto(best_w, sub_w, where=upd)
-                        tile.best_id[loc][upd] = index
-                tile.frames += 1
-                touched.append(key)
+                jobs.append(((tx, ty), box, loc))
+        # Every tile first (loading spilled ones may fail: then nothing is written), then write.
+        tiles = [self._store.get(key, create=True) for key, _, _ in jobs]
+        self._frames += 1
+        touched: list[TileKey] = []
+        for (key, box, loc), tile in zip(jobs, tiles):
+            sub_w = w_w[box]
+            tile.acc[loc] += wimg[box]
+            tile.wsum[loc] += sub_w
+            if multiband:
+                assert tile.best is not None and tile.best_w is not None and tile.best_id is not None
+                best_w = tile.best_w[loc]
+                upd = sub_w > best_w  # eq. 4.7: the frame of largest weight wins; ties keep the first
+                if upd.any():
+                    np.copyto(tile.best[loc], img_w[box], where=upd[..., None])
+                    np.copyto(best_w, sub_w, where=upd)
+                    tile.best_id[loc][upd] = index
+            self._tile_frames[key] = self._tile_frames.get(key, 0) + 1
+            touched.append(key)
+        del tiles
         self._touched.update(touched)
         bbox = (gx0, gy0, gx1, gy1)
         self._bounds = bbox if self._bounds is None else (
             min(gx0, self._bounds[0]), min(gy0, self._bounds[1]),
             max(gx1, self._bounds[2]), max(gy1, self._bounds[3]))
+        self._store.trim()  # back to the bound; may raise TileStoreError (the frame is painted)
         return PaintResult(index, tuple(sorted(touched, key=lambda k: (k[1], k[0]))), footprint, bbox)
 
     # ------------------------------------------------------------------ render
@@ -439,9 +508,20 @@ class TiledCanvas:
         if x1 <= x0 or y1 <= y0:
             return []
         kx0, ky0, kx1, ky1 = x0 // t, y0 // t, (x1 - 1) // t, (y1 - 1) // t
-        if (kx1 - kx0 + 1) * (ky1 - ky0 + 1) <= len(self._tiles):
-            return [(kx, ky) for ky in range(ky0, ky1 + 1) for kx in range(kx0, kx1 + 1) if (kx, ky) in self._tiles]
-        return [k for k in self._tiles if kx0 <= k[0] <= kx1 and ky0 <= k[1] <= ky1]
+        tiles = self._tile_frames
+        if (kx1 - kx0 + 1) * (ky1 - ky0 + 1) <= len(tiles):
+            return [(kx, ky) for ky in range(ky0, ky1 + 1) for kx in range(kx0, kx1 + 1) if (kx, ky) in tiles]
+        return sorted((k for k in tiles if kx0 <= k[0] <= kx1 and ky0 <= k[1] <= ky1), key=lambda k: (k[1], k[0]))
+
+    def _overlap(self, key: TileKey, region: tuple[int, int, int, int]) -> tuple[tuple[slice, slice], tuple[slice, slice]]:
+        """(slices in the region's array, slices in the tile) of the overlap of tile ``key`` and ``region``."""
+        x0, y0, x1, y1 = region
+        kx, ky = key
+        t = self._tile_size
+        xs, xe = max(x0, kx * t), min(x1, (kx + 1) * t)
+        ys, ye = max(y0, ky * t), min(y1, (ky + 1) * t)
+        return ((slice(ys - y0, ye - y0), slice(xs - x0, xe - x0)),
+                (slice(ys - ky * t, ye - ky * t), slice(xs - kx * t, xe - kx * t)))
 
     def _gather(self, region: tuple[int, int, int, int], names: tuple[str, ...]) -> list[np.ndarray]:
         """Tile arrays ``names`` assembled over ``region``; zeros (best_id: -1) where no tile."""
@@ -451,19 +531,18 @@ class TiledCanvas:
                   'wsum': (h, w), 'best_w': (h, w), 'best_id': (h, w)}
         outs = [np.full(shapes[n], -1, np.int32) if n == 'best_id' else np.zeros(shapes[n], np.float32)
                 for n in names]
-        t = self._tile_size
-        for kx, ky in self._keys_in(x0, y0, x1, y1):
-            tile = self._tiles[(kx, ky)]
-            xs, xe = max(x0, kx * t), min(x1, (kx + 1) * t)
-            ys, ye = max(y0, ky * t), min(y1, (ky + 1) * t)
-            dst = (slice(ys - y0, ye - y0), slice(xs - x0, xe - x0))
-            src = (slice(ys - ky * t, ye - ky * t), slice(xs - kx * t, xe - kx * t))
+        for key in self._keys_in(x0, y0, x1, y1):
+            tile = self._store.peek(key)
+            if tile is None:  # only after a failed paint created no tile for its key
+                continue
+            dst, src = self._overlap(key, region)
             for out, n in zip(outs, names):
                 out[dst] = getattr(tile, n)[src]
         return outs
 
     def weights(self, region: tuple[int, int, int, int] | None = None) -> np.ndarray:
         """Feather weight sum ``sum_i W_H^i``, float32 (h, w), over ``region`` (default: bounds)."""
+        self._check_open()
         return self._gather(self._region(region), ('wsum',))[0]
 
     def render(self, region: tuple[int, int, int, int] | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -479,31 +558,105 @@ class TiledCanvas:
         a pixel renders nearly the same (~1e-4) whatever region it is rendered in, as long as the
         band count is the same (fix ``bands`` for that; automatic bands follow the region size).
         """
+        self._check_open()
         x0, y0, x1, y1 = self._region(region)
         h, w = y1 - y0, x1 - x0
         if self._blend == 'feather' or h == 0 or w == 0:
-            acc, wsum = self._gather((x0, y0, x1, y1), ('acc', 'wsum'))
-            covered = wsum > 0
-            out = self._feather(acc, wsum, covered)
+            out, covered = self._render_feather((x0, y0, x1, y1))
         else:
-            bands = self._bands or auto_bands(h, w)
             out = np.empty((h, w, self._channels), np.float32)
             covered = np.empty((h, w), bool)
-            for by in range(y0, y1, RENDER_BLOCK_PX):
-                for bx in range(x0, x1, RENDER_BLOCK_PX):
-                    bx1, by1 = min(bx + RENDER_BLOCK_PX, x1), min(by + RENDER_BLOCK_PX, y1)
-                    o, c = self._render_multiband((bx, by, bx1, by1), bands)
-                    out[by - y0:by1 - y0, bx - x0:bx1 - x0] = o
-                    covered[by - y0:by1 - y0, bx - x0:bx1 - x0] = c
-            out[~covered] = self._background
+            for _ in self._multiband_rows((x0, y0, x1, y1), self._bands or auto_bands(h, w), out, covered):
+                pass
         if self._channels == 1:
             out = out[:, :, 0]
         return out, covered
 
-    def _feather(self, acc: np.ndarray, wsum: np.ndarray, covered: np.ndarray) -> np.ndarray:
-        out = np.full(acc.shape, self._background, np.float32)
-        np.divide(acc, wsum[..., None], out=out, where=covered[..., None])
-        return out
+    def render_blocks(self, block_rows: int = 256, region: tuple[int, int, int, int] | None = None,
+                      ) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+        """The mosaic of ``render(region)`` in strips of ``block_rows`` rows, top to bottom.
+
+        Yields ``(row, image, covered)``: ``row`` the strip's first row in the region (image row 0
+        is mosaic row y0 of the region), ``image`` and ``covered`` as ``render`` returns them for
+        rows ``row .. row + len(image)`` (the last strip may be shorter). Stacked, the strips are
+        ``render(region)`` exactly (same band count in multiband mode: automatic bands follow the
+        whole region). For writers of mosaics too large to hold whole: feather strips cost their
+        own size; multiband strips are cut from rows of RENDER_BLOCK_PX-high blocks, one such row
+        (RENDER_BLOCK_PX x region width) is held at a time. The canvas must not be painted while
+        the generator runs.
+        """
+        if isinstance(block_rows, bool) or int(block_rows) != block_rows or block_rows < 1:
+            msg = f'block_rows must be a positive integer, got {block_rows!r}.'
+            raise CanvasError(msg)
+        self._check_open()
+        block_rows = int(block_rows)
+        x0, y0, x1, y1 = self._region(region)
+        h, w = y1 - y0, x1 - x0
+        squeeze = self._channels == 1
+        if self._blend == 'feather' or w == 0:
+            for r in range(0, h, block_rows):
+                o, c = self._render_feather((x0, y0 + r, x1, min(y0 + r + block_rows, y1)))
+                yield r, (o[:, :, 0] if squeeze else o), c
+            return
+        pending: list[tuple[np.ndarray, np.ndarray]] = []
+        have = start = 0
+        for _, o, c in self._multiband_rows((x0, y0, x1, y1), self._bands or auto_bands(h, w)):
+            pos = 0
+            while pos < o.shape[0]:
+                take = min(block_rows - have, o.shape[0] - pos)
+                pending.append((o[pos:pos + take], c[pos:pos + take]))
+                have += take
+                pos += take
+                if have == block_rows:
+                    img = np.concatenate([p[0] for p in pending])
+                    yield start, (img[:, :, 0] if squeeze else img), np.concatenate([p[1] for p in pending])
+                    start += have
+                    pending, have = [], 0
+        if pending:
+            img = np.concatenate([p[0] for p in pending])
+            yield start, (img[:, :, 0] if squeeze else img), np.concatenate([p[1] for p in pending])
+
+    def _render_feather(self, region: tuple[int, int, int, int]) -> tuple[np.ndarray, np.ndarray]:
+        """Feather render (h, w, C), covered (h, w) of ``region``, tile by tile (no full-size sums)."""
+        x0, y0, x1, y1 = region
+        h, w = y1 - y0, x1 - x0
+        out = np.full((h, w, self._channels), self._background, np.float32)
+        covered = np.zeros((h, w), bool)
+        for key in self._keys_in(x0, y0, x1, y1):
+            tile = self._store.peek(key)
+            if tile is None:
+                continue
+            dst, src = self._overlap(key, region)
+            wsum = tile.wsum[src]
+            cov = wsum > 0
+            covered[dst] = cov
+            np.divide(tile.acc[src], wsum[..., None], out=out[dst], where=cov[..., None])
+        return out, covered
+
+    def _multiband_rows(self, region: tuple[int, int, int, int], bands: int, dst_image: np.ndarray | None = None,
+                        dst_covered: np.ndarray | None = None) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+        """Multiband render of ``region`` in rows of RENDER_BLOCK_PX-square blocks anchored at its origin.
+
+        Yields (first row in the region, image (rows, w, C) with the background where uncovered,
+        covered (rows, w)); written into ``dst_image`` (h, w, C) and ``dst_covered`` (h, w) when
+        given (the yielded arrays are then views of them), else into new arrays per row.
+        """
+        x0, y0, x1, y1 = region
+        block = RENDER_BLOCK_PX
+        for by in range(y0, y1, block):
+            by1 = min(by + block, y1)
+            if dst_image is not None and dst_covered is not None:
+                out, covered = dst_image[by - y0:by1 - y0], dst_covered[by - y0:by1 - y0]
+            else:
+                out = np.empty((by1 - by, x1 - x0, self._channels), np.float32)
+                covered = np.empty((by1 - by, x1 - x0), bool)
+            for bx in range(x0, x1, block):
+                bx1 = min(bx + block, x1)
+                o, c = self._render_multiband((bx, by, bx1, by1), bands)
+                out[:, bx - x0:bx1 - x0] = o
+                covered[:, bx - x0:bx1 - x0] = c
+            out[~covered] = self._background
+            yield by - y0, out, covered
 
     def _render_multiband(self, region: tuple[int, int, int, int], bands: int) -> tuple[np.ndarray, np.ndarray]:
         """Multiband render of ``region`` with ``bands`` levels.

@@ -14,6 +14,8 @@ class MosaicConfig:
     blend: str = 'feather'
     max_canvas_side_px: int = 100000
     preview_max_side_px: int = 1024
+    max_tiles_in_memory: int = 0  # per segment canvas; 0: no bound (see canvas.TiledCanvas)
+    spill_dir: str = ''  # parent of the spill directories; '': the system temporary directory
 
     def __post_init__(self) -> None:
         if not 64 <= self.tile_size <= 4096:
@@ -27,4 +29,11 @@ class MosaicConfig:
             raise ValueError(msg)
         if self.preview_max_side_px < 16:
             msg = f'mosaic.preview_max_side_px must be >= 16, got {self.preview_max_side_px}.'
+            raise ValueError(msg)
+        if isinstance(self.max_tiles_in_memory, bool) or not isinstance(self.max_tiles_in_memory, int) \
+                or self.max_tiles_in_memory < 0:
+            msg = f'mosaic.max_tiles_in_memory must be an integer >= 0 (0: no bound), got {self.max_tiles_in_memory!r}.'
+            raise ValueError(msg)
+        if not isinstance(self.spill_dir, str):
+            msg = f"mosaic.spill_dir must be a directory path or '' (a temporary directory), got {self.spill_dir!r}."
             raise ValueError(msg)

@@ -2,8 +2,9 @@
 
 A frame that fails to register does not smear the mosaic: it is held as an orphan. The next frame
 is tried against the last good frame first (a single bad frame is skipped), then against the
-orphan (the scene changed: the orphan starts a new segment with the next frame). Segment planes
-are the pixel plane of their first frame.
+orphan (the scene changed: the orphan starts a new segment with the next frame). A segment's
+plane is the pixel plane of its first frame, or, when georeferenced, the shared north-up raster of
+the Georeferencer: georeferenced segments then share one canvas.
 """
 from __future__ import annotations
 
@@ -25,11 +26,16 @@ class Segment:
     canvas: TiledCanvas
     frames: list[int] = field(default_factory=list)
     seg_H_frames: dict[int, np.ndarray] = field(default_factory=dict)
+    georeferenced: bool = False
 
     @classmethod
-    def create(cls, index: int, channels: int, config: MosaicConfig) -> Segment:
+    def create(cls, index: int, channels: int, config: MosaicConfig, *, canvas: TiledCanvas | None = None) -> Segment:
+        """A new segment on a new canvas, or on `canvas` (shared with the other georeferenced segments)."""
+        if canvas is not None:
+            return cls(index, canvas)
         return cls(index, TiledCanvas(channels, tile_size=config.tile_size, blend=config.blend,
-                                      max_canvas_side_px=config.max_canvas_side_px))
+                                      max_canvas_side_px=config.max_canvas_side_px,
+                                      max_tiles_in_memory=config.max_tiles_in_memory, spill_dir=config.spill_dir))
 
     def add(self, frame_index: int, image: np.ndarray, seg_H_frame: np.ndarray) -> None:  # noqa: N803
         """Paint a frame (float32 (H, W, C) in [0, 1]) into the segment at seg_H_frame."""

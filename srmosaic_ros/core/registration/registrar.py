@@ -155,24 +155,26 @@ class Registrar:
 
     def _guided(self, prev: Features, cur: Features, prev_H_cur: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # noqa: N803
         """Guided matching (Table 1, step 5): nearest descriptor among prev keypoints within a radius of the transfer."""
+        from scipy.spatial import cKDTree
+
         radius = self.config.guided_radius_px
         pred = _transfer(prev_H_cur, cur.keypoints_px.astype(np.float64))
-        d2 = ((pred[:, None, :] - prev.keypoints_px[None, :, :].astype(np.float64)) ** 2).sum(-1)
-        near = d2 <= radius * radius
-        if not near.any():
+        tree = cKDTree(prev.keypoints_px.astype(np.float64))
+        # Candidate pairs (cur i, prev j) whose transferred positions are within the radius.
+        pairs = tree.query_ball_point(pred, r=radius)
+        ci = np.repeat(np.arange(len(pairs)), [len(p) for p in pairs])
+        if len(ci) == 0:
             return np.zeros(0, int), np.zeros(0, int)
-        a, b = cur.descriptors, prev.descriptors
-        desc_d = (a * a).sum(1)[:, None] + (b * b).sum(1)[None, :] - 2.0 * (a @ b.T)
-        desc_d = np.where(near, desc_d, np.inf)
-        pi = desc_d.argmin(axis=1)
-        ci = np.arange(len(cur))
-        keep = np.isfinite(desc_d[ci, pi])
-        # Mutual: each prev keypoint used once (the closest descriptor wins).
-        ci, pi = ci[keep], pi[keep]
-        order = np.argsort(desc_d[ci, pi])
-        _, first = np.unique(pi[order], return_index=True)
-        sel = order[first]
-        return pi[sel], ci[sel]
+        pj = np.fromiter((j for p in pairs for j in p), dtype=int, count=len(ci))
+        dist = ((cur.descriptors[ci] - prev.descriptors[pj]) ** 2).sum(axis=1)
+        # Per current keypoint, the closest descriptor; then each previous keypoint used once.
+        order = np.lexsort((dist, ci))
+        first_c = order[np.r_[True, ci[order][1:] != ci[order][:-1]]]
+        ci, pj, dist = ci[first_c], pj[first_c], dist[first_c]
+        order = np.argsort(dist)
+        _, first_p = np.unique(pj[order], return_index=True)
+        sel = order[first_p]
+        return pj[sel], ci[sel]
 
     def register(self, prev: Features, cur: Features) -> Registration:
         """Estimate prev_H_cur from the features of two frames."""

@@ -1,0 +1,906 @@
+"""Georeferencer: the pipeline stage that turns telemetry and registrations into poses and a map plane.
+
+    georef = Georeferencer(GeorefConfig(), camera)
+    georef.feed_fix(fix); georef.feed_imu(imu)             # any time, in stamp order per sensor
+    pose = georef.feed_frame(stamp_ns, prev_H_cur, cov)    # one FramePose per frame (fused)
+    raster = georef.make_raster(pose)                      # north-up UTM grid, once
+    raster_H_frame = georef.raster_H_frame(pose)           # place a frame by its pose (flat ground)
+    raster_H_frame = georef.correct(chained_H, pose)       # drift control of a chained homography
+
+Frames and units: the local ENU plane is tangent at the first valid fix, with its z = 0 at the
+prior ground altitude (``ground_altitude_m``, or the first fix's altitude minus ``nominal_agl_m``);
+the filter then estimates the ground plane's height in that frame (see ukf.py). Body x forward,
+y left, z up, attitude REP 103 (see frames.py). The raster is north-up in the flight's UTM zone
+(WGS84, EPSG 326zz / 327zz): raster pixel (x, y) (x right, y down, pixel centres at integers) is
+at easting ``e0 + gsd x``, northing ``n0 - gsd y``. ENU and
+UTM differ by the grid convergence and the UTM scale factor; over a UAS flight the map between the
+two planes is affine to well under a millimetre (it is fitted once over +-3 km and checked).
+
+Telemetry is buffered and fused at its own stamp between the two frames held by the UKF (see
+ukf.py). Unusable inputs (NO_FIX status, NaN fields, stamps out of order or older than the
+filter's window, gated outliers) are skipped with one logged warning per kind and counted in
+``skipped``; they never raise.
+"""
+from __future__ import annotations
+
+import functools
+import logging
+import math
+from collections import Counter
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+
+from ..types import FIX_STATUS_NO_FIX, CameraIntrinsics, GeoFix, ImuSample
+from .frames import (
+    CameraPose,
+    matrix_from_quat_xyzw,
+    matrix_from_rotvec,
+    rotvec_from_matrix,
+    rpy_from_R_enu_from_body,
+)
+from .geodetic import LocalTangentPlane
+from .ground_homography import apply_H, ground_H_image, normalize_H
+from .ukf import GROUND, SLOT_CUR, SLOT_PREV, CameraMount, PoseUkf, UkfParams, corner_jacobian, rts_smooth, wrap_angle
+
+__all__ = [
+    'GeorefConfig',
+    'FramePose',
+    'GeoRaster',
+    'Georeferencer',
+    'utm_epsg',
+    'camera_pose_from_enu_H_image',
+    'homography_from_corners',
+]
+
+_LOG = logging.getLogger(__name__)
+_AFFINE_FIT_HALF_SPAN_M = 3000.0
+
+
+@dataclass(frozen=True)
+class GeorefConfig:
+    """Georeferencing settings; the field names are the keys under ``georef.`` in params/*.yaml.
+
+    Angles in degrees, lengths in metres, NaN means "not set" (ROS parameters have no None).
+    """
+
+    ground_altitude_m: float = float('nan')  # ellipsoidal height of the ground plane; NaN: first fix - nominal_agl_m
+    ground_altitude_sigma_m: float = 1.0     # prior uncertainty of ground_altitude_m when it is given
+    nominal_agl_m: float = 100.0             # height of the first fix above the ground, when ground_altitude_m is NaN
+    nominal_agl_sigma_m: float = 10.0        # prior uncertainty of nominal_agl_m
+    ground_walk_m_per_sqrt_s: float = 0.05   # random walk of the ground plane height (terrain is not flat)
+    gimbal_azimuth_deg: float = 0.0
+    gimbal_elevation_deg: float = -90.0      # nadir
+    lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  # body frame, GNSS antenna -> optical centre
+    gps_sigma_h_m: float = 2.5               # used when a fix's covariance is unknown
+    gps_sigma_v_m: float = 5.0
+    imu_sigma_deg: float = 0.5               # used when an Imu orientation covariance is unknown
+    gyro_sigma_rad_s: float = 0.005          # white noise of one angular velocity sample
+    gyro_bias_sigma_rad_s: float = 0.002     # allowance for an uncalibrated gyro bias
+    gyro_max_gap_s: float = 0.1              # longer gaps between Imu samples: no gyro update for that frame
+    accel_sigma_m_s2: float = 2.0            # motion model: horizontal acceleration noise
+    vertical_accel_sigma_m_s2: float = 1.0
+    angular_accel_sigma_deg_s2: float = 20.0
+    initial_speed_sigma_m_s: float = 15.0    # velocity prior at the first frame
+    initial_rate_sigma_deg_s: float = 30.0
+    homography_sigma_gain: float = 1.0       # no covariance: corner sigma = gain * inlier rms (px)
+    homography_min_sigma_px: float = 0.2     # model-error floor added to every homography measurement
+    min_agl_m: float = 5.0                   # below this height the flat-ground model is not used
+    gate_probability: float = 0.99999        # chi-square gate of every update
+    max_gated_in_a_row: int = 5              # then the filter re-acquires (fixes, attitude)
+    telemetry_buffer_s: float = 10.0         # telemetry kept while waiting for frames
+    max_step_s: float = 1.0                  # longer gaps between frames are bridged by filter-only steps
+    ut_alpha: float = 1.0                    # sigma points: Merwe scaled (alpha, beta, kappa); see ukf.py
+    ut_beta: float = 2.0
+    ut_kappa: float = 0.0
+    gsd_m_per_px: float = float('nan')       # raster ground sampling; NaN: the first frame's GSD
+    drift_chain_sigma_px: float = 0.3        # drift control: random walk of chained corners per frame
+    drift_pose_correlation_frames: float = 50.0  # drift control: frames over which pose errors stay correlated
+    history_frames: int = 20000              # filter moments kept for smoothed_poses() (0: none)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, 'lever_arm_m', tuple(float(v) for v in self.lever_arm_m))
+        pos = ('nominal_agl_m', 'ground_altitude_sigma_m', 'nominal_agl_sigma_m', 'gps_sigma_h_m', 'gps_sigma_v_m',
+               'imu_sigma_deg', 'accel_sigma_m_s2', 'vertical_accel_sigma_m_s2', 'angular_accel_sigma_deg_s2',
+               'initial_speed_sigma_m_s', 'initial_rate_sigma_deg_s', 'homography_sigma_gain', 'telemetry_buffer_s',
+               'ut_alpha', 'max_step_s')
+        checks = {name: math.isfinite(getattr(self, name)) and getattr(self, name) > 0 for name in pos}
+        checks.update({
+            'homography_min_sigma_px': self.homography_min_sigma_px >= 0,
+            'min_agl_m': self.min_agl_m >= 0,
+            'drift_chain_sigma_px': self.drift_chain_sigma_px >= 0,
+            'drift_pose_correlation_frames': self.drift_pose_correlation_frames >= 1,
+            'ground_walk_m_per_sqrt_s': self.ground_walk_m_per_sqrt_s >= 0,
+            'gyro_sigma_rad_s': self.gyro_sigma_rad_s > 0,
+            'gyro_bias_sigma_rad_s': self.gyro_bias_sigma_rad_s >= 0,
+            'gyro_max_gap_s': self.gyro_max_gap_s > 0,
+            'gate_probability': 0.0 < self.gate_probability < 1.0,
+            'max_gated_in_a_row': self.max_gated_in_a_row >= 1,
+            'history_frames': self.history_frames >= 0,
+            'gimbal_elevation_deg': -90.0 <= self.gimbal_elevation_deg < 0.0,
+            'lever_arm_m': len(self.lever_arm_m) == 3 and all(map(math.isfinite, self.lever_arm_m)),
+            'gsd_m_per_px': math.isnan(self.gsd_m_per_px) or self.gsd_m_per_px > 0,
+            'ut_kappa': 13 + self.ut_kappa > 0,
+        })
+        bad = [name for name, ok in checks.items() if not ok]
+        if bad:
+            values = ', '.join(f'{name}={getattr(self, name)!r}' for name in bad)
+            msg = f'invalid georef settings: {values}; see params/default.yaml for the valid ranges.'
+            raise ValueError(msg)
+
+    @classmethod
+    def keys(cls) -> list[str]:
+        return [f.name for f in fields(cls)]
+
+    @property
+    def mount(self) -> CameraMount:
+        return CameraMount(math.radians(self.gimbal_azimuth_deg), math.radians(self.gimbal_elevation_deg),
+                           self.lever_arm_m)
+
+    @property
+    def ukf_params(self) -> UkfParams:
+        return UkfParams(
+            accel_sigma_h_m_s2=self.accel_sigma_m_s2, accel_sigma_v_m_s2=self.vertical_accel_sigma_m_s2,
+            angular_accel_sigma_rad_s2=math.radians(self.angular_accel_sigma_deg_s2),
+            initial_speed_sigma_m_s=self.initial_speed_sigma_m_s,
+            initial_rate_sigma_rad_s=math.radians(self.initial_rate_sigma_deg_s),
+            ground_walk_m_per_sqrt_s=self.ground_walk_m_per_sqrt_s,
+            gate_probability=self.gate_probability, max_gated_in_a_row=self.max_gated_in_a_row,
+            alpha=self.ut_alpha, beta=self.ut_beta, kappa=self.ut_kappa)
+
+
+@dataclass(frozen=True)
+class FramePose:
+    """The fused pose of the body at one frame.
+
+    position_enu_m (3,): body origin in the georeferencer's ENU plane; rpy_rad (3,): roll, pitch,
+    yaw of the body in ENU (REP 103); covariance (6, 6) of (east, north, up, roll, pitch, yaw) in
+    m^2 / rad^2; ground_z_m: the ground plane's height in the ENU plane as estimated with this
+    pose (the frame's footprint lies on it); camera: the camera pose (mounting applied).
+    latitude/longitude in degrees, altitude in metres above the WGS84 ellipsoid. ``valid`` False
+    (no fix yet, frame out of order): NaN pose.
+    """
+
+    stamp_ns: int
+    valid: bool
+    position_enu_m: np.ndarray
+    rpy_rad: np.ndarray
+    covariance: np.ndarray
+    latitude_deg: float = float('nan')
+    longitude_deg: float = float('nan')
+    altitude_m: float = float('nan')
+    camera: CameraPose | None = field(default=None, repr=False)
+    ground_z_m: float = float('nan')
+    homography_used: bool = False
+    fixes_used: int = 0
+    imu_used: int = 0
+    reason: str = ''
+
+    @property
+    def std_enu_m(self) -> np.ndarray:
+        """(3,) standard deviations of east, north, up (m)."""
+        return np.sqrt(np.clip(np.diag(self.covariance)[:3], 0.0, None))
+
+    @property
+    def std_rpy_rad(self) -> np.ndarray:
+        return np.sqrt(np.clip(np.diag(self.covariance)[3:], 0.0, None))
+
+    @property
+    def pose6(self) -> np.ndarray:
+        return np.r_[self.position_enu_m, self.rpy_rad]
+
+    @classmethod
+    def invalid(cls, stamp_ns: int, reason: str) -> FramePose:
+        nan3 = np.full(3, np.nan)
+        return cls(int(stamp_ns), False, nan3, nan3.copy(), np.full((6, 6), np.nan), reason=reason)
+
+
+def utm_epsg(latitude_deg: float, longitude_deg: float) -> int:
+    """EPSG code of the WGS84 UTM zone of a point: 326zz north of the equator, 327zz south."""
+    zone = int(math.floor((longitude_deg + 180.0) / 6.0)) % 60 + 1
+    return (32600 if latitude_deg >= 0.0 else 32700) + zone
+
+
+@functools.lru_cache(maxsize=8)
+def _transformers(epsg: int):  # noqa: ANN202 - pyproj types stay lazy
+    from pyproj import Transformer
+
+    return (Transformer.from_crs(4326, epsg, always_xy=True), Transformer.from_crs(epsg, 4326, always_xy=True))
+
+
+@dataclass(frozen=True)
+class GeoRaster:
+    """A north-up raster grid in a UTM zone.
+
+    epsg: the CRS (WGS84 / UTM); gsd_m_per_px: pixel size; origin_easting_m / origin_northing_m:
+    the map coordinates of the *centre* of pixel (0, 0). Convention: pixel (x, y), x right
+    (east), y down (south), centres at integers, as every homography of the package.
+    """
+
+    epsg: int
+    gsd_m_per_px: float
+    origin_easting_m: float
+    origin_northing_m: float
+
+    @property
+    def utm_H_raster(self) -> np.ndarray:  # noqa: N802
+        """(3, 3) raster pixel (x, y, 1) -> (easting, northing, 1) in metres."""
+        g = self.gsd_m_per_px
+        return np.array([[g, 0.0, self.origin_easting_m], [0.0, -g, self.origin_northing_m], [0.0, 0.0, 1.0]])
+
+    @property
+    def raster_H_utm(self) -> np.ndarray:  # noqa: N802
+        g = self.gsd_m_per_px
+        return np.array([[1.0 / g, 0.0, -self.origin_easting_m / g], [0.0, -1.0 / g, self.origin_northing_m / g],
+                         [0.0, 0.0, 1.0]])
+
+    @property
+    def geotransform(self) -> tuple[float, float, float, float, float, float]:
+        """GDAL geotransform (pixel *corner* convention): (x_min, gsd, 0, y_max, 0, -gsd) of pixel (0, 0)'s
+        outer corner."""
+        g = self.gsd_m_per_px
+        return (self.origin_easting_m - 0.5 * g, g, 0.0, self.origin_northing_m + 0.5 * g, 0.0, -g)
+
+    @property
+    def crs_wkt(self) -> str:
+        from pyproj import CRS
+
+        return CRS.from_epsg(self.epsg).to_wkt()
+
+    def shifted(self, dx_px: float, dy_px: float) -> GeoRaster:
+        """The same grid with pixel (dx_px, dy_px) of this one as its pixel (0, 0) (a crop's origin)."""
+        e, n = self.utm_H_raster[:2] @ np.array([dx_px, dy_px, 1.0])
+        return GeoRaster(self.epsg, self.gsd_m_per_px, float(e), float(n))
+
+    def utm_from_pixels(self, xy: np.ndarray) -> np.ndarray:
+        """(..., 2) easting, northing (m) of raster pixels (..., 2)."""
+        return apply_H(self.utm_H_raster, xy)
+
+    def lonlat_from_pixels(self, xy: np.ndarray) -> np.ndarray:
+        """(..., 2) longitude, latitude (deg) of raster pixels (..., 2)."""
+        en = self.utm_from_pixels(xy)
+        lon, lat = _transformers(self.epsg)[1].transform(en[..., 0], en[..., 1])
+        return np.stack([np.asarray(lon), np.asarray(lat)], axis=-1)
+
+    def pixels_from_lonlat(self, lonlat: np.ndarray) -> np.ndarray:
+        """(..., 2) raster pixels of longitude, latitude (deg) points (..., 2)."""
+        lonlat = np.asarray(lonlat, dtype=np.float64)
+        e, n = _transformers(self.epsg)[0].transform(lonlat[..., 0], lonlat[..., 1])
+        return apply_H(self.raster_H_utm, np.stack([np.asarray(e), np.asarray(n)], axis=-1))
+
+    def corners_lonlat(self, width: int, height: int) -> np.ndarray:
+        """(4, 2) longitude, latitude of the outer corners of a width x height raster: upper-left,
+        upper-right, lower-right, lower-left (pixel edges, i.e. centres -0.5 / +0.5)."""
+        c = np.array([[-0.5, -0.5], [width - 0.5, -0.5], [width - 0.5, height - 0.5], [-0.5, height - 0.5]])
+        return self.lonlat_from_pixels(c)
+
+
+def homography_from_corners(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """(3, 3) dst_H_src (h22 = 1) exactly mapping 4 points src (4, 2) to dst (4, 2), float64."""
+    A = np.zeros((8, 8))  # noqa: N806
+    b = np.zeros(8)
+    for i, ((x, y), (u, v)) in enumerate(zip(np.asarray(src, float), np.asarray(dst, float))):
+        A[2 * i] = (x, y, 1.0, 0.0, 0.0, 0.0, -u * x, -u * y)
+        A[2 * i + 1] = (0.0, 0.0, 0.0, x, y, 1.0, -v * x, -v * y)
+        b[2 * i], b[2 * i + 1] = u, v
+    h = np.linalg.solve(A, b)
+    return np.r_[h, 1.0].reshape(3, 3)
+
+
+def camera_pose_from_enu_H_image(K: np.ndarray, enu_H_image: np.ndarray, *,  # noqa: N802, N803
+                                 ground_z_m: float = 0.0) -> CameraPose:
+    """Camera pose of a flat-ground homography: the inverse of :func:`ground_H_image`.
+
+    image_H_ground = K R^T [e1, e2, P0 - C] up to scale (P0 = (0, 0, ground_z_m)); the two first
+    columns give R (orthonormalised by SVD), the third the centre, with the sign that puts the
+    camera above the ground.
+    """
+    K_inv = np.linalg.inv(np.asarray(K, dtype=np.float64))  # noqa: N806
+    A = K_inv @ np.linalg.inv(np.asarray(enu_H_image, dtype=np.float64))  # noqa: N806 - K^-1 image_H_ground
+    lam = 0.5 * (np.linalg.norm(A[:, 0]) + np.linalg.norm(A[:, 1]))
+    best = None
+    for sign in (1.0, -1.0):
+        B = sign * A / lam  # noqa: N806
+        M = np.c_[B[:, 0], B[:, 1], np.cross(B[:, 0], B[:, 1])]  # noqa: N806 - columns: R^T e1, R^T e2, R^T e3
+        u, _, vt = np.linalg.svd(M)
+        Rt = u @ vt  # noqa: N806 - R_cam_from_enu
+        if np.linalg.det(Rt) < 0:
+            continue
+        R = Rt.T  # noqa: N806 - R_enu_from_cam
+        center = np.array([0.0, 0.0, ground_z_m]) - R @ B[:, 2]
+        if center[2] > ground_z_m and best is None:
+            best = CameraPose(R, center)
+    if best is None:
+        msg = 'the homography does not describe a camera above the ground plane.'
+        raise ValueError(msg)
+    return best
+
+
+class Georeferencer:
+    """Fuses GNSS, IMU and registrations into one pose per frame; places frames on a UTM raster.
+
+    Args:
+        config: the ``georef.`` parameters.
+        camera: intrinsics of the frames (may also come with each ``feed_frame``).
+    """
+
+    def __init__(self, config: GeorefConfig | None = None, camera: CameraIntrinsics | None = None) -> None:
+        self.config = config or GeorefConfig()
+        self.camera = camera
+        self.mount = self.config.mount
+        self.ukf = PoseUkf(self.config.ukf_params)
+        self.origin: LocalTangentPlane | None = None
+        self.ground_altitude_m: float = float('nan')
+        self.raster: GeoRaster | None = None
+        self.poses: list[FramePose] = []
+        self.skipped: Counter[str] = Counter()
+        self.updates: Counter[str] = Counter()
+        self._warned: set[str] = set()
+        self._pending: list[tuple[int, int, str, np.ndarray, np.ndarray]] = []  # (stamp, seq, kind, z, R)
+        self._gyro: list[tuple[int, np.ndarray]] = []  # (stamp, body angular velocity rad/s)
+        # per filtered frame: [pose index, x_pred, P_pred, x_post, P_post, F] for the smoother
+        self._history: list[list] = []
+        self._seq = 0
+        self._last_stamp: dict[str, int] = {}
+        self._utm_affines: dict[int, np.ndarray] = {}
+        self._drift_var_px2: np.ndarray | None = None
+
+    @property
+    def ground_z_m(self) -> float:
+        """Current estimate of the ground plane's height in the ENU plane (0 before the first frame)."""
+        return self.ukf.ground_z[0] if self.ukf.initialized else 0.0
+
+    # -- telemetry -----------------------------------------------------------------------------
+    def feed_fix(self, fix: GeoFix) -> None:
+        """A GNSS fix (WGS84). Skipped with a warning: NO_FIX, NaN/out-of-range fields, old stamps."""
+        if fix.status <= FIX_STATUS_NO_FIX:
+            self._skip('fix_no_fix', 'GNSS fix with status NO_FIX ignored')
+            return
+        if not all(math.isfinite(v) for v in (fix.latitude_deg, fix.longitude_deg, fix.altitude_m)):
+            self._skip('fix_nan', 'GNSS fix with NaN latitude, longitude or altitude ignored')
+            return
+        if abs(fix.latitude_deg) >= 90.0 or abs(fix.longitude_deg) > 180.0:
+            self._skip('fix_range', f'GNSS fix at impossible ({fix.latitude_deg}, {fix.longitude_deg}) ignored')
+            return
+        if not self._in_order('fix', fix.stamp_ns):
+            return
+        R = self._fix_covariance(fix)  # noqa: N806
+        if self.origin is None:
+            self._set_origin(fix)
+        assert self.origin is not None
+        enu = self.origin.enu_from_geodetic(fix.latitude_deg, fix.longitude_deg, fix.altitude_m)
+        self._telemetry('fix', int(fix.stamp_ns), np.asarray(enu, dtype=np.float64), R)
+
+    def feed_imu(self, imu: ImuSample) -> None:
+        """An IMU sample: its orientation (body in ENU, REP 145) and its angular velocity (body frame,
+        integrated between frames) are fused; the acceleration is not used."""
+        if not self._in_order('imu', imu.stamp_ns):
+            return
+        w = np.asarray(imu.angular_velocity_rad_s, dtype=np.float64)
+        if w.shape == (3,) and np.all(np.isfinite(w)):
+            self._gyro.append((int(imu.stamp_ns), w))
+            if self.ukf.initialized:
+                keep_from = int(self.ukf.t_prev_ns or 0) - int(self.config.gyro_max_gap_s * 1e9)
+            else:
+                keep_from = int(imu.stamp_ns) - int(self.config.telemetry_buffer_s * 1e9)
+            if self._gyro[0][0] < keep_from:
+                self._gyro = [g for g in self._gyro if g[0] >= keep_from]
+        else:
+            self._skip('imu_gyro_nan', 'Imu angular velocity with NaN fields ignored')
+        q = imu.orientation_xyzw
+        if q is None:
+            self._skip('imu_no_orientation', 'Imu messages without orientation (covariance[0] = -1): only their '
+                       'angular velocity is used')
+            return
+        q = np.asarray(q, dtype=np.float64)
+        if q.shape != (4,) or not np.all(np.isfinite(q)) or not 0.5 < np.linalg.norm(q) < 1.5:
+            self._skip('imu_nan', 'Imu orientation with NaN fields or not a unit quaternion ignored')
+            return
+        rpy = np.array(rpy_from_R_enu_from_body(matrix_from_quat_xyzw(q)))
+        cov = np.asarray(imu.orientation_covariance, dtype=np.float64)
+        default = math.radians(self.config.imu_sigma_deg) ** 2 * np.eye(3)
+        cov = cov.reshape(3, 3) if cov.size == 9 else default
+        known = np.all(np.isfinite(cov)) and np.trace(cov) > 0.0
+        if not (known and np.all(np.linalg.eigvalsh(0.5 * (cov + cov.T)) >= 0.0)):
+            cov = default
+        self._telemetry('imu', int(imu.stamp_ns), rpy, 0.5 * (cov + cov.T) + 1e-10 * np.eye(3))
+
+    # -- frames --------------------------------------------------------------------------------
+    def feed_frame(self, stamp_ns: int, prev_H_cur: np.ndarray | None = None,  # noqa: N803
+                   covariance: np.ndarray | None = None, *, rms_px: float = float('nan'), inliers: int = 0,
+                   camera: CameraIntrinsics | None = None, ref_stamp_ns: int | None = None) -> FramePose:
+        """Fuse one frame and return its pose.
+
+        Args:
+            stamp_ns: the frame's stamp (increasing).
+            prev_H_cur: (3, 3) registration of this frame to the *previously fed* frame (current
+                pixels -> previous pixels), or None (first frame, failed registration, or a
+                registration to an older frame, which the two-pose state cannot use).
+            covariance: (8, 8) covariance of (h00 .. h21) of prev_H_cur with h22 = 1 (4.43), or None:
+                then an isotropic corner covariance ``(homography_sigma_gain * rms_px)**2``.
+            rms_px, inliers: the registration's inlier RMS and count (used when covariance is None).
+            camera: the intrinsics of this frame, when they change.
+            ref_stamp_ns: the stamp of the frame prev_H_cur maps into, when known: a registration to
+                any other frame than the previously fed one is skipped (with a warning) instead of
+                being fused as if it were consecutive.
+        """
+        stamp_ns = int(stamp_ns)
+        if camera is not None:
+            self.camera = camera
+        if self.ukf.initialized and stamp_ns <= int(self.ukf.t_cur_ns or 0):
+            self._skip('frame_out_of_order', f'frame at {stamp_ns} ns is not after the previous frame; no pose')
+            pose = FramePose.invalid(stamp_ns, 'frame out of order')
+            self.poses.append(pose)
+            return pose
+        used_h = False
+        if not self.ukf.initialized:
+            if not self._initialize(stamp_ns):
+                pose = FramePose.invalid(stamp_ns, 'no GNSS fix yet')
+                self.poses.append(pose)
+                return pose
+            self._record(None)
+        else:
+            bridged = self._bridge(stamp_ns)
+            self._close_record()
+            self.ukf.advance(stamp_ns)
+            self._record(self.ukf.last_F)
+            self._update_gyro()
+            if prev_H_cur is not None and bridged:
+                self._skip('homography_after_gap', f'frames more than max_step_s = {self.config.max_step_s} s apart: '
+                           'their registration is not fused (the filter bridged the gap on telemetry)')
+            elif prev_H_cur is not None and ref_stamp_ns is not None and int(ref_stamp_ns) != self.ukf.t_prev_ns:
+                self._skip('homography_not_consecutive', 'a registration to a frame other than the previous one '
+                           'cannot be fused by the two-pose filter; it was skipped')
+            elif prev_H_cur is not None:
+                used_h = self._update_homography(prev_H_cur, covariance, rms_px, inliers)
+        n_fix, n_imu = self._apply_pending()
+        pose = self._pose(SLOT_CUR, stamp_ns, used_h, n_fix, n_imu)
+        self.poses.append(pose)
+        return pose
+
+    def _bridge(self, stamp_ns: int) -> int:
+        """Filter-only steps of ``max_step_s`` up to a frame far after the previous one (a camera
+        dropout, a low frame rate): telemetry is interpolated over short spans only. Returns the
+        number of steps taken."""
+        step = int(self.config.max_step_s * 1e9)
+        n = 0
+        while stamp_ns - int(self.ukf.t_cur_ns or 0) > 1.5 * step:
+            self._close_record()
+            self.ukf.advance(int(self.ukf.t_cur_ns or 0) + step)
+            self._record(self.ukf.last_F, virtual=True)
+            self._update_gyro()
+            self._apply_pending()
+            n += 1
+        return n
+
+    def smoothed_poses(self) -> list[FramePose]:
+        """Every frame's pose smoothed with all the data fed so far (Rauch-Tung-Striebel), for
+        offline products; aligned with :attr:`poses` (frames without a filtered pose stay invalid,
+        as do frames older than ``history_frames``). The filter itself is not changed."""
+        out = list(self.poses)
+        if not self._history:
+            return out
+        self._close_record()
+        steps = [(h[1], h[2], h[3], h[4], h[5]) for h in self._history]
+        for h, (x, P) in zip(self._history, rts_smooth(steps)):  # noqa: N806
+            if h[0] is None:  # a filter-only step across a gap
+                continue
+            old = self.poses[h[0]]
+            out[h[0]] = self._pose_from(x, P, old.stamp_ns, old.homography_used, old.fixes_used, old.imu_used)
+        return out
+
+    def previous_pose(self) -> FramePose | None:
+        """The previous frame's pose as refined by everything fused since (one-frame fixed lag)."""
+        if not self.ukf.initialized or self.ukf.t_prev_ns == self.ukf.t_cur_ns:
+            return None
+        return self._pose(SLOT_PREV, int(self.ukf.t_prev_ns or 0), False, 0, 0)
+
+    # -- raster and placement ------------------------------------------------------------------
+    def make_raster(self, pose: FramePose, camera: CameraIntrinsics | None = None, *,
+                    gsd_m_per_px: float | None = None) -> GeoRaster:
+        """The north-up UTM raster of this flight (created once, then returned as is).
+
+        gsd: ``gsd_m_per_px``, else the config's, else the ground sampling of ``pose``'s frame at its
+        centre (height above ground / fx), rounded to two significant digits. Pixel (0, 0) is the
+        ground point under the frame centre, snapped to the gsd grid.
+        """
+        if self.raster is not None:
+            return self.raster
+        cam = self._camera(camera)
+        if not pose.valid or self.origin is None:
+            msg = 'make_raster needs a valid pose (a GNSS fix must have been fed before the frame).'
+            raise ValueError(msg)
+        gsd = gsd_m_per_px if gsd_m_per_px is not None else self.config.gsd_m_per_px
+        if not (gsd and math.isfinite(gsd) and gsd > 0):
+            agl = max(float(pose.camera.center_enu_m[2]) - _ground(pose), self.config.min_agl_m, 1.0) \
+                if pose.camera is not None else self.config.nominal_agl_m
+            raw = agl / math.sqrt(cam.fx * cam.fy)
+            gsd = float(f'{raw:.2g}')
+        epsg = utm_epsg(self.origin.lat0_deg, self.origin.lon0_deg)
+        utm_A_enu = self._utm_affine(epsg)  # noqa: N806
+        enu_H_frame = self._enu_H_frame(pose, cam)  # noqa: N806
+        centre_en = apply_H(utm_A_enu @ enu_H_frame, np.array([[cam.cx, cam.cy]]))[0]
+        e0, n0 = (round(float(v) / gsd) * gsd for v in centre_en)
+        self.raster = GeoRaster(epsg, gsd, e0, n0)
+        return self.raster
+
+    def raster_H_enu(self, raster: GeoRaster | None = None) -> np.ndarray:  # noqa: N802
+        """(3, 3) ENU ground (east, north, 1) -> raster pixel (x, y, 1) (affine)."""
+        raster = self._raster(raster)
+        return raster.raster_H_utm @ self._utm_affine(raster.epsg)
+
+    def raster_H_frame(self, pose: FramePose, camera: CameraIntrinsics | None = None,  # noqa: N802
+                       raster: GeoRaster | None = None) -> np.ndarray:
+        """(3, 3) frame pixels -> raster pixels of the flat ground seen from ``pose`` (normalised)."""
+        return normalize_H(self.raster_H_enu(raster) @ self._enu_H_frame(pose, self._camera(camera)))
+
+    def correct(self, raster_H_frame_chained: np.ndarray, pose: FramePose,  # noqa: N803
+                camera: CameraIntrinsics | None = None, raster: GeoRaster | None = None, *,
+                chain_sigma_px: float | None = None) -> np.ndarray:
+        """Drift control: blend a chained frame -> raster homography with the pose-predicted one.
+
+        Each frame corner is a scalar Kalman fusion of two estimates of its raster position: the
+        chained one, whose variance grows by ``chain_sigma_px**2`` per call (the registration's
+        corner noise accumulating along the chain: pass it from the registration's covariance,
+        see :meth:`corner_sigma_px`; default ``drift_chain_sigma_px``) and shrinks with every
+        correction; and the
+        pose-predicted one, whose variance is the fused pose covariance carried to the corner
+        (numerical Jacobian). The corrected homography maps the frame corners exactly onto the
+        blended corners. Feed the result back into the chain (``raster_H_next = corrected @
+        cur_H_next``), so corrections accumulate: low frequencies come from the poses, high
+        frequencies from the registrations. Returns the chained homography unchanged when the
+        pose is not valid. Call :meth:`reset_drift` when a new chain starts.
+        """
+        chained = normalize_H(np.asarray(raster_H_frame_chained, dtype=np.float64))
+        if not pose.valid or not np.all(np.isfinite(pose.covariance)):
+            return chained
+        cam = self._camera(camera)
+        corners = _frame_corners(cam)
+        c_chain = apply_H(chained, corners)
+        c_pose, var_pose = self._corner_prediction(pose, cam, corners, raster)
+        if self._drift_var_px2 is None:
+            # A new chain starts where the pose puts it; that anchor's error is common to the whole
+            # segment (a placement error, not drift), so the drift variance starts at zero.
+            self._drift_var_px2 = np.zeros_like(var_pose)
+        step = self.config.drift_chain_sigma_px if chain_sigma_px is None else float(chain_sigma_px)
+        var_chain = self._drift_var_px2 + step**2
+        # Filtered pose errors are correlated from frame to frame (the same fixes and attitude
+        # drive many frames): treating each frame's pose as independent would average noise into
+        # the mosaic as jitter. Count a pose as 1/N of an independent measurement.
+        gain = var_chain / (var_chain + var_pose * self.config.drift_pose_correlation_frames)
+        blended = c_chain + gain[:, None] * (c_pose - c_chain)
+        self._drift_var_px2 = (1.0 - gain) * var_chain
+        return homography_from_corners(corners, blended)
+
+    def corner_sigma_px(self, prev_H_cur: np.ndarray, covariance: np.ndarray | None,  # noqa: N803
+                        camera: CameraIntrinsics | None = None) -> float:
+        """RMS standard deviation (px) of the frame corners under a registration's (8, 8) covariance of
+        h (:func:`corner_jacobian`), or ``drift_chain_sigma_px`` when there is none."""
+        if covariance is None:
+            return self.config.drift_chain_sigma_px
+        H = np.asarray(prev_H_cur, dtype=np.float64)  # noqa: N806
+        J = corner_jacobian(H / H[2, 2], _frame_corners(self._camera(camera)))  # noqa: N806
+        return float(math.sqrt(max(np.trace(J @ np.asarray(covariance, dtype=np.float64) @ J.T) / 8.0, 0.0)))
+
+    def reset_drift(self) -> None:
+        """Forget the drift controller's state (a new mosaic segment starts)."""
+        self._drift_var_px2 = None
+
+    # -- internals -----------------------------------------------------------------------------
+    def _skip(self, kind: str, message: str) -> None:
+        self.skipped[kind] += 1
+        if kind not in self._warned:
+            self._warned.add(kind)
+            _LOG.warning('%s (further ones are counted in skipped[%r], not logged).', message, kind)
+
+    def _in_order(self, sensor: str, stamp_ns: int) -> bool:
+        last = self._last_stamp.get(sensor)
+        if last is not None and int(stamp_ns) <= last:
+            self._skip(f'{sensor}_out_of_order', f'{sensor} message at {stamp_ns} ns not after the previous one '
+                       f'({last} ns) ignored')
+            return False
+        self._last_stamp[sensor] = int(stamp_ns)
+        return True
+
+    def _fix_covariance(self, fix: GeoFix) -> np.ndarray:
+        cfg = self.config
+        default = np.diag([cfg.gps_sigma_h_m**2, cfg.gps_sigma_h_m**2, cfg.gps_sigma_v_m**2])
+        cov = np.asarray(fix.position_covariance_m2, dtype=np.float64)
+        if fix.covariance_type <= 0 or cov.size != 9:
+            return default
+        cov = cov.reshape(3, 3)
+        cov = 0.5 * (cov + cov.T)
+        if not np.all(np.isfinite(cov)):
+            self._skip('fix_covariance_nan', 'GNSS fix covariance with NaN fields: the default sigmas are used')
+            return default
+        if np.trace(cov) <= 0.0 or np.min(np.linalg.eigvalsh(cov)) < 0.0:
+            return default
+        return cov + 1e-4 * np.eye(3)
+
+    def _set_origin(self, fix: GeoFix) -> None:
+        ground = self.config.ground_altitude_m
+        if not math.isfinite(ground):
+            ground = fix.altitude_m - self.config.nominal_agl_m
+        self.ground_altitude_m = float(ground)
+        self.origin = LocalTangentPlane(fix.latitude_deg, fix.longitude_deg, self.ground_altitude_m)
+
+    def _telemetry(self, kind: str, stamp_ns: int, z: np.ndarray, R: np.ndarray) -> None:  # noqa: N803
+        ukf = self.ukf
+        if ukf.initialized:
+            assert ukf.t_prev_ns is not None and ukf.t_cur_ns is not None
+            if stamp_ns < ukf.t_prev_ns:
+                self._skip(f'{kind}_stale', f'{kind} message at {stamp_ns} ns is older than the filter window '
+                           f'(from {ukf.t_prev_ns} ns) and was ignored')
+                return
+            if stamp_ns <= ukf.t_cur_ns:  # late, but inside the window: fuse now
+                self._apply(kind, stamp_ns, z, R)
+                return
+        self._seq += 1
+        self._pending.append((stamp_ns, self._seq, kind, z, R))
+        horizon = stamp_ns - int(self.config.telemetry_buffer_s * 1e9)
+        if self._pending[0][0] >= horizon:
+            return
+        if not ukf.initialized:  # before the first frame only the latest telemetry matters
+            self._pending = [p for p in self._pending if p[0] >= horizon]
+            return
+        # No frame for telemetry_buffer_s (camera dropout): the filter goes on without frames, in
+        # filter-only steps, rather than dropping telemetry. A frame older than the step reached is
+        # then out of order (it would be more than telemetry_buffer_s late).
+        self._pending.sort(key=lambda p: (p[0], p[1]))
+        step = int(self.config.max_step_s * 1e9)
+        while self._pending and self._pending[0][0] < horizon:
+            self._close_record()
+            ukf.advance(int(ukf.t_cur_ns or 0) + step)
+            self._record(ukf.last_F, virtual=True)
+            self._update_gyro()
+            self._apply_pending()
+
+    def _apply(self, kind: str, stamp_ns: int, z: np.ndarray, R: np.ndarray) -> bool:  # noqa: N803
+        if kind == 'fix':
+            res = self.ukf.update_position(stamp_ns, z, R)
+        else:
+            res = self.ukf.update_attitude(stamp_ns, z, R)
+        self.updates[f'{kind}_{res.status}'] += 1
+        if res.status == 'gated':
+            self._skip(f'{kind}_gated', f'{kind} at {stamp_ns} ns disagrees with the fused state '
+                       f'(squared Mahalanobis distance {res.mahalanobis2:.1f}) and was not fused')
+        elif res.status == 'failed':
+            self._skip(f'{kind}_failed', f'{kind} update at {stamp_ns} ns failed numerically and was skipped')
+        return res.accepted
+
+    def _apply_pending(self) -> tuple[int, int]:
+        ukf = self.ukf
+        assert ukf.t_prev_ns is not None and ukf.t_cur_ns is not None
+        self._pending.sort(key=lambda p: (p[0], p[1]))
+        keep, n_fix, n_imu = [], 0, 0
+        for item in self._pending:
+            stamp, _, kind, z, R = item  # noqa: N806
+            if stamp > ukf.t_cur_ns:
+                keep.append(item)
+            elif stamp < ukf.t_prev_ns:
+                self._skip(f'{kind}_stale', f'{kind} message at {stamp} ns is older than the filter window and was '
+                           'ignored')
+            elif self._apply(kind, stamp, z, R):
+                n_fix += kind == 'fix'
+                n_imu += kind == 'imu'
+        self._pending = keep
+        return n_fix, n_imu
+
+    def _initialize(self, stamp_ns: int) -> bool:
+        """Start the filter at the first frame that has a fix before it (or the nearest fix)."""
+        fixes = [p for p in self._pending if p[2] == 'fix']
+        if not fixes:
+            return False
+        cfg = self.config
+        before = [p for p in fixes if p[0] <= stamp_ns]
+        fix = before[-1] if before else min(fixes, key=lambda p: abs(p[0] - stamp_ns))
+        gap_s = abs(fix[0] - stamp_ns) * 1e-9
+        cov = np.zeros((6, 6))
+        pose = np.zeros(6)
+        pose[:3] = fix[3]
+        cov[:3, :3] = fix[4] + (cfg.initial_speed_sigma_m_s * gap_s) ** 2 * np.eye(3)
+        imus = [p for p in self._pending if p[2] == 'imu']
+        if imus:
+            imu = min(imus, key=lambda p: abs(p[0] - stamp_ns))
+            gap_s = abs(imu[0] - stamp_ns) * 1e-9
+            pose[3:] = imu[3]
+            cov[3:, 3:] = imu[4] + (math.radians(cfg.initial_rate_sigma_deg_s) * gap_s) ** 2 * np.eye(3)
+        else:
+            recent = [p for p in fixes if p[0] >= fix[0] - 5_000_000_000 and p[0] <= fix[0]]
+            d = recent[-1][3][:2] - recent[0][3][:2]
+            if np.hypot(*d) > 3.0 * math.sqrt(fix[4][0, 0]):
+                yaw, yaw_sigma = math.atan2(d[1], d[0]), math.radians(20.0)
+            else:
+                yaw, yaw_sigma = 0.0, math.radians(90.0)
+            self._skip('no_attitude', 'no Imu orientation before the first frame: level attitude and yaw from the '
+                       'course over ground assumed; the first homographies may be gated')
+            pose[3:] = (0.0, 0.0, yaw)
+            cov[3:, 3:] = np.diag([math.radians(5.0) ** 2, math.radians(5.0) ** 2, yaw_sigma**2])
+        if math.isfinite(cfg.ground_altitude_m):
+            ground_var = cfg.ground_altitude_sigma_m**2
+        else:
+            ground_var = cfg.nominal_agl_sigma_m**2 + float(fix[4][2, 2])
+        self.ukf.initialize(stamp_ns, pose, cov, 0.0, ground_var)
+        self._pending = [p for p in self._pending if p[0] > stamp_ns]
+        return True
+
+    def _update_gyro(self) -> bool:
+        """The body rotation between the two frames, integrated from the gyro samples that cover them."""
+        ukf, cfg = self.ukf, self.config
+        assert ukf.t_prev_ns is not None and ukf.t_cur_ns is not None
+        a, b = ukf.t_prev_ns, ukf.t_cur_ns
+        gap = int(cfg.gyro_max_gap_s * 1e9)
+        samples = [g for g in self._gyro if a - gap <= g[0] <= b + gap]
+        self._gyro = [g for g in self._gyro if g[0] >= b - gap]
+        if not samples:
+            return False
+        ts = np.array([g[0] for g in samples], dtype=np.int64)
+        if ts[0] > a + gap or ts[-1] < b - gap or (len(ts) > 1 and np.diff(ts).max() > gap):
+            self._skip('gyro_gap', f'Imu samples do not cover the frames at {a} and {b} ns without a gap over '
+                       f'{cfg.gyro_max_gap_s} s: no gyro update there')
+            return False
+        ws = np.array([g[1] for g in samples])
+        grid = np.unique(np.r_[a, ts[(ts > a) & (ts < b)], b]).astype(np.float64)
+        mids = 0.5 * (grid[1:] + grid[:-1])
+        w_mid = np.stack([np.interp(mids, ts.astype(np.float64), ws[:, i]) for i in range(3)], axis=1)
+        R = np.eye(3)  # noqa: N806
+        for dt, w in zip(np.diff(grid) * 1e-9, w_mid):
+            R = R @ matrix_from_rotvec(w * dt)  # noqa: N806
+        span = (b - a) * 1e-9
+        dt_sample = float(np.median(np.diff(ts))) * 1e-9 if len(ts) > 1 else span
+        var = cfg.gyro_sigma_rad_s**2 * span * min(dt_sample, span) + (cfg.gyro_bias_sigma_rad_s * span) ** 2
+        res = ukf.update_relative_rotation(rotvec_from_matrix(R), (var + 1e-12) * np.eye(3))
+        self.updates[f'gyro_{res.status}'] += 1
+        if res.status == 'gated':
+            self._skip('gyro_gated', f'the gyro rotation between the frames at {a} and {b} ns disagrees with the '
+                       f'fused attitudes (squared Mahalanobis distance {res.mahalanobis2:.1f}) and was not fused')
+        return res.accepted
+
+    def _update_homography(self, prev_H_cur: np.ndarray, covariance: np.ndarray | None, rms_px: float,  # noqa: N803
+                           inliers: int) -> bool:  # noqa: ARG002 - kept for a future rms/inlier model
+        cfg = self.config
+        H = np.asarray(prev_H_cur, dtype=np.float64)  # noqa: N806
+        if H.shape != (3, 3) or not np.all(np.isfinite(H)) or abs(H[2, 2]) < 1e-12:
+            self._skip('homography_invalid', 'registration homography with NaN entries or h22 = 0 ignored')
+            return False
+        if self.camera is None:
+            self._skip('homography_no_camera', 'no camera intrinsics: registrations are not fused')
+            return False
+        H = H / H[2, 2]  # noqa: N806
+        agl = self.mount.camera_pose(self.ukf.x[SLOT_CUR]).center_enu_m[2] - self.ground_z_m
+        if agl < cfg.min_agl_m:
+            self._skip('homography_low', f'camera {agl:.1f} m above the ground plane (< min_agl_m '
+                       f'{cfg.min_agl_m}): registrations are not fused')
+            return False
+        corners = _frame_corners(self.camera)
+        R = None  # noqa: N806
+        if covariance is not None:
+            C = np.asarray(covariance, dtype=np.float64)  # noqa: N806
+            if C.shape == (8, 8) and np.all(np.isfinite(C)):
+                J = corner_jacobian(H, corners)  # noqa: N806
+                R = J @ (0.5 * (C + C.T)) @ J.T  # noqa: N806
+            else:
+                self._skip('homography_covariance_invalid', 'registration covariance not an (8, 8) finite matrix: '
+                           'the default from the inlier rms is used')
+        if R is None:
+            rms = rms_px if (rms_px is not None and math.isfinite(rms_px) and rms_px > 0) else 1.0
+            R = (cfg.homography_sigma_gain * rms) ** 2 * np.eye(8)  # noqa: N806
+        R = R + cfg.homography_min_sigma_px**2 * np.eye(8)  # noqa: N806
+        res = self.ukf.update_homography(H, R, self.camera.K, self.mount, corners)
+        self.updates[f'homography_{res.status}'] += 1
+        if res.status == 'gated':
+            self._skip('homography_gated', f'a registration disagrees with the fused poses (squared Mahalanobis '
+                       f'distance {res.mahalanobis2:.1f}) and was not fused')
+        elif res.status == 'failed':
+            self._skip('homography_failed', 'a homography update failed numerically and was skipped')
+        return res.accepted
+
+    def _pose(self, slot: slice, stamp_ns: int, used_h: bool, n_fix: int, n_imu: int) -> FramePose:
+        x = self.ukf.x.copy()
+        if slot == SLOT_PREV:
+            x[SLOT_CUR] = x[SLOT_PREV]
+            P = self.ukf.P.copy()  # noqa: N806
+            P[SLOT_CUR, SLOT_CUR] = P[SLOT_PREV, SLOT_PREV]
+            return self._pose_from(x, P, stamp_ns, used_h, n_fix, n_imu)
+        return self._pose_from(x, self.ukf.P, stamp_ns, used_h, n_fix, n_imu)
+
+    def _pose_from(self, x: np.ndarray, P: np.ndarray, stamp_ns: int, used_h: bool, n_fix: int,  # noqa: N803
+                   n_imu: int) -> FramePose:
+        """FramePose of the current slot of a state (13,) and covariance (13, 13)."""
+        assert self.origin is not None
+        y = x[SLOT_CUR].copy()
+        y[5] = wrap_angle(y[5])
+        lat, lon, alt = self.origin.geodetic_from_enu(y[:3])
+        return FramePose(stamp_ns, True, y[:3].copy(), y[3:].copy(), P[SLOT_CUR, SLOT_CUR].copy(), float(lat),
+                         float(lon), float(alt), camera=self.mount.camera_pose(y), ground_z_m=float(x[GROUND]),
+                         homography_used=used_h, fixes_used=n_fix, imu_used=n_imu)
+
+    def _record(self, F: np.ndarray | None, *, virtual: bool = False) -> None:  # noqa: N803
+        """Moments right after the predict to a new frame (the pose appended next is that frame's;
+        ``virtual``: a filter-only step, no pose)."""
+        if self.config.history_frames <= 0:
+            return
+        index = None if virtual else len(self.poses)
+        self._history.append([index, self.ukf.x.copy(), self.ukf.P.copy(), None, None, F])
+        if len(self._history) > self.config.history_frames:
+            del self._history[0]
+            self._history[0][5] = None
+
+    def _close_record(self) -> None:
+        """Moments right before the next predict: everything fused for the latest frame."""
+        if self._history:
+            self._history[-1][3] = self.ukf.x.copy()
+            self._history[-1][4] = self.ukf.P.copy()
+
+    def _camera(self, camera: CameraIntrinsics | None) -> CameraIntrinsics:
+        cam = camera or self.camera
+        if cam is None:
+            msg = 'no camera intrinsics: pass camera= or construct the Georeferencer with them.'
+            raise ValueError(msg)
+        return cam
+
+    def _raster(self, raster: GeoRaster | None) -> GeoRaster:
+        raster = raster or self.raster
+        if raster is None:
+            msg = 'no raster yet: call make_raster(pose) first (or pass raster=).'
+            raise ValueError(msg)
+        return raster
+
+    def _enu_H_frame(self, pose: FramePose, cam: CameraIntrinsics) -> np.ndarray:  # noqa: N802
+        if not pose.valid or pose.camera is None:
+            msg = f'the pose of frame {pose.stamp_ns} is not valid ({pose.reason}); it cannot place the frame.'
+            raise ValueError(msg)
+        return ground_H_image(cam.K, pose.camera.R_enu_from_cam, pose.camera.center_enu_m, ground_z_m=_ground(pose))
+
+    def _utm_affine(self, epsg: int) -> np.ndarray:
+        """(3, 3) affine ENU (east, north, 1) on the ground plane -> UTM (easting, northing, 1), fitted once."""
+        if epsg in self._utm_affines:
+            return self._utm_affines[epsg]
+        if self.origin is None:
+            msg = 'no origin yet: feed a GNSS fix first.'
+            raise ValueError(msg)
+        s = np.linspace(-_AFFINE_FIT_HALF_SPAN_M, _AFFINE_FIT_HALF_SPAN_M, 7)
+        e, n = np.meshgrid(s, s)
+        enu = np.stack([e.ravel(), n.ravel(), np.zeros(e.size)], axis=1)
+        lat, lon, _ = self.origin.geodetic_from_enu(enu)
+        east, north = _transformers(epsg)[0].transform(lon, lat)
+        X = np.c_[enu[:, :2], np.ones(len(enu))]  # noqa: N806
+        coef, *_ = np.linalg.lstsq(X, np.c_[east, north], rcond=None)
+        A = np.eye(3)  # noqa: N806
+        A[:2, :] = coef.T
+        self._utm_affines[epsg] = A
+        return A
+
+    def _corner_prediction(self, pose: FramePose, cam: CameraIntrinsics, corners: np.ndarray,
+                           raster: GeoRaster | None) -> tuple[np.ndarray, np.ndarray]:
+        """Raster corners (4, 2) of the frame placed by ``pose`` and their scalar variances (4,) in px^2."""
+        raster_H_enu = self.raster_H_enu(raster)  # noqa: N806
+        ground_z = _ground(pose)
+
+        def corners_of(y: np.ndarray) -> np.ndarray:
+            cp = self.mount.camera_pose(y)
+            H = raster_H_enu @ ground_H_image(cam.K, cp.R_enu_from_cam, cp.center_enu_m,  # noqa: N806
+                                              ground_z_m=ground_z)
+            return apply_H(H, corners).ravel()
+
+        y0 = pose.pose6
+        c0 = corners_of(y0)
+        steps = np.array([0.1, 0.1, 0.1, 1e-4, 1e-4, 1e-4])
+        J = np.empty((8, 6))  # noqa: N806
+        for i, h in enumerate(steps):
+            dy = np.zeros(6)
+            dy[i] = h
+            J[:, i] = (corners_of(y0 + dy) - corners_of(y0 - dy)) / (2.0 * h)
+        S = J @ pose.covariance @ J.T  # noqa: N806
+        var = 0.5 * (np.diag(S)[0::2] + np.diag(S)[1::2])
+        return c0.reshape(4, 2), np.maximum(var, 1e-6)
+
+
+def _ground(pose: FramePose) -> float:
+    return pose.ground_z_m if math.isfinite(pose.ground_z_m) else 0.0
+
+
+def _frame_corners(cam: CameraIntrinsics) -> np.ndarray:
+    """(4, 2) corner pixel centres of a frame, clockwise from the top-left."""
+    w, h = cam.width, cam.height
+    return np.array([[0.0, 0.0], [w - 1.0, 0.0], [w - 1.0, h - 1.0], [0.0, h - 1.0]])

@@ -1,0 +1,474 @@
+"""The pose UKF of the dissertation's Table 6: the two most recent poses, fused with GNSS, IMU and video.
+
+State (13,), float64: the poses of the body at the two most recent frame stamps (4.21, 4.22), the
+12 values of Table 6, and the height of the ground plane::
+
+    x = [y_prev, y_cur, g],   y = (east_m, north_m, up_m, roll_rad, pitch_rad, yaw_rad)
+
+position of the body origin (where the GNSS antenna is) in a local ENU plane, attitude of the body
+(x forward, y left, z up) in ENU as REP 103 fixed-axis roll, pitch, yaw
+(:func:`frames.R_enu_from_body`); g is the ENU height of the flat ground (m). Angles are kept
+continuous in the state (yaw is not wrapped between the two slots) and wrapped on output.
+
+Why g: a homography only constrains the camera's height *above the ground* (d in 4.28), while
+GNSS measures ellipsoidal heights; with the ground height fixed at a guess (first fix minus a
+nominal AGL, 5 m wrong with a 5 m vertical GNSS sigma) every registration's translation is scaled
+wrongly and the fused track is biased. With g in the state, the ratio of GNSS horizontal
+displacement to image motion estimates the height above ground, and g follows. It is a slow
+random walk (terrain is not exactly flat); it drops out of the pose slots' predict, so the pose
+part of the filter is Table 6's.
+
+Motion model (predict, at each new frame stamp t_k): the slots shift, y_prev <- y_cur, and the new
+current pose is extrapolated at constant velocity from the two poses,
+``y_cur <- y_cur + r (y_cur - y_prev)`` with r = dt_k / dt_(k-1), plus white acceleration noise
+(standard deviation ``accel * dt**2`` per axis). Linear, so the unscented predict is exact.
+
+Measurement models (updates, each a filterpy ``UnscentedKalmanFilter.update`` with its own hx and
+R; sigma points are regenerated from the current (x, P) before each one, so sequential updates are
+correct):
+
+- GNSS fix at time t in [t_prev, t_cur]: the ENU position interpolated linearly between the two
+  slots, ``(1 - a) p_prev + a p_cur``, a = (t - t_prev) / (t_cur - t_prev); R = the fix's ENU
+  covariance plus the interpolation's model error (the motion model's acceleration sigma times
+  (t - t_prev)(t_cur - t) / 2). Telemetry between frames is thus used at its own time stamp, which
+  is what two poses in the state allow.
+- IMU orientation at time t: the interpolated (roll, pitch, yaw); R = the message's orientation
+  covariance (small angles: rotation-vector covariance ~ Euler-angle covariance near level
+  flight); the measurement is wrapped to within pi of the prediction.
+- Gyro: the body rotation from t_prev to t_cur integrated from the angular velocities of the Imu
+  messages between the two frames, a relative measurement of the two slots,
+  ``log(R_prev^T R_cur)``; R from the per-sample gyro noise and a bias allowance. The homography
+  of a narrow nadir view hardly separates a small rotation from a translation (pitch by dtheta
+  moves the image like a displacement of d dtheta), so without a precise relative attitude the
+  absolute attitude noise of the IMU (0.5 deg per sample) leaks into the position as frame-to-
+  frame jitter of 0.3 m; the gyro removes it.
+- Homography prev_H_cur of a registration (Table 6, 4.30 to 4.39): predicted by the flat-ground
+  model (4.28, 4.29) of the two camera poses in the state, :func:`frame2_H_frame1` with frame 1 the
+  current camera and frame 2 the previous one. The 8 free entries of H are expressed as the
+  positions in the previous frame of the current frame's 4 corners (the "4-point"
+  parametrisation: a one-to-one, smooth change of coordinates of the same 8 numbers, in pixels,
+  so that S = P_hh + R is well conditioned; the entries of h span 12 orders of magnitude). The
+  registration's covariance P_h of (h00 .. h21) (4.43) is carried into corner space by the
+  Jacobian of that map, J P_h J^T, plus an isotropic model-error floor (non-flat ground,
+  residual distortion, time-stamp jitter).
+
+Every update is gated by its Mahalanobis distance (chi-square at ``gate_probability``): a wrong
+registration or a GNSS outlier is refused rather than fused. After ``max_gated_in_a_row``
+refusals in a row of one kind the filter admits it is the one that is wrong: the absolute
+uncertainty of both slots is inflated together (relative motion untouched) and the measurement is
+fused.
+
+Sigma points: ``MerweScaledSigmaPoints`` with alpha = 1, beta = 2, kappa = 0 by default (2L + 1 =
+27 points at +-sqrt(L) sigma; weights Wm_0 = 0, Wc_0 = 2, the others 1 / 2L, none negative). The reference's L + kappa = 3
+(4.32) is available (kappa = 3 - L) but is not the default: with L = 13 it gives a central weight
+of -3.3, and on simulated flights that filter was measurably biased in height (normalised
+estimation error squared 5 to 8 instead of about 1, vertical RMSE 1.8 to 2.3 m instead of 1.2
+to 1.5 m).
+
+Offline, :func:`rts_smooth` runs the Rauch-Tung-Striebel recursion over the stored moments of a
+run (the predict is linear, so it is exact for this filter's Gaussian approximation).
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+from scipy.special import chdtri
+
+from .frames import (
+    NADIR_ELEVATION_RAD,
+    CameraPose,
+    R_body_from_cam,
+    R_enu_from_body,
+    camera_pose,
+    rotvec_from_matrix,
+    rpy_from_R_enu_from_body,
+)
+from .ground_homography import apply_H, frame2_H_frame1
+
+__all__ = [
+    'POSE_DIM',
+    'STATE_DIM',
+    'GROUND',
+    'SLOT_PREV',
+    'SLOT_CUR',
+    'CameraMount',
+    'UkfParams',
+    'UpdateResult',
+    'PoseUkf',
+    'corner_jacobian',
+    'rts_smooth',
+    'transition_matrix',
+    'wrap_angle',
+]
+
+POSE_DIM = 6
+STATE_DIM = 13
+GROUND = 12
+SLOT_PREV = slice(0, 6)
+SLOT_CUR = slice(6, 12)
+_EPS_VAR = 1e-10  # keeps P positive definite where a block is exactly singular by construction
+
+
+def wrap_angle(a: np.ndarray | float) -> np.ndarray | float:
+    """Angle(s) in radians wrapped to [-pi, pi)."""
+    wrapped = np.mod(np.asarray(a, dtype=np.float64) + np.pi, 2.0 * np.pi) - np.pi
+    return float(wrapped) if np.ndim(wrapped) == 0 else wrapped
+
+
+@dataclass(frozen=True)
+class CameraMount:
+    """How the camera sits on the body: gimbal angles (rad) and lever arm (body frame, m).
+
+    Defaults: nadir, image top toward the nose, image right toward the right wing (see frames).
+    """
+
+    gimbal_azimuth_rad: float = 0.0
+    gimbal_elevation_rad: float = NADIR_ELEVATION_RAD
+    lever_arm_body_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def camera_pose(self, pose6: np.ndarray) -> CameraPose:
+        """Camera optical frame of a body pose (east, north, up, roll, pitch, yaw)."""
+        return camera_pose(pose6[:3], pose6[3], pose6[4], pose6[5], gimbal_azimuth_rad=self.gimbal_azimuth_rad,
+                           gimbal_elevation_rad=self.gimbal_elevation_rad, lever_arm_body_m=self.lever_arm_body_m)
+
+    def body_pose(self, camera: CameraPose) -> np.ndarray:
+        """(6,) body pose (east, north, up, roll, pitch, yaw) of a camera pose: the inverse of camera_pose."""
+        R_enu_from_body = camera.R_enu_from_cam @ R_body_from_cam(self.gimbal_azimuth_rad,  # noqa: N806
+                                                                  self.gimbal_elevation_rad).T
+        position = np.asarray(camera.center_enu_m, dtype=np.float64) - R_enu_from_body @ np.asarray(
+            self.lever_arm_body_m, dtype=np.float64)
+        return np.r_[position, rpy_from_R_enu_from_body(R_enu_from_body)]
+
+
+@dataclass(frozen=True)
+class UkfParams:
+    """Noise and numerics of :class:`PoseUkf` (SI units, radians)."""
+
+    accel_sigma_h_m_s2: float = 2.0
+    accel_sigma_v_m_s2: float = 1.0
+    angular_accel_sigma_rad_s2: float = math.radians(20.0)
+    initial_speed_sigma_m_s: float = 15.0
+    initial_rate_sigma_rad_s: float = math.radians(30.0)
+    ground_walk_m_per_sqrt_s: float = 0.05
+    gate_probability: float = 0.99999
+    max_gated_in_a_row: int = 5
+    alpha: float = 1.0
+    beta: float = 2.0
+    kappa: float = 0.0
+
+
+@dataclass(frozen=True)
+class UpdateResult:
+    """Outcome of one measurement update: 'accepted', 'gated' (refused as an outlier),
+    'reacquired' (accepted after inflating the uncertainty) or 'failed' (numerical)."""
+
+    status: str
+    mahalanobis2: float = float('nan')
+
+    @property
+    def accepted(self) -> bool:
+        return self.status in ('accepted', 'reacquired')
+
+
+def corner_jacobian(H: np.ndarray, corners: np.ndarray) -> np.ndarray:  # noqa: N803
+    """(2N, 8) Jacobian of the mapped corners (u1, v1, u2, v2, ...) w.r.t. (h00 .. h21), h22 = 1.
+
+    H (3, 3) normalised to h22 = 1; corners (N, 2). u = (h00 x + h01 y + h02) / w,
+    v = (h10 x + h11 y + h12) / w, w = h20 x + h21 y + 1.
+    """
+    H = np.asarray(H, dtype=np.float64) / H[2, 2]  # noqa: N806
+    out = np.zeros((2 * len(corners), 8))
+    for i, (x, y) in enumerate(np.asarray(corners, dtype=np.float64)):
+        w = H[2, 0] * x + H[2, 1] * y + 1.0
+        u = (H[0, 0] * x + H[0, 1] * y + H[0, 2]) / w
+        v = (H[1, 0] * x + H[1, 1] * y + H[1, 2]) / w
+        out[2 * i, 0:3] = (x / w, y / w, 1.0 / w)
+        out[2 * i, 6:8] = (-u * x / w, -u * y / w)
+        out[2 * i + 1, 3:6] = (x / w, y / w, 1.0 / w)
+        out[2 * i + 1, 6:8] = (-v * x / w, -v * y / w)
+    return out
+
+
+class PoseUkf:
+    """The 12-state UKF (see the module docstring). Times are integer nanoseconds.
+
+    Use: ``initialize`` once, then per frame ``advance(stamp)`` followed by any number of
+    ``update_*`` calls for measurements with stamps in [t_prev, t_cur].
+    """
+
+    def __init__(self, params: UkfParams | None = None) -> None:
+        self.params = params or UkfParams()
+        p = self.params
+        points = MerweScaledSigmaPoints(STATE_DIM, alpha=p.alpha, beta=p.beta, kappa=p.kappa)
+        self.ukf = UnscentedKalmanFilter(dim_x=STATE_DIM, dim_z=3, dt=1.0, hx=_slot_cur_position,
+                                         fx=_constant_velocity, points=points)
+        self.t_prev_ns: int | None = None
+        self.t_cur_ns: int | None = None
+        self._rate_known = False
+        self.last_F: np.ndarray | None = None  # noqa: N815 - the transition of the latest advance
+        self._gated_in_a_row: dict[str, int] = {}
+        self._gate_cache: dict[int, float] = {}
+
+    # -- state ---------------------------------------------------------------------------------
+    @property
+    def initialized(self) -> bool:
+        return self.t_cur_ns is not None
+
+    @property
+    def x(self) -> np.ndarray:
+        return self.ukf.x
+
+    @property
+    def P(self) -> np.ndarray:  # noqa: N802
+        return self.ukf.P
+
+    def pose(self, slot: slice = SLOT_CUR) -> tuple[np.ndarray, np.ndarray]:
+        """(pose (6,), covariance (6, 6)) of one slot; yaw wrapped to (-pi, pi]."""
+        y = self.ukf.x[slot].copy()
+        y[5] = wrap_angle(y[5])
+        return y, self.ukf.P[slot, slot].copy()
+
+    @property
+    def ground_z(self) -> tuple[float, float]:
+        """(height of the ground plane in ENU, its variance), m and m^2."""
+        return float(self.ukf.x[GROUND]), float(self.ukf.P[GROUND, GROUND])
+
+    def initialize(self, stamp_ns: int, pose6: np.ndarray, cov6: np.ndarray, ground_z_m: float = 0.0,
+                   ground_var_m2: float = 1.0) -> None:
+        """Both slots at ``pose6`` (the same pose: velocity unknown until the next frame), the
+        ground plane at ``ground_z_m`` with variance ``ground_var_m2`` (> 0)."""
+        pose6 = np.asarray(pose6, dtype=np.float64)
+        cov6 = _sym(np.asarray(cov6, dtype=np.float64))
+        self.ukf.x = np.r_[pose6, pose6, ground_z_m]
+        P = np.zeros((STATE_DIM, STATE_DIM))  # noqa: N806
+        P[SLOT_PREV, SLOT_PREV] = P[SLOT_PREV, SLOT_CUR] = P[SLOT_CUR, SLOT_PREV] = cov6
+        P[SLOT_CUR, SLOT_CUR] = cov6 + _EPS_VAR * np.eye(POSE_DIM)
+        P[GROUND, GROUND] = max(float(ground_var_m2), _EPS_VAR)
+        self.ukf.P = P
+        self.t_prev_ns = self.t_cur_ns = int(stamp_ns)
+        self._rate_known = False
+        self._gated_in_a_row.clear()
+
+    def advance(self, stamp_ns: int) -> None:
+        """Predict to a new frame stamp (> t_cur): shift the slots, extrapolate at constant velocity."""
+        if self.t_cur_ns is None or self.t_prev_ns is None:
+            msg = 'PoseUkf.advance before initialize'
+            raise RuntimeError(msg)
+        if stamp_ns <= self.t_cur_ns:
+            msg = f'PoseUkf.advance to {stamp_ns} ns, not after the current {self.t_cur_ns} ns'
+            raise ValueError(msg)
+        p = self.params
+        dt = (stamp_ns - self.t_cur_ns) * 1e-9
+        dt_prev = (self.t_cur_ns - self.t_prev_ns) * 1e-9
+        ratio = dt / dt_prev if (self._rate_known and dt_prev > 0.0) else 0.0
+        q = np.empty(POSE_DIM)
+        q[0:2] = (p.accel_sigma_h_m_s2 * dt * dt) ** 2
+        q[2] = (p.accel_sigma_v_m_s2 * dt * dt) ** 2
+        q[3:6] = (p.angular_accel_sigma_rad_s2 * dt * dt) ** 2
+        if not self._rate_known:  # first step: the velocity is not known at all
+            q[0:3] += (p.initial_speed_sigma_m_s * dt) ** 2
+            q[3:6] += (p.initial_rate_sigma_rad_s * dt) ** 2
+        Q = np.zeros((STATE_DIM, STATE_DIM))  # noqa: N806
+        Q[SLOT_PREV, SLOT_PREV] = _EPS_VAR * np.eye(POSE_DIM)
+        Q[SLOT_CUR, SLOT_CUR] = np.diag(q)
+        Q[GROUND, GROUND] = p.ground_walk_m_per_sqrt_s**2 * dt + _EPS_VAR
+        self.ukf.Q = Q
+        try:
+            np.linalg.cholesky(self.ukf.P)
+        except np.linalg.LinAlgError:  # numerically lost definiteness: repair rather than fail
+            self.ukf.P = nearest_positive_definite(self.ukf.P)
+        self.ukf.predict(dt=dt, ratio=ratio)
+        self.ukf.P = _sym(self.ukf.P)
+        self.last_F = transition_matrix(ratio)
+        # keep yaw near (-pi, pi]: shift both slots by the same turns
+        turns = round(self.ukf.x[11] / (2.0 * math.pi))
+        if turns:
+            self.ukf.x[[5, 11]] -= 2.0 * math.pi * turns
+        self.t_prev_ns, self.t_cur_ns = self.t_cur_ns, int(stamp_ns)
+        self._rate_known = True
+
+    def interpolation_weight(self, stamp_ns: int) -> float:
+        """a in [0, 1] such that the pose at ``stamp_ns`` is (1 - a) y_prev + a y_cur."""
+        assert self.t_prev_ns is not None and self.t_cur_ns is not None
+        span = self.t_cur_ns - self.t_prev_ns
+        if span <= 0:
+            return 1.0
+        return float(np.clip((stamp_ns - self.t_prev_ns) / span, 0.0, 1.0))
+
+    # -- updates -------------------------------------------------------------------------------
+    def update_position(self, stamp_ns: int, enu_m: np.ndarray, R: np.ndarray) -> UpdateResult:  # noqa: N803
+        """GNSS position (ENU, m) at ``stamp_ns`` in [t_prev, t_cur] with covariance R (3, 3) m^2."""
+        a = self.interpolation_weight(stamp_ns)
+
+        def hx(x: np.ndarray) -> np.ndarray:
+            return (1.0 - a) * x[0:3] + a * x[6:9]
+
+        bow = self._chord_error_s2(stamp_ns)
+        p = self.params
+        accel = np.array([p.accel_sigma_h_m_s2, p.accel_sigma_h_m_s2, p.accel_sigma_v_m_s2])
+        R_chord = np.diag((accel * bow) ** 2)  # noqa: N806
+        R_total = np.asarray(R, dtype=np.float64) + R_chord  # noqa: N806
+        return self._update('position', np.asarray(enu_m, dtype=np.float64), R_total, hx, inflate=(0, 1, 2))
+
+    def update_attitude(self, stamp_ns: int, rpy_rad: np.ndarray, R: np.ndarray) -> UpdateResult:  # noqa: N803
+        """Body attitude (roll, pitch, yaw; rad) at ``stamp_ns`` with covariance R (3, 3) rad^2."""
+        a = self.interpolation_weight(stamp_ns)
+
+        def hx(x: np.ndarray) -> np.ndarray:
+            return (1.0 - a) * x[3:6] + a * x[9:12]
+
+        pred = hx(self.ukf.x)
+        z = pred + wrap_angle(np.asarray(rpy_rad, dtype=np.float64) - pred)
+        bow = self._chord_error_s2(stamp_ns)
+        R_chord = (self.params.angular_accel_sigma_rad_s2 * bow) ** 2 * np.eye(3)  # noqa: N806
+        return self._update('attitude', z, np.asarray(R, dtype=np.float64) + R_chord, hx, inflate=(3, 4, 5))
+
+    def _chord_error_s2(self, stamp_ns: int) -> float:
+        """(t - t_prev)(t_cur - t) / 2 in s^2: how far a path of unit acceleration strays from the chord
+        between the two slots at time t (the model error of interpolating linearly)."""
+        assert self.t_prev_ns is not None and self.t_cur_ns is not None
+        a = max(0.0, (stamp_ns - self.t_prev_ns) * 1e-9)
+        b = max(0.0, (self.t_cur_ns - stamp_ns) * 1e-9)
+        return 0.5 * a * b
+
+    def update_relative_rotation(self, rotvec_body: np.ndarray, R: np.ndarray) -> UpdateResult:  # noqa: N803
+        """Rotation of the body from t_prev to t_cur, integrated from the gyro (rotation vector, body
+        frame of t_prev, rad), with covariance R (3, 3) rad^2: R_prev^T R_cur = exp(rotvec)."""
+
+        def hx(x: np.ndarray) -> np.ndarray:
+            r_prev = R_enu_from_body(x[3], x[4], x[5])
+            r_cur = R_enu_from_body(x[9], x[10], x[11])
+            return rotvec_from_matrix(r_prev.T @ r_cur)
+
+        return self._update('rotation', np.asarray(rotvec_body, dtype=np.float64), np.asarray(R, dtype=np.float64),
+                            hx, inflate=None)
+
+    def homography_model(self, K: np.ndarray, mount: CameraMount,  # noqa: N803
+                         corners: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+        """hx(x) -> (2N,): the current frame's ``corners`` (N, 2) mapped into the previous frame by
+        the flat-ground homography of the two camera poses of state x (4.28, 4.29), ground at x[12]."""
+        K = np.asarray(K, dtype=np.float64)  # noqa: N806
+        corners = np.asarray(corners, dtype=np.float64)
+
+        def hx(x: np.ndarray) -> np.ndarray:
+            prev = mount.camera_pose(x[SLOT_PREV])
+            cur = mount.camera_pose(x[SLOT_CUR])
+            prev_H_cur = frame2_H_frame1(K, cur.R_enu_from_cam, cur.center_enu_m, prev.R_enu_from_cam,  # noqa: N806
+                                         prev.center_enu_m, ground_z_m=x[GROUND])
+            return apply_H(prev_H_cur, corners).ravel()
+
+        return hx
+
+    def update_homography(self, prev_H_cur: np.ndarray, R_corners: np.ndarray, K: np.ndarray,  # noqa: N803
+                          mount: CameraMount, corners: np.ndarray) -> UpdateResult:
+        """A registration prev_H_cur (current -> previous frame pixels) of the two frames in the state.
+
+        R_corners: (2N, 2N) covariance (px^2) of the mapped corners (see :func:`corner_jacobian`).
+        """
+        z = apply_H(np.asarray(prev_H_cur, dtype=np.float64), np.asarray(corners, dtype=np.float64)).ravel()
+        hx = self.homography_model(K, mount, corners)
+        return self._update('homography', z, R_corners, hx, inflate=None)
+
+    # -- internals -----------------------------------------------------------------------------
+    def _gate(self, dof: int) -> float:
+        if dof not in self._gate_cache:
+            self._gate_cache[dof] = float(chdtri(dof, 1.0 - self.params.gate_probability))
+        return self._gate_cache[dof]
+
+    def _update(self, kind: str, z: np.ndarray, R: np.ndarray, hx: Callable[[np.ndarray], np.ndarray],  # noqa: N803
+                *, inflate: tuple[int, ...] | None) -> UpdateResult:
+        ukf = self.ukf
+        x0, P0 = ukf.x.copy(), ukf.P.copy()  # noqa: N806
+        try:
+            ukf.sigmas_f = ukf.points_fn.sigma_points(ukf.x, ukf.P)
+            ukf.update(z, R=_sym(R), hx=hx)
+            d2 = float(ukf.y @ ukf.SI @ ukf.y)
+            np.linalg.cholesky(_sym(ukf.P))
+        except (np.linalg.LinAlgError, ValueError, FloatingPointError):
+            ukf.x, ukf.P = x0, P0
+            return UpdateResult('failed')
+        if not np.all(np.isfinite(ukf.x)) or not np.isfinite(d2):
+            ukf.x, ukf.P = x0, P0
+            return UpdateResult('failed')
+        if d2 <= self._gate(len(z)):
+            ukf.P = _sym(ukf.P)
+            self._gated_in_a_row[kind] = 0
+            return UpdateResult('accepted', d2)
+        ukf.x, ukf.P = x0, P0
+        n = self._gated_in_a_row.get(kind, 0) + 1
+        self._gated_in_a_row[kind] = n
+        if inflate is None or n < self.params.max_gated_in_a_row:
+            return UpdateResult('gated', d2)
+        # Re-acquisition: the innovation, not the measurement, is the outlier. Inflate the
+        # absolute uncertainty of both slots together (a common offset: relative motion is kept).
+        innovation = z - hx(x0)
+        add = np.zeros((STATE_DIM, STATE_DIM))
+        idx = list(inflate) + [i + POSE_DIM for i in inflate]
+        block = np.diag(innovation**2 + np.diag(R))
+        for i, a in enumerate(idx):
+            for j, b in enumerate(idx):
+                add[a, b] = block[i % 3, j % 3]
+        ukf.P = P0 + add
+        ukf.x = x0
+        res = self._update(kind, z, R, hx, inflate=None)
+        self._gated_in_a_row[kind] = 0
+        return UpdateResult('reacquired' if res.accepted else res.status, res.mahalanobis2)
+
+
+def _sym(P: np.ndarray) -> np.ndarray:  # noqa: N803
+    return 0.5 * (P + P.T)
+
+
+def _slot_cur_position(x: np.ndarray) -> np.ndarray:
+    return x[6:9]
+
+
+def nearest_positive_definite(P: np.ndarray, floor: float = 1e-9) -> np.ndarray:  # noqa: N803
+    """P symmetrised with its eigenvalues clipped to >= ``floor`` (a numerical repair)."""
+    w, v = np.linalg.eigh(_sym(P))
+    return _sym((v * np.maximum(w, floor)) @ v.T)
+
+
+def transition_matrix(ratio: float) -> np.ndarray:
+    """(13, 13) F of the motion model: [y_prev, y_cur, g] -> [y_cur, (1 + r) y_cur - r y_prev, g]."""
+    F = np.zeros((STATE_DIM, STATE_DIM))  # noqa: N806
+    F[SLOT_PREV, SLOT_CUR] = np.eye(POSE_DIM)
+    F[SLOT_CUR, SLOT_PREV] = -ratio * np.eye(POSE_DIM)
+    F[SLOT_CUR, SLOT_CUR] = (1.0 + ratio) * np.eye(POSE_DIM)
+    F[GROUND, GROUND] = 1.0
+    return F
+
+
+def rts_smooth(steps: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]]
+               ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Rauch-Tung-Striebel smoothing of a run of this filter.
+
+    steps[k] = (x_pred, P_pred, x_post, P_post, F) of frame k: the state right after the predict
+    to frame k (F the transition that produced it; None for the first) and right before the
+    predict to frame k + 1. The predict is linear, so the smoother is the exact RTS recursion on
+    these moments: C = P_post F'^T P_pred'^-1, x_s = x_post + C (x_s' - x_pred'),
+    P_s = P_post + C (P_s' - P_pred') C^T. Returns the smoothed (x, P) per frame.
+    """
+    out: list[tuple[np.ndarray, np.ndarray]] = [(np.empty(0), np.empty(0))] * len(steps)
+    if not steps:
+        return out
+    x_s, P_s = steps[-1][2], steps[-1][3]  # noqa: N806
+    out[-1] = (x_s.copy(), P_s.copy())
+    for k in range(len(steps) - 2, -1, -1):
+        _, _, x_post, P_post, _ = steps[k]  # noqa: N806
+        x_pred, P_pred, _, _, F = steps[k + 1]  # noqa: N806
+        C = np.linalg.solve(P_pred, F @ P_post).T  # noqa: N806 - P_post F^T P_pred^-1 (P symmetric)
+        x_s = x_post + C @ (x_s - x_pred)
+        P_s = _sym(P_post + C @ (P_s - P_pred) @ C.T)  # noqa: N806
+        out[k] = (x_s.copy(), P_s.copy())
+    return out
+
+
+def _constant_velocity(x: np.ndarray, dt: float, ratio: float = 0.0) -> np.ndarray:  # noqa: ARG001
+    """Shift and extrapolate: [y_prev, y_cur, g] -> [y_cur, y_cur + ratio (y_cur - y_prev), g]."""
+    y_prev, y_cur = x[SLOT_PREV], x[SLOT_CUR]
+    return np.r_[y_cur, y_cur + ratio * (y_cur - y_prev), x[GROUND]]
