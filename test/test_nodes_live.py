@@ -122,7 +122,8 @@ def test_live_graph_matches_offline_process(ros_env, tmp_path):
         out, _ = player.communicate(timeout=120)
         assert player.returncode == 0, out
         assert listener.wait_for(lambda: listener.diag_value('frames_processed') == '60', 240), \
-            f'graph did not process the 60 frames: {listener.diag_value("frames_processed")}'
+            (f'graph did not process the 60 frames: received {listener.diag_value("frames_received")}, '
+             f'processed {listener.diag_value("frames_processed")}')
         time.sleep(1.0)
         assert listener.previews and listener.compressed
         assert len(listener.registrations) == 60
@@ -133,8 +134,10 @@ def test_live_graph_matches_offline_process(ros_env, tmp_path):
         assert len(listener.poses) == 60 and len(listener.fixes) == 60
         assert all(abs(p.pose.pose.position.z - 100.0) < 10.0 for p in listener.poses)
         assert all(abs(f.latitude - 30.17) < 0.01 for f in listener.fixes)
+    except AssertionError as exc:
+        raise AssertionError(f'{exc}\n--- graph output ---\n{_stop(graph)}') from None
     finally:
-        log = _stop(graph)
+        log = _stop(graph) if graph.returncode is None else ''
         listener.close()
     assert graph.returncode == 0, log
     offline_dir = tmp_path / 'offline'

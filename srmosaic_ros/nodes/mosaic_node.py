@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import collections
 import threading
+import traceback
 import time
 from pathlib import Path
 from typing import Any
@@ -29,7 +30,7 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from rclpy.node import Node
-from rclpy.qos import qos_profile_sensor_data
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, NavSatFix
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
@@ -51,6 +52,9 @@ from ..pipeline import FrameRecord, Pipeline
 from .parameters import declare_pipeline_parameters, read_pipeline_config
 
 __all__ = ['MosaicNode', 'REGISTRATION_LAYOUT', 'main']
+
+IMAGE_QOS_DEPTH = 20
+TELEMETRY_QOS_DEPTH = 500
 
 #: Float64MultiArray layout of /srmosaic/registration (one message per processed frame):
 #: stamp_sec, stamp_nanosec, ok, inliers, rms_px, segment, then mosaic_H_frame (9, row-major, the
@@ -87,12 +91,17 @@ class MosaicNode(Node):
         self._latency_ms: collections.deque[float] = collections.deque(maxlen=500)
         self._last_record: FrameRecord | None = None
 
-        self.create_subscription(Image, '/camera/image_raw', self._on_image, qos_profile_sensor_data)
-        self.create_subscription(CompressedImage, '/camera/image_raw/compressed', self._on_image,
-                                 qos_profile_sensor_data)
-        self.create_subscription(CameraInfo, '/camera/camera_info', self._on_camera_info, qos_profile_sensor_data)
-        self.create_subscription(NavSatFix, '/fix', self._on_fix, qos_profile_sensor_data)
-        self.create_subscription(Imu, '/imu/data', self._on_imu, qos_profile_sensor_data)
+        # Sensor-data QoS (best effort, volatile) as camera and GNSS drivers publish it, with room for
+        # bursts: the callbacks only enqueue, but they share the interpreter with the worker.
+        images_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=IMAGE_QOS_DEPTH,
+                                reliability=ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE)
+        telemetry_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=TELEMETRY_QOS_DEPTH,
+                                   reliability=ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE)
+        self.create_subscription(Image, '/camera/image_raw', self._on_image, images_qos)
+        self.create_subscription(CompressedImage, '/camera/image_raw/compressed', self._on_image, images_qos)
+        self.create_subscription(CameraInfo, '/camera/camera_info', self._on_camera_info, telemetry_qos)
+        self.create_subscription(NavSatFix, '/fix', self._on_fix, telemetry_qos)
+        self.create_subscription(Imu, '/imu/data', self._on_imu, telemetry_qos)
         self.pub_preview = self.create_publisher(Image, '/srmosaic/mosaic_preview', 1)
         self.pub_preview_c = self.create_publisher(CompressedImage, '/srmosaic/mosaic_preview/compressed', 1)
         self.pub_registration = self.create_publisher(Float64MultiArray, '/srmosaic/registration', 50)
@@ -189,6 +198,11 @@ class MosaicNode(Node):
                         records += self.pipeline.flush()  # telemetry stopped: do not hold frames forever
                 except SrMosaicError as exc:
                     self._warn_once(f'pipeline: {type(exc).__name__}', f'frame skipped: {exc}')
+                    continue
+                except Exception as exc:  # noqa: BLE001 - the worker must outlive any one frame
+                    self._warn_once(f'pipeline bug: {type(exc).__name__}',
+                                    f'frame skipped after an internal error (please report): {exc!r}')
+                    self.get_logger().error(traceback.format_exc())
                     continue
             if records:
                 self._latency_ms.append((time.perf_counter() - t0) * 1e3)
