@@ -69,7 +69,8 @@ def simulate(bag: Path, frames: int, fresh: bool) -> dict[str, Any]:
         return {'reused': True}
     shutil.rmtree(bag, ignore_errors=True)
     print(f'simulating {frames} frames into {bag} ...', flush=True)
-    rc, wall, rss = _run([*_srmosaic(), 'simulate', *args, '--out', str(bag), '--no-progress'], bag.parent / 'simulate.log')
+    rc, wall, rss = _run([*_srmosaic(), 'simulate', *args, '--out', str(bag), '--no-progress'],
+                         bag.parent / 'simulate.log')
     if rc != 0:
         sys.exit(f'srmosaic simulate failed (exit {rc}); see {bag.parent / "simulate.log"}')
     stamp.write_text(json.dumps(args))
@@ -78,7 +79,8 @@ def simulate(bag: Path, frames: int, fresh: bool) -> dict[str, Any]:
     return {'reused': False, 'wall_s': round(wall, 1), 'peak_rss_mb': round(rss, 1), 'bag_mb': round(size, 1)}
 
 
-def process(bag: Path, work: Path, name: str, max_tiles: int, blend: str, checkpoint_every: int | None) -> dict[str, Any]:
+def process(bag: Path, work: Path, name: str, max_tiles: int, blend: str,
+            checkpoint_every: int | None) -> dict[str, Any]:
     out = work / name
     shutil.rmtree(out, ignore_errors=True)
     out.mkdir(parents=True)
@@ -99,7 +101,7 @@ def process(bag: Path, work: Path, name: str, max_tiles: int, blend: str, checkp
         sys.exit(f'srmosaic process failed (exit {rc}); see {out.parent / f"{name}.log"}')
     report = json.loads((out / 'report.json').read_text())
     tiles = json.loads(stats.read_text())
-    segs = tiles['segments']
+    segs = tiles['segments']  # one entry per canvas (georeferenced segments share one)
     main = max(report['segments'], key=lambda s: s['frames'])
     row = {
         'run': name, 'max_tiles_in_memory': max_tiles,
@@ -110,7 +112,8 @@ def process(bag: Path, work: Path, name: str, max_tiles: int, blend: str, checkp
         'segments': len(report['segments']), 'mosaic_px': main['size_px'],
         'tiles': sum(s['tiles'] for s in segs), 'tiles_in_memory': sum(s['in_memory'] for s in segs),
         'tiles_on_disk': sum(s['on_disk_only'] for s in segs), 'spill_writes': sum(s['writes'] for s in segs),
-        'spill_loads': sum(s['loads'] for s in segs), 'tile_memory_mb': round(sum(s['memory_bytes'] for s in segs) / 1e6, 1),
+        'spill_loads': sum(s['loads'] for s in segs),
+        'tile_memory_mb': round(sum(s['memory_bytes'] for s in segs) / 1e6, 1),
         'spill_disk_mb': round(sum(s['disk_bytes'] for s in segs) / 1e6, 1),
         'spill_dir_left_behind': any(spill.iterdir()),
     }
@@ -128,7 +131,7 @@ def child(stats_path: Path, argv: list[str]) -> int:
     def finish(self: Any) -> Any:  # noqa: ANN401
         result = original(self)
         stats = {'peak_rss_mb': round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1),
-                 'segments': [seg.canvas.tile_stats() for seg in result.segments]}
+                 'segments': [c.tile_stats() for c in {id(seg.canvas): seg.canvas for seg in result.segments}.values()]}
         stats_path.write_text(json.dumps(stats))
         return result
 
@@ -142,13 +145,16 @@ def main(argv: list[str] | None = None) -> int:
         return child(Path(argv[1]), argv[3:])
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--frames', type=int, default=2000, help='frames of the flight (default 2000; at most 2056)')
-    ap.add_argument('--max-tiles', type=int, default=32, help='mosaic.max_tiles_in_memory of the bounded run (default 32)')
-    ap.add_argument('--blend', choices=['feather', 'multiband'], default='feather', help='mosaic.blend (default feather)')
+    ap.add_argument('--max-tiles', type=int, default=32,
+                    help='mosaic.max_tiles_in_memory of the bounded run (default 32)')
+    ap.add_argument('--blend', choices=['feather', 'multiband'], default='feather',
+                    help='mosaic.blend (default feather)')
     ap.add_argument('--checkpoint-every', type=int, default=None,
                     help='passed to `srmosaic process` (default: its own default)')
     ap.add_argument('--work', type=Path, default=ROOT / 'bench' / 'out' / 'memory',
                     help='bag, outputs and spill files (default bench/out/memory)')
-    ap.add_argument('--fresh', action='store_true', help='simulate the bag again even if one with these settings exists')
+    ap.add_argument('--fresh', action='store_true',
+                    help='simulate the bag again even if one with these settings exists')
     ap.add_argument('--only', choices=['unbounded', 'bounded'], help='run one of the two')
     args = ap.parse_args(argv)
     args.work.mkdir(parents=True, exist_ok=True)
@@ -159,19 +165,23 @@ def main(argv: list[str] | None = None) -> int:
     if args.only != 'bounded':
         runs.append(process(bag, args.work, 'unbounded', 0, args.blend, args.checkpoint_every))
     if args.only != 'unbounded':
-        runs.append(process(bag, args.work, f'bound_{args.max_tiles}', args.max_tiles, args.blend, args.checkpoint_every))
+        runs.append(process(bag, args.work, f'bound_{args.max_tiles}', args.max_tiles, args.blend,
+                            args.checkpoint_every))
     same = None
     if len(runs) == 2:
-        same = (args.work / runs[0]['run'] / 'mosaic.png').read_bytes() == (args.work / runs[1]['run'] / 'mosaic.png').read_bytes()
+        pngs = [(args.work / r['run'] / 'mosaic.png').read_bytes() for r in runs]
+        same = pngs[0] == pngs[1]
 
-    print(f"\n{args.frames} frames 640x480, blend {args.blend}, mosaic {runs[0]['mosaic_px'][0]}x{runs[0]['mosaic_px'][1]} px, "
-          f"{runs[0]['segments']} segment(s), {runs[0]['frames_registered']}/{runs[0]['frames_in']} registered")
+    first = runs[0]
+    print(f"\n{args.frames} frames 640x480, blend {args.blend}, mosaic {first['mosaic_px'][0]}x{first['mosaic_px'][1]} "
+          f"px, {first['segments']} segment(s), {first['frames_registered']}/{first['frames_in']} registered")
     head = (f"{'run':<12} {'peak RSS MB':>11} {'(before out)':>12} {'fps':>6} {'wall s':>7} {'tiles mem/disk':>15} "
             f"{'tile MB':>8} {'writes/loads':>13} {'spill MB':>9}")
     print(head)
     for r in runs:
-        print(f"{r['run']:<12} {r['peak_rss_mb']:>11.0f} {r['peak_rss_mb_before_outputs']:>12.0f} {r['frames_per_s']:>6.2f} "
-              f"{r['wall_s']:>7.0f} {r['tiles_in_memory']:>7}/{r['tiles_on_disk']:<7} {r['tile_memory_mb']:>8.0f} "
+        print(f"{r['run']:<12} {r['peak_rss_mb']:>11.0f} {r['peak_rss_mb_before_outputs']:>12.0f} "
+              f"{r['frames_per_s']:>6.2f} {r['wall_s']:>7.0f} {r['tiles_in_memory']:>7}/{r['tiles_on_disk']:<7} "
+              f"{r['tile_memory_mb']:>8.0f} "
               f"{r['spill_writes']:>6}/{r['spill_loads']:<6} {r['spill_disk_mb']:>9.0f}")
     if same is not None:
         print(f"mosaic.png byte-identical between the runs: {'yes' if same else 'NO'}")

@@ -195,3 +195,12 @@ def test_pickling_a_spilled_canvas_streams_its_tiles(tmp_path: Path) -> None:
     for canvas in (c, d, e):
         canvas.close()
     assert list((tmp_path / 'spill').iterdir()) == []
+
+
+def test_default_spill_root_follows_tmpdir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv('TMPDIR', str(tmp_path))
+    c = TiledCanvas(3, tile_size=T, max_tiles_in_memory=1)
+    paint_flight(c, 2)
+    assert Path(c.spill_dir).parent == tmp_path
+    c.close()
+    assert list(tmp_path.iterdir()) == []

@@ -35,6 +35,7 @@ _RANGES: dict[str, tuple[float, float]] = {
     'mosaic.tile_size': (64, 4096),
     'mosaic.max_canvas_side_px': (256, 10000000),
     'mosaic.preview_max_side_px': (16, 16384),
+    'mosaic.max_tiles_in_memory': (0, 1000000),
     'live.queue_size': (1, 100),
     'live.preview_period_s': (0.05, 3600.0),
 }

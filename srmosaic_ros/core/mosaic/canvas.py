@@ -131,8 +131,9 @@ class TiledCanvas:
             painted ones are spilled to disk (0: no bound, nothing is ever written). One tile
             holds ``4 T^2 (C + 1)`` bytes (feather) or ``4 T^2 (2 C + 3)`` (multiband): 1 MiB and
             2.25 MiB for T = 256, C = 3.
-        spill_dir: directory under which the spill directory of this canvas is created ('': the
-            system temporary directory); created on the first spill, removed by ``close()``.
+        spill_dir: directory under which the spill directory of this canvas is created ('':
+            $TMPDIR, else /var/tmp, see :func:`.tile_store.default_spill_root`); created on the
+            first spill, removed by ``close()``.
 
     Not thread-safe: paint and render from one thread (or hold a lock around both).
     """
@@ -513,7 +514,8 @@ class TiledCanvas:
             return [(kx, ky) for ky in range(ky0, ky1 + 1) for kx in range(kx0, kx1 + 1) if (kx, ky) in tiles]
         return sorted((k for k in tiles if kx0 <= k[0] <= kx1 and ky0 <= k[1] <= ky1), key=lambda k: (k[1], k[0]))
 
-    def _overlap(self, key: TileKey, region: tuple[int, int, int, int]) -> tuple[tuple[slice, slice], tuple[slice, slice]]:
+    def _overlap(self, key: TileKey, region: tuple[int, int, int, int],
+                 ) -> tuple[tuple[slice, slice], tuple[slice, slice]]:
         """(slices in the region's array, slices in the tile) of the overlap of tile ``key`` and ``region``."""
         x0, y0, x1, y1 = region
         kx, ky = key

@@ -14,8 +14,8 @@ class MosaicConfig:
     blend: str = 'feather'
     max_canvas_side_px: int = 100000
     preview_max_side_px: int = 1024
-    max_tiles_in_memory: int = 0  # per segment canvas; 0: no bound (see canvas.TiledCanvas)
-    spill_dir: str = ''  # parent of the spill directories; '': the system temporary directory
+    max_tiles_in_memory: int = 256  # per canvas; 0: no bound (see canvas.TiledCanvas)
+    spill_dir: str = ''  # parent of the spill directories; '': $TMPDIR, else /var/tmp
 
     def __post_init__(self) -> None:
         if not 64 <= self.tile_size <= 4096:

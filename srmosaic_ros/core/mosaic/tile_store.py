@@ -19,8 +19,10 @@ Policy:
   at most one tile beyond the bound and does not push the tiles being painted out of memory.
 
 Spill files live in a directory of their own, created on the first spill (``tempfile.mkdtemp``
-under ``spill_dir``, or the system temporary directory when ``spill_dir`` is ''), and removed by
-``close()``, when the store is garbage-collected or at interpreter exit (``weakref.finalize``).
+under ``spill_dir``; when that is '', under :func:`default_spill_root`: $TMPDIR, else /var/tmp,
+which is on disk where /tmp is often a RAM-backed tmpfs that would hold the "spilled" tiles in
+memory after all), and removed by ``close()``, when the store is garbage-collected or at
+interpreter exit (``weakref.finalize``).
 
 A store pickles with all its tiles, spilled ones included, streamed one tile at a time (see
 ``TileStore.__reduce__``), so a checkpoint of a bounded canvas stays within the bound too;
@@ -43,7 +45,7 @@ import numpy as np
 
 from srmosaic_ros.errors import SrMosaicError
 
-__all__ = ['Tile', 'TileKey', 'TileLayout', 'TileStore', 'TileStoreError']
+__all__ = ['Tile', 'TileKey', 'TileLayout', 'TileStore', 'TileStoreError', 'default_spill_root']
 
 TileKey = tuple[int, int]
 
@@ -100,6 +102,17 @@ class Tile:
     @property
     def nbytes(self) -> int:
         return int(self.buf.nbytes)
+
+
+def default_spill_root() -> str:
+    """Where spill directories go when none is given: $TMPDIR if set, else /var/tmp (disk-backed by
+    convention, unlike a tmpfs /tmp) if writable, else the system temporary directory."""
+    env = os.environ.get('TMPDIR', '')
+    if env and os.path.isdir(env):
+        return env
+    if os.path.isdir('/var/tmp') and os.access('/var/tmp', os.W_OK | os.X_OK):
+        return '/var/tmp'
+    return tempfile.gettempdir()
 
 
 def _file_name(key: TileKey) -> str:
@@ -237,15 +250,14 @@ class TileStore:
     # ---------------------------------------------------------------- disk
     def _ensure_dir(self) -> Path:
         if self._dir is None:
-            root = self.spill_root or None
+            root = self.spill_root or default_spill_root()
             try:
-                if root is not None:
-                    Path(root).mkdir(parents=True, exist_ok=True)
+                Path(root).mkdir(parents=True, exist_ok=True)
                 path = Path(tempfile.mkdtemp(prefix='srmosaic-tiles-', dir=root))
             except OSError as exc:
-                where = root or tempfile.gettempdir()
-                msg = (f'cannot create a spill directory for canvas tiles under {where!r} ({exc}); set '
-                       'mosaic.spill_dir to a writable directory, or mosaic.max_tiles_in_memory: 0 to keep every tile in memory.')
+                msg = (f'cannot create a spill directory for canvas tiles under {root!r} ({exc}); set '
+                       'mosaic.spill_dir to a writable directory, or mosaic.max_tiles_in_memory: 0 to keep every '
+                       'tile in memory.')
                 raise TileStoreError(msg) from None
             self._dir = path
             self._finalizer = weakref.finalize(self, shutil.rmtree, str(path), ignore_errors=True)
@@ -264,8 +276,9 @@ class TileStore:
                 tmp.unlink(missing_ok=True)
             except OSError:
                 pass
-            msg = (f'cannot spill canvas tile {key} to {directory} ({exc}); free disk space there, set mosaic.spill_dir '
-                   'to a larger disk, or raise mosaic.max_tiles_in_memory (0: keep every tile in memory).')
+            msg = (f'cannot spill canvas tile {key} to {directory} ({exc}); free disk space there, set '
+                   'mosaic.spill_dir to a larger disk, or raise mosaic.max_tiles_in_memory (0: keep every tile in '
+                   'memory).')
             raise TileStoreError(msg) from None
         self._files.add(key)
         self.writes += 1
