@@ -40,6 +40,8 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
     p.add_argument('--checkpoint-every', type=int, default=100, metavar='N',
                    help='checkpoint the run state into DIR/.checkpoint every N frames (0: never; default 100)')
     p.add_argument('--resume', action='store_true', help='continue an interrupted run from its last checkpoint')
+    p.add_argument('--sr', action='store_true', help='also write super-resolved tiles of the mosaic to DIR/sr/')
+    p.add_argument('--sr-factor', type=int, default=None, help='SR factor (2, 3, 4; default sr_tiles.factor, 2)')
     p.add_argument('--no-progress', action='store_true', help='no progress bar')
     p.set_defaults(func=_run_process)
 
@@ -60,6 +62,7 @@ def _run_process(args: argparse.Namespace) -> int:
     report = process_input(args.input, args.out, config, topics=topics, select=args.select, camera_yaml=args.camera,
                            hfov_deg=args.hfov, telemetry_csv=args.telemetry, mosaic_video=args.mosaic_video,
                            checkpoint_every=args.checkpoint_every, resume=args.resume,
+                           sr_factor=(args.sr_factor or config.sr_tiles.factor) if (args.sr or args.sr_factor) else None,
                            progress=not args.no_progress)
     print(f"{report['frames_registered']}/{report['frames_in']} frames in mosaic.png "
           f"({len(report['segments'])} segment(s)), {report['frames_per_s']} frames/s, "

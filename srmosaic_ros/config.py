@@ -15,6 +15,8 @@ import yaml
 
 from .core.georef.georeferencer import GeorefConfig
 from .core.mosaic.config import MosaicConfig
+from .core.sr.reconstruct import SRConfig
+from .core.sr.scheduler import SRTileConfig
 from .core.registration import RegistrationConfig
 from .errors import ConfigError
 
@@ -32,6 +34,8 @@ class PipelineConfig:
     mosaic: MosaicConfig = MosaicConfig()
     georef_enabled: bool = True
     georef: GeorefConfig = field(default_factory=GeorefConfig)
+    sr: SRConfig = field(default_factory=SRConfig)
+    sr_tiles: SRTileConfig = field(default_factory=SRTileConfig)
 
 
 def default_params_path() -> Path:
@@ -114,4 +118,6 @@ def pipeline_config(overrides: dict[str, Any] | None = None, *, defaults: dict[s
         mosaic=_build(MosaicConfig, 'mosaic.', flat),
         georef_enabled=bool(flat.get('georef.enabled', True)),
         georef=_build(GeorefConfig, 'georef.', flat),
+        sr=_build(SRConfig, 'sr.', {k: tuple(v) if isinstance(v, list) else v for k, v in flat.items()}),
+        sr_tiles=_build(SRTileConfig, 'sr_tiles.', flat),
     )

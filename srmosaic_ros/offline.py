@@ -185,7 +185,8 @@ def _write_georeferenced(out: Path, result: PipelineResult, image: np.ndarray, c
 def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: TopicConfig | None = None,
                   select: str = 'all', camera_yaml: Path | None = None, hfov_deg: float | None = None,
                   telemetry_csv: Path | None = None, mosaic_video: bool = False,
-                  checkpoint_every: int = 0, resume: bool = False, progress: bool = True) -> dict[str, Any]:
+                  checkpoint_every: int = 0, resume: bool = False, sr_factor: int | None = None,
+                  progress: bool = True) -> dict[str, Any]:
     """Run the pipeline over a bag or video and write the outputs; returns the report (also in report.json).
 
     If the input breaks mid-way (a damaged bag or video, a frame size change), everything processed
@@ -259,6 +260,16 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
     report['peak_rss_mb'] = round(peak_rss_mb(), 1)
     if resume:
         report['resumed_after_frames'] = skip_frames_note(skip_items, frames_done)
+    if sr_factor is not None and error is None and result.main_segment is not None:
+        from .sr_offline import super_resolve_mosaic
+
+        t_sr = time.perf_counter()
+        again, _, _ = open_source(path, topics=topics, select=select, camera_yaml=camera_yaml, hfov_deg=hfov_deg,
+                                  telemetry_csv=telemetry_csv)
+        report['sr'] = super_resolve_mosaic(out, again, config, factor=sr_factor, progress=progress)
+        report['sr']['wall_s'] = round(time.perf_counter() - t_sr, 3)
+        report['wall_s'] = round(time.perf_counter() - t0, 3)
+        report['peak_rss_mb'] = round(peak_rss_mb(), 1)
     write_json(out / 'report.json', report)
     if error is not None:
         raise error

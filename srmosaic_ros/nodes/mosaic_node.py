@@ -29,6 +29,7 @@ import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseWithCovarianceStamped
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, NavSatFix
@@ -88,38 +89,59 @@ class MosaicNode(Node):
         self._warned: set[str] = set()
         self._last_stamp: dict[str, int] = {}
         self.stats = collections.Counter()
+        self._stats_lock = threading.Lock()
         self._latency_ms: collections.deque[float] = collections.deque(maxlen=500)
         self._last_record: FrameRecord | None = None
 
         # Sensor-data QoS (best effort, volatile) as camera and GNSS drivers publish it, with room for
         # bursts: the callbacks only enqueue, but they share the interpreter with the worker.
-        images_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=IMAGE_QOS_DEPTH,
-                                reliability=ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE)
+        # live.reliable_inputs: reliable delivery when every frame matters (bag playback, tests).
+        reliability = (ReliabilityPolicy.RELIABLE if self.get_parameter('live.reliable_inputs').value
+                       else ReliabilityPolicy.BEST_EFFORT)
+        # Reliable inputs (bag playback) keep a deeper DDS history: every frame matters there, and
+        # the node's executor shares the interpreter with the worker (still bounded).
+        depth = IMAGE_QOS_DEPTH * 5 if reliability == ReliabilityPolicy.RELIABLE else IMAGE_QOS_DEPTH
+        images_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
+                                reliability=reliability, durability=DurabilityPolicy.VOLATILE)
         telemetry_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=TELEMETRY_QOS_DEPTH,
-                                   reliability=ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE)
-        self.create_subscription(Image, '/camera/image_raw', self._on_image, images_qos)
-        self.create_subscription(CompressedImage, '/camera/image_raw/compressed', self._on_image, images_qos)
-        self.create_subscription(CameraInfo, '/camera/camera_info', self._on_camera_info, telemetry_qos)
-        self.create_subscription(NavSatFix, '/fix', self._on_fix, telemetry_qos)
-        self.create_subscription(Imu, '/imu/data', self._on_imu, telemetry_qos)
+                                   reliability=reliability, durability=DurabilityPolicy.VOLATILE)
+        # Input callbacks only convert and enqueue; they get their own callback groups so that the
+        # periodic preview (which waits for the pipeline lock) never blocks them. Each group is
+        # mutually exclusive, so every stream stays in order.
+        inputs = MutuallyExclusiveCallbackGroup()
+        images = MutuallyExclusiveCallbackGroup()
+        self.create_subscription(Image, '/camera/image_raw', self._on_image, images_qos, callback_group=images)
+        self.create_subscription(CompressedImage, '/camera/image_raw/compressed', self._on_image, images_qos,
+                                 callback_group=images)
+        self.create_subscription(CameraInfo, '/camera/camera_info', self._on_camera_info, telemetry_qos,
+                                 callback_group=inputs)
+        self.create_subscription(NavSatFix, '/fix', self._on_fix, telemetry_qos, callback_group=inputs)
+        self.create_subscription(Imu, '/imu/data', self._on_imu, telemetry_qos, callback_group=inputs)
+        self._input_lock = threading.Lock()  # input callbacks run concurrently: guard their shared state
         self.pub_preview = self.create_publisher(Image, '/srmosaic/mosaic_preview', 1)
         self.pub_preview_c = self.create_publisher(CompressedImage, '/srmosaic/mosaic_preview/compressed', 1)
         self.pub_registration = self.create_publisher(Float64MultiArray, '/srmosaic/registration', 50)
         self.pub_diag = self.create_publisher(DiagnosticArray, '/srmosaic/diagnostics', 10)
         self.pub_pose = self.create_publisher(PoseWithCovarianceStamped, '/srmosaic/pose', 50)
         self.pub_fix = self.create_publisher(NavSatFix, '/srmosaic/fix', 50)
-        self.create_timer(period, self._publish_periodic)
+        self.create_timer(period, self._publish_periodic, callback_group=MutuallyExclusiveCallbackGroup())
         self._worker = threading.Thread(target=self._work, name='srmosaic-mosaic-worker', daemon=True)
         self._worker.start()
 
     # -- input callbacks: convert, check, enqueue; never raise ------------------------------
     def _warn_once(self, kind: str, text: str) -> None:
-        self.stats[f'rejected: {kind}'] += 1
-        if kind not in self._warned:
+        with self._stats_lock:
+            self.stats[f'rejected: {kind}'] += 1
+            first = kind not in self._warned
             self._warned.add(kind)
+        if first:
             self.get_logger().warning(f'{text} (logged once; further cases are counted in diagnostics)')
 
     def _monotonic(self, stream: str, stamp_ns: int) -> bool:
+        with self._input_lock:
+            return self._monotonic_locked(stream, stamp_ns)
+
+    def _monotonic_locked(self, stream: str, stamp_ns: int) -> bool:
         last = self._last_stamp.get(stream)
         if last is not None and stamp_ns < last:
             self._warn_once(f'{stream} time going backwards',
@@ -129,7 +151,8 @@ class MosaicNode(Node):
         return True
 
     def _on_image(self, msg: Image | CompressedImage) -> None:
-        self.stats['frames_received'] += 1
+        with self._stats_lock:
+            self.stats['frames_received'] += 1
         try:
             stamp_ns, frame_id = header_to_ns_frame(msg)
             image = image_to_rgb_or_mono(msg)
@@ -143,7 +166,8 @@ class MosaicNode(Node):
             return
         with self._wake:
             if len(self._queue) == self._queue.maxlen:
-                self.stats['dropped_frames'] += 1
+                with self._stats_lock:
+                    self.stats['dropped_frames'] += 1
             self._queue.append(Frame(stamp_ns, image, self._camera, frame_id))
             self._wake.notify()
 
@@ -251,11 +275,14 @@ class MosaicNode(Node):
 
     # -- periodic output ------------------------------------------------------------------------
     def _publish_periodic(self) -> None:
-        with self._lock:
-            seg = self.pipeline.segments[-1] if self.pipeline.segments else None
-            image = coverage = None
-            if seg is not None and not seg.canvas.is_empty:
-                image, coverage = seg.canvas.render()
+        image = coverage = None
+        if self._lock.acquire(timeout=2.0):  # the worker holds it per frame; skip a round when busy
+            try:
+                seg = self.pipeline.segments[-1] if self.pipeline.segments else None
+                if seg is not None and not seg.canvas.is_empty:
+                    image, coverage = seg.canvas.render()
+            finally:
+                self._lock.release()
         if image is not None:
             preview = preview_image(image, coverage, self.config.mosaic.preview_max_side_px)
             stamp = self.get_clock().now().nanoseconds

@@ -1,0 +1,230 @@
+"""Direct photometric refinement of a homography: inverse-compositional Lucas-Kanade in torch.
+
+Started from the feature estimate, it minimises over the 8 homography parameters the
+intensity difference between a template frame T and an image frame I warped onto it,
+
+    sum_x rho( a I(image_H_template x) + b - T(x) ),
+
+coarse to fine over pyramid levels (by default the full-resolution level alone: the feature
+estimate is well inside its convergence basin), on a sparse set of high-gradient template pixels
+(the pixel of largest gradient in each block of a grid, the strongest ones kept). Inverse
+compositional (Baker and Matthews 2004): the steepest-descent images dT/dx dW/dp are computed once
+per frame (when the frame is described) and the update is W <- W o W(dp)^-1. The gain a and bias
+b are re-fitted at each iteration (IR automatic gain), rho is Huber (iteratively reweighted, at
+the weighted RMS scale of the residuals: occlusions, moving objects), and pixels that warp
+outside the image frame drop out. Accuracy is limited by sensor noise; the registrar smooths
+the frames slightly (TorchRegistrarOptions.pyramid_sigma) before building the templates.
+
+Either frame of a pair can be the template (every frame's template is built when it is described);
+the registrar picks the one with the finer ground sampling, so that the other is sampled densely
+(sampling it sparser than its pixels would alias).
+
+Convention: image_H_template maps template pixels to image pixels (full resolution, pixel centres
+at integers). Each level works in normalised coordinates
+x_n = (x_l - c_l) / s_l (c_l the level centre, s_l half its larger side) for conditioning.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+import torch.nn.functional as F  # noqa: N812
+
+__all__ = ['PhotometricOptions', 'PhotometricResult', 'PhotometricTemplate', 'make_template', 'refine_photometric']
+
+
+@dataclass(frozen=True)
+class PhotometricOptions:
+    """Settings of the photometric refinement.
+
+    levels: pyramid levels used, coarse to fine (0 = full resolution).
+    points: template pixels per level (in the order of levels): the level is cut into about this
+        many blocks, each offering its strongest-gradient pixel.
+    max_iterations: iterations per level.
+    tol_px: a level stops when an update moves no frame corner by more than this (level pixels).
+    huber_k: Huber threshold in units of the robust residual scale.
+    """
+
+    levels: tuple[int, ...] = (0,)
+    points: tuple[int, ...] = (16000,)
+    max_iterations: int = 8
+    tol_px: float = 2e-3
+    huber_k: float = 2.0
+
+    def __post_init__(self) -> None:
+        if len(self.levels) != len(self.points) or not self.levels or min(self.points) < 16:
+            msg = 'photometric levels and points need one entry per level, and points >= 16.'
+            raise ValueError(msg)
+        if self.max_iterations < 1 or self.tol_px <= 0.0 or self.huber_k <= 0.0:
+            msg = 'photometric max_iterations >= 1, tol_px > 0 and huber_k > 0 are required.'
+            raise ValueError(msg)
+
+
+@dataclass
+class PhotometricTemplate:
+    """Precomputed template of one pyramid level of a frame.
+
+    level: pyramid level; size: (w, h) of the level; xn: (3, P) float32 homogeneous normalised
+    coordinates of the template pixels (one column per pixel); values: (P,) intensities;
+    sd: (8, P) steepest-descent images (feature-major, for fast weighted products); norm_from_full: (3, 3) float64 numpy, full-resolution pixels -> normalised level
+    coordinates; grid_from_norm: (3, 3) normalised coordinates -> grid_sample coordinates.
+    """
+
+    level: int
+    size: tuple[int, int]
+    xn: torch.Tensor
+    values: torch.Tensor
+    sd: torch.Tensor
+    norm_from_full: np.ndarray
+    grid_from_norm: np.ndarray
+
+
+@dataclass(frozen=True)
+class PhotometricResult:
+    """prev_H_cur: (3, 3) float64 refined; iterations: total over levels; rms: robust RMS intensity
+    residual at the finest level; converged: the finest level met tol_px; valid_fraction: template
+    pixels of the finest level that landed inside the image frame."""
+
+    image_H_template: np.ndarray
+    iterations: int
+    rms: float
+    converged: bool
+    valid_fraction: float
+
+
+def _level_matrices(level: int, w: int, h: int) -> tuple[np.ndarray, np.ndarray]:
+    f = float(2**level)
+    level_from_full = np.array([[1.0 / f, 0.0, -(f - 1.0) / (2.0 * f)], [0.0, 1.0 / f, -(f - 1.0) / (2.0 * f)],
+                                [0.0, 0.0, 1.0]])
+    s = max(w, h) / 2.0
+    cx, cy = (w - 1) / 2.0, (h - 1) / 2.0
+    norm_from_level = np.array([[1.0 / s, 0.0, -cx / s], [0.0, 1.0 / s, -cy / s], [0.0, 0.0, 1.0]])
+    grid_from_level = np.array([[2.0 / (w - 1), 0.0, -1.0], [0.0, 2.0 / (h - 1), -1.0], [0.0, 0.0, 1.0]])
+    return norm_from_level @ level_from_full, grid_from_level @ np.linalg.inv(norm_from_level)
+
+
+def make_template(image: torch.Tensor, level: int, *, points: int) -> PhotometricTemplate:
+    """Template of a level image (1, 1, h, w): the image is cut into about `points` square blocks,
+    each block offers its pixel of largest gradient, and the `points` strongest offers are kept
+    (blocks on the border are left out), with intensities and steepest-descent images."""
+    _, _, h, w = image.shape
+    b = max(1, round(math.sqrt(h * w / points)))
+    hb, wb = h // b, w // b
+    img = image[0, 0, :hb * b, :wb * b]
+    p = F.pad(image, (1, 1, 1, 1), mode='replicate')[0, 0]
+    gx = torch.sub(p[1:hb * b + 1, 2:wb * b + 2], p[1:hb * b + 1, :wb * b]).mul_(0.5)
+    gy = torch.sub(p[2:hb * b + 2, 1:wb * b + 1], p[:hb * b, 1:wb * b + 1]).mul_(0.5)
+    mag = torch.addcmul(gx * gx, gy, gy)
+    bmax = mag.view(hb * b, wb, b).amax(2).view(hb, b, wb).amax(1)          # (hb, wb) block maxima
+    bmax[0] = -1.0
+    bmax[-1] = -1.0
+    bmax[:, 0] = -1.0
+    bmax[:, -1] = -1.0
+    flat = bmax.view(-1)
+    n_in = max((hb - 2) * (wb - 2), 0)
+    cut = flat.kthvalue(flat.numel() - points + 1).values if points < n_in else flat.new_tensor(0.0)
+    top = (flat >= cut).nonzero()[:, 0]
+    # The arg-max pixel inside each kept block (flat indices into the cropped level, width wc).
+    wc = wb * b
+    by, bx = top // wb, top % wb
+    d = torch.arange(b * b, device=top.device)
+    cand = (by * (b * wc) + bx * b)[None, :] + ((d // b) * wc + d % b)[:, None]          # (b * b, P)
+    vals = mag.view(-1)[cand]
+    # First arg-max along dim 0 without argmax (slow on the CPU): largest (b*b - d) where vals is max.
+    rank = (b * b - d)[:, None]
+    k = b * b - (rank * (vals == vals.amax(0, keepdim=True))).amax(0)
+    lin = cand.gather(0, k[None])[0]
+    y, x = lin // wc, lin % wc
+    norm_from_full, grid_from_norm = _level_matrices(level, w, h)
+    s = max(w, h) / 2.0
+    xn = (x.to(torch.float32) - (w - 1) / 2.0) / s
+    yn = (y.to(torch.float32) - (h - 1) / 2.0) / s
+    tx = gx.reshape(-1)[lin] * s
+    ty = gy.reshape(-1)[lin] * s
+    proj = tx * xn + ty * yn
+    sd = torch.stack([tx * xn, tx * yn, tx, ty * xn, ty * yn, ty, -proj * xn, -proj * yn], 0)
+    return PhotometricTemplate(level, (w, h), torch.stack([xn, yn, torch.ones_like(xn)], 0), img.reshape(-1)[lin], sd,
+                               norm_from_full, grid_from_norm)
+
+
+def _warp_from_params(dp: np.ndarray) -> np.ndarray:
+    return np.array([[1.0 + dp[0], dp[1], dp[2]], [dp[3], 1.0 + dp[4], dp[5]], [dp[6], dp[7], 1.0]])
+
+
+def _corner_motion(D: np.ndarray, half_w: float, half_h: float) -> float:  # noqa: N803
+    """Largest displacement of the normalised frame corners under D, in normalised units."""
+    c = np.array([[-half_w, -half_h, 1.0], [half_w, -half_h, 1.0], [half_w, half_h, 1.0], [-half_w, half_h, 1.0]])
+    m = c @ D.T
+    return float(np.abs(m[:, :2] / m[:, 2:3] - c[:, :2]).max())
+
+
+def refine_photometric(
+    image_pyramid: list[torch.Tensor],
+    templates: list[PhotometricTemplate],
+    image_H_template: np.ndarray,  # noqa: N803
+    opts: PhotometricOptions,
+) -> PhotometricResult:
+    """Refine image_H_template (3, 3) float64 by inverse-compositional LK, coarse to fine.
+
+    image_pyramid: levels of the image frame (1, 1, h_l, w_l); templates: of the template frame
+    (same size), coarse to fine (as make_template built them for opts.levels).
+    """
+    H = np.asarray(image_H_template, dtype=np.float64)  # noqa: N806
+    H = H / H[2, 2]  # noqa: N806
+    total = 0
+    rms = float('nan')
+    converged = False
+    valid_fraction = 0.0
+    for tpl in templates:
+        img = image_pyramid[tpl.level]
+        dev = img.device
+        M = tpl.norm_from_full  # noqa: N806
+        Hn = M @ H @ np.linalg.inv(M)  # noqa: N806
+        w, h = tpl.size
+        s = max(w, h) / 2.0
+        half_w, half_h = (w - 1) / (2.0 * s), (h - 1) / (2.0 * s)
+        lim = 1.0 - 2.0 / max(w, h)
+        sd, tv = tpl.sd, tpl.values
+        weights = torch.ones_like(tv)
+        converged = False
+        for _ in range(opts.max_iterations):
+            total += 1
+            C = tpl.grid_from_norm @ Hn  # noqa: N806
+            g = torch.from_numpy(C.astype(np.float32)).to(dev) @ tpl.xn                  # (3, P)
+            grid = (g[:2] / g[2:3]).T
+            inside = grid.abs().amax(1) <= lim
+            iw = F.grid_sample(img, grid.contiguous().view(1, 1, -1, 2), mode='bilinear', padding_mode='border',
+                               align_corners=True).view(-1)
+            # Gain and bias of the warped image (least squares, current weights), then the residual.
+            wv = weights * inside
+            sw = wv.sum().clamp_min(1e-6)
+            mi = torch.dot(wv, iw) / sw
+            mt = torch.dot(wv, tv) / sw
+            di = iw - mi
+            wdi = wv * di
+            gain = (torch.dot(wdi, tv) / torch.dot(wdi, di).clamp_min(1e-12)).clamp(0.2, 5.0)
+            e = torch.addcmul(mt - tv, gain, di)
+            # Huber IRLS weights at the weighted RMS scale of the residuals.
+            e2 = e * e
+            scale2 = torch.dot(wv, e2) / sw
+            weights = torch.rsqrt(e2 / (opts.huber_k**2 * scale2.clamp_min(1e-12))).clamp_max_(1.0)
+            wv = weights * inside
+            sdw = sd * wv
+            hess = sdw @ sd.T
+            rhs = sdw @ e
+            dp = torch.linalg.solve_ex(hess.to(torch.float64), rhs.to(torch.float64))[0].cpu().numpy()
+            if not np.all(np.isfinite(dp)):
+                break
+            D = _warp_from_params(dp)  # noqa: N806
+            Hn = Hn @ np.linalg.inv(D)  # noqa: N806
+            Hn = Hn / Hn[2, 2]  # noqa: N806
+            if _corner_motion(D, half_w, half_h) * s < opts.tol_px:
+                converged = True
+                break
+        rms = float(torch.sqrt(scale2))
+        valid_fraction = float(inside.float().mean())
+        H = np.linalg.inv(M) @ Hn @ M  # noqa: N806
+        H = H / H[2, 2]  # noqa: N806
+    return PhotometricResult(H, total, rms, converged, valid_fraction)

@@ -1,0 +1,307 @@
+"""TorchRegistrar: frame-to-frame homographies as torch tensor ops, on the CPU or a GPU.
+
+Same interface as the OpenCV `Registrar` (describe once per frame, register consecutive pairs,
+callers cache Features) and the same `Registration` result, with `covariance` filled. The steps
+follow Table 1 of the reference, with a direct photometric refinement on top:
+
+1. describe: luminance pyramid (slightly smoothed); DoH keypoints with sub-pixel positions,
+   orientations and RootSIFT descriptors on the detection level (half resolution by default,
+   the 250 strongest; the other candidates are kept); the photometric template of the frame
+   (high-gradient pixels, steepest-descent images) on the refinement levels (full resolution).
+2. putative matches: mutual nearest neighbours that pass the ratio test.
+3. batched RANSAC on 4-point normalised DLT hypotheses, adaptive number of rounds.
+4. guided matching with the linear fit (normalised DLT) of the RANSAC inliers, then
+5. Levenberg-Marquardt on the reprojection error of all inliers; 4 and 5 again while the
+   inlier set grows.
+6. covariance of h (h22 = 1) by the unscented transform of the inlier residuals (4.40 to 4.43),
+   i.e. of the feature estimate; the photometric refinement below only tightens it, so for the
+   returned homography it is a conservative bound.
+7. inverse-compositional Lucas-Kanade on the intensities (coarse to fine if several levels are
+   configured), from the feature estimate: the sub-pixel accuracy that super-resolution needs. The template is the frame with
+   the finer ground sampling (both frames' templates are cached). A refinement that moves a frame
+   corner by more than max_refine_shift_px from the feature estimate is discarded (the feature
+   estimate is returned, extras['refined'] = 0).
+8. failure is explicit: too few keypoints / matches / inliers, low inlier ratio, high residual,
+   or an implausible homography (validity.check_homography) give ok = False and the reason. A pair
+   that fails for too few matches or inliers is first retried once with more keypoints (up to
+   RegistrationConfig.max_features, described from the cached candidates of both frames).
+
+Every tensor lives on the device resolved once from `device` (core.device.resolve_device); on a GPU
+the estimation on correspondences (steps 3 to 6: a few hundred points, float64, many tiny kernels
+that would each cost a launch) runs on the host unless options.estimation_on_host is False.
+Convention: prev_H_cur maps current-frame pixels to previous-frame pixels, x right, y down, pixel
+centres at integers.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+import torch
+
+from ..device import resolve_device
+from .covariance import homography_covariance_ut
+from .registrar import Features, Registration, RegistrationConfig
+from .torch_features import (
+    FeatureOptions,
+    KeypointSet,
+    ScaleSpaceCandidates,
+    build_pyramid,
+    concat_keypoints,
+    describe_candidates,
+    detect,
+    image_to_gray_tensor,
+)
+from .torch_matching import descriptor_sq_distances, guided_matches, mutual_ratio_matches, transfer_points
+from .torch_ransac import dlt_homography, ransac_homography, refine_lm
+from .torch_refine import PhotometricOptions, PhotometricTemplate, make_template, refine_photometric
+from .validity import check_homography, frame_corners
+
+if TYPE_CHECKING:
+    from collections.abc import Mapping
+
+__all__ = ['TorchFeatures', 'TorchRegistrar', 'TorchRegistrarOptions']
+
+_LM_TOL = 1e-8              # relative cost decrease at which Levenberg-Marquardt stops
+_GUIDED_MIN_GROWTH = 0.05   # guided matching iterates while the inlier set grows by more than this
+
+
+@dataclass(frozen=True)
+class TorchRegistrarOptions:
+    """Settings of the torch registrar beyond RegistrationConfig (which it honours as well).
+
+    features: detector / descriptor settings; the keypoint count is the smaller of
+        features.max_keypoints and RegistrationConfig.max_features.
+    photometric: refinement settings, None to return the feature estimate.
+    pyramid_sigma: Gaussian blur (pixels) of the full-resolution luminance before the pyramid;
+        it tames aliasing and noise for the photometric refinement.
+    ransac_batch: hypotheses scored at once per RANSAC round.
+    lm_iterations: Levenberg-Marquardt steps per re-estimation.
+    guided_rounds: guided matching + re-estimation rounds at most (stops when inliers stop growing).
+    covariance: compute the UT covariance; covariance_iterations: re-estimation steps per sigma
+        point (1: one Gauss-Newton step, see covariance.homography_covariance_ut).
+    max_refine_shift_px: largest corner shift the photometric refinement may apply to the feature
+        estimate before it is distrusted.
+    estimation_on_host: on a GPU device, run the estimation on correspondences (RANSAC, LM,
+        covariance: a few hundred points, float64, hundreds of tiny kernels) on the CPU; images,
+        features, matching and the photometric refinement stay on the GPU. No effect on the CPU.
+    seed: RANSAC sampling seed (reset at every register call: results do not depend on history).
+    """
+
+    features: FeatureOptions = field(default_factory=FeatureOptions)
+    photometric: PhotometricOptions | None = field(default_factory=PhotometricOptions)
+    pyramid_sigma: float = 1.25
+    ransac_batch: int = 256
+    lm_iterations: int = 10
+    guided_rounds: int = 2
+    covariance: bool = True
+    covariance_iterations: int = 1
+    max_refine_shift_px: float = 2.0
+    estimation_on_host: bool = True
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        checks = {
+            'pyramid_sigma': 0.0 <= self.pyramid_sigma <= 3.0,
+            'ransac_batch': self.ransac_batch >= 8,
+            'lm_iterations': self.lm_iterations >= 1,
+            'guided_rounds': self.guided_rounds >= 0,
+            'covariance_iterations': self.covariance_iterations >= 1,
+            'max_refine_shift_px': self.max_refine_shift_px > 0.0,
+        }
+        bad = [name for name, ok in checks.items() if not ok]
+        if bad:
+            values = ', '.join(f'{name}={getattr(self, name)!r}' for name in bad)
+            msg = f'invalid torch registrar options: {values}.'
+            raise ValueError(msg)
+
+
+@dataclass
+class TorchFeatures(Features):
+    """Features of one frame for TorchRegistrar: the base fields (numpy copies of keypoints_px
+    (N, 2) and descriptors (N, 128), size (w, h)) plus what stays on the device for the next pair:
+    keypoints (KeypointSet), the luminance pyramid [(1, 1, h_l, w_l)], the photometric templates
+    (coarse to fine) and the scale-space candidates not yet described (the registrar describes
+    more of them, once, when a pair fails with the first keypoints; the object is then updated)."""
+
+    keypoints: KeypointSet
+    pyramid: list[torch.Tensor]
+    templates: list[PhotometricTemplate]
+    candidates: ScaleSpaceCandidates
+
+    def extend(self, count: int) -> bool:
+        """Describe candidates until `count` keypoints exist; False when none were added."""
+        have = len(self.keypoints)
+        if count <= have or len(self.candidates) <= have:
+            return False
+        more = describe_candidates(self.candidates, have, count)
+        self.keypoints = concat_keypoints(self.keypoints, more)
+        self.keypoints_px = self.keypoints.xy.cpu().numpy()
+        self.descriptors = self.keypoints.descriptors.cpu().numpy()
+        return True
+
+
+def _fail(reason: str, t0: float, matches: int = 0, inliers: int = 0, H: np.ndarray | None = None,  # noqa: N803
+          extras: Mapping[str, float] | None = None) -> Registration:
+    return Registration(False, H, matches, inliers, reason=reason, time_s=time.perf_counter() - t0,
+                        extras=dict(extras or {}))
+
+
+def _max_corner_shift(A: np.ndarray, B: np.ndarray, width: int, height: int) -> float:  # noqa: N803
+    c = np.c_[frame_corners(width, height), np.ones(4)]
+    a = c @ A.T
+    b = c @ B.T
+    return float(np.linalg.norm(a[:, :2] / a[:, 2:3] - b[:, :2] / b[:, 2:3], axis=1).max())
+
+
+class TorchRegistrar:
+    """Detects features and registers frame pairs with torch ops. Stateless between calls: callers
+    cache the Features of the previous frame (describe once per frame)."""
+
+    def __init__(self, config: RegistrationConfig | None = None, *, device: str | torch.device = 'auto',
+                 options: TorchRegistrarOptions | None = None) -> None:
+        self.config = config or RegistrationConfig()
+        self.options = options or TorchRegistrarOptions()
+        self.device = device if isinstance(device, torch.device) else resolve_device(device)
+        f = self.options.features
+        if self.config.max_features < f.max_keypoints:
+            f = FeatureOptions(**{**f.__dict__, 'max_keypoints': self.config.max_features})
+        self._features = f
+        ph = self.options.photometric
+        self._levels = max([f.detect_level, *(ph.levels if ph else ())]) + 1
+        host = self.options.estimation_on_host and self.device.type != 'cpu'
+        self._est_device = torch.device('cpu') if host else self.device
+        self._generator = torch.Generator(device=self._est_device)
+
+    def describe(self, image: np.ndarray | torch.Tensor) -> TorchFeatures:
+        """Features of a frame: numpy (H, W) / (H, W, 3) uint8, uint16 or float, or a tensor in [0, 1]."""
+        gray = image_to_gray_tensor(image, self.device)
+        _, _, h, w = gray.shape
+        pyr = build_pyramid(gray, self._levels, sigma=self.options.pyramid_sigma)
+        lvl = self._features.level_for(w)
+        cands = detect(pyr[lvl], lvl, self._features)
+        kps = describe_candidates(cands, 0, self._features.max_keypoints)
+        templates: list[PhotometricTemplate] = []
+        ph = self.options.photometric
+        if ph is not None:
+            for level, points in zip(ph.levels, ph.points, strict=True):
+                templates.append(make_template(pyr[level], level, points=points))
+        return TorchFeatures(kps.xy.cpu().numpy(), kps.descriptors.cpu().numpy(), (w, h), kps, pyr, templates, cands)
+
+    def register(self, prev: Features, cur: Features) -> Registration:
+        """Estimate prev_H_cur from the features of two frames (both from this registrar's describe).
+
+        A pair that fails for too few matches or inliers is tried once more with up to
+        RegistrationConfig.max_features keypoints per frame (described from the cached candidates).
+        """
+        t0 = time.perf_counter()
+        if not isinstance(prev, TorchFeatures) or not isinstance(cur, TorchFeatures):
+            msg = 'TorchRegistrar.register needs Features from TorchRegistrar.describe (not from another registrar).'
+            raise TypeError(msg)
+        reg = self._register_once(prev, cur, t0)
+        if not reg.ok and reg.reason.startswith('too few') and len(prev.keypoints) >= 4 and len(cur.keypoints) >= 4:
+            grew_prev = prev.extend(self.config.max_features)
+            grew_cur = cur.extend(self.config.max_features)
+            if grew_prev or grew_cur:
+                reg = self._register_once(prev, cur, t0)
+                reg.extras['retry_keypoints'] = float(min(len(prev.keypoints), len(cur.keypoints)))
+        return reg
+
+    def _register_once(self, prev: TorchFeatures, cur: TorchFeatures, t0: float) -> Registration:
+        cfg, opt = self.config, self.options
+        kp, kc = prev.keypoints, cur.keypoints
+        if len(kp) < 4 or len(kc) < 4:
+            return _fail(f'too few keypoints ({len(kp)} previous, {len(kc)} current); textureless frame '
+                         '(sea, cloud) or too dark', t0)
+        dd = descriptor_sq_distances(kc.descriptors, kp.descriptors)
+        pi, ci, _ = mutual_ratio_matches(kp.descriptors, kc.descriptors, ratio=cfg.ratio, sq_dist=dd)
+        n_matches = int(pi.numel())
+        if n_matches < max(cfg.min_inliers, 4):
+            return _fail(f'too few matches ({n_matches} < {cfg.min_inliers}); textureless frame or too '
+                         'little overlap', t0, n_matches)
+        edev = self._est_device
+        src, dst = kc.xy[ci].to(edev), kp.xy[pi].to(edev)
+        self._generator.manual_seed(opt.seed)
+        rs = ransac_homography(src, dst, threshold_px=cfg.ransac_threshold_px, confidence=cfg.ransac_confidence,
+                               max_iterations=cfg.ransac_max_iterations, batch_size=opt.ransac_batch,
+                               generator=self._generator)
+        n_inl = int(rs.inliers.sum())
+        extras = {'putative_matches': float(n_matches), 'ransac_hypotheses': float(rs.iterations)}
+        if rs.dst_H_src is None or n_inl < max(cfg.min_inliers, 5):
+            return _fail(f'too few inliers ({n_inl} < {cfg.min_inliers}) after RANSAC; unrelated frames or '
+                         'too little overlap', t0, n_matches, n_inl, extras=extras)
+        # Guided matching (step 5) with the linear (normalised DLT) fit of the RANSAC inliers, then
+        # the maximum-likelihood re-estimation (step 4, Levenberg-Marquardt), again while inliers grow.
+        t2 = cfg.ransac_threshold_px**2
+        src, dst = src[rs.inliers].to(torch.float64), dst[rs.inliers].to(torch.float64)
+        H = dlt_homography(src, dst)  # noqa: N806
+        lm_done = False
+        for _ in range(opt.guided_rounds if cfg.guided_radius_px > 0 else 0):
+            gp, gc, gdist = guided_matches(kp.xy, kc.xy, kp.descriptors, kc.descriptors, H.to(self.device),
+                                           radius_px=cfg.guided_radius_px, sq_dist=dd)
+            ginl = gdist <= cfg.ransac_threshold_px
+            n_new = int(ginl.sum())
+            if n_new <= src.shape[0]:
+                break
+            grew = n_new > (1.0 + _GUIDED_MIN_GROWTH) * src.shape[0]
+            n_matches = max(n_matches, int(gp.numel()))
+            src = kc.xy[gc[ginl]].to(device=edev, dtype=torch.float64)
+            dst = kp.xy[gp[ginl]].to(device=edev, dtype=torch.float64)
+            H = refine_lm(src, dst, H, iterations=opt.lm_iterations, tol=_LM_TOL)  # noqa: N806
+            lm_done = True
+            if not grew:
+                break
+        if not lm_done:
+            H = refine_lm(src, dst, H, iterations=opt.lm_iterations, tol=_LM_TOL)  # noqa: N806
+        err2 = ((transfer_points(H, src) - dst) ** 2).sum(-1)
+        keep = err2 <= t2
+        src, dst = src[keep], dst[keep]
+        n_inl = int(keep.sum())
+        H_feat = (H / H[2, 2]).cpu().numpy()  # noqa: N806
+        rms_feat = float(err2[keep].mean().sqrt()) if n_inl else float('nan')
+        extras['feature_rms_px'] = rms_feat
+        w, h = cur.size
+        reason = ''
+        if n_inl < max(cfg.min_inliers, 5):
+            reason = f'too few inliers ({n_inl} < {cfg.min_inliers})'
+        elif n_inl < cfg.min_inlier_ratio * n_matches:
+            reason = f'inlier ratio {n_inl / n_matches:.2f} below {cfg.min_inlier_ratio:.2f}'
+        elif rms_feat > cfg.max_rms_px:
+            reason = f'inlier RMS {rms_feat:.2f} px above {cfg.max_rms_px:.2f} px'
+        else:
+            reason = check_homography(H_feat, w, h, max_scale_change=cfg.max_scale_change,
+                                      max_perspective=cfg.max_perspective)
+        if reason:
+            return Registration(False, H_feat, n_matches, n_inl, rms_feat, reason, None, time.perf_counter() - t0,
+                                extras)
+        cov = None
+        if opt.covariance:
+            c = homography_covariance_ut(H, src, dst, iterations=opt.covariance_iterations)
+            cov = c.covariance.cpu().numpy()
+            extras['sigma_px'] = c.sigma_px
+        H_out = H_feat  # noqa: N806
+        extras['refined'] = 0.0
+        ph = opt.photometric
+        if ph is not None and prev.size == cur.size and cur.templates and prev.templates:
+            # Template = the frame with the finer ground sampling (prev_H_cur scales up: prev).
+            scale = float(np.sqrt(abs(np.linalg.det(H_feat[:2, :2]))))
+            if scale > 1.0:
+                res = refine_photometric(cur.pyramid, prev.templates, np.linalg.inv(H_feat), ph)
+                H_ref = np.linalg.inv(res.image_H_template)  # noqa: N806
+            else:
+                res = refine_photometric(prev.pyramid, cur.templates, H_feat, ph)
+                H_ref = res.image_H_template  # noqa: N806
+            H_ref = H_ref / H_ref[2, 2]  # noqa: N806
+            shift = _max_corner_shift(H_ref, H_feat, w, h) if np.all(np.isfinite(H_ref)) else float('inf')
+            extras.update(photometric_iterations=float(res.iterations), photometric_rms=res.rms,
+                          photometric_valid=res.valid_fraction, refine_shift_px=shift,
+                          photometric_template_prev=float(scale > 1.0))
+            if shift <= opt.max_refine_shift_px and not check_homography(
+                    H_ref, w, h, max_scale_change=cfg.max_scale_change, max_perspective=cfg.max_perspective):
+                H_out = H_ref  # noqa: N806
+                extras['refined'] = 1.0
+        Ht = torch.as_tensor(H_out, dtype=torch.float64, device=src.device)  # noqa: N806
+        rms = float(((transfer_points(Ht, src) - dst) ** 2).sum(-1).mean().sqrt())
+        return Registration(True, H_out, n_matches, n_inl, rms, '', cov, time.perf_counter() - t0, extras)

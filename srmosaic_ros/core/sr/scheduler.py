@@ -1,0 +1,83 @@
+"""The SR scheduler: which mosaic tiles to super-resolve, from which frames.
+
+The mosaic is cut into square tiles of `tile_size` mosaic pixels on a grid anchored at mosaic
+pixel (0, 0). A tile is scheduled when the mosaic covers it (at least `min_coverage` of its
+pixels) and at least `min_frames` registered frames cover it entirely; it then takes the
+`max_frames` frames whose footprint centres are nearest the tile centre (their best-sampled parts).
+Tiles are ordered by how many frames see them (the best-constrained first) and capped at
+`max_tiles`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..metrics import apply_homography
+
+__all__ = ['SRTileConfig', 'TilePlan', 'plan_tiles']
+
+
+@dataclass(frozen=True)
+class SRTileConfig:
+    """Keys under `sr_tiles.` in params/*.yaml."""
+
+    factor: int = 2
+    tile_size: int = 128
+    min_frames: int = 3
+    max_frames: int = 8
+    max_tiles: int = 48
+    min_coverage: float = 0.98
+
+    def __post_init__(self) -> None:
+        bad = [name for name, ok in {
+            'factor': 2 <= self.factor <= 8, 'tile_size': 16 <= self.tile_size <= 2048,
+            'min_frames': self.min_frames >= 1, 'max_frames': self.max_frames >= self.min_frames,
+            'max_tiles': self.max_tiles >= 1, 'min_coverage': 0.0 < self.min_coverage <= 1.0,
+        }.items() if not ok]
+        if bad:
+            values = ', '.join(f'{n}={getattr(self, n)!r}' for n in bad)
+            msg = f'invalid SR tile settings: {values}; see params/default.yaml (sr_tiles).'
+            raise ValueError(msg)
+
+
+@dataclass(frozen=True)
+class TilePlan:
+    """A tile (x0, y0, width, height) in mosaic pixels and the frame indices chosen for it."""
+
+    x0: int
+    y0: int
+    width: int
+    height: int
+    frames: tuple[int, ...]
+    frames_covering: int
+
+
+def plan_tiles(mosaic_H_frames: dict[int, np.ndarray], frame_sizes: dict[int, tuple[int, int]],  # noqa: N803
+               coverage: np.ndarray, config: SRTileConfig) -> list[TilePlan]:
+    """Tiles to reconstruct. mosaic_H_frames: frame index -> (3, 3) frame pixels -> mosaic pixels;
+    frame_sizes: index -> (width, height); coverage: (H, W) bool of the mosaic."""
+    t = config.tile_size
+    h, w = coverage.shape
+    inverse = {k: np.linalg.inv(H) for k, H in mosaic_H_frames.items()}
+    centres = {k: apply_homography(H, np.array([[(frame_sizes[k][0] - 1) / 2, (frame_sizes[k][1] - 1) / 2]]))[0]
+               for k, H in mosaic_H_frames.items()}
+    plans = []
+    for y0 in range(0, h - t + 1, t):
+        for x0 in range(0, w - t + 1, t):
+            if coverage[y0:y0 + t, x0:x0 + t].mean() < config.min_coverage:
+                continue
+            corners = np.array([[x0, y0], [x0 + t - 1, y0], [x0 + t - 1, y0 + t - 1], [x0, y0 + t - 1]], float)
+            covering = []
+            for k, frame_H_mosaic in inverse.items():  # noqa: N806
+                fw, fh = frame_sizes[k]
+                p = apply_homography(frame_H_mosaic, corners)
+                if np.all((p[:, 0] >= 0) & (p[:, 0] <= fw - 1) & (p[:, 1] >= 0) & (p[:, 1] <= fh - 1)):
+                    covering.append(k)
+            if len(covering) < config.min_frames:
+                continue
+            c = np.array([x0 + (t - 1) / 2, y0 + (t - 1) / 2])
+            chosen = sorted(covering, key=lambda k: float(np.linalg.norm(centres[k] - c)))[:config.max_frames]
+            plans.append(TilePlan(x0, y0, t, t, tuple(sorted(chosen)), len(covering)))
+    plans.sort(key=lambda p: (-p.frames_covering, p.y0, p.x0))
+    return plans[:config.max_tiles]
