@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-rasterio = pytest.importorskip('rasterio')
+import rasterio  # a pinned dependency: a missing install must fail, not skip
 from pyproj import Transformer  # noqa: E402
 
 import srmosaic_ros.sim.flight as sim_flight  # noqa: E402
