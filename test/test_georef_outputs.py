@@ -11,7 +11,6 @@ import pytest
 import rasterio  # a pinned dependency: a missing install must fail, not skip
 from pyproj import Transformer  # noqa: E402
 
-import srmosaic_ros.sim.flight as sim_flight  # noqa: E402
 from srmosaic_ros.core.georef import FramePose, GeoRaster, GeorefConfig, Georeferencer  # noqa: E402
 from srmosaic_ros.core.georef.ground_homography import apply_H  # noqa: E402
 from srmosaic_ros.io.geotiff import write_geotiff  # noqa: E402
@@ -19,19 +18,14 @@ from srmosaic_ros.io.kml import GX_NS, KML_NS, latlonbox_from_corners, write_kml
 from srmosaic_ros.io.poses_csv import POSES_CSV_HEADER, read_poses_csv, write_poses_csv  # noqa: E402
 from srmosaic_ros.sim import SimConfig, simulate  # noqa: E402
 
-
-def _geometry_only(world, H, size, **kw):  # noqa: ANN001, ANN003, ANN202, N803, ARG001
-    d = kw.get('decimate', 1)
-    return np.zeros((size[1] // d, size[0] // d, 3), np.float32)
+from sim_geometry import simulate_geometry  # noqa: E402
 
 
 @pytest.fixture(scope='module')
 def georeferenced():  # noqa: ANN201
     """A 60-frame flight through the Georeferencer: (flight, georef, poses, raster_H_frames)."""
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(sim_flight, 'render_frame', _geometry_only)
-        flight = simulate(SimConfig(width=320, height=240, world_gsd_m=0.3, frames=60, speed_m_s=8.0,
-                                    heading_deg=30.0, seed=5))
+    flight = simulate_geometry(SimConfig(width=320, height=240, world_gsd_m=0.3, frames=60, speed_m_s=8.0,
+                                         heading_deg=30.0, seed=5))
     georef = Georeferencer(GeorefConfig(), flight.camera)
     events = sorted([(f.stamp_ns, 0, f) for f in flight.fixes] + [(i.stamp_ns, 1, i) for i in flight.imus]
                     + [(fr.stamp_ns, 2, k) for k, fr in enumerate(flight.frames)], key=lambda e: (e[0], e[1]))

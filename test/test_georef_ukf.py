@@ -8,7 +8,6 @@ import math
 import numpy as np
 import pytest
 
-import srmosaic_ros.sim.flight as sim_flight
 from srmosaic_ros.core.georef import (
     CameraMount,
     FramePose,
@@ -27,18 +26,13 @@ from srmosaic_ros.sim import SimConfig, simulate
 
 CORNER_SIGMA_PX = 0.35  # per coordinate, like the OpenCV registrar on 320 x 240 frames
 
-
-def _geometry_only(world, H, size, **kw):  # noqa: ANN001, ANN003, ANN202, N803, ARG001
-    d = kw.get('decimate', 1)
-    return np.zeros((size[1] // d, size[0] // d, 3), np.float32)
+from sim_geometry import simulate_geometry  # noqa: E402
 
 
 @pytest.fixture(scope='module')
 def flight():  # noqa: ANN201
     """A 160-frame line flight at 100 m (geometry and telemetry only: the images are blank)."""
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(sim_flight, 'render_frame', _geometry_only)
-        return simulate(SimConfig(width=320, height=240, world_gsd_m=0.3, frames=160, speed_m_s=8.0, seed=3))
+    return simulate_geometry(SimConfig(width=320, height=240, world_gsd_m=0.3, frames=160, speed_m_s=8.0, seed=3))
 
 
 def corners(cam) -> np.ndarray:  # noqa: ANN001

@@ -180,23 +180,21 @@ class MosaicNode(Node):
         except SrMosaicError as exc:
             self._warn_once('camera_info', f'camera info skipped: {exc}')
 
-    def _on_fix(self, msg: NavSatFix) -> None:
+    def _on_telemetry(self, kind: str, convert: Any, msg: Any) -> None:  # noqa: ANN401
+        """Convert a fix or IMU message, check its time order, queue it for the worker."""
         try:
-            fix = navsat_to_fix(msg)
+            item = convert(msg)
         except SrMosaicError as exc:
-            self._warn_once('fix', f'fix skipped: {exc}')
+            self._warn_once(kind, f'{kind} skipped: {exc}')
             return
-        if self._monotonic('fix', fix.stamp_ns):
-            self._telemetry.append(fix)
+        if self._monotonic(kind, item.stamp_ns):
+            self._telemetry.append(item)
+
+    def _on_fix(self, msg: NavSatFix) -> None:
+        self._on_telemetry('fix', navsat_to_fix, msg)
 
     def _on_imu(self, msg: Imu) -> None:
-        try:
-            sample = imu_to_sample(msg)
-        except SrMosaicError as exc:
-            self._warn_once('imu', f'imu skipped: {exc}')
-            return
-        if self._monotonic('imu', sample.stamp_ns):
-            self._telemetry.append(sample)
+        self._on_telemetry('imu', imu_to_sample, msg)
 
     # -- worker ---------------------------------------------------------------------------------
     def _work(self) -> None:
