@@ -27,7 +27,7 @@ import numpy as np
 from .config import PipelineConfig
 from .core.image_ops import to_float01
 from .core.mosaic.segments import Segment
-from .core.registration import Features, Registrar, Registration
+from .core.registration import Features, Registration, make_registrar
 from .core.georef.georeferencer import FramePose, Georeferencer
 from .core.types import CameraIntrinsics, Frame, GeoFix, ImuSample
 
@@ -92,7 +92,7 @@ class Pipeline:
 
     def __init__(self, config: PipelineConfig | None = None) -> None:
         self.config = config or PipelineConfig()
-        self.registrar = Registrar(self.config.registration)
+        self.registrar = make_registrar(self.config.registration, self.config.device)
         self.records: list[FrameRecord] = []
         self.segments: list[Segment] = []
         self.fixes: list[GeoFix] = []

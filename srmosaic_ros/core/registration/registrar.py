@@ -20,13 +20,24 @@ import numpy as np
 from ..image_ops import to_gray_u8
 from .validity import check_homography
 
-__all__ = ['Features', 'Registrar', 'Registration', 'RegistrationConfig']
+__all__ = ['BACKENDS', 'Features', 'Registrar', 'Registration', 'RegistrationConfig']
+
+#: Registration implementations selectable with `registration.backend`.
+BACKENDS = ('torch', 'opencv')
 
 
 @dataclass(frozen=True)
 class RegistrationConfig:
-    """Registration settings; the field names are the keys under `registration.` in params/*.yaml."""
+    """Registration settings; the field names are the keys under `registration.` in params/*.yaml.
 
+    backend: 'torch' (TorchRegistrar: torch tensor ops on the pipeline's device, photometric
+    refinement, homography covariance) or 'opencv' (Registrar: OpenCV SIFT + MAGSAC++, CPU only,
+    no covariance). opencv_fallback: with the torch backend, register a pair that fails once more
+    with the OpenCV registrar (FallbackRegistrar). See make_registrar.
+    """
+
+    backend: str = 'torch'
+    opencv_fallback: bool = True
     max_features: int = 1000
     contrast_threshold: float = 0.02
     ratio: float = 0.8
@@ -42,6 +53,7 @@ class RegistrationConfig:
 
     def __post_init__(self) -> None:
         checks = {
+            'backend': self.backend in BACKENDS,
             'max_features': self.max_features >= 8,
             'contrast_threshold': 0.0 < self.contrast_threshold < 1.0,
             'ratio': 0.0 < self.ratio <= 1.0,

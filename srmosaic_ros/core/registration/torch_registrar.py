@@ -175,6 +175,14 @@ class TorchRegistrar:
         self._est_device = torch.device('cpu') if host else self.device
         self._generator = torch.Generator(device=self._est_device)
 
+    def __getstate__(self) -> dict:
+        """Picklable (checkpoints): settings and the device name; the generator is rebuilt (it is
+        reseeded at every register call, so nothing is lost)."""
+        return {'config': self.config, 'options': self.options, 'device': str(self.device)}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__init__(state['config'], device=state['device'], options=state['options'])
+
     def describe(self, image: np.ndarray | torch.Tensor) -> TorchFeatures:
         """Features of a frame: numpy (H, W) / (H, W, 3) uint8, uint16 or float, or a tensor in [0, 1]."""
         gray = image_to_gray_tensor(image, self.device)

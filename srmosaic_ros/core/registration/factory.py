@@ -1,0 +1,80 @@
+"""The one place that turns `registration.backend`, `registration.opencv_fallback` and `device`
+into a registrar."""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..image_ops import to_gray_u8
+from .registrar import Features, Registrar, Registration, RegistrationConfig
+from .torch_registrar import TorchFeatures, TorchRegistrar
+
+__all__ = ['FallbackFeatures', 'FallbackRegistrar', 'make_registrar']
+
+
+@dataclass
+class FallbackFeatures:
+    """Features of one frame for FallbackRegistrar: the primary (torch) features, the frame's
+    grey levels (H, W) uint8 and, once a pair needed it, the OpenCV features (described lazily)."""
+
+    primary: TorchFeatures
+    gray: np.ndarray
+    fallback: Features | None = None
+
+    def __len__(self) -> int:
+        return len(self.primary)
+
+
+class FallbackRegistrar:
+    """The torch registrar, with the OpenCV registrar as a second opinion on the pairs it fails.
+
+    Frames are described by the torch registrar only; when a pair fails (too few matches or
+    inliers, no consensus, an implausible estimate), both frames are described by OpenCV SIFT
+    (once per frame, cached) and the pair is registered again. A pair that the fallback registers
+    carries extras['fallback_opencv'] = 1 and no covariance (the OpenCV registrar estimates none);
+    one that both fail keeps the torch result and reason, so textureless frames still fail
+    explicitly. On the real survey stills (data/sequences/brighton_beach) the torch features find
+    too few inliers on one pair (scale 0.91 with 110 px motion) that SIFT registers.
+    """
+
+    def __init__(self, primary: TorchRegistrar, fallback: Registrar) -> None:
+        self.primary = primary
+        self.fallback = fallback
+        self.config = primary.config
+        self.device = primary.device
+
+    def describe(self, image: np.ndarray) -> FallbackFeatures:
+        """Torch features of a frame ((H, W) or (H, W, 3), uint8/uint16/float) and its grey levels."""
+        return FallbackFeatures(self.primary.describe(image), to_gray_u8(image))
+
+    def _fallback_features(self, features: FallbackFeatures) -> Features:
+        if features.fallback is None:
+            features.fallback = self.fallback.describe(features.gray)
+        return features.fallback
+
+    def register(self, prev: FallbackFeatures, cur: FallbackFeatures) -> Registration:
+        """prev_H_cur from two frames described by this registrar (see the class docstring)."""
+        t0 = time.perf_counter()
+        reg = self.primary.register(prev.primary, cur.primary)
+        if reg.ok:
+            return reg
+        second = self.fallback.register(self._fallback_features(prev), self._fallback_features(cur))
+        if not second.ok:
+            return replace(reg, extras={**reg.extras, 'fallback_opencv': 0.0},
+                           reason=f'{reg.reason} (the OpenCV fallback failed too: {second.reason})')
+        return replace(second, time_s=time.perf_counter() - t0,
+                       extras={**second.extras, 'fallback_opencv': 1.0, 'torch_inliers': float(reg.inliers)})
+
+
+def make_registrar(config: RegistrationConfig, device: str = 'auto') -> Registrar | TorchRegistrar | FallbackRegistrar:
+    """The registrar selected by config.backend: 'torch' runs on `device` (auto | cpu | cuda,
+    resolved by core.device), with the OpenCV registrar as fallback on failed pairs when
+    config.opencv_fallback is set; 'opencv' always runs on the CPU (the device does not apply)."""
+    if config.backend == 'torch':
+        torch_registrar = TorchRegistrar(config, device=device)
+        if config.opencv_fallback:
+            return FallbackRegistrar(torch_registrar, Registrar(config))
+        return torch_registrar
+    return Registrar(config)
