@@ -27,6 +27,7 @@ import numpy as np
 from .config import PipelineConfig
 from .core.image_ops import to_float01
 from .core.mosaic.segments import Segment
+from .core.mosaic.keyframe import KeyframeResult, corner_shift_px, render_view
 from .core.registration import Features, Registration, make_registrar
 from .core.georef.georeferencer import FramePose, Georeferencer
 from .core.types import CameraIntrinsics, Frame, GeoFix, ImuSample
@@ -55,6 +56,7 @@ class FrameRecord:
     reason: str = ''
     time_s: float = 0.0
     pose: FramePose | None = None
+    keyframe: KeyframeResult | None = None
 
     @property
     def painted(self) -> bool:
@@ -197,6 +199,45 @@ class Pipeline:
             sigma = 2.0 * reg.rms_px * math.sqrt(8.0 / max(reg.inliers, 8))
         return self.georef.correct(chained, pose, held.camera, chain_sigma_px=sigma)
 
+    def _keyframe(self, seg: Segment, held: _Held, seg_H_frame: np.ndarray) -> np.ndarray:  # noqa: N803
+        """seg_H_frame, corrected by registering the frame to the mosaic when it is a keyframe (keyframe.py)."""
+        cfg = self.config.mosaic
+        if cfg.keyframe_interval <= 0 or len(seg.frames) % cfg.keyframe_interval != 0:
+            return seg_H_frame
+        w, h = held.record.size
+        if cfg.keyframe_revisit_frames > 0 and not self._revisits(seg, seg_H_frame, w, h):
+            return seg_H_frame
+        view, covered = render_view(seg.canvas, seg_H_frame, w, h)
+        coverage = float(covered.mean())
+        if coverage < cfg.keyframe_min_coverage:
+            result = KeyframeResult(None, coverage, float('nan'), f'mosaic covers {coverage:.0%} of the view')
+        else:
+            reg = self.registrar.register(self.registrar.describe(view), held.features)
+            if not reg.ok:
+                result = KeyframeResult(None, coverage, float('nan'), f'registration to the mosaic failed: {reg.reason}')
+            else:
+                refined = seg_H_frame @ reg.prev_H_cur
+                shift = corner_shift_px(seg_H_frame, refined, w, h)
+                if shift > cfg.keyframe_max_correction_px:
+                    result = KeyframeResult(None, coverage, shift, f'correction of {shift:.1f} px refused')
+                else:
+                    result = KeyframeResult(refined / refined[2, 2], coverage, shift)
+        held.record.keyframe = result
+        return seg_H_frame if result.seg_H_frame is None else result.seg_H_frame
+
+    def _revisits(self, seg: Segment, seg_H_frame: np.ndarray, w: int, h: int) -> bool:  # noqa: N803
+        """Whether the frame's predicted centre lies within half its smaller side of the centre of a
+        frame painted at least mosaic.keyframe_revisit_frames frames earlier (ground seen before)."""
+        old = seg.frames[:-self.config.mosaic.keyframe_revisit_frames]
+        if not old:
+            return False
+        c = np.array([w / 2, h / 2, 1.0])
+        p = seg_H_frame @ c
+        p = p[:2] / p[2]
+        q = np.array([seg.seg_H_frames[i] @ c for i in old])
+        q = q[:, :2] / q[:, 2:3]
+        return bool((np.linalg.norm(q - p, axis=1) < 0.5 * min(w, h)).any())
+
     def _paint(self, seg: Segment, held: _Held, seg_H_frame: np.ndarray) -> bool:  # noqa: N803
         try:
             seg.add(held.record.index, held.image, seg_H_frame)
@@ -238,8 +279,8 @@ class Pipeline:
             reg = self.registrar.register(self._last_good.features, held.features)
             record.registration = reg
             self._fuse(held, reg, self._last_good)
-            if reg.ok and self._paint(self._active, held,
-                                      self._chained(self._active, self._last_good.record.seg_H_frame, reg, held)):
+            if reg.ok and self._paint(self._active, held, self._keyframe(
+                    self._active, held, self._chained(self._active, self._last_good.record.seg_H_frame, reg, held))):
                 self._last_good = held
                 self._orphan = None
             elif self._orphan is not None and self._try_new_segment(held):

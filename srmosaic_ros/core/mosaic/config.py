@@ -16,6 +16,10 @@ class MosaicConfig:
     preview_max_side_px: int = 1024
     max_tiles_in_memory: int = 256  # per canvas; 0: no bound (see canvas.TiledCanvas)
     spill_dir: str = ''  # parent of the spill directories; '': $TMPDIR, else /var/tmp
+    keyframe_interval: int = 10  # register every n-th frame of a segment to the mosaic (0: never); see keyframe.py
+    keyframe_revisit_frames: int = 20  # only where the frame revisits ground painted this many frames before (0: always)
+    keyframe_min_coverage: float = 0.5  # fraction of the frame's view the mosaic must cover
+    keyframe_max_correction_px: float = 10.0  # larger corner corrections are refused (prediction kept)
 
     def __post_init__(self) -> None:
         if not 64 <= self.tile_size <= 4096:
@@ -33,6 +37,20 @@ class MosaicConfig:
         if isinstance(self.max_tiles_in_memory, bool) or not isinstance(self.max_tiles_in_memory, int) \
                 or self.max_tiles_in_memory < 0:
             msg = f'mosaic.max_tiles_in_memory must be an integer >= 0 (0: no bound), got {self.max_tiles_in_memory!r}.'
+            raise ValueError(msg)
+        if isinstance(self.keyframe_interval, bool) or not isinstance(self.keyframe_interval, int) \
+                or self.keyframe_interval < 0:
+            msg = f'mosaic.keyframe_interval must be an integer >= 0 (0: no keyframes), got {self.keyframe_interval!r}.'
+            raise ValueError(msg)
+        if isinstance(self.keyframe_revisit_frames, bool) or not isinstance(self.keyframe_revisit_frames, int) \
+                or self.keyframe_revisit_frames < 0:
+            msg = f'mosaic.keyframe_revisit_frames must be an integer >= 0 (0: every keyframe), got {self.keyframe_revisit_frames!r}.'
+            raise ValueError(msg)
+        if not 0.0 < self.keyframe_min_coverage <= 1.0:
+            msg = f'mosaic.keyframe_min_coverage must be in (0, 1], got {self.keyframe_min_coverage}.'
+            raise ValueError(msg)
+        if not self.keyframe_max_correction_px > 0.0:
+            msg = f'mosaic.keyframe_max_correction_px must be > 0, got {self.keyframe_max_correction_px}.'
             raise ValueError(msg)
         if not isinstance(self.spill_dir, str):
             msg = f"mosaic.spill_dir must be a directory path or '' (a temporary directory), got {self.spill_dir!r}."
