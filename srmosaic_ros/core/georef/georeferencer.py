@@ -210,36 +210,39 @@ def _transformers(epsg: int):  # noqa: ANN202 - pyproj types stay lazy
 
 @dataclass(frozen=True)
 class GeoRaster:
-    """A north-up raster grid in a UTM zone.
+    """A raster grid in a UTM zone: north-up, or turned by a small angle after re-anchoring.
 
     epsg: the CRS (WGS84 / UTM); gsd_m_per_px: pixel size; origin_easting_m / origin_northing_m:
-    the map coordinates of the *centre* of pixel (0, 0). Convention: pixel (x, y), x right
-    (east), y down (south), centres at integers, as every homography of the package.
+    the map coordinates of the *centre* of pixel (0, 0); rotation_rad: angle of the pixel axes,
+    counter-clockwise on the map from east for the x axis (0: north-up, the live raster; the
+    offline outputs may be re-anchored by a similarity, see anchoring.py). Convention: pixel
+    (x, y), x right, y down, centres at integers, as every homography of the package.
     """
 
     epsg: int
     gsd_m_per_px: float
     origin_easting_m: float
     origin_northing_m: float
+    rotation_rad: float = 0.0
 
     @property
     def utm_H_raster(self) -> np.ndarray:  # noqa: N802
-        """(3, 3) raster pixel (x, y, 1) -> (easting, northing, 1) in metres."""
-        g = self.gsd_m_per_px
-        return np.array([[g, 0.0, self.origin_easting_m], [0.0, -g, self.origin_northing_m], [0.0, 0.0, 1.0]])
+        """(3, 3) raster pixel (x, y, 1) -> (easting, northing, 1) in metres:
+        [[g c, g s, e0], [g s, -g c, n0]] with c, s the cosine and sine of rotation_rad."""
+        g, c, s = self.gsd_m_per_px, math.cos(self.rotation_rad), math.sin(self.rotation_rad)
+        return np.array([[g * c, g * s, self.origin_easting_m], [g * s, -g * c, self.origin_northing_m], [0.0, 0.0, 1.0]])
 
     @property
     def raster_H_utm(self) -> np.ndarray:  # noqa: N802
-        g = self.gsd_m_per_px
-        return np.array([[1.0 / g, 0.0, -self.origin_easting_m / g], [0.0, -1.0 / g, self.origin_northing_m / g],
-                         [0.0, 0.0, 1.0]])
+        return np.linalg.inv(self.utm_H_raster)
 
     @property
     def geotransform(self) -> tuple[float, float, float, float, float, float]:
-        """GDAL geotransform (pixel *corner* convention): (x_min, gsd, 0, y_max, 0, -gsd) of pixel (0, 0)'s
-        outer corner."""
-        g = self.gsd_m_per_px
-        return (self.origin_easting_m - 0.5 * g, g, 0.0, self.origin_northing_m + 0.5 * g, 0.0, -g)
+        """GDAL geotransform (pixel *corner* convention) of pixel (0, 0)'s outer corner:
+        (x_min, gsd, 0, y_max, 0, -gsd) when north-up, with the rotation terms otherwise."""
+        m = self.utm_H_raster
+        return (float(m[0, 2] - 0.5 * (m[0, 0] + m[0, 1])), float(m[0, 0]), float(m[0, 1]),
+                float(m[1, 2] - 0.5 * (m[1, 0] + m[1, 1])), float(m[1, 0]), float(m[1, 1]))
 
     @property
     def crs_wkt(self) -> str:
@@ -250,7 +253,17 @@ class GeoRaster:
     def shifted(self, dx_px: float, dy_px: float) -> GeoRaster:
         """The same grid with pixel (dx_px, dy_px) of this one as its pixel (0, 0) (a crop's origin)."""
         e, n = self.utm_H_raster[:2] @ np.array([dx_px, dy_px, 1.0])
-        return GeoRaster(self.epsg, self.gsd_m_per_px, float(e), float(n))
+        return GeoRaster(self.epsg, self.gsd_m_per_px, float(e), float(n), self.rotation_rad)
+
+    def transformed(self, raster_H_new: np.ndarray) -> GeoRaster:  # noqa: N803
+        """The grid whose pixel p is this grid's pixel raster_H_new @ p; raster_H_new must be a
+        similarity without reflection (scale, rotation, translation), e.g. from anchoring.py."""
+        m = self.utm_H_raster @ np.asarray(raster_H_new, dtype=np.float64)
+        g = math.hypot(m[0, 0], m[1, 0])
+        if not (g > 0 and np.allclose([m[0, 1], m[1, 1]], [m[1, 0], -m[0, 0]], rtol=1e-6, atol=1e-9 * g)):
+            msg = f'GeoRaster.transformed needs a similarity without reflection, got\n{raster_H_new}'
+            raise ValueError(msg)
+        return GeoRaster(self.epsg, float(g), float(m[0, 2]), float(m[1, 2]), math.atan2(m[1, 0], m[0, 0]))
 
     def utm_from_pixels(self, xy: np.ndarray) -> np.ndarray:
         """(..., 2) easting, northing (m) of raster pixels (..., 2)."""
