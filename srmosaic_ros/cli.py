@@ -98,6 +98,13 @@ def _run_evaluate(args: argparse.Namespace) -> int:
         if 'pose_rmse_horizontal_m' in figures:
             print(f"fused position error (poses.csv): horizontal RMS {figures['pose_rmse_horizontal_m']:.2f} m, "
                   f"vertical RMS {figures['pose_rmse_vertical_m']:.2f} m")
+        sr = figures.get('sr')
+        if sr and sr.get('tiles'):
+            print(f"SR x{sr['factor']}, {sr['tiles']} tiles against the true ground: PSNR {sr['psnr_sr']:.2f} dB "
+                  f"(bicubic of mosaic.png {sr['psnr_bicubic']:.2f} dB), gain {sr['gain_db']:+.2f} dB "
+                  f"(per tile: median {sr['gain_db_median']:+.2f}, min {sr['gain_db_min']:+.2f}); "
+                  f"SSIM {sr['ssim_sr']:.3f} (bicubic {sr['ssim_bicubic']:.3f}); "
+                  f"bicubic | SR | truth: {Path(args.dir) / sr['compare']['file'] if 'compare' in sr else '-'}")
     return 0
 
 
