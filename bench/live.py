@@ -1,67 +1,89 @@
-"""Live graph benchmark: frames per second through DDS and end-to-end latency.
+"""Live graph benchmark: frames per second through DDS and end-to-end latency, per graph layout.
 
-Starts `srmosaic launch` (registration + mosaic node) in a child process, publishes 640x480 frames
+For each graph layout it starts `srmosaic launch` in a child process, publishes 640x480 frames
 rendered by the simulator at a fixed rate on /camera/image_raw (raw sensor_msgs/Image, header stamp
-= publish time), and listens to /srmosaic/registration. Prints frames offered / processed /
-dropped, processed frames per second, and latency from image publish to the registration result
-(median and p95).
+= publish time; `--compressed`: JPEG on .../compressed), with the simulated /fix and /imu/data
+re-stamped on the same clock (`--telemetry none` leaves them out: frames then wait for
+SYNC_HOLD_FRAMES newer frames before processing, which adds that many frame periods of latency),
+and listens to /srmosaic/registration (one message per processed frame), /srmosaic/pose and
+/srmosaic/sr_tile. Prints, per layout: frames offered / processed / dropped, processed frames per
+second, latency from image publish to the registration result (median, p95), poses and SR tiles.
 
-    .venv/bin/python bench/live.py [--fps 25] [--seconds 20] [--compressed]
+Layouts (`--graph`, repeatable; default all three):
+  mosaic    the mosaic node alone (registration + mosaic + georeferencing filter), one process
+  combined  `srmosaic launch`: mosaic, georef (idle) and sr nodes in one process
+  split     mosaic | georef (live.georef_standalone) | sr, three processes (launch description)
+
+    .venv/bin/python bench/live.py [--fps 25] [--seconds 20] [--graph split] [--compressed]
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 
+LAYOUTS = ('mosaic', 'combined', 'split')
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument('--fps', type=float, default=25.0)
-    ap.add_argument('--seconds', type=float, default=20.0)
-    ap.add_argument('--frames', type=int, default=100, help='distinct simulated frames (looped)')
-    ap.add_argument('--compressed', action='store_true', help='publish JPEG CompressedImage instead of raw')
-    args = ap.parse_args()
-    os.environ.setdefault('ROS_DOMAIN_ID', str(200 + os.getpid() % 30))
-    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 
-    from srmosaic_ros.sim import SimConfig, simulate
+def graph_command(layout: str, workdir: Path) -> list[str]:
+    base = [sys.executable, '-m', 'srmosaic_ros.cli']
+    ros = ['--ros-args', '-p', 'live.preview_period_s:=1.0']
+    if layout == 'mosaic':
+        return [*base, 'node', 'mosaic', *ros]
+    if layout == 'combined':
+        return [*base, 'launch', *ros]
+    description = workdir / 'split.yaml'
+    description.write_text('processes:\n  - {name: onboard, nodes: [mosaic]}\n  - {name: georef, nodes: [georef]}\n'
+                           '  - {name: ground, nodes: [sr]}\n')
+    return [*base, 'launch', str(description), *ros, '-p', 'live.georef_standalone:=true']
 
-    print(f'rendering {args.frames} frames ...', flush=True)
-    flight = simulate(SimConfig(frames=args.frames, rate_hz=args.fps, speed_m_s=10.0 * args.fps / 4.0 / 2.0))
-    images = [f.image for f in flight.frames]
 
-    graph = subprocess.Popen([sys.executable, '-m', 'srmosaic_ros.cli', 'launch', '--ros-args',
-                              '-p', 'live.preview_period_s:=1.0'], stdout=subprocess.DEVNULL,
-                             stderr=subprocess.DEVNULL)
+def run_layout(layout: str, args: argparse.Namespace, flight, domain: int) -> dict:  # noqa: ANN001
     import rclpy
+    from geometry_msgs.msg import PoseWithCovarianceStamped
     from rclpy.executors import SingleThreadedExecutor
-    from sensor_msgs.msg import CompressedImage, Image
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import CompressedImage, Image, Imu, NavSatFix
     from std_msgs.msg import Float64MultiArray
 
-    from msg_adapters import numpy_to_compressed, numpy_to_image
+    from msg_adapters import fix_to_navsat, numpy_to_compressed, numpy_to_image, sample_to_imu
 
-    rclpy.init()
-    node = rclpy.create_node('srmosaic_bench_live')
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+    workdir = Path(tempfile.mkdtemp(prefix='srmosaic_bench_live_'))
+    graph = subprocess.Popen(graph_command(layout, workdir), env=env, stdout=subprocess.DEVNULL,
+                             stderr=subprocess.DEVNULL)
+    os.environ.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node('srmosaic_bench_live', context=context)
     topic, mtype = ('/camera/image_raw/compressed', CompressedImage) if args.compressed else ('/camera/image_raw', Image)
-    pub = node.create_publisher(mtype, topic, 10)
+    pub = node.create_publisher(mtype, topic, qos_profile_sensor_data)
+    pub_fix = node.create_publisher(NavSatFix, '/fix', qos_profile_sensor_data)
+    pub_imu = node.create_publisher(Imu, '/imu/data', qos_profile_sensor_data)
     latencies: list[float] = []
     done_at: list[float] = []
+    counts = {'poses': 0, 'tiles': 0}
 
     def on_reg(msg: Float64MultiArray) -> None:
         stamp_ns = int(msg.data[0]) * 1_000_000_000 + int(msg.data[1])
-        now = time.time_ns()
-        latencies.append((now - stamp_ns) * 1e-6)
+        latencies.append((time.time_ns() - stamp_ns) * 1e-6)
         done_at.append(time.monotonic())
 
     node.create_subscription(Float64MultiArray, '/srmosaic/registration', on_reg, 1000)
-    executor = SingleThreadedExecutor()
+    node.create_subscription(PoseWithCovarianceStamped, '/srmosaic/pose',
+                             lambda _m: counts.__setitem__('poses', counts['poses'] + 1), 1000)
+    node.create_subscription(Image, '/srmosaic/sr_tile', lambda _m: counts.__setitem__('tiles', counts['tiles'] + 1),
+                             100)
+    executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
     stop = False
 
@@ -71,37 +93,87 @@ def main() -> int:
 
     spinner = threading.Thread(target=spin, daemon=True)
     spinner.start()
-    deadline = time.monotonic() + 30
+    deadline = time.monotonic() + 90
     while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
         time.sleep(0.1)
-    time.sleep(1.0)
-    print(f'publishing {args.fps} frames/s for {args.seconds} s on {topic} ...', flush=True)
+    time.sleep(2.0)
+    # Telemetry of the simulated flight, on the frames' clock: (offset from frame 0 in ns, message maker).
+    t_first = flight.frames[0].stamp_ns
+    loop_ns = flight.frames[-1].stamp_ns - t_first + int(1e9 / args.fps)
+    telemetry = [] if args.telemetry == 'none' else sorted(
+        [(f.stamp_ns - t_first, 'fix', f) for f in flight.fixes] + [(m.stamp_ns - t_first, 'imu', m) for m in flight.imus],
+        key=lambda t: t[0])
     period = 1.0 / args.fps
-    t0 = time.monotonic()
+    t0_wall = time.monotonic()
+    t0_ns = time.time_ns()
     offered = 0
-    while time.monotonic() - t0 < args.seconds:
-        img = images[offered % len(images)]
-        stamp = time.time_ns()
-        msg = (numpy_to_compressed(img, stamp_ns=stamp) if args.compressed
-               else numpy_to_image(img, 'rgb8', stamp_ns=stamp))
+    ti = 0
+    loops = 0
+    while time.monotonic() - t0_wall < args.seconds:
+        k = offered % len(flight.frames)
+        if k == 0 and offered:
+            loops += 1
+            ti = 0
+        stamp = t0_ns + loops * loop_ns + flight.frames[k].stamp_ns - t_first
+        while ti < len(telemetry) and t0_ns + loops * loop_ns + telemetry[ti][0] <= stamp + int(period * 1e9):
+            off, kind, item = telemetry[ti]
+            t_ns = t0_ns + loops * loop_ns + off
+            if kind == 'fix':
+                pub_fix.publish(fix_to_navsat(dataclasses.replace(item, stamp_ns=t_ns)))
+            else:
+                pub_imu.publish(sample_to_imu(dataclasses.replace(item, stamp_ns=t_ns)))
+            ti += 1
+        img = flight.frames[k].image
+        msg = (numpy_to_compressed(img, stamp_ns=time.time_ns()) if args.compressed
+               else numpy_to_image(img, 'rgb8', stamp_ns=time.time_ns()))
         pub.publish(msg)
         offered += 1
-        next_t = t0 + offered * period
-        time.sleep(max(0.0, next_t - time.monotonic()))
+        time.sleep(max(0.0, t0_wall + offered * period - time.monotonic()))
     time.sleep(3.0)
     stop = True
     spinner.join()
     graph.send_signal(signal.SIGINT)
-    graph.wait(timeout=60)
+    try:
+        graph.wait(timeout=60)
+    except subprocess.TimeoutExpired:
+        graph.kill()
     node.destroy_node()
-    rclpy.try_shutdown()
+    rclpy.try_shutdown(context=context)
     processed = len(latencies)
     span = (done_at[-1] - done_at[0]) if len(done_at) > 1 else float('nan')
     lat = np.array(latencies) if latencies else np.array([np.nan])
-    print(f'offered {offered} frames at {args.fps} fps; processed {processed}; dropped {offered - processed} '
-          f'({100.0 * (offered - processed) / max(offered, 1):.1f}%)')
-    print(f'processed frames per second: {(processed - 1) / span:.2f}')
-    print(f'latency publish -> registration: median {np.median(lat):.1f} ms, p95 {np.percentile(lat, 95):.1f} ms')
+    return {'layout': layout, 'offered': offered, 'processed': processed,
+            'fps': (processed - 1) / span if processed > 1 else float('nan'),
+            'lat_median_ms': float(np.median(lat)), 'lat_p95_ms': float(np.percentile(lat, 95)), **counts}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument('--fps', type=float, default=25.0)
+    ap.add_argument('--seconds', type=float, default=20.0)
+    ap.add_argument('--frames', type=int, default=100, help='distinct simulated frames (looped)')
+    ap.add_argument('--compressed', action='store_true', help='publish JPEG CompressedImage instead of raw')
+    ap.add_argument('--graph', action='append', choices=LAYOUTS, help='layouts to run (default: all)')
+    ap.add_argument('--telemetry', choices=('sim', 'none'), default='sim')
+    args = ap.parse_args()
+
+    from srmosaic_ros.sim import SimConfig, simulate
+
+    print(f'rendering {args.frames} frames ...', flush=True)
+    flight = simulate(SimConfig(frames=args.frames, rate_hz=args.fps, speed_m_s=10.0 * args.fps / 4.0 / 2.0))
+    results = []
+    for i, layout in enumerate(args.graph or LAYOUTS):
+        print(f'{layout}: publishing {args.fps} frames/s for {args.seconds} s ...', flush=True)
+        r = run_layout(layout, args, flight, 200 + (os.getpid() + i) % 30)
+        results.append(r)
+        print(f"{layout}: offered {r['offered']}, processed {r['processed']}, dropped {r['offered'] - r['processed']} "
+              f"({100.0 * (r['offered'] - r['processed']) / max(r['offered'], 1):.1f}%); "
+              f"{r['fps']:.2f} frames/s; latency publish -> registration median {r['lat_median_ms']:.0f} ms, "
+              f"p95 {r['lat_p95_ms']:.0f} ms; {r['poses']} poses, {r['tiles']} SR tiles", flush=True)
+    print('\nlayout     offered processed   fps  lat_med_ms lat_p95_ms poses tiles')
+    for r in results:
+        print(f"{r['layout']:<10} {r['offered']:>7} {r['processed']:>9} {r['fps']:>5.2f} {r['lat_median_ms']:>11.0f} "
+              f"{r['lat_p95_ms']:>10.0f} {r['poses']:>5} {r['tiles']:>5}")
     return 0
 
 

@@ -126,7 +126,7 @@ def _split_ros_args(argv: list[str]) -> tuple[list[str], list[str]]:
 
 def _add_node(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser('node', help='run named nodes in this process (then --ros-args ...)')
-    p.add_argument('nodes', nargs='+', help='node names: mosaic')
+    p.add_argument('nodes', nargs='+', help='node names: mosaic, georef, sr (see srmosaic_ros/nodes/launcher.py)')
     p.set_defaults(func=_run_node)
 
 

@@ -1,6 +1,7 @@
 """The live graph over real DDS on loopback: `srmosaic launch` + `srmosaic play`, observed by a subscriber.
 
-Each test uses its own ROS_DOMAIN_ID and ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST.
+Each test uses its own ROS_DOMAIN_ID and ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST. Waits are
+event-driven (a condition polled with a generous timeout), so a loaded machine is slower, not red.
 """
 from __future__ import annotations
 
@@ -25,6 +26,9 @@ DEMO = ROOT / 'bags' / 'demo'
 pytestmark = pytest.mark.ros
 
 _DOMAIN = 30 + os.getpid() % 150  # test-unique domain, distinct from other runs on the machine
+MOSAIC = 'srmosaic: registration and mosaic'  # diagnostic status names of the nodes
+SR = 'srmosaic: super-resolution'
+GEOREF = 'srmosaic: georeferencing'
 
 
 @pytest.fixture
@@ -61,6 +65,8 @@ class Listener:
         self.registrations: list = []
         self.poses: list = []
         self.fixes: list = []
+        self.tiles: list = []
+        self.node.create_subscription(Image, '/srmosaic/sr_tile', self.tiles.append, 50)
         self.node.create_subscription(Image, '/srmosaic/mosaic_preview', self.previews.append, 10)
         self.node.create_subscription(CompressedImage, '/srmosaic/mosaic_preview/compressed',
                                       self.compressed.append, 10)
@@ -81,11 +87,13 @@ class Listener:
         while not self._stop:
             self.executor.spin_once(timeout_sec=0.1)
 
-    def diag_value(self, key: str) -> str | None:
-        if not self.diagnostics:
-            return None
-        values = {kv.key: kv.value for kv in self.diagnostics[-1].status[0].values}
-        return values.get(key)
+    def diag_value(self, key: str, name: str = MOSAIC) -> str | None:
+        """`key` in the newest diagnostics of the node whose status is called `name`."""
+        for msg in reversed(list(self.diagnostics)):
+            for status in msg.status:
+                if status.name == name:
+                    return {kv.key: kv.value for kv in status.values}.get(key)
+        return None
 
     def wait_for(self, predicate, timeout: float) -> bool:
         deadline = time.monotonic() + timeout
@@ -103,6 +111,53 @@ class Listener:
         self._thread.join(timeout=5)
         self.node.destroy_node()
         self.rclpy.try_shutdown(context=self.context)
+
+
+def _translation(dx: float, dy: float) -> np.ndarray:
+    return np.array([[1.0, 0.0, dx], [0.0, 1.0, dy], [0.0, 0.0, 1.0]])
+
+
+def check_sr_tile_against_truth(tile_msg, registration_msgs) -> dict:
+    """An SR tile of the demo flight against the simulator's world: placement and pixels.
+
+    The tile's placement (header.frame_id) and the registrations of the same run give, through any
+    frame k that sees the tile, tile HR pixel -> segment plane -> frame k -> world image pixel (the
+    simulator's true world_px_H_frame). The world rendered there is the ground truth of the tile.
+    Returns the mean absolute error (0..255) at the stated placement and the shift (HR pixels)
+    of the truth rendering that fits the tile best.
+    """
+    import cv2
+
+    from msg_adapters import image_to_numpy
+    from srmosaic_ros.nodes.common import decode_registration
+    from srmosaic_ros.sim.render import reference_render
+    from srmosaic_ros.sim.truth import load_truth
+    from srmosaic_ros.sr_live import SRTilePlacement
+
+    place = SRTilePlacement.parse(tile_msg.header.frame_id)
+    s = place.factor
+    tile = image_to_numpy(tile_msg).astype(np.float64)
+    assert tile_msg.encoding == 'rgb8' and tile.shape == (place.height * s, place.width * s, 3)
+    truth = load_truth(DEMO / 'ground_truth.json')
+    true_H = {f.stamp_ns: f.world_px_H_frame for f in truth.frames}  # noqa: N806
+    regs = [r for r in map(decode_registration, registration_msgs) if r.ok and r.segment == place.segment]
+    centre = place.plane_H_tile() @ np.array([(tile.shape[1] - 1) / 2, (tile.shape[0] - 1) / 2, 1.0])
+
+    def off_centre(r) -> float:
+        p = np.linalg.solve(r.seg_H_frame, centre)
+        return float(np.hypot(p[0] / p[2] - 319.5, p[1] / p[2] - 239.5))
+
+    best = min(regs, key=off_centre)
+    world_H_plane = true_H[best.stamp_ns] @ np.linalg.inv(best.seg_H_frame)  # noqa: N806
+    world = np.ascontiguousarray(cv2.imread(str(ROOT / truth.world_path), cv2.IMREAD_COLOR)[:, :, ::-1])
+    m = 8  # the border sees fewer frames
+    errors = {}
+    for dx in range(-2, 3):
+        for dy in range(-2, 3):
+            ref = reference_render(world, world_H_plane @ place.plane_H_tile() @ _translation(dx, dy),
+                                   (tile.shape[1], tile.shape[0]), 0.5)
+            errors[dx, dy] = float(np.abs(ref[m:-m, m:-m] - tile[m:-m, m:-m]).mean())
+    return {'mae': errors[0, 0], 'best_shift': min(errors, key=errors.get), 'errors': errors, 'placement': place}
 
 
 def _stop(proc: subprocess.Popen, timeout: float = 60) -> str:
@@ -137,6 +192,13 @@ def test_live_graph_matches_offline_process(ros_env, tmp_path):
         assert len(listener.poses) >= 30 and len(listener.fixes) == len(listener.poses)
         assert all(abs(p.pose.pose.position.z - 100.0) < 10.0 for p in listener.poses)
         assert all(abs(f.latitude - 30.17) < 0.01 for f in listener.fixes)
+        # The SR node in the same process: tiles placed where the simulator's world is, and close to it.
+        assert listener.wait_for(lambda: listener.tiles, 120), \
+            f"no SR tile: {listener.diag_value('tiles_published', SR)} published"
+        for tile in listener.tiles[:3]:
+            fit = check_sr_tile_against_truth(tile, listener.registrations)
+            assert max(abs(v) for v in fit['best_shift']) <= 1, fit
+            assert fit['mae'] < 6.0, fit
     except AssertionError as exc:
         raise AssertionError(f'{exc}\n--- graph output ---\n{_stop(graph)}') from None
     finally:
@@ -163,16 +225,76 @@ def test_live_graph_matches_offline_process(ros_env, tmp_path):
     assert report['frames_in'] == 60 and 'wall_s' in report and 'peak_rss_mb' in report
 
 
-def test_node_survives_bad_input(ros_env, tmp_path):
-    from sensor_msgs.msg import Image, NavSatFix
-
-    graph = srmosaic('launch', '--ros-args', '-p', 'live.preview_period_s:=0.3', env=ros_env)
+def test_split_graph_in_separate_processes(ros_env, tmp_path):
+    """mosaic | georef | sr, each in its own process (a launch description), the filter standalone."""
+    description = tmp_path / 'split.yaml'
+    description.write_text(
+        'processes:\n'
+        '  - {name: onboard, nodes: [mosaic], parameters: {live.queue_size: 100}}\n'
+        '  - {name: georef, nodes: [georef]}\n'
+        '  - {name: ground, nodes: [sr]}\n')
+    graph = srmosaic('launch', str(description), '--ros-args', '-p', 'live.georef_standalone:=true',
+                     '-p', 'live.reliable_inputs:=true', '-p', 'live.preview_period_s:=0.5',
+                     '-p', 'live.sr_period_s:=0.5', env=ros_env)
     listener = Listener()
     try:
-        assert listener.wait_for(lambda: listener.diagnostics, 30)
+        names = (MOSAIC, GEOREF, SR)
+        assert listener.wait_for(lambda: all(listener.diag_value('frames_received' if n != GEOREF else 'frames_fused', n)
+                                             is not None for n in names), 60), 'a node of the split graph is missing'
+        # No need for the whole bag here: stop as soon as every stage has delivered.
+        player = srmosaic('play', str(DEMO), '--rate', '1.0', '--delay', '15', env=ros_env)
+        try:
+            assert listener.wait_for(lambda: len(listener.poses) >= 10 and listener.tiles and listener.previews,
+                                     240), (f"{listener.diag_value('frames_processed')} frames processed, "
+                                            f'{len(listener.poses)} poses, {len(listener.tiles)} SR tiles')
+        finally:
+            if player.poll() is None:
+                player.send_signal(signal.SIGINT)
+            player.communicate(timeout=60)
+        assert listener.previews and listener.compressed
+        # The standalone filter: one pose per fused frame, near the simulated flight.
+        assert listener.wait_for(lambda: listener.compressed, 10)
+        assert all(abs(p.pose.pose.position.z - 100.0) < 10.0 for p in listener.poses)
+        assert all(abs(f.latitude - 30.17) < 0.01 for f in listener.fixes)
+        assert {p.header.frame_id for p in listener.poses} == {'srmosaic_enu'}
+        fit = check_sr_tile_against_truth(listener.tiles[0], listener.registrations)
+        print('split graph SR tile', fit['placement'], 'mae', round(fit['mae'], 2), 'best shift', fit['best_shift'])
+        assert max(abs(v) for v in fit['best_shift']) <= 1, fit
+        assert fit['mae'] < 6.0, fit
+    except AssertionError as exc:
+        raise AssertionError(f'{exc}\n--- graph output ---\n{_stop(graph)}') from None
+    finally:
+        log = _stop(graph) if graph.returncode is None else ''
+        listener.close()
+    assert graph.returncode == 0, log
+
+
+def test_node_survives_bad_input(ros_env, tmp_path):
+    """Every node of the graph (georef active) gets garbage; each counts it, logs once, goes on."""
+    from sensor_msgs.msg import Image, NavSatFix
+    from std_msgs.msg import Float64MultiArray
+
+    from srmosaic_ros.nodes.common import encode_registration
+
+    graph = srmosaic('launch', '--ros-args', '-p', 'live.preview_period_s:=0.3', '-p', 'live.sr_period_s:=0.3',
+                     '-p', 'live.georef_standalone:=true', env=ros_env)
+    listener = Listener()
+    try:
+        assert listener.wait_for(lambda: all(listener.diag_value('frames_received', n) is not None
+                                             for n in (MOSAIC, SR)) and listener.diag_value('frames_fused', GEOREF),
+                                 60), 'a node of the graph is missing'
         images = listener.publisher(Image, '/camera/image_raw')
         fixes = listener.publisher(NavSatFix, '/fix')
-        assert listener.wait_for(lambda: images.get_subscription_count() > 0, 20)
+        registrations = listener.publisher(Float64MultiArray, '/srmosaic/registration')
+        assert listener.wait_for(lambda: images.get_subscription_count() >= 2
+                                 and registrations.get_subscription_count() >= 2, 20)
+        short = Float64MultiArray(data=[1.0, 2.0, 3.0])
+        nan_stamp = Float64MultiArray(data=[math.nan] * 89)
+        eye = np.eye(3)
+        newer = encode_registration(200 * 10**9, True, 50, 0.3, 0, eye, eye, True, None)
+        older = encode_registration(150 * 10**9, True, 50, 0.3, 0, eye, eye, True, None)
+        for msg in (short, nan_stamp, newer, older):
+            registrations.publish(msg)
         bad = Image(height=4, width=4, encoding='yuv422', step=8, data=bytes(32))
         empty = Image(height=0, width=0, encoding='mono8', step=0, data=b'')
         nan_fix = NavSatFix(latitude=math.nan, longitude=1.0, altitude=1.0)
@@ -189,20 +311,71 @@ def test_node_survives_bad_input(ros_env, tmp_path):
         time.sleep(0.2)
         images.publish(earlier)
 
+        expected = {
+            MOSAIC: ('rejected: image: MessageError', 'rejected: fix', 'rejected: image time going backwards'),
+            SR: ('rejected: image: MessageError', 'rejected: image: empty', 'rejected: image time going backwards',
+                 'rejected: registration'),
+            GEOREF: ('rejected: fix', 'rejected: registration', 'rejected: registration time going backwards'),
+        }
+
         def counted() -> bool:
-            return all(listener.diag_value(k) for k in ('rejected: image: MessageError', 'rejected: fix',
-                                                        'rejected: image time going backwards'))
-        assert listener.wait_for(counted, 20), listener.diagnostics[-1] if listener.diagnostics else None
-        assert graph.poll() is None, 'the node died on bad input'
+            return all(listener.diag_value(k, n) for n, keys in expected.items() for k in keys)
+        assert listener.wait_for(counted, 30), {n: [k for k in keys if not listener.diag_value(k, n)]
+                                                for n, keys in expected.items()}
+        assert graph.poll() is None, 'a node died on bad input'
     finally:
         log = _stop(graph)
         listener.close()
     assert graph.returncode == 0, log
-    assert log.count('not supported') == 1  # logged once per kind, not per message
+    # Logged once per kind and node, not per message.
+    assert log.count('not supported') == 1, log
+    assert log.count("image with encoding 'yuv422'") == 1, log
+    assert log.count('registration skipped') == 2, log  # SR node and georef node, once each
 
 
-def test_invalid_parameter_refused_at_start(ros_env):
-    graph = srmosaic('launch', '--ros-args', '-p', 'registration.ratio:=3.0', env=ros_env)
+@pytest.mark.parametrize(('override', 'name'), [('registration.ratio:=3.0', 'ratio'),
+                                                 ('live.sr_frames_kept:=0', 'sr_frames_kept')])
+def test_invalid_parameter_refused_at_start(ros_env, override, name):
+    graph = srmosaic('launch', '--ros-args', '-p', override, env=ros_env)
     out, _ = graph.communicate(timeout=60)
     assert graph.returncode == 2, out
-    assert 'ratio' in out
+    assert name in out
+
+
+def test_sr_placement_and_live_planning_without_ros():
+    """The ROS-free side of the SR node: placement text, the bounded frame store, tile planning."""
+    from srmosaic_ros.core.sr.scheduler import SRTileConfig
+    from srmosaic_ros.errors import SrMosaicError
+    from srmosaic_ros.sr_live import LiveFrameStore, SRTilePlacement, plan_live_tiles
+
+    place = SRTilePlacement(2, -128, 256, 128, 64, 3)
+    assert SRTilePlacement.parse(place.frame_id()) == place
+    np.testing.assert_allclose(place.plane_H_tile() @ [0, 0, 1], [-128 + 0.5 / 3 - 0.5, 256 + 0.5 / 3 - 0.5, 1])
+    with pytest.raises(SrMosaicError, match='not an SR tile placement'):
+        SRTilePlacement.parse('srmosaic_mosaic')
+
+    store = LiveFrameStore(pending=3, kept=5)
+    for k in range(4):
+        store.add_image(k, f'image {k}')
+    assert store.pending == 3  # the oldest went
+    assert not store.add_registration(0, 0, np.eye(3)) and store.missed == 1
+    assert not store.add_registration(1, -1, None)  # not painted: dropped
+    for k in range(2, 10):
+        store.add_image(k, f'image {k}')
+        store.add_registration(k, 0, _translation(-300.0 + 10 * k, -200.0))  # negative plane coordinates
+    assert [f.stamp_ns for f in store.registered()] == [5, 6, 7, 8, 9]
+    frames = store.registered()
+    cfg = SRTileConfig(tile_size=64, min_frames=3, max_frames=4)
+    plans = plan_live_tiles(frames, {f.stamp_ns: (320, 240) for f in frames}, cfg)
+    assert plans
+    for plan, used in plans:
+        assert plan.x0 % 64 == 0 and plan.y0 % 64 == 0 and 3 <= len(used) <= 4
+        for f in used:  # every chosen frame sees the whole tile
+            corners = np.array([[plan.x0, plan.y0, 1], [plan.x0 + 63, plan.y0 + 63, 1]], float)
+            p = np.linalg.solve(f.seg_H_frame, corners.T)
+            assert np.all(p[0] >= 0) and np.all(p[0] <= 319) and np.all(p[1] >= 0) and np.all(p[1] <= 239)
+    done = {(0, p.x0, p.y0) for p, _ in plans}
+    assert plan_live_tiles(frames, {f.stamp_ns: (320, 240) for f in frames}, cfg, done) == []
+    store.add_image(20, 'other scene')
+    store.add_registration(20, 1, np.eye(3))  # a new segment: the older one's frames go
+    assert [f.stamp_ns for f in store.registered()] == [20]

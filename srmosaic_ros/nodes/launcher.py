@@ -1,7 +1,9 @@
 """`srmosaic launch`: start the graph, in one process or several (the stand-in for ros2 launch).
 
-With no description, every node runs in this process with params/default.yaml on the default
-topics. A description is a YAML file:
+Nodes: mosaic (registration and mosaic; by default also the georeferencing filter), georef (the
+filter in its own process; active when live.georef_standalone is true, idle otherwise), sr (SR
+tiles on /srmosaic/sr_tile). With no description, every node runs in this process with
+params/default.yaml on the default topics. A description is a YAML file:
 
     processes:
       - name: onboard                       # a label for logs
@@ -10,10 +12,11 @@ topics. A description is a YAML file:
         parameters: {live.output_dir: /tmp/run}   # single overrides (-p name:=value)
         remappings: {/camera/image_raw: /cam0/image_raw}
       - name: ground
-        nodes: [mosaic]
+        nodes: [georef, sr]
 
-Each process of a description is a child `srmosaic node ...`; Ctrl-C (SIGINT) is forwarded to
-all of them and the launcher waits for their clean shutdown.
+Each process of a description is a child `srmosaic node ...`; --params FILE and --ros-args given
+to `srmosaic launch` apply to every child. Ctrl-C (SIGINT) or SIGTERM is forwarded to all of them
+and the launcher waits for their clean shutdown; when one child fails, the others are stopped.
 """
 from __future__ import annotations
 
@@ -33,12 +36,16 @@ __all__ = ['NODES', 'load_description', 'node_command', 'launch']
 
 
 def _node_classes() -> dict[str, type]:
+    from .georef_node import GeorefNode
     from .mosaic_node import MosaicNode
+    from .sr_node import SRNode
 
-    return {'mosaic': MosaicNode}
+    return {'mosaic': MosaicNode, 'georef': GeorefNode, 'sr': SRNode}
 
 
-NODES = ('mosaic',)
+#: The nodes of the graph: mosaic (registration + mosaic, and by default the georeferencing filter),
+#: georef (the filter in a process of its own, active with live.georef_standalone: true), sr (SR tiles).
+NODES = ('mosaic', 'georef', 'sr')
 
 
 def load_description(path: Path) -> list[dict[str, Any]]:
@@ -86,9 +93,13 @@ def ros_args(params: list[str], parameters: dict[str, Any] | None = None,
     return args
 
 
-def node_command(proc: dict[str, Any]) -> list[str]:
+def node_command(proc: dict[str, Any], extra_ros_args: list[str] | None = None) -> list[str]:
+    """The child command of one process: the launcher's --ros-args (for every process) come before
+    the process's own overrides and remappings, so the process's win."""
+    extra = [a for a in (extra_ros_args or []) if a != '--ros-args']
+    own = ros_args([], proc.get('parameters'), proc.get('remappings'))[3:]  # without the defaults file
     return [sys.executable, '-m', 'srmosaic_ros.cli', 'node', *proc['nodes'],
-            *ros_args(proc.get('params') or [], proc.get('parameters'), proc.get('remappings'))]
+            *ros_args(proc.get('params') or []), *extra, *own]
 
 
 def run_named_nodes(names: list[str], args: list[str] | None) -> int:
@@ -109,7 +120,7 @@ def launch(description: Path | None, extra_params: list[str], extra_ros_args: li
     procs = load_description(description)
     children = []
     for proc in procs:
-        cmd = node_command({**proc, 'params': [*extra_params, *(proc.get('params') or [])]})
+        cmd = node_command({**proc, 'params': [*extra_params, *(proc.get('params') or [])]}, extra_ros_args)
         print(f"srmosaic launch: starting {proc.get('name', '+'.join(proc['nodes']))}: {' '.join(cmd[3:])}",
               file=sys.stderr)
         children.append(subprocess.Popen(cmd))
@@ -124,6 +135,9 @@ def launch(description: Path | None, extra_params: list[str], extra_ros_args: li
     status = 0
     try:
         while any(c.poll() is None for c in children):
+            if any(c.poll() not in (None, 0) for c in children):  # one failed: stop the others
+                forward(signal.SIGINT, None)
+                break
             time.sleep(0.2)
     finally:
         deadline = time.monotonic() + 30

@@ -8,7 +8,11 @@ Subscribes (sensor-data QoS) to /camera/image_raw (sensor_msgs/Image) and
 in the local ENU plane tangent at the first fix, frame_id 'srmosaic_enu'; covariance of
 (east, north, up, roll, pitch, yaw)), /srmosaic/fix (NavSatFix of the same pose, covariance ENU)
 and /srmosaic/diagnostics (diagnostic_msgs/DiagnosticArray). All names are remappable.
-The georeferencing stage runs inside this node (registration and UKF share the frames).
+The georeferencing filter runs inside this node (each frame is placed on the georeferenced raster
+by its fused pose before it is painted; see nodes/georef_node.py for the reasons); with
+`live.georef_standalone: true` it does not, the mosaic lies in the first frame's pixel plane, and
+the georef node publishes /srmosaic/pose and /srmosaic/fix instead. /srmosaic/registration is what
+the SR and georef nodes need from this one, so they can run in other processes.
 
 Back-pressure: image callbacks only convert and enqueue into a bounded queue (parameter
 `live.queue_size`); when it is full the oldest frame is dropped and counted (`dropped_frames` in the
@@ -19,6 +23,7 @@ and skipped; the node keeps spinning.
 from __future__ import annotations
 
 import collections
+import dataclasses
 import threading
 import traceback
 import time
@@ -33,7 +38,7 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, NavSatFix
-from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+from std_msgs.msg import Float64MultiArray
 
 from msg_adapters import (
     camera_info_to_intrinsics,
@@ -50,20 +55,11 @@ from ..core.types import Frame
 from ..io.mosaic_files import write_json
 from ..offline import peak_rss_mb, preview_image, write_outputs
 from ..pipeline import FrameRecord, Pipeline
+from .common import (IMAGE_QOS_DEPTH, REGISTRATION_LAYOUT, TELEMETRY_QOS_DEPTH, encode_registration,
+                     pose_messages)
 from .parameters import declare_pipeline_parameters, read_pipeline_config
 
 __all__ = ['MosaicNode', 'REGISTRATION_LAYOUT', 'main']
-
-IMAGE_QOS_DEPTH = 20
-TELEMETRY_QOS_DEPTH = 500
-
-#: Float64MultiArray layout of /srmosaic/registration (one message per processed frame):
-#: stamp_sec, stamp_nanosec, ok, inliers, rms_px, segment, then mosaic_H_frame (9, row-major, the
-#: active segment's plane), then prev_H_cur (9; NaN for the first frame of a segment).
-REGISTRATION_LAYOUT = ['stamp_sec', 'stamp_nanosec', 'ok', 'inliers', 'rms_px', 'segment',
-                       *[f'seg_H_frame{r}{c}' for r in range(3) for c in range(3)],
-                       *[f'prev_H_cur{r}{c}' for r in range(3) for c in range(3)]]
-
 
 class MosaicNode(Node):
     """Registration + mosaic stage (see module docstring)."""
@@ -77,6 +73,9 @@ class MosaicNode(Node):
         if not 1 <= queue_size <= 100 or not 0.05 <= period <= 3600:
             msg = f'live.queue_size must be in 1..100 and live.preview_period_s in 0.05..3600 (got {queue_size}, {period}).'
             raise SrMosaicError(msg)
+        self.georef_standalone = bool(self.get_parameter('live.georef_standalone').value)
+        if self.georef_standalone:  # the georef node fuses telemetry; the mosaic stays in the frame plane
+            config = dataclasses.replace(config, georef_enabled=False)
         self.config = config
         self.output_dir = str(self.get_parameter('live.output_dir').value)
         self.pipeline = Pipeline(config)
@@ -122,8 +121,9 @@ class MosaicNode(Node):
         self.pub_preview_c = self.create_publisher(CompressedImage, '/srmosaic/mosaic_preview/compressed', 1)
         self.pub_registration = self.create_publisher(Float64MultiArray, '/srmosaic/registration', 50)
         self.pub_diag = self.create_publisher(DiagnosticArray, '/srmosaic/diagnostics', 10)
-        self.pub_pose = self.create_publisher(PoseWithCovarianceStamped, '/srmosaic/pose', 50)
-        self.pub_fix = self.create_publisher(NavSatFix, '/srmosaic/fix', 50)
+        if not self.georef_standalone:  # else the georef node publishes them (one publisher per graph)
+            self.pub_pose = self.create_publisher(PoseWithCovarianceStamped, '/srmosaic/pose', 50)
+            self.pub_fix = self.create_publisher(NavSatFix, '/srmosaic/fix', 50)
         self.create_timer(period, self._publish_periodic, callback_group=MutuallyExclusiveCallbackGroup())
         self._worker = threading.Thread(target=self._work, name='srmosaic-mosaic-worker', daemon=True)
         self._worker.start()
@@ -236,40 +236,16 @@ class MosaicNode(Node):
 
     def _publish_registration(self, record: FrameRecord) -> None:
         reg = record.registration
-        seg_H = record.seg_H_frame if record.seg_H_frame is not None else np.full((3, 3), np.nan)  # noqa: N806
-        prev_H = reg.prev_H_cur if reg is not None and reg.prev_H_cur is not None else np.full((3, 3), np.nan)  # noqa: N806
-        values = [record.stamp_ns // 1_000_000_000, record.stamp_ns % 1_000_000_000, float(record.painted),
-                  reg.inliers if reg else 0, reg.rms_px if reg else float('nan'), record.segment,
-                  *seg_H.ravel(), *prev_H.ravel()]
-        msg = Float64MultiArray()
-        msg.layout.dim = [MultiArrayDimension(label='fields', size=len(values), stride=len(values))]
-        msg.data = [float(v) for v in values]
-        self.pub_registration.publish(msg)
+        self.pub_registration.publish(encode_registration(
+            record.stamp_ns, record.painted, reg.inliers if reg else 0, reg.rms_px if reg else float('nan'),
+            record.segment, record.seg_H_frame, reg.prev_H_cur if reg is not None else None,
+            bool(reg is not None and reg.ok), getattr(reg, 'covariance', None)))
 
     def _publish_pose(self, record: FrameRecord) -> None:
-        pose = record.pose
-        if pose is None or not pose.valid:
-            return
-        from ..core.georef.frames import R_enu_from_body, quat_xyzw_from_matrix
-
-        msg = PoseWithCovarianceStamped()
-        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(record.stamp_ns), 1_000_000_000)
-        msg.header.frame_id = 'srmosaic_enu'
-        e, n, u = (float(v) for v in pose.position_enu_m)
-        msg.pose.pose.position.x, msg.pose.pose.position.y, msg.pose.pose.position.z = e, n, u
-        q = quat_xyzw_from_matrix(R_enu_from_body(*pose.rpy_rad))
-        o = msg.pose.pose.orientation
-        o.x, o.y, o.z, o.w = (float(v) for v in q)
-        msg.pose.covariance = [float(v) for v in np.asarray(pose.covariance, dtype=float).ravel()]
-        self.pub_pose.publish(msg)
-        fix = NavSatFix()
-        fix.header = msg.header
-        fix.header.frame_id = 'srmosaic'
-        fix.status.status = 0
-        fix.latitude, fix.longitude, fix.altitude = pose.latitude_deg, pose.longitude_deg, pose.altitude_m
-        fix.position_covariance = [float(v) for v in np.asarray(pose.covariance, dtype=float)[:3, :3].ravel()]
-        fix.position_covariance_type = NavSatFix.COVARIANCE_TYPE_KNOWN
-        self.pub_fix.publish(fix)
+        msgs = None if self.georef_standalone else pose_messages(record.stamp_ns, record.pose)
+        if msgs is not None:
+            self.pub_pose.publish(msgs[0])
+            self.pub_fix.publish(msgs[1])
 
     # -- periodic output ------------------------------------------------------------------------
     def _publish_periodic(self) -> None:

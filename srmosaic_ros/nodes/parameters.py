@@ -38,6 +38,19 @@ _RANGES: dict[str, tuple[float, float]] = {
     'mosaic.max_tiles_in_memory': (0, 1000000),
     'live.queue_size': (1, 100),
     'live.preview_period_s': (0.05, 3600.0),
+    'live.sr_period_s': (0.1, 3600.0),
+    'live.sr_tiles_per_round': (1, 100),
+    'live.sr_frames_kept': (1, 1000),
+    'live.sr_images_pending': (1, 1000),
+    'sr.psf_sigma': (0.0, 10.0),
+    'sr.iterations': (0, 10000),
+    'sr.margin': (0, 256),
+    'sr_tiles.factor': (2, 8),
+    'sr_tiles.tile_size': (16, 2048),
+    'sr_tiles.min_frames': (1, 1000),
+    'sr_tiles.max_frames': (1, 1000),
+    'sr_tiles.max_tiles': (1, 1000000),
+    'sr_tiles.min_coverage': (0.0, 1.0),
 }
 
 

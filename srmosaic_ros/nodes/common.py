@@ -1,0 +1,155 @@
+"""What the nodes share: the /srmosaic/registration layout, pose messages, once-per-kind warnings, QoS."""
+from __future__ import annotations
+
+import collections
+import math
+import threading
+from typing import Any
+
+import numpy as np
+from geometry_msgs.msg import PoseWithCovarianceStamped
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import NavSatFix
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+
+from ..errors import SrMosaicError
+
+__all__ = ['REGISTRATION_LAYOUT', 'RegistrationMsg', 'decode_registration', 'encode_registration',
+           'pose_messages', 'WarnOnce', 'input_qos', 'IMAGE_QOS_DEPTH', 'TELEMETRY_QOS_DEPTH', 'check_range']
+
+IMAGE_QOS_DEPTH = 20
+TELEMETRY_QOS_DEPTH = 500
+
+#: Float64MultiArray layout of /srmosaic/registration (one message per processed frame, in
+#: processing order): stamp_sec, stamp_nanosec, ok (1: painted into the mosaic), inliers, rms_px,
+#: segment (-1: not painted), then seg_H_frame (9, row-major: frame pixels -> the segment's plane,
+#: NaN when not painted), then prev_H_cur (9: frame pixels -> pixels of the frame it was registered
+#: to, which is the previous painted frame of the stream; NaN for the first frame of a segment),
+#: then reg_ok (1 when that registration passed its checks), then the (8, 8) covariance of
+#: prev_H_cur's h00..h21 (64, row-major; NaN when unknown). Fields are only ever appended.
+REGISTRATION_LAYOUT = ['stamp_sec', 'stamp_nanosec', 'ok', 'inliers', 'rms_px', 'segment',
+                       *[f'seg_H_frame{r}{c}' for r in range(3) for c in range(3)],
+                       *[f'prev_H_cur{r}{c}' for r in range(3) for c in range(3)],
+                       'reg_ok', *[f'cov{r}{c}' for r in range(8) for c in range(8)]]
+_BASE_FIELDS = 24  # the layout before reg_ok and the covariance were appended
+
+
+class RegistrationMsg:
+    """A decoded /srmosaic/registration message (see REGISTRATION_LAYOUT)."""
+
+    __slots__ = ('stamp_ns', 'ok', 'inliers', 'rms_px', 'segment', 'seg_H_frame', 'prev_H_cur', 'reg_ok',
+                 'covariance')
+
+    def __init__(self, stamp_ns: int, ok: bool, inliers: int, rms_px: float, segment: int,
+                 seg_H_frame: np.ndarray | None, prev_H_cur: np.ndarray | None, reg_ok: bool,  # noqa: N803
+                 covariance: np.ndarray | None) -> None:
+        self.stamp_ns, self.ok, self.inliers, self.rms_px, self.segment = stamp_ns, ok, inliers, rms_px, segment
+        self.seg_H_frame, self.prev_H_cur, self.reg_ok, self.covariance = seg_H_frame, prev_H_cur, reg_ok, covariance
+
+
+def encode_registration(stamp_ns: int, painted: bool, inliers: int, rms_px: float, segment: int,
+                        seg_H_frame: np.ndarray | None, prev_H_cur: np.ndarray | None, reg_ok: bool,  # noqa: N803
+                        covariance: np.ndarray | None) -> Float64MultiArray:
+    nan9, nan64 = np.full(9, np.nan), np.full(64, np.nan)
+    cov = np.asarray(covariance, dtype=float).ravel() if covariance is not None else nan64
+    values = np.concatenate([
+        [stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000, float(painted), inliers, rms_px, segment],
+        np.asarray(seg_H_frame, dtype=float).ravel() if seg_H_frame is not None else nan9,
+        np.asarray(prev_H_cur, dtype=float).ravel() if prev_H_cur is not None else nan9,
+        [float(reg_ok)], cov if cov.size == 64 else nan64]).astype(float)
+    msg = Float64MultiArray()
+    msg.layout.dim = [MultiArrayDimension(label='fields', size=values.size, stride=values.size)]
+    msg.data = values.tolist()
+    return msg
+
+
+def decode_registration(msg: Float64MultiArray) -> RegistrationMsg:
+    """Parse a /srmosaic/registration message; raises SrMosaicError when it is malformed."""
+    d = np.asarray(msg.data, dtype=float)
+    if d.size < _BASE_FIELDS or not (math.isfinite(d[0]) and math.isfinite(d[1])):
+        msg_ = (f'/srmosaic/registration message with {d.size} fields (expected >= {_BASE_FIELDS}, see '
+                'REGISTRATION_LAYOUT); publisher and subscriber versions differ?')
+        raise SrMosaicError(msg_)
+    seg_H = d[6:15].reshape(3, 3)  # noqa: N806
+    prev_H = d[15:24].reshape(3, 3)  # noqa: N806
+    has_ext = d.size >= len(REGISTRATION_LAYOUT)
+    reg_ok = bool(d[24] > 0.5) if has_ext else bool(d[2] > 0.5 and np.all(np.isfinite(prev_H)))
+    cov = d[25:89].reshape(8, 8) if has_ext else None
+    return RegistrationMsg(
+        stamp_ns=int(d[0]) * 1_000_000_000 + int(d[1]), ok=bool(d[2] > 0.5),
+        inliers=int(d[3]) if math.isfinite(d[3]) else 0, rms_px=float(d[4]),
+        segment=int(d[5]) if math.isfinite(d[5]) else -1,
+        seg_H_frame=seg_H if np.all(np.isfinite(seg_H)) else None,
+        prev_H_cur=prev_H if np.all(np.isfinite(prev_H)) else None, reg_ok=reg_ok,
+        covariance=cov if cov is not None and np.all(np.isfinite(cov)) else None)
+
+
+def pose_messages(stamp_ns: int, pose: Any) -> tuple[PoseWithCovarianceStamped, NavSatFix] | None:  # noqa: ANN401
+    """(/srmosaic/pose, /srmosaic/fix) messages of a fused FramePose, or None when it is not valid.
+
+    Pose: body position in the local ENU plane tangent at the first fix (m), frame_id
+    'srmosaic_enu', orientation body in ENU (REP 103), covariance of (east, north, up, roll,
+    pitch, yaw). Fix: WGS84 of the same pose, covariance ENU (m^2).
+    """
+    if pose is None or not pose.valid:
+        return None
+    from ..core.georef.frames import R_enu_from_body, quat_xyzw_from_matrix
+
+    msg = PoseWithCovarianceStamped()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    msg.header.frame_id = 'srmosaic_enu'
+    e, n, u = (float(v) for v in pose.position_enu_m)
+    msg.pose.pose.position.x, msg.pose.pose.position.y, msg.pose.pose.position.z = e, n, u
+    q = quat_xyzw_from_matrix(R_enu_from_body(*pose.rpy_rad))
+    o = msg.pose.pose.orientation
+    o.x, o.y, o.z, o.w = (float(v) for v in q)
+    cov = np.asarray(pose.covariance, dtype=float)
+    msg.pose.covariance = [float(v) for v in cov.ravel()]
+    fix = NavSatFix()
+    fix.header.stamp = msg.header.stamp
+    fix.header.frame_id = 'srmosaic'
+    fix.status.status = 0
+    fix.latitude, fix.longitude, fix.altitude = (float(pose.latitude_deg), float(pose.longitude_deg),
+                                                 float(pose.altitude_m))
+    fix.position_covariance = [float(v) for v in cov[:3, :3].ravel()]
+    fix.position_covariance_type = NavSatFix.COVARIANCE_TYPE_KNOWN
+    return msg, fix
+
+
+class WarnOnce:
+    """Counts rejected inputs per kind (for diagnostics) and logs the first of each kind."""
+
+    def __init__(self, node: Node) -> None:
+        self._node = node
+        self._warned: set[str] = set()
+        self._lock = threading.Lock()
+        self.stats: collections.Counter[str] = collections.Counter()
+
+    def __call__(self, kind: str, text: str) -> None:
+        with self._lock:
+            self.stats[f'rejected: {kind}'] += 1
+            first = kind not in self._warned
+            self._warned.add(kind)
+        if first:
+            self._node.get_logger().warning(f'{text} (logged once; further cases are counted in diagnostics)')
+
+    def count(self, key: str, n: int = 1) -> None:
+        with self._lock:
+            self.stats[key] += n
+
+
+def input_qos(reliable: bool, depth: int) -> QoSProfile:
+    """Sensor-data QoS (best effort, volatile) as drivers publish, or reliable (bag playback, tests)."""
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
+                      reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+                      durability=DurabilityPolicy.VOLATILE)
+
+
+def check_range(node: Node, name: str, lo: float, hi: float) -> Any:  # noqa: ANN401
+    """The value of parameter `name`, refused (SrMosaicError) outside lo..hi."""
+    value = node.get_parameter(name).value
+    if isinstance(value, bool) or not isinstance(value, int | float) or not lo <= value <= hi:
+        msg = f'{name} must be a number in {lo}..{hi}, got {value!r}; fix it in your params file or -p {name}:=...'
+        raise SrMosaicError(msg)
+    return value

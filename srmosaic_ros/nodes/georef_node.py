@@ -1,0 +1,211 @@
+"""GeorefNode: the georeferencing UKF in a process of its own, from /fix, /imu/data and the registrations.
+
+Where the georeferencing runs, and why:
+
+The georeferencing filter stays *inside* the mosaic node by default (`live.georef_standalone:
+false`): the mosaic is drawn on the georeferenced raster, so every frame is placed by its fused
+pose before it is painted, and chained homographies are pulled toward the pose-predicted placement
+(drift control, pipeline.py). That needs the pose of frame k synchronously, between its
+registration and its painting; a round trip through another process for every frame would add the
+DDS latency to every frame and reorder telemetry against frames differently from `srmosaic
+process`, so the live mosaic would no longer match the offline one. The mosaic node then publishes
+/srmosaic/pose and /srmosaic/fix itself, and this node, when started, stays idle (it says so once).
+
+The split is still possible: with `live.georef_standalone: true` (set it for the whole graph) the
+mosaic node does not fuse telemetry (its mosaic lies in the first frame's pixel plane: registration
+and mosaicking only, the cheapest onboard configuration) and this node runs the same Georeferencer
+(core/georef) from /fix (NavSatFix), /imu/data (Imu), /camera/camera_info and
+/srmosaic/registration (REGISTRATION_LAYOUT: each frame's stamp, its homography to the previous
+painted frame, the homography's covariance), and publishes /srmosaic/pose
+(PoseWithCovarianceStamped, ENU plane tangent at the first fix, frame_id 'srmosaic_enu') and
+/srmosaic/fix (NavSatFix), one per registered frame, plus /srmosaic/diagnostics. Exactly one node of
+a graph publishes the poses in either mode.
+
+Synchronisation: telemetry is fed to the filter as it arrives (the filter buffers it and fuses it
+at its own stamp); a registration waits until telemetry at or after its stamp has been seen, or
+until SYNC_HOLD_FRAMES newer registrations arrived, or `live.sync_timeout_s` passed (the same
+approximate-time rule as the Pipeline). Bad input (NaN fix, time going backwards, malformed
+registration) is logged once per kind and skipped.
+"""
+from __future__ import annotations
+
+import time
+from typing import Any
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PoseWithCovarianceStamped
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.node import Node
+from sensor_msgs.msg import CameraInfo, Imu, NavSatFix
+from std_msgs.msg import Float64MultiArray
+
+from msg_adapters import camera_info_to_intrinsics, imu_to_sample, navsat_to_fix
+
+from ..core.georef.georeferencer import Georeferencer
+from ..errors import SrMosaicError
+from ..pipeline import SYNC_HOLD_FRAMES
+from .common import TELEMETRY_QOS_DEPTH, RegistrationMsg, WarnOnce, decode_registration, input_qos, pose_messages
+from .parameters import declare_pipeline_parameters, read_pipeline_config
+
+__all__ = ['GeorefNode', 'main']
+
+#: Seconds a registration waits for telemetry after its stamp before it is fused without.
+SYNC_TIMEOUT_S = 1.0
+
+
+class GeorefNode(Node):
+    """Georeferencing stage (see module docstring)."""
+
+    def __init__(self, **kwargs: Any) -> None:  # noqa: ANN401
+        super().__init__('srmosaic_georef', **kwargs)
+        defaults = declare_pipeline_parameters(self)
+        self.config = read_pipeline_config(self, defaults)  # ConfigError refuses bad georef.* values
+        self.active = bool(self.get_parameter('live.georef_standalone').value)
+        self.warn = WarnOnce(self)
+        self.georef: Georeferencer | None = None
+        self._camera = None
+        self._pending: list[tuple[float, RegistrationMsg]] = []  # (arrival monotonic s, registration)
+        self._latest_telemetry_ns: int | None = None
+        self._last_stamp: dict[str, int] = {}
+        self._ref_stamp: int | None = None  # the last painted frame fed: what prev_H_cur maps into
+        self._last_pose = None
+        self.pub_diag = self.create_publisher(DiagnosticArray, '/srmosaic/diagnostics', 10)
+        if not self.active:
+            self.get_logger().info('georeferencing runs inside the mosaic node (live.georef_standalone is false); '
+                                   'this node stays idle. Set live.georef_standalone:=true for the whole graph to '
+                                   'run the filter here.')
+            return
+        if not self.config.georef_enabled:
+            msg = 'live.georef_standalone is true but georef.enabled is false: nothing to do; enable one of them.'
+            raise SrMosaicError(msg)
+        reliable = bool(self.get_parameter('live.reliable_inputs').value)
+        qos = input_qos(reliable, TELEMETRY_QOS_DEPTH)
+        group = MutuallyExclusiveCallbackGroup()  # one group: the filter sees its inputs one at a time, in order
+        self.create_subscription(NavSatFix, '/fix', self._on_fix, qos, callback_group=group)
+        self.create_subscription(Imu, '/imu/data', self._on_imu, qos, callback_group=group)
+        self.create_subscription(CameraInfo, '/camera/camera_info', self._on_camera_info, qos, callback_group=group)
+        self.create_subscription(Float64MultiArray, '/srmosaic/registration', self._on_registration,
+                                 input_qos(True, 200), callback_group=group)
+        self.pub_pose = self.create_publisher(PoseWithCovarianceStamped, '/srmosaic/pose', 50)
+        self.pub_fix = self.create_publisher(NavSatFix, '/srmosaic/fix', 50)
+        period = float(self.get_parameter('live.preview_period_s').value)
+        self.create_timer(0.2, self._on_tick, callback_group=group)
+        self.create_timer(period, self._publish_diagnostics, callback_group=MutuallyExclusiveCallbackGroup())
+
+    # -- inputs ---------------------------------------------------------------------------------
+    def _in_order(self, stream: str, stamp_ns: int) -> bool:
+        last = self._last_stamp.get(stream)
+        if last is not None and stamp_ns < last:
+            self.warn(f'{stream} time going backwards', f'{stream} stamp {stamp_ns} is older than the previous '
+                      f'{last}; message skipped')
+            return False
+        self._last_stamp[stream] = stamp_ns
+        return True
+
+    def _telemetry(self, kind: str, convert: Any, msg: Any) -> None:  # noqa: ANN401
+        try:
+            item = convert(msg)
+        except SrMosaicError as exc:
+            self.warn(kind, f'{kind} skipped: {exc}')
+            return
+        if not self._in_order(kind, item.stamp_ns):
+            return
+        if self.georef is None:
+            self.georef = Georeferencer(self.config.georef, self._camera)
+        (self.georef.feed_fix if kind == 'fix' else self.georef.feed_imu)(item)
+        self._latest_telemetry_ns = max(self._latest_telemetry_ns or item.stamp_ns, item.stamp_ns)
+        self._drain()
+
+    def _on_fix(self, msg: NavSatFix) -> None:
+        self._telemetry('fix', navsat_to_fix, msg)
+
+    def _on_imu(self, msg: Imu) -> None:
+        self._telemetry('imu', imu_to_sample, msg)
+
+    def _on_camera_info(self, msg: CameraInfo) -> None:
+        try:
+            self._camera = camera_info_to_intrinsics(msg)
+        except SrMosaicError as exc:
+            self.warn('camera_info', f'camera info skipped: {exc}')
+
+    def _on_registration(self, msg: Float64MultiArray) -> None:
+        try:
+            reg = decode_registration(msg)
+        except SrMosaicError as exc:
+            self.warn('registration', f'registration skipped: {exc}')
+            return
+        if not self._in_order('registration', reg.stamp_ns):
+            return
+        self._pending.append((time.monotonic(), reg))
+        self._drain()
+
+    def _on_tick(self) -> None:
+        self._drain(timeout=True)
+
+    # -- fusion -----------------------------------------------------------------------------------
+    def _drain(self, *, timeout: bool = False) -> None:
+        """Fuse the waiting registrations whose telemetry has arrived (approximate-time association)."""
+        now = time.monotonic()
+        while self._pending:
+            arrived, reg = self._pending[0]
+            seen = self._latest_telemetry_ns is not None and self._latest_telemetry_ns > reg.stamp_ns
+            late = timeout and now - arrived > SYNC_TIMEOUT_S
+            if not (seen or late or len(self._pending) > SYNC_HOLD_FRAMES):
+                break
+            self._pending.pop(0)
+            self._fuse(reg)
+
+    def _fuse(self, reg: RegistrationMsg) -> None:
+        if self.georef is None:
+            self.georef = Georeferencer(self.config.georef, self._camera)
+        use = reg.ok and reg.reg_ok and reg.prev_H_cur is not None and self._ref_stamp is not None
+        try:
+            pose = self.georef.feed_frame(
+                reg.stamp_ns, reg.prev_H_cur if use else None, reg.covariance if use else None,
+                rms_px=reg.rms_px if use else float('nan'), inliers=reg.inliers if use else 0, camera=self._camera,
+                ref_stamp_ns=self._ref_stamp if use else None)
+        except Exception as exc:  # noqa: BLE001 - a bad frame must not stop the filter node
+            self.warn(f'georef: {type(exc).__name__}', f'frame at {reg.stamp_ns} not fused: {exc!r}')
+            return
+        if reg.ok:
+            self._ref_stamp = reg.stamp_ns
+        self.warn.count('frames_fused')
+        msgs = pose_messages(reg.stamp_ns, pose)
+        if msgs is not None:
+            self.pub_pose.publish(msgs[0])
+            self.pub_fix.publish(msgs[1])
+            self.warn.count('poses_published')
+            self._last_pose = pose
+
+    def _publish_diagnostics(self) -> None:
+        stats = dict(self.warn.stats)
+        pose = self._last_pose
+        values = {
+            'frames_fused': stats.get('frames_fused', 0),
+            'poses_published': stats.get('poses_published', 0),
+            'registrations_waiting': len(self._pending),
+            'last_std_east_m': f'{pose.std_enu_m[0]:.2f}' if pose is not None else 'nan',
+            'last_std_north_m': f'{pose.std_enu_m[1]:.2f}' if pose is not None else 'nan',
+        }
+        if self.georef is not None:
+            values.update({f'filter skipped: {k}': v for k, v in self.georef.skipped.items()})
+        values.update({k: v for k, v in stats.items() if k.startswith('rejected')})
+        status = DiagnosticStatus(level=DiagnosticStatus.OK, name='srmosaic: georeferencing',
+                                  message=f"{values['poses_published']} poses", hardware_id='srmosaic',
+                                  values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
+        out = DiagnosticArray()
+        out.header.stamp = self.get_clock().now().to_msg()
+        out.status = [status]
+        self.pub_diag.publish(out)
+
+    def finish(self) -> None:
+        """Fuse the registrations still waiting for telemetry."""
+        if self.active:
+            while self._pending:
+                self._fuse(self._pending.pop(0)[1])
+
+
+def main(args: list[str] | None = None) -> int:
+    from .runner import run_nodes
+
+    return run_nodes([GeorefNode], args)

@@ -1,0 +1,279 @@
+"""SRNode: super-resolved mosaic tiles, reconstructed in the background and published periodically.
+
+Subscribes to /camera/image_raw (sensor_msgs/Image) and /camera/image_raw/compressed
+(CompressedImage), the same frames the mosaic node registers, and to /srmosaic/registration
+(std_msgs/Float64MultiArray, REGISTRATION_LAYOUT in nodes/common.py), which carries each processed
+frame's stamp and its homography into the segment plane. It needs nothing else, so it runs in the
+mosaic node's process or in its own (ground-station SR, behind a radio link that carries the
+frames and the registrations).
+
+Publishes /srmosaic/sr_tile (sensor_msgs/Image, rgb8 or mono8) and /srmosaic/diagnostics.
+
+Tile placement, carried in every tile: header.stamp is the stamp of the newest frame used;
+header.frame_id is ``srmosaic_segment_<k>;x0=<int>;y0=<int>;width=<int>;height=<int>;factor=<int>``
+(parse it with :meth:`srmosaic_ros.sr_live.SRTilePlacement.parse`). (x0, y0, width, height) is
+the tile's region in pixels of segment k's plane, the plane of seg_H_frame in
+/srmosaic/registration (with georeferencing: the north-up UTM raster shared by all georeferenced
+segments); the image has height * factor rows and width * factor columns, and tile pixel (u, v)
+shows plane point (x0 + (u + 0.5) / factor - 0.5, y0 + (v + 0.5) / factor - 0.5), the convention of
+sr/tiles.json of `srmosaic process --sr`.
+
+How it works: image callbacks only keep the message (decoded later, and only for the frames a tile
+uses) in a bounded store keyed by stamp (`live.sr_images_pending`); a registration moves the
+frame into the store of registered frames (`live.sr_frames_kept`, newest segment only). Every
+`live.sr_period_s` a timer asks the worker thread for a round when it is idle: the SR scheduler
+(core/sr/scheduler.plan_tiles, settings `sr_tiles.*`) picks the tiles that at least
+`sr_tiles.min_frames` registered frames cover entirely and that were not published yet; the worker
+reconstructs up to `live.sr_tiles_per_round` of them (core/sr/reconstruct_tile, settings `sr.*`) and
+publishes them. The executor never waits for a reconstruction; a round that is still running when
+the timer fires is skipped (counted as `rounds_skipped_busy`).
+"""
+from __future__ import annotations
+
+import collections
+import os
+import threading
+import time
+import traceback
+from typing import Any
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.node import Node
+from sensor_msgs.msg import CompressedImage, Image
+from std_msgs.msg import Float64MultiArray
+
+from msg_adapters import SUPPORTED_ENCODINGS, header_to_ns_frame, image_to_rgb_or_mono, numpy_to_image
+
+from ..errors import SrMosaicError
+from ..sr_live import LiveFrame, LiveFrameStore, SRError, plan_live_tiles, reconstruct_live_tile
+from .common import IMAGE_QOS_DEPTH, WarnOnce, check_range, decode_registration, input_qos
+from .parameters import declare_pipeline_parameters, read_pipeline_config
+
+__all__ = ['SRNode', 'main']
+
+
+class SRNode(Node):
+    """Live SR stage (see module docstring)."""
+
+    def __init__(self, **kwargs: Any) -> None:  # noqa: ANN401
+        super().__init__('srmosaic_sr', **kwargs)
+        defaults = declare_pipeline_parameters(self)
+        self.config = read_pipeline_config(self, defaults)  # ConfigError refuses bad sr / sr_tiles values
+        self.period_s = float(check_range(self, 'live.sr_period_s', 0.1, 3600.0))
+        self.tiles_per_round = int(check_range(self, 'live.sr_tiles_per_round', 1, 100))
+        kept = int(check_range(self, 'live.sr_frames_kept', 1, 1000))
+        pending = int(check_range(self, 'live.sr_images_pending', 1, 1000))
+        if kept < self.config.sr_tiles.min_frames:
+            msg = (f'live.sr_frames_kept = {kept} is below sr_tiles.min_frames = '
+                   f'{self.config.sr_tiles.min_frames}: no tile could ever be scheduled; raise it.')
+            raise SrMosaicError(msg)
+        self.factor = int(self.config.sr_tiles.factor)
+        self.warn = WarnOnce(self)
+        self._store = LiveFrameStore(pending=pending, kept=kept)
+        self._store_lock = threading.Lock()
+        self._sizes: dict[int, tuple[int, int]] = {}
+        self._done: set[tuple[int, int, int]] = set()
+        self._last_stamp: int | None = None
+        self._planned_at = -1  # store.added at the last round that found nothing to do
+        self._times_s: collections.deque[float] = collections.deque(maxlen=200)
+        self._wake = threading.Condition()
+        self._round_requested = False
+        self._busy = False
+        self._stop = False
+
+        reliable = bool(self.get_parameter('live.reliable_inputs').value)
+        depth = IMAGE_QOS_DEPTH * 5 if reliable else IMAGE_QOS_DEPTH
+        images = MutuallyExclusiveCallbackGroup()
+        self.create_subscription(Image, '/camera/image_raw', self._on_image, input_qos(reliable, depth),
+                                 callback_group=images)
+        self.create_subscription(CompressedImage, '/camera/image_raw/compressed', self._on_image,
+                                 input_qos(reliable, depth), callback_group=images)
+        # Registrations are few and each matters: reliable, deep.
+        self.create_subscription(Float64MultiArray, '/srmosaic/registration', self._on_registration,
+                                 input_qos(True, 200), callback_group=MutuallyExclusiveCallbackGroup())
+        self.pub_tile = self.create_publisher(Image, '/srmosaic/sr_tile', 10)
+        self.pub_diag = self.create_publisher(DiagnosticArray, '/srmosaic/diagnostics', 10)
+        self.create_timer(self.period_s, self._on_timer, callback_group=MutuallyExclusiveCallbackGroup())
+        self._worker = threading.Thread(target=self._work, name='srmosaic-sr-worker', daemon=True)
+        self._worker.start()
+
+    # -- inputs: keep the message, never decode here ------------------------------------------
+    def _on_image(self, msg: Image | CompressedImage) -> None:
+        self.warn.count('frames_received')
+        try:
+            stamp_ns, _ = header_to_ns_frame(msg)
+        except SrMosaicError as exc:
+            self.warn(f'image: {type(exc).__name__}', f'image skipped: {exc}')
+            return
+        if isinstance(msg, Image):
+            if msg.width == 0 or msg.height == 0:
+                self.warn('image: empty', 'empty image skipped')
+                return
+            if msg.encoding not in SUPPORTED_ENCODINGS or len(msg.data) < msg.height * msg.step:
+                self.warn('image: MessageError', f'image with encoding {msg.encoding!r} and {len(msg.data)} bytes '
+                          f'skipped; supported: {", ".join(SUPPORTED_ENCODINGS)}')
+                return
+        elif len(msg.data) == 0:
+            self.warn('image: empty', 'empty compressed image skipped')
+            return
+        with self._store_lock:
+            if self._last_stamp is not None and stamp_ns < self._last_stamp:
+                self.warn('image time going backwards',
+                          f'image stamp {stamp_ns} is older than the previous {self._last_stamp}; skipped')
+                return
+            self._last_stamp = stamp_ns
+            self._store.add_image(stamp_ns, msg)
+
+    def _on_registration(self, msg: Float64MultiArray) -> None:
+        try:
+            reg = decode_registration(msg)
+        except SrMosaicError as exc:
+            self.warn('registration', f'registration skipped: {exc}')
+            return
+        with self._store_lock:
+            self._store.add_registration(reg.stamp_ns, reg.segment if reg.ok else -1, reg.seg_H_frame)
+
+    def _on_timer(self) -> None:
+        with self._wake:
+            if self._busy:
+                self.warn.count('rounds_skipped_busy')
+            else:
+                self._round_requested = True
+                self._wake.notify()
+        self.pub_diag.publish(self._diagnostics())
+
+    # -- worker -----------------------------------------------------------------------------------
+    def _image(self, frame: LiveFrame) -> np.ndarray | None:
+        """The frame's pixels (H, W[, 3]) uint8/uint16, decoded on first use and kept decoded."""
+        if isinstance(frame.payload, np.ndarray):
+            return frame.payload
+        try:
+            image = image_to_rgb_or_mono(frame.payload)
+        except SrMosaicError as exc:
+            self.warn(f'image: {type(exc).__name__}', f'image skipped: {exc}')
+            return None
+        if image.size == 0:
+            self.warn('image: empty', 'empty image skipped')
+            return None
+        frame.payload = image
+        return image
+
+    def _work(self) -> None:
+        # SR is background work: in the mosaic node's process it must not take the CPU from
+        # registration. Linux applies a niceness to the calling thread only (best effort).
+        try:
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 10)
+        except (AttributeError, OSError):
+            pass
+        while True:
+            with self._wake:
+                while not self._round_requested and not self._stop:
+                    self._wake.wait(0.5)
+                if self._stop:
+                    return
+                self._round_requested = False
+                self._busy = True
+            try:
+                self._round()
+            except Exception as exc:  # noqa: BLE001 - the worker must outlive any one tile
+                self.warn(f'sr bug: {type(exc).__name__}', f'SR round failed (please report): {exc!r}')
+                self.get_logger().error(traceback.format_exc())
+            finally:
+                with self._wake:
+                    self._busy = False
+
+    def _round(self) -> None:
+        """Plan, reconstruct and publish up to tiles_per_round tiles."""
+        with self._store_lock:
+            if self._store.added == self._planned_at:
+                return  # nothing new since a round found no tile
+            frames = self._store.registered()
+            added = self._store.added
+        # Frame sizes: from the Image header; a compressed stream is decoded once per round (its
+        # newest frame) and its size taken for the others (the frames of one stream share it).
+        stream_size = None
+        for f in reversed(frames):
+            if f.stamp_ns in self._sizes:
+                continue
+            if isinstance(f.payload, Image):
+                self._sizes[f.stamp_ns] = (int(f.payload.width), int(f.payload.height))
+                continue
+            if stream_size is None:
+                image = self._image(f)
+                if image is None:
+                    continue
+                stream_size = (image.shape[1], image.shape[0])
+            self._sizes[f.stamp_ns] = stream_size
+        frames = [f for f in frames if f.stamp_ns in self._sizes]
+        live = {f.stamp_ns for f in frames}
+        self._sizes = {k: v for k, v in self._sizes.items() if k in live}
+        plans = plan_live_tiles(frames, self._sizes, self.config.sr_tiles, self._done)
+        if not plans:
+            self._planned_at = added
+            return
+        for plan, used in plans[:self.tiles_per_round]:
+            if self._stop:
+                return
+            t0 = time.perf_counter()
+            segment = used[-1].segment
+            self._done.add((segment, plan.x0, plan.y0))
+            decoded = [(self._image(f), f) for f in used]
+            decoded = [(im, f) for im, f in decoded if im is not None]
+            if not decoded:
+                continue
+            try:
+                image, placement, res = reconstruct_live_tile(
+                    plan, [im for im, _ in decoded], [f.seg_H_frame for _, f in decoded], self.factor,
+                    self.config.sr, segment)
+            except SRError as exc:
+                self.warn('sr tile', f'SR tile at ({plan.x0}, {plan.y0}) skipped: {exc}')
+                continue
+            stamp = max(f.stamp_ns for f in used)
+            encoding = 'mono8' if image.ndim == 2 else 'rgb8'
+            self.pub_tile.publish(numpy_to_image(image, encoding, stamp_ns=stamp, frame_id=placement.frame_id()))
+            dt = time.perf_counter() - t0
+            self._times_s.append(dt)
+            self.warn.count('tiles_published')
+            self.get_logger().debug(f'SR tile {placement.frame_id()} from {len(used)} frames in {dt:.2f} s '
+                                    f'({res.stop_reason})')
+
+    # -- diagnostics, shutdown ------------------------------------------------------------------
+    def _diagnostics(self) -> DiagnosticArray:
+        stats = dict(self.warn.stats)
+        times = np.array(self._times_s) if self._times_s else np.array([np.nan])
+        with self._store_lock:
+            kept, pending, missed = len(self._store.registered()), self._store.pending, self._store.missed
+        values = {
+            'frames_received': stats.get('frames_received', 0),
+            'frames_kept': kept,
+            'images_waiting_for_registration': pending,
+            'registrations_without_image': missed,
+            'tiles_published': stats.get('tiles_published', 0),
+            'rounds_skipped_busy': stats.get('rounds_skipped_busy', 0),
+            'tile_s_median': f'{np.median(times):.2f}',
+            'tile_s_p95': f'{np.percentile(times, 95):.2f}',
+            'factor': self.factor,
+        }
+        values.update({k: v for k, v in stats.items() if k.startswith('rejected')})
+        status = DiagnosticStatus(level=DiagnosticStatus.OK, name='srmosaic: super-resolution',
+                                  message=f"{values['tiles_published']} tiles published", hardware_id='srmosaic',
+                                  values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
+        out = DiagnosticArray()
+        out.header.stamp = self.get_clock().now().to_msg()
+        out.status = [status]
+        return out
+
+    def finish(self) -> None:
+        """Stop the worker (a tile in progress completes first, up to 60 s)."""
+        with self._wake:
+            self._stop = True
+            self._wake.notify()
+        self._worker.join(timeout=60)
+
+
+def main(args: list[str] | None = None) -> int:
+    from .runner import run_nodes
+
+    return run_nodes([SRNode], args)

@@ -1,0 +1,219 @@
+"""Live super-resolution: a bounded store of registered frames, tile planning on it, tile placement.
+
+ROS-free helpers of the SR node (nodes/sr_node.py), usable by any other driver:
+
+    store = LiveFrameStore(pending=100, kept=64)
+    store.add_image(stamp_ns, payload)                      # as frames arrive (payload: anything)
+    store.add_registration(stamp_ns, segment, seg_H_frame)  # when the mosaic placed the frame
+    plans = plan_live_tiles(store.registered(segment), sizes, tile_config, done)
+    image, placement = reconstruct_live_tile(plan, frames, sr_config, segment)
+
+Placement (the tiles.json convention of DESIGN.md, on the segment plane instead of mosaic.png):
+an SR tile covers the region (x0, y0, width, height) of the segment plane, the pixel plane of
+``seg_H_frame`` in /srmosaic/registration (with georeferencing, the shared north-up UTM raster);
+it has ``height * factor`` rows and ``width * factor`` columns, and tile pixel (u, v) shows plane
+point (x0 + (u + 0.5) / factor - 0.5, y0 + (v + 0.5) / factor - 0.5).
+:class:`SRTilePlacement` writes and parses the text form carried in the tile's header.frame_id::
+
+    srmosaic_segment_0;x0=256;y0=-128;width=128;height=128;factor=2
+"""
+from __future__ import annotations
+
+import collections
+import math
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+
+from .core.metrics import apply_homography
+from .core.sr.reconstruct import SRConfig, SRError, reconstruct_tile
+from .core.sr.scheduler import SRTileConfig, TilePlan, plan_tiles
+from .errors import SrMosaicError
+
+__all__ = ['LiveFrame', 'LiveFrameStore', 'SRTilePlacement', 'plan_live_tiles', 'reconstruct_live_tile',
+           'MAX_PLAN_SIDE_PX']
+
+#: Planning grids larger than this (segment-plane pixels per side) are refused: an absurd
+#: homography must not allocate a giant coverage raster.
+MAX_PLAN_SIDE_PX = 20000
+
+_PLACEMENT_RE = re.compile(r'^srmosaic_segment_(-?\d+);x0=(-?\d+);y0=(-?\d+);width=(\d+);height=(\d+);factor=(\d+)$')
+
+
+@dataclass(frozen=True)
+class SRTilePlacement:
+    """Where an SR tile lies: segment-plane region (x0, y0, width, height) in LR plane pixels, and
+    the factor (the tile image is (height * factor, width * factor)); see the module docstring."""
+
+    segment: int
+    x0: int
+    y0: int
+    width: int
+    height: int
+    factor: int
+
+    def frame_id(self) -> str:
+        """The text form carried in sensor_msgs/Image header.frame_id of /srmosaic/sr_tile."""
+        return (f'srmosaic_segment_{self.segment};x0={self.x0};y0={self.y0};width={self.width};'
+                f'height={self.height};factor={self.factor}')
+
+    @classmethod
+    def parse(cls, frame_id: str) -> SRTilePlacement:
+        """Inverse of :meth:`frame_id`; raises SrMosaicError on any other text."""
+        m = _PLACEMENT_RE.match(frame_id.strip())
+        if not m:
+            msg = (f'{frame_id!r} is not an SR tile placement; expected '
+                   "'srmosaic_segment_<k>;x0=<int>;y0=<int>;width=<int>;height=<int>;factor=<int>'.")
+            raise SrMosaicError(msg)
+        segment, x0, y0, width, height, factor = (int(g) for g in m.groups())
+        return cls(segment, x0, y0, width, height, factor)
+
+    def plane_H_tile(self) -> np.ndarray:  # noqa: N802
+        """(3, 3) tile (HR) pixels -> segment plane pixels: u -> x0 + (u + 0.5) / factor - 0.5."""
+        s = float(self.factor)
+        return np.array([[1.0 / s, 0.0, self.x0 + 0.5 / s - 0.5],
+                         [0.0, 1.0 / s, self.y0 + 0.5 / s - 0.5],
+                         [0.0, 0.0, 1.0]])
+
+
+@dataclass
+class LiveFrame:
+    """A registered frame kept for SR: stamp (ns), payload (the image or a message to decode on
+    demand), seg_H_frame (3, 3) frame pixels -> segment plane pixels, segment index."""
+
+    stamp_ns: int
+    payload: Any
+    seg_H_frame: np.ndarray
+    segment: int
+
+
+class LiveFrameStore:
+    """Bounded store: received images waiting for their registration, and registered frames.
+
+    pending: at most this many images wait for a registration (older ones are dropped: the mosaic
+        stage skipped them or is further behind than the store reaches).
+    kept: at most this many registered frames per store (the oldest go first); a new segment
+        drops the frames of the older ones (SR tiles come from one plane).
+    Not thread-safe: callers lock around it.
+    """
+
+    def __init__(self, pending: int = 100, kept: int = 64) -> None:
+        if pending < 1 or kept < 1:
+            msg = f'the live SR store needs pending >= 1 and kept >= 1, got {pending} and {kept}.'
+            raise SrMosaicError(msg)
+        self._pending: collections.OrderedDict[int, Any] = collections.OrderedDict()
+        self._pending_max = int(pending)
+        self._frames: collections.deque[LiveFrame] = collections.deque(maxlen=int(kept))
+        self.added = 0  # registered frames ever added (a change means new work for the planner)
+        self.missed = 0  # registrations whose image was not (or no longer) in the store
+
+    def add_image(self, stamp_ns: int, payload: Any) -> None:  # noqa: ANN401
+        self._pending[int(stamp_ns)] = payload
+        self._pending.move_to_end(int(stamp_ns))
+        while len(self._pending) > self._pending_max:
+            self._pending.popitem(last=False)
+
+    def add_registration(self, stamp_ns: int, segment: int, seg_H_frame: np.ndarray | None) -> bool:  # noqa: N803
+        """The mosaic placed (segment >= 0, finite seg_H_frame) or skipped the frame at stamp_ns.
+
+        Returns True when a frame was added to the registered store."""
+        payload = self._pending.pop(int(stamp_ns), None)
+        if segment < 0 or seg_H_frame is None or not np.all(np.isfinite(seg_H_frame)):
+            return False
+        if payload is None:
+            self.missed += 1
+            return False
+        if self._frames and self._frames[-1].segment != segment:
+            keep = [f for f in self._frames if f.segment == segment]
+            self._frames.clear()
+            self._frames.extend(keep)
+        self._frames.append(LiveFrame(int(stamp_ns), payload, np.asarray(seg_H_frame, dtype=np.float64),
+                                      int(segment)))
+        self.added += 1
+        return True
+
+    @property
+    def segment(self) -> int | None:
+        """The segment of the newest registered frame (None while empty)."""
+        return self._frames[-1].segment if self._frames else None
+
+    def registered(self, segment: int | None = None) -> list[LiveFrame]:
+        """Registered frames (of `segment`, default: the newest one), oldest first."""
+        seg = self.segment if segment is None else segment
+        return [f for f in self._frames if f.segment == seg]
+
+    @property
+    def pending(self) -> int:
+        return len(self._pending)
+
+
+def _translation(dx: float, dy: float) -> np.ndarray:
+    return np.array([[1.0, 0.0, dx], [0.0, 1.0, dy], [0.0, 0.0, 1.0]])
+
+
+def plan_live_tiles(frames: Sequence[LiveFrame], sizes: dict[int, tuple[int, int]], config: SRTileConfig,
+                    done: set[tuple[int, int, int]] | None = None) -> list[tuple[TilePlan, list[LiveFrame]]]:
+    """Tiles of the segment plane that enough of `frames` cover (core/sr/scheduler.plan_tiles).
+
+    frames: registered frames of one segment; sizes: stamp_ns -> (width, height) of each frame.
+    The tile grid is anchored at plane pixel (0, 0) (tiles at multiples of tile_size, negative
+    ones included); the coverage raster is the union of the frames' footprints over their
+    bounding box. Tiles whose (segment, x0, y0) is in `done` are left out.
+    Returns (plan with plane coordinates, the LiveFrames it uses), best covered first.
+    """
+    if not frames:
+        return []
+    t = config.tile_size
+    corners = []
+    for f in frames:
+        w, h = sizes[f.stamp_ns]
+        quad = np.array([[0, 0], [w - 1, 0], [w - 1, h - 1], [0, h - 1]], dtype=float)
+        corners.append(apply_homography(f.seg_H_frame, quad))
+    pts = np.concatenate(corners)
+    if not np.all(np.isfinite(pts)):
+        return []
+    gx0 = int(math.floor(pts[:, 0].min() / t)) * t
+    gy0 = int(math.floor(pts[:, 1].min() / t)) * t
+    gw = int(math.ceil((pts[:, 0].max() + 1 - gx0) / t)) * t
+    gh = int(math.ceil((pts[:, 1].max() + 1 - gy0) / t)) * t
+    if max(gw, gh) > MAX_PLAN_SIDE_PX:
+        return []
+    coverage = np.zeros((gh, gw), np.uint8)
+    for quad in corners:
+        cv2.fillConvexPoly(coverage, np.round(quad - [gx0, gy0]).astype(np.int32), 1)
+    shift = _translation(-gx0, -gy0)
+    by_index = dict(enumerate(frames))
+    plans = plan_tiles({k: shift @ f.seg_H_frame for k, f in by_index.items()},
+                       {k: sizes[f.stamp_ns] for k, f in by_index.items()}, coverage > 0, config)
+    out = []
+    seg = frames[-1].segment
+    for p in plans:
+        x0, y0 = p.x0 + gx0, p.y0 + gy0
+        if done is not None and (seg, x0, y0) in done:
+            continue
+        out.append((TilePlan(x0, y0, p.width, p.height, p.frames, p.frames_covering),
+                    [by_index[k] for k in p.frames]))
+    return out
+
+
+def reconstruct_live_tile(plan: TilePlan, images: Sequence[np.ndarray], seg_H_frames: Sequence[np.ndarray],  # noqa: N803
+                          factor: int, config: SRConfig, segment: int) -> tuple[np.ndarray, SRTilePlacement, Any]:
+    """Super-resolve one planned tile (core/sr/reconstruct_tile).
+
+    images: (h, w) or (h, w, 3) uint8/uint16 frames; seg_H_frames: their (3, 3) frame -> plane maps.
+    Returns (tile (H s, W s[, 3]) uint8, its placement, the SRResult); raises SRError when no frame
+    observes the tile.
+    """
+    tile_H = [_translation(-plan.x0, -plan.y0) @ H for H in seg_H_frames]  # noqa: N806
+    res = reconstruct_tile(list(images), tile_H, (plan.height, plan.width), factor, config=config)
+    image = res.to_numpy()
+    if image.shape[2] == 1:
+        image = image[:, :, 0]
+    return image, SRTilePlacement(segment, plan.x0, plan.y0, plan.width, plan.height, factor), res
+
+
+__all__ += ['SRError']
