@@ -21,8 +21,13 @@ The simulator renders every frame into memory before writing the bag (sim.simula
 whole flight: ~0.9 MB per frame), so its own peak RSS is printed apart; it is not part of
 `srmosaic process`, which reads the bag lazily.
 
-    python bench/memory.py [--frames 2000] [--max-tiles 32] [--blend feather|multiband]
+    python bench/memory.py [--frames 2000] [--quick] [--max-tiles 32] [--blend feather|multiband]
                            [--work bench/out/memory] [--fresh] [--checkpoint-every N]
+
+--quick: 300 frames (the first leg and a turn), a few minutes instead of about half an hour.
+
+The outputs (mosaic.tif, mosaic.png, preview.png) are written strip by strip from the canvas
+(offline.write_outputs), so "peak RSS" and "(before out)" differ only by what writing them adds.
 """
 from __future__ import annotations
 
@@ -144,7 +149,9 @@ def main(argv: list[str] | None = None) -> int:
     if argv[:1] == ['--child-stats']:
         return child(Path(argv[1]), argv[3:])
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument('--frames', type=int, default=2000, help='frames of the flight (default 2000; at most 2056)')
+    ap.add_argument('--frames', type=int, default=None,
+                    help='frames of the flight (default 2000, --quick 300; at most 2056)')
+    ap.add_argument('--quick', action='store_true', help='300 frames unless --frames says otherwise')
     ap.add_argument('--max-tiles', type=int, default=32,
                     help='mosaic.max_tiles_in_memory of the bounded run (default 32)')
     ap.add_argument('--blend', choices=['feather', 'multiband'], default='feather',
@@ -157,6 +164,8 @@ def main(argv: list[str] | None = None) -> int:
                     help='simulate the bag again even if one with these settings exists')
     ap.add_argument('--only', choices=['unbounded', 'bounded'], help='run one of the two')
     args = ap.parse_args(argv)
+    if args.frames is None:
+        args.frames = 300 if args.quick else 2000
     args.work.mkdir(parents=True, exist_ok=True)
     bag = args.work / f'flight_{args.frames}'
     t0 = time.perf_counter()

@@ -2,12 +2,13 @@
 from __future__ import annotations
 
 import collections
+import math
 import resource
 import shutil
 import time
 from pathlib import Path
 from collections.abc import Iterable, Iterator
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from tqdm import tqdm
@@ -22,7 +23,11 @@ from .pipeline import SYNC_HOLD_FRAMES, Pipeline, PipelineResult
 from .core.image_ops import to_float01
 from .core.types import Frame
 
-__all__ = ['open_source', 'peak_rss_mb', 'preview_image', 'process_input', 'write_outputs']
+if TYPE_CHECKING:
+    from .core.georef import GeoRaster
+    from .core.mosaic import TiledCanvas
+
+__all__ = ['StripPreview', 'open_source', 'peak_rss_mb', 'preview_image', 'process_input', 'write_outputs']
 
 
 def peak_rss_mb() -> float:
@@ -45,9 +50,134 @@ def preview_image(image: np.ndarray, coverage: np.ndarray, max_side: int) -> np.
     return cv2.resize(image, (max(1, round(w * scale)), max(1, round(h * scale))), interpolation=cv2.INTER_AREA)
 
 
+def _area_table(src: int, dst: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """cv2.INTER_AREA's weights along one axis (OpenCV's computeResizeAreaTab), sparse.
+
+    Output sample d averages the source interval [d s, (d + 1) s), s = src / dst >= 1, each source
+    sample weighted by its overlap with the interval over the interval's length. Returns
+    (d (K,) int, source sample (K,) int, weight (K,) float32), K <= src + dst, source samples
+    non-decreasing.
+    """
+    scale = 1.0 / (dst / src)  # as cv2.resize computes it
+    d_idx: list[int] = []
+    s_idx: list[int] = []
+    alpha: list[float] = []
+
+    def put(d: int, s: int, a: float) -> None:
+        d_idx.append(d)
+        s_idx.append(s)
+        alpha.append(a)
+
+    for d in range(dst):
+        f1 = d * scale
+        f2 = f1 + scale
+        cell = min(scale, src - f1)
+        s1, s2 = math.ceil(f1), min(math.floor(f2), src - 1)
+        s1 = min(s1, s2)
+        if s1 - f1 > 1e-3:
+            put(d, s1 - 1, (s1 - f1) / cell)
+        for s_ in range(s1, s2):
+            put(d, s_, 1.0 / cell)
+        if f2 - s2 > 1e-3:
+            put(d, s2, min(min(f2 - s2, 1.0), cell) / cell)
+    return np.array(d_idx, np.int64), np.array(s_idx, np.int64), np.array(alpha, np.float32)
+
+
+class StripPreview:
+    """``preview_image`` of a mosaic rendered in strips of rows, without holding the mosaic.
+
+    Feed ``add(row, image, coverage)`` strips (as ``TiledCanvas.render_blocks`` yields them) for
+    rows 0 .. height - 1 of a (height, width) mosaic, in any order, then ``image()`` is
+    ``preview_image`` of the whole (float32 (h', w'[, C]), uncovered pixels black), to float
+    rounding (~1e-6): INTER_AREA's weights are separable, so each strip is downscaled across by
+    cv2.INTER_AREA and summed down with the same weights. Memory: the preview (at most
+    max_side^2 C floats), one strip and the row weights (about height + max_side entries).
+    """
+
+    CHUNK_ROWS = 128
+
+    def __init__(self, height: int, width: int, channels: int, max_side: int) -> None:
+        scale = min(1.0, max_side / max(height, width, 1))
+        self._down = scale < 1.0
+        self._w = max(1, round(width * scale)) if self._down else width
+        h_out = max(1, round(height * scale)) if self._down else height
+        self._rows = _area_table(height, h_out) if self._down else None
+        self._squeeze = channels == 1
+        self._out = np.zeros((h_out, self._w, channels), np.float32)
+
+    def add(self, row: int, image: np.ndarray, coverage: np.ndarray) -> None:
+        """Strip rows row .. row + len(image): image (rows, W[, C]) float, coverage (rows, W) bool."""
+        for r in range(0, len(image), self.CHUNK_ROWS):  # small temporaries whatever the strip's height
+            self._add(row + r, image[r:r + self.CHUNK_ROWS], coverage[r:r + self.CHUNK_ROWS])
+
+    def _add(self, row: int, image: np.ndarray, coverage: np.ndarray) -> None:
+        import cv2
+
+        strip = np.where(coverage[..., None] if image.ndim == 3 else coverage, image, 0.0).astype(np.float32)
+        strip = strip.reshape(strip.shape[0], strip.shape[1], -1)
+        n = strip.shape[0]
+        if self._rows is None:
+            self._out[row:row + n] = strip
+            return
+        across = cv2.resize(strip, (self._w, n), interpolation=cv2.INTER_AREA).reshape(n, -1)
+        d_idx, s_idx, alpha = self._rows
+        lo, hi = np.searchsorted(s_idx, [row, row + n])
+        if lo == hi:
+            return
+        d0, d1 = int(d_idx[lo:hi].min()), int(d_idx[lo:hi].max()) + 1
+        weights = np.zeros((d1 - d0, n), np.float32)  # (preview rows touched, strip rows)
+        weights[d_idx[lo:hi] - d0, s_idx[lo:hi] - row] = alpha[lo:hi]
+        self._out[d0:d1] += (weights @ across).reshape(d1 - d0, self._w, -1)
+
+    def image(self) -> np.ndarray:
+        """The preview, float32 (h', w', C), or (h', w') for one channel."""
+        return self._out[:, :, 0] if self._squeeze else self._out
+
+
+#: Rows of the mosaic rendered, written and downscaled at a time (one tile row of mosaic.tif).
+STRIP_ROWS = 512
+
+
+def _write_canvas(canvas: TiledCanvas, tif: Path | None, png: Path, raster: GeoRaster | None = None,
+                  preview: StripPreview | None = None) -> None:
+    """Render ``canvas`` (its bounds) strip by strip into a tiled GeoTIFF, then PNG from that.
+
+    With ``tif`` (and ``raster``, its grid) that GeoTIFF is an output (mosaic.tif: 512 px tiles,
+    DEFLATE, internal overviews); without, a temporary TIFF beside ``png`` is written and removed.
+    The PNG has the pixels ``mosaic_files.write_png(render(), covered)`` would write. Both files
+    are written atomically. ``preview`` receives every strip. Memory: one strip of STRIP_ROWS
+    rows (multiband: one RENDER_BLOCK_PX row of blocks) and GDAL's bounded cache; never the mosaic.
+    """
+    import tempfile
+
+    from .io.geotiff import MOSAIC_BLOCK_PX, png_from_geotiff, write_geotiff_blocks
+
+    x0, y0, x1, y1 = canvas.bounds()
+
+    def strips() -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+        for row, image, covered in canvas.render_blocks(STRIP_ROWS):
+            if preview is not None:
+                preview.add(row, image, covered)
+            yield row, image, covered
+
+    if tif is not None:
+        write_geotiff_blocks(tif, strips(), raster, y1 - y0, x1 - x0, block_px=MOSAIC_BLOCK_PX)
+        png_from_geotiff(tif, png)
+        return
+    png.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix=f'.{png.stem}.', dir=png.parent) as tmp:
+        scratch = Path(tmp) / 'mosaic.tif'
+        write_geotiff_blocks(scratch, strips(), None, y1 - y0, x1 - x0, block_px=MOSAIC_BLOCK_PX, overviews=False)
+        png_from_geotiff(scratch, png)
+
+
 def write_outputs(result: PipelineResult, out: Path, config: PipelineConfig, extra: dict[str, Any]) -> dict[str, Any]:
-    """Write mosaic.png (main canvas), segments/, frames.csv, and with georeferencing mosaic.tif,
-    mosaic.kml and poses.csv. Returns the report (the caller adds timings and writes it)."""
+    """Write mosaic.png (main canvas), preview.png, segments/, frames.csv, and with georeferencing
+    mosaic.tif, mosaic.kml and poses.csv. Returns the report (the caller adds timings and writes it).
+
+    The mosaics are rendered and written strip by strip (see _write_canvas): memory does not grow
+    with the mosaic's area.
+    """
     out.mkdir(parents=True, exist_ok=True)
     main = result.main_segment
     main_canvas = main.canvas if main is not None else None
@@ -58,17 +188,13 @@ def write_outputs(result: PipelineResult, out: Path, config: PipelineConfig, ext
     for seg in result.segments:
         x0, y0, x1, y1 = seg.canvas.bounds()
         if id(seg.canvas) not in written:
-            image, coverage = seg.canvas.render()
             if seg.canvas is main_canvas:
                 mosaic_H_seg = _translation(-x0, -y0)  # noqa: N806
-                write_png(out / 'mosaic.png', image, coverage)
-                write_png(out / 'preview.png', preview_image(image, coverage, config.mosaic.preview_max_side_px))
+                geo = _write_main_mosaic(out, result, config, (x0, y0, x1, y1))
                 written[id(seg.canvas)] = 'mosaic.png'
-                if main.georeferenced and result.georef is not None and result.georef.raster is not None:
-                    geo = _write_georeferenced(out, result, image, coverage, (x0, y0))
             elif len(seg.frames) >= 2:
                 written[id(seg.canvas)] = f'segments/segment_{seg.index:03d}.png'
-                write_png(out / written[id(seg.canvas)], image, coverage)
+                _write_canvas(seg.canvas, None, out / written[id(seg.canvas)])
         segments_report.append({'index': seg.index, 'frames': len(seg.frames), 'file': written.get(id(seg.canvas), ''),
                                 'georeferenced': seg.georeferenced,
                                 'size_px': [int(x1 - x0), int(y1 - y0)], 'origin_px': [int(x0), int(y0)]})
@@ -144,22 +270,48 @@ def open_source(path: Path, *, topics: TopicConfig | None = None, select: str = 
     return reader, reader, 'bag'
 
 
-def _write_georeferenced(out: Path, result: PipelineResult, image: np.ndarray, coverage: np.ndarray,
-                         origin: tuple[int, int]) -> dict[str, Any]:
-    """mosaic.tif (same pixel grid as mosaic.png), mosaic.kml and poses.csv (smoothed poses)."""
-    from .io.geotiff import write_geotiff
+def _write_main_mosaic(out: Path, result: PipelineResult, config: PipelineConfig,
+                       bounds: tuple[int, int, int, int]) -> dict[str, Any]:
+    """mosaic.png and preview.png of the main segment's canvas, and with georeferencing mosaic.tif
+    (same pixel grid as mosaic.png), mosaic.kml and poses.csv. Returns the report's 'georeferenced'
+    entry ({} without georeferencing)."""
+    main = result.main_segment
+    canvas = main.canvas
+    x0, y0, x1, y1 = bounds
+    preview = StripPreview(y1 - y0, x1 - x0, canvas.channels, config.mosaic.preview_max_side_px)
+    georef = result.georef
+    if not (main.georeferenced and georef is not None and georef.raster is not None):
+        _write_canvas(canvas, None, out / 'mosaic.png', preview=preview)
+        write_png(out / 'preview.png', preview.image())
+        return {}
     from .io.kml import write_kml_for_raster
     from .io.poses_csv import write_poses_csv
 
+    poses = georef.smoothed_poses()
+    raster, anchoring = _mosaic_raster(result, poses, (x0, y0))
+    _write_canvas(canvas, out / 'mosaic.tif', out / 'mosaic.png', raster, preview)
+    write_png(out / 'preview.png', preview.image())
+    write_kml_for_raster(out / 'mosaic.kml', 'mosaic.png', raster, x1 - x0, y1 - y0)
+    write_poses_csv(out / 'poses.csv', poses)
+    return {'epsg': raster.epsg, 'gsd_m_per_px': raster.gsd_m_per_px, 'geotransform': list(raster.geotransform),
+            **anchoring, 'poses': len(poses),
+            'skipped_telemetry': dict(georef.skipped)}
+
+
+def _mosaic_raster(result: PipelineResult, poses: list[Any], origin: tuple[int, int]) -> tuple[GeoRaster, dict[str, Any]]:
+    """(GeoRaster of mosaic.png's pixel (0, 0), the anchoring figures) from the smoothed poses.
+
+    The mosaic plane was anchored by the first frame's (early, filtered) pose. With the smoothed
+    poses of every frame, re-anchor it (core/georef/anchoring.py): the least-squares similarity
+    between each frame's chained corners and its pose-predicted corners (offset, rotation and
+    scale, estimated from the whole flight) goes into the geotransform. The mosaic's pixels do
+    not move: mosaic.png and mosaic.tif stay one grid.
+    """
+    from .core.georef.anchoring import fit_similarity
     from .core.metrics import apply_homography
 
     georef = result.georef
-    poses = georef.smoothed_poses()
-    # The mosaic plane was anchored by the first frame's (early, filtered) pose. With the smoothed
-    # poses of every frame, re-anchor it: the mean offset between each frame's chained corners and
-    # its pose-predicted corners is the anchor error (averaged over the flight), removed by shifting
-    # the geotransform. The mosaic's pixels do not move: mosaic.png and mosaic.tif stay one grid.
-    offsets = []
+    chained, by_poses = [], []
     main_canvas = result.main_segment.canvas
     seg_of = {seg.index: seg for seg in result.segments}
     for rec, pose in zip(result.records, poses):
@@ -168,18 +320,20 @@ def _write_georeferenced(out: Path, result: PipelineResult, image: np.ndarray, c
             continue
         w_f, h_f = rec.size
         corners = np.array([[0, 0], [w_f - 1, 0], [w_f - 1, h_f - 1], [0, h_f - 1]], dtype=float)
-        by_pose = apply_homography(georef.raster_H_frame(pose), corners)
-        offsets.append(by_pose - apply_homography(rec.seg_H_frame, corners))
-    shift = np.concatenate(offsets).mean(axis=0) if offsets else np.zeros(2)
-    # mosaic pixel m is chained raster pixel m + origin, truly at raster pixel m + origin + shift.
-    raster = georef.raster.shifted(origin[0] + shift[0], origin[1] + shift[1])  # pixel (0, 0) of mosaic.png
-    write_geotiff(out / 'mosaic.tif', image, raster, coverage=coverage)
-    h, w = coverage.shape
-    write_kml_for_raster(out / 'mosaic.kml', 'mosaic.png', raster, w, h)
-    write_poses_csv(out / 'poses.csv', poses)
-    return {'epsg': raster.epsg, 'gsd_m_per_px': raster.gsd_m_per_px, 'geotransform': list(raster.geotransform),
-            'anchor_shift_px': [float(v) for v in shift], 'poses': len(poses),
-            'skipped_telemetry': dict(georef.skipped)}
+        by_poses.append(apply_homography(georef.raster_H_frame(pose), corners))
+        chained.append(apply_homography(rec.seg_H_frame, corners))
+    if chained:
+        # raster pixel by the poses ~ fix @ chained raster pixel
+        fix = fit_similarity(np.concatenate(chained), np.concatenate(by_poses))
+    else:
+        fix = np.eye(3)
+    # mosaic pixel m is chained raster pixel m + origin, truly at raster pixel fix @ (m + origin).
+    raster = georef.raster.transformed(fix).shifted(origin[0], origin[1])
+    figures = {'anchor_shift_px': [float(fix[0, 2]), float(fix[1, 2])],
+               'anchor_scale': float(np.hypot(fix[0, 0], fix[1, 0])),
+               'anchor_rotation_deg': float(np.degrees(np.arctan2(fix[1, 0], fix[0, 0]))),
+               'anchor_frames': len(chained)}
+    return raster, figures
 
 
 def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: TopicConfig | None = None,

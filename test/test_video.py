@@ -148,3 +148,24 @@ def test_telemetry_csv_errors(tmp_path):
     bad.write_text('time_s,latitude,longitude,altitude,roll,pitch,yaw\n0,x,1,1,0,0,0\n')
     with pytest.raises(InputError, match='line 2'):
         read_telemetry_csv(bad)
+
+
+def test_video_with_telemetry_writes_tiled_mosaic_tif_and_matching_png(flight_video, tmp_path):
+    """End to end through process_input: mosaic.tif tiled (512 px) with the pixels of mosaic.png, no
+    temporary files left behind."""
+    import cv2
+    import rasterio
+
+    from srmosaic_ros.config import pipeline_config
+    from srmosaic_ros.offline import process_input
+
+    _, video, _ = flight_video
+    out = tmp_path / 'out'
+    report = process_input(video, out, pipeline_config(), select='every:4', hfov_deg=60.0,
+                           telemetry_csv=video.with_suffix('.csv'), progress=False)
+    assert report['georeferenced'] is not None
+    png = cv2.cvtColor(cv2.imread(str(out / 'mosaic.png'), cv2.IMREAD_UNCHANGED), cv2.COLOR_BGRA2RGBA)
+    with rasterio.open(out / 'mosaic.tif') as ds:
+        assert ds.profile['tiled'] and ds.block_shapes[0] == (512, 512)
+        np.testing.assert_array_equal(ds.read().transpose(1, 2, 0), png)
+    assert not [p.name for p in out.iterdir() if p.name.startswith('.')]

@@ -6,13 +6,26 @@ marked as such, which QGIS and GDAL honour), DEFLATE-compressed; outputs larger 
 ``TILED_ABOVE_PX`` on a side are tiled (256 x 256) with internal overviews (average) so that GIS
 tools pan them quickly. The file is written under a temporary name and renamed into place.
 
+``write_geotiff_blocks(path, strips, raster)`` writes the same file from strips of rows (e.g.
+``TiledCanvas.render_blocks``), never holding the whole image: mosaic.tif is written this way,
+tiled in ``MOSAIC_BLOCK_PX`` (512) blocks with internal overviews. GDAL's block cache is capped at
+``GDAL_CACHE_BYTES`` while writing, so the memory held does not grow with the raster's area.
+``png_from_geotiff(src, dst)`` then makes mosaic.png from that file with GDAL's PNG CreateCopy,
+which reads the source a scanline at a time; grey+alpha sources become RGBA PNGs (grey repeated),
+as ``mosaic_files.write_png`` writes them. ``raster=None`` writes a plain (not georeferenced) TIFF,
+the intermediate of mosaic.png for runs without georeferencing.
+
 Convention: the image's pixel (x, y) (centres at integers) is the raster's pixel (x, y); the
 GeoTIFF geotransform is that of the pixel *corners*, GeoRaster.geotransform.
 """
 from __future__ import annotations
 
 import os
-from typing import TYPE_CHECKING
+import warnings
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -21,10 +34,22 @@ from .mosaic_files import atomic_path
 if TYPE_CHECKING:
     from ..core.georef.georeferencer import GeoRaster
 
-__all__ = ['TILED_ABOVE_PX', 'write_geotiff']
+__all__ = ['GDAL_CACHE_BYTES', 'MOSAIC_BLOCK_PX', 'TILED_ABOVE_PX', 'overview_factors', 'png_from_geotiff',
+           'write_geotiff', 'write_geotiff_blocks']
 
 TILED_ABOVE_PX = 1024
 _BLOCK_PX = 256
+#: Block side (px) of mosaic.tif (write_geotiff_blocks' default).
+MOSAIC_BLOCK_PX = 512
+#: GDAL block cache while writing or converting (bytes); dirty blocks beyond it are flushed to disk.
+GDAL_CACHE_BYTES = 64 * 2**20
+#: Rows converted to uint8 and handed to GDAL at a time (strips are cut to this).
+CONVERT_ROWS = 128
+#: zlib level of PNGs made by png_from_geotiff (1: fastest, as OpenCV's default for write_png).
+PNG_ZLEVEL = 1
+
+#: One strip of rows: (first row, image (rows, W) / (rows, W, C), coverage (rows, W) bool or None).
+Strip = tuple[int, np.ndarray, 'np.ndarray | None']
 
 
 def _to_u8(image: np.ndarray) -> np.ndarray:
@@ -66,6 +91,143 @@ def _bands(image: np.ndarray, coverage: np.ndarray | None) -> tuple[np.ndarray, 
     return np.ascontiguousarray(np.stack(bands)), alpha is not None
 
 
+def overview_factors(height: int, width: int, block_px: int) -> list[int]:
+    """Decimation factors 2, 4, 8, ... while the longer side at that factor is at least block_px / 2."""
+    factors, f = [], 2
+    while max(height, width) / f >= block_px / 2:
+        factors.append(f)
+        f *= 2
+    return factors
+
+
+def _profile(width: int, height: int, count: int, has_alpha: bool, raster: GeoRaster | None, *,
+             tiled: bool, block_px: int, compress: str) -> dict[str, Any]:
+    """rasterio creation profile of a GTiff of ``count`` uint8 bands (alpha last when has_alpha)."""
+    colour = count - int(has_alpha)
+    profile: dict[str, Any] = {
+        'driver': 'GTiff', 'width': width, 'height': height, 'count': count, 'dtype': 'uint8',
+        'interleave': 'pixel', 'photometric': 'RGB' if colour == 3 else 'MINISBLACK', 'BIGTIFF': 'IF_SAFER',
+    }
+    if raster is not None:
+        from rasterio.crs import CRS
+        from rasterio.transform import Affine
+
+        profile.update(crs=CRS.from_epsg(raster.epsg), transform=Affine.from_gdal(*raster.geotransform))
+    if compress and compress.lower() != 'none':
+        profile.update(compress=compress, predictor=2)
+    if has_alpha:
+        profile['alpha'] = 'YES'
+    if tiled:
+        profile.update(tiled=True, blockxsize=block_px, blockysize=block_px)
+    return profile
+
+
+@contextmanager
+def _gdal_env() -> Iterator[None]:
+    """GDAL settings of the writers: a bounded block cache, no .aux.xml sidecars."""
+    import rasterio
+
+    with rasterio.Env(GDAL_CACHEMAX=GDAL_CACHE_BYTES, GDAL_PAM_ENABLED='NO'), warnings.catch_warnings():
+        from rasterio.errors import NotGeoreferencedWarning
+
+        warnings.simplefilter('ignore', NotGeoreferencedWarning)
+        yield
+
+
+def _write_strips(dst: Any, first: tuple[int, np.ndarray], strips: Iterator[Strip],  # noqa: ANN401
+                  height: int, width: int, coverage_given: bool) -> None:
+    """Write band strips (count, rows, W) in order; check that they tile rows 0 .. height exactly."""
+    from rasterio.windows import Window
+
+    row, bands = first
+    expected = 0
+    while True:
+        if row != expected or bands.shape[2] != width or row + bands.shape[1] > height:
+            msg = (f'strip at row {row} of {bands.shape[1]}x{bands.shape[2]} px does not continue the raster '
+                   f'({height}x{width} px, next row {expected}); strips must be contiguous, top to bottom.')
+            raise ValueError(msg)
+        dst.write(bands, window=Window(0, row, width, bands.shape[1]))
+        expected = row + bands.shape[1]
+        item = next(strips, None)
+        if item is None:
+            break
+        if (item[2] is not None) != coverage_given:
+            msg = 'every strip must come with a coverage mask, or none may.'
+            raise ValueError(msg)
+        row, bands = item[0], _bands(item[1], item[2])[0]
+
+    if expected != height:
+        msg = f'the strips end at row {expected} of {height}: the raster would be incomplete.'
+        raise ValueError(msg)
+
+
+def _chunked(strips: Iterable[Strip], rows: int) -> Iterator[Strip]:
+    """The strips cut into pieces of at most ``rows`` rows (views), so that the uint8 conversion's
+    float temporaries stay small whatever the strips' height."""
+    for row, image, coverage in strips:
+        for r in range(0, max(len(image), 1), rows):
+            yield row + r, image[r:r + rows], None if coverage is None else coverage[r:r + rows]
+
+
+def write_geotiff_blocks(path: str | os.PathLike[str], strips: Iterable[Strip], raster: GeoRaster | None,
+                         height: int, width: int, *, block_px: int = MOSAIC_BLOCK_PX, tiled: bool = True,
+                         overviews: bool = True, compress: str = 'deflate') -> None:
+    """Write a GeoTIFF strip by strip, atomically.
+
+    Args:
+        path: output file (.tif); it appears only once complete (temporary name, then a rename):
+            an exception or a kill mid-way leaves no file under this name.
+        strips: ``(row, image, coverage)`` in order top to bottom, together rows 0 .. height - 1:
+            image (rows, W) grey, (rows, W, 3) RGB (or with an alpha channel, as write_geotiff),
+            uint8, uint16 or float in [0, 1]; coverage (rows, W) bool (False: transparent) or
+            None. ``TiledCanvas.render_blocks`` yields exactly these.
+        raster: the grid (CRS, gsd) of pixel (0, 0); None writes a TIFF without georeferencing.
+        height, width: the raster's size in pixels.
+        block_px: tile side when tiled (a multiple of 16); strips of a multiple of block_px rows
+            complete whole tile rows, which GDAL then compresses and writes out.
+        tiled, overviews: tiled layout; internal overviews (average, factors of overview_factors).
+        compress: GDAL compression (deflate, lzw, none).
+
+    Memory: one strip, the uint8 conversion of CONVERT_ROWS of its rows, and GDAL's cache
+    (GDAL_CACHE_BYTES); overviews are built by GDAL from the file, in blocks.
+    """
+    import rasterio
+    from rasterio.enums import ColorInterp, Resampling
+
+    if height < 1 or width < 1:
+        msg = f'a GeoTIFF needs at least one pixel, got {height}x{width}; is the mosaic empty?'
+        raise ValueError(msg)
+    if block_px < 16 or block_px % 16:
+        msg = f'block_px must be a positive multiple of 16 (a TIFF requirement), got {block_px}.'
+        raise ValueError(msg)
+    it = _chunked(strips, CONVERT_ROWS)
+    head = next(it, None)
+    if head is None:
+        msg = f'no strips to write for a {height}x{width} raster.'
+        raise ValueError(msg)
+    bands, has_alpha = _bands(head[1], head[2])
+    count = bands.shape[0]
+    colour = count - int(has_alpha)
+    profile = _profile(width, height, count, has_alpha, raster, tiled=tiled, block_px=block_px, compress=compress)
+    interp = [ColorInterp.red, ColorInterp.green, ColorInterp.blue] if colour == 3 else [ColorInterp.gray] * colour
+    if has_alpha:
+        interp.append(ColorInterp.alpha)
+    with atomic_path(path) as tmp, _gdal_env():
+        os.unlink(tmp)  # GDAL creates the file itself
+        with rasterio.open(tmp, 'w', **profile) as dst:
+            _write_strips(dst, (head[0], bands), it, height, width, head[2] is not None)
+            del bands, head
+            dst.colorinterp = interp
+            tags = {'SOFTWARE': 'srmosaic_ros'}
+            if raster is not None:
+                tags['GSD_M_PER_PX'] = f'{raster.gsd_m_per_px:.6g}'
+            dst.update_tags(**tags)
+            factors = overview_factors(height, width, block_px) if overviews else []
+            if factors:
+                dst.build_overviews(factors, Resampling.average)
+                dst.update_tags(ns='rio_overview', resampling='average')
+
+
 def write_geotiff(path: str | os.PathLike[str], image: np.ndarray, raster: GeoRaster, *,
                   coverage: np.ndarray | None = None, tiled: bool | None = None, overviews: bool | None = None,
                   compress: str = 'deflate') -> None:
@@ -78,46 +240,59 @@ def write_geotiff(path: str | os.PathLike[str], image: np.ndarray, raster: GeoRa
         raster: the grid (CRS, gsd, pixel (0, 0) centre) of image pixel (0, 0).
         coverage: (H, W) bool, False where nothing was painted (transparent); combined with an
             alpha channel if the image has one.
-        tiled, overviews: default True when a side exceeds ``TILED_ABOVE_PX``.
+        tiled, overviews: default True when a side exceeds ``TILED_ABOVE_PX`` (256 x 256 tiles).
         compress: GDAL compression (deflate, lzw, none).
     """
-    import rasterio
-    from rasterio.crs import CRS
-    from rasterio.enums import ColorInterp, Resampling
-    from rasterio.transform import Affine
-
-    bands, has_alpha = _bands(image, coverage)
-    count, height, width = bands.shape
+    img = np.asarray(image)
+    if img.ndim not in (2, 3):
+        msg = f'write_geotiff takes (H, W) or (H, W, C) images, not {img.shape}.'
+        raise ValueError(msg)
+    height, width = img.shape[:2]
     big = max(height, width) > TILED_ABOVE_PX
-    tiled = big if tiled is None else tiled
-    overviews = big if overviews is None else overviews
-    colour = count - int(has_alpha)
-    profile: dict[str, object] = {
-        'driver': 'GTiff', 'width': width, 'height': height, 'count': count, 'dtype': 'uint8',
-        'crs': CRS.from_epsg(raster.epsg), 'transform': Affine.from_gdal(*raster.geotransform),
-        'interleave': 'pixel', 'photometric': 'RGB' if colour == 3 else 'MINISBLACK', 'BIGTIFF': 'IF_SAFER',
-    }
-    if compress and compress.lower() != 'none':
-        profile.update(compress=compress, predictor=2)
-    if has_alpha:
-        profile['alpha'] = 'YES'
-    if tiled:
-        profile.update(tiled=True, blockxsize=_BLOCK_PX, blockysize=_BLOCK_PX)
-    interp = [ColorInterp.red, ColorInterp.green, ColorInterp.blue] if colour == 3 else [ColorInterp.gray]
-    if has_alpha:
-        interp.append(ColorInterp.alpha)
-    with atomic_path(path) as tmp:
-        os.unlink(tmp)  # GDAL creates the file itself
-        with rasterio.open(tmp, 'w', **profile) as dst:
-            dst.write(bands)
-            dst.colorinterp = interp
-            dst.update_tags(SOFTWARE='srmosaic_ros', GSD_M_PER_PX=f'{raster.gsd_m_per_px:.6g}')
-            if overviews:
-                factors = []
-                f = 2
-                while max(height, width) / f >= _BLOCK_PX / 2:
-                    factors.append(f)
-                    f *= 2
-                if factors:
-                    dst.build_overviews(factors, Resampling.average)
-                    dst.update_tags(ns='rio_overview', resampling='average')
+    write_geotiff_blocks(path, [(0, img, coverage)], raster, height, width, block_px=_BLOCK_PX,
+                         tiled=big if tiled is None else tiled, overviews=big if overviews is None else overviews,
+                         compress=compress)
+
+
+def _grey_alpha_as_rgba_vrt(src: Path, width: int, height: int) -> str:
+    """VRT XML presenting a grey+alpha raster as RGBA (band 1 as red, green and blue; band 2 as alpha)."""
+    def band(n: int, interp: str, source_band: int) -> str:
+        return (f'<VRTRasterBand dataType="Byte" band="{n}"><ColorInterp>{interp}</ColorInterp>'
+                f'<SimpleSource><SourceFilename relativeToVRT="0">{src}</SourceFilename>'
+                f'<SourceBand>{source_band}</SourceBand>'
+                f'<SrcRect xOff="0" yOff="0" xSize="{width}" ySize="{height}"/>'
+                f'<DstRect xOff="0" yOff="0" xSize="{width}" ySize="{height}"/></SimpleSource></VRTRasterBand>')
+
+    bands = band(1, 'Red', 1) + band(2, 'Green', 1) + band(3, 'Blue', 1) + band(4, 'Alpha', 2)
+    return f'<VRTDataset rasterXSize="{width}" rasterYSize="{height}">{bands}</VRTDataset>'
+
+
+def png_from_geotiff(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> None:
+    """mosaic.png from a GeoTIFF written by this module, streamed by GDAL's PNG CreateCopy, atomically.
+
+    The PNG has the TIFF's pixels: RGB(A) as is, grey as grey, grey+alpha as RGBA with the grey
+    repeated (the layout of ``mosaic_files.write_png``). No georeferencing is carried over (no
+    .aux.xml, no world file): mosaic.tif and mosaic.kml carry it. Memory: GDAL's cache
+    (GDAL_CACHE_BYTES), which holds a row of the source's blocks as the scanlines are read.
+    """
+    import rasterio
+    import rasterio.shutil
+    from rasterio.enums import ColorInterp
+    from rasterio.io import MemoryFile
+
+    src = Path(src).resolve()
+    with _gdal_env():
+        with rasterio.open(src) as ds:
+            if ds.dtypes[0] != 'uint8' or ds.count not in (1, 2, 3, 4):
+                msg = f'{src}: png_from_geotiff takes 1 to 4 uint8 bands, not {ds.count} {ds.dtypes[0]}.'
+                raise ValueError(msg)
+            grey_alpha = ds.count == 2 and ds.colorinterp[1] == ColorInterp.alpha
+            width, height = ds.width, ds.height
+        with atomic_path(dst) as tmp:
+            os.unlink(tmp)  # GDAL creates the file itself
+            if grey_alpha:
+                with MemoryFile(_grey_alpha_as_rgba_vrt(src, width, height).encode(), ext='vrt') as mem, \
+                        mem.open() as vrt:
+                    rasterio.shutil.copy(vrt, tmp, driver='PNG', ZLEVEL=PNG_ZLEVEL)
+            else:
+                rasterio.shutil.copy(src, tmp, driver='PNG', ZLEVEL=PNG_ZLEVEL)
