@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .config import PipelineConfig
+from .malloc_tuning import HeapTrimmer
 from .core.image_ops import to_float01
 from .core.mosaic.segments import Segment
 from .core.mosaic.keyframe import KeyframeResult, corner_shift_px, render_view
@@ -108,6 +109,7 @@ class Pipeline:
         self._waiting: list[Frame] = []
         self.camera: CameraIntrinsics | None = None
         self._latest_telemetry_ns: int | None = None
+        self._heap = HeapTrimmer()  # long runs: return freed heap pages (malloc_tuning.py)
 
     # -- input -------------------------------------------------------------------------------
     def feed(self, item: Frame | GeoFix | ImuSample | CameraIntrinsics) -> list[FrameRecord]:
@@ -290,6 +292,7 @@ class Pipeline:
                 record.reason = record.reason or reg.reason
                 self._orphan = held
         record.time_s = time.perf_counter() - t0
+        self._heap.tick()
         return decided
 
     def _try_new_segment(self, held: _Held) -> bool:
