@@ -95,7 +95,7 @@ class GeorefConfig:
     ut_kappa: float = 0.0
     gsd_m_per_px: float = float('nan')       # raster ground sampling; NaN: the first frame's GSD
     drift_chain_sigma_px: float = 0.3        # drift control: random walk of chained corners per frame
-    drift_pose_correlation_frames: float = 10.0  # drift control: frames over which pose errors stay correlated
+    drift_pose_correlation_frames: float = 4.0   # drift control: frames over which pose errors stay correlated
     history_frames: int = 20000              # filter moments kept for smoothed_poses() (0: none)
 
     def __post_init__(self) -> None:
