@@ -31,7 +31,7 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
         ('share/' + PACKAGE, ['package.xml']),
-        ('share/' + PACKAGE + '/params', glob('params/*.yaml')),
+        ('share/' + PACKAGE + '/params', glob('params/*.yaml') + glob('params/*.xml')),
     ],
     install_requires=INSTALL_REQUIRES,
     extras_require={
