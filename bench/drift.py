@@ -35,6 +35,8 @@ CONFIGS = {
 def _params(path: Path, sections: dict) -> Path:
     lines = ['/**:', '  ros__parameters:']
     for section, values in sections.items():
+        if not values:
+            continue
         lines.append(f'    {section}:')
         lines += [f'      {k}: {str(v).lower() if isinstance(v, bool) else v}' for k, v in values.items()]
     path.write_text('\n'.join(lines) + '\n')
