@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseWithCovarianceStamped
@@ -73,6 +74,14 @@ class MosaicNode(Node):
         if not 1 <= queue_size <= 100 or not 0.05 <= period <= 3600:
             msg = f'live.queue_size must be in 1..100 and live.preview_period_s in 0.05..3600 (got {queue_size}, {period}).'
             raise SrMosaicError(msg)
+        threads = int(self.get_parameter('live.torch_threads').value)
+        if not 0 <= threads <= 256:
+            msg = f'live.torch_threads must be in 0..256 (0: one per core), got {threads}.'
+            raise SrMosaicError(msg)
+        if threads:
+            # Process-wide: intra-op threads beyond the cores left free by DDS and the executor
+            # only contend with them (bench/live.py: 32 ms per frame with 1 thread, 38 ms with 2).
+            torch.set_num_threads(threads)
         self.georef_standalone = bool(self.get_parameter('live.georef_standalone').value)
         if self.georef_standalone:  # the georef node fuses telemetry; the mosaic stays in the frame plane
             config = dataclasses.replace(config, georef_enabled=False)

@@ -37,6 +37,7 @@ _RANGES: dict[str, tuple[float, float]] = {
     'mosaic.preview_max_side_px': (16, 16384),
     'mosaic.max_tiles_in_memory': (0, 1000000),
     'live.queue_size': (1, 100),
+    'live.torch_threads': (0, 256),
     'live.preview_period_s': (0.05, 3600.0),
     'live.sr_period_s': (0.1, 3600.0),
     'live.sr_tiles_per_round': (1, 100),
