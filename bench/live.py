@@ -18,7 +18,8 @@ Layouts (`--graph`, repeatable; default all three):
 
 The mosaic node's own diagnostics are printed too: frames it received (the rest were lost by
 best-effort DDS before reaching it), frames its bounded queue dropped, and its median processing
-time per frame. BENCH_PREVIEW_PERIOD_S (default 1.0) sets live.preview_period_s. Unless --no-fastdds-profile,
+time per frame. BENCH_PREVIEW_PERIOD_S (default 1.0) sets live.preview_period_s; BENCH_ROS_PARAMS adds
+space-separated `name:=value` parameters to every node. Unless --no-fastdds-profile,
 every process uses params/fastdds_large_images.xml (see README, "Live in a ROS 2 graph").
 """
 from __future__ import annotations
@@ -43,6 +44,8 @@ LAYOUTS = ('mosaic', 'combined', 'split')
 def graph_command(layout: str, workdir: Path) -> list[str]:
     base = [sys.executable, '-m', 'srmosaic_ros.cli']
     ros = ['--ros-args', '-p', f'live.preview_period_s:={float(os.environ.get("BENCH_PREVIEW_PERIOD_S", "1.0"))}']
+    for assignment in os.environ.get('BENCH_ROS_PARAMS', '').split():   # e.g. "live.queue_size:=4"
+        ros += ['-p', assignment]
     if layout == 'mosaic':
         return [*base, 'node', 'mosaic', *ros]
     if layout == 'combined':
