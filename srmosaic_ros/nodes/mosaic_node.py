@@ -133,6 +133,7 @@ class MosaicNode(Node):
         if not self.georef_standalone:  # else the georef node publishes them (one publisher per graph)
             self.pub_pose = self.create_publisher(PoseWithCovarianceStamped, '/srmosaic/pose', 50)
             self.pub_fix = self.create_publisher(NavSatFix, '/srmosaic/fix', 50)
+        self._preview_thread: threading.Thread | None = None
         self.create_timer(period, self._publish_periodic, callback_group=MutuallyExclusiveCallbackGroup())
         self._worker = threading.Thread(target=self._work, name='srmosaic-mosaic-worker', daemon=True)
         self._worker.start()
@@ -258,6 +259,17 @@ class MosaicNode(Node):
 
     # -- periodic output ------------------------------------------------------------------------
     def _publish_periodic(self) -> None:
+        """Timer: render and publish the preview in a thread of its own (the executor is single-
+        threaded, and rendering a large mosaic takes longer than an image callback may wait); a
+        round still rendering when the next is due is skipped (diagnostics still go out)."""
+        if self._preview_thread is not None and self._preview_thread.is_alive():
+            self.stats['preview_rounds_skipped'] = self.stats.get('preview_rounds_skipped', 0) + 1
+            self.pub_diag.publish(self._diagnostics())
+            return
+        self._preview_thread = threading.Thread(target=self._render_and_publish, name='srmosaic-preview', daemon=True)
+        self._preview_thread.start()
+
+    def _render_and_publish(self) -> None:
         image = coverage = None
         if self._lock.acquire(timeout=2.0):  # the worker holds it per frame; skip a round when busy
             try:
@@ -293,7 +305,7 @@ class MosaicNode(Node):
             'processing_ms_median': f'{np.median(lat):.1f}',
             'processing_ms_p95': f'{np.percentile(lat, 95):.1f}',
         }
-        values.update({k: v for k, v in stats.items() if k.startswith('rejected')})
+        values.update({k: v for k, v in stats.items() if k.startswith(('rejected', 'preview_'))})
         level = DiagnosticStatus.OK
         message = 'registering'
         if rec is not None and not rec.painted:
@@ -315,6 +327,8 @@ class MosaicNode(Node):
             self._stop = True
             self._wake.notify()
         self._worker.join(timeout=60)
+        if self._preview_thread is not None:
+            self._preview_thread.join(timeout=60)
         if self.output_dir:
             with self._lock:
                 result = self.pipeline.finish()
