@@ -7,6 +7,7 @@ import threading
 from typing import Any
 
 import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -15,7 +16,7 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from ..errors import SrMosaicError
 
-__all__ = ['REGISTRATION_LAYOUT', 'RegistrationMsg', 'decode_registration', 'encode_registration',
+__all__ = ['REGISTRATION_LAYOUT', 'diagnostic_array', 'RegistrationMsg', 'decode_registration', 'encode_registration',
            'pose_messages', 'WarnOnce', 'input_qos', 'IMAGE_QOS_DEPTH', 'TELEMETRY_QOS_DEPTH', 'check_range']
 
 IMAGE_QOS_DEPTH = 20
@@ -153,3 +154,14 @@ def check_range(node: Node, name: str, lo: float, hi: float) -> Any:  # noqa: AN
         msg = f'{name} must be a number in {lo}..{hi}, got {value!r}; fix it in your params file or -p {name}:=...'
         raise SrMosaicError(msg)
     return value
+
+
+def diagnostic_array(node: Node, name: str, message: str, values: dict[str, Any], *,
+                     level: bytes = DiagnosticStatus.OK) -> DiagnosticArray:
+    """One DiagnosticStatus (hardware_id 'srmosaic', values as strings) stamped with the node's clock."""
+    status = DiagnosticStatus(level=level, name=name, message=message, hardware_id='srmosaic',
+                              values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
+    out = DiagnosticArray()
+    out.header.stamp = node.get_clock().now().to_msg()
+    out.status = [status]
+    return out

@@ -32,7 +32,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
@@ -44,7 +44,8 @@ from msg_adapters import camera_info_to_intrinsics, imu_to_sample, navsat_to_fix
 from ..core.georef.georeferencer import Georeferencer
 from ..errors import SrMosaicError
 from ..pipeline import SYNC_HOLD_FRAMES
-from .common import TELEMETRY_QOS_DEPTH, RegistrationMsg, WarnOnce, decode_registration, input_qos, pose_messages
+from .common import (TELEMETRY_QOS_DEPTH, RegistrationMsg, WarnOnce, decode_registration, diagnostic_array, input_qos,
+                     pose_messages)
 from .parameters import declare_pipeline_parameters, read_pipeline_config
 
 __all__ = ['GeorefNode', 'main']
@@ -190,13 +191,8 @@ class GeorefNode(Node):
         if self.georef is not None:
             values.update({f'filter skipped: {k}': v for k, v in self.georef.skipped.items()})
         values.update({k: v for k, v in stats.items() if k.startswith('rejected')})
-        status = DiagnosticStatus(level=DiagnosticStatus.OK, name='srmosaic: georeferencing',
-                                  message=f"{values['poses_published']} poses", hardware_id='srmosaic',
-                                  values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
-        out = DiagnosticArray()
-        out.header.stamp = self.get_clock().now().to_msg()
-        out.status = [status]
-        self.pub_diag.publish(out)
+        self.pub_diag.publish(diagnostic_array(self, 'srmosaic: georeferencing', f"{values['poses_published']} poses",
+                                               values))
 
     def finish(self) -> None:
         """Fuse the registrations still waiting for telemetry."""

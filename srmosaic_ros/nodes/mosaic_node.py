@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 import torch
 import rclpy
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
@@ -56,8 +56,8 @@ from ..core.types import Frame
 from ..io.mosaic_files import write_json
 from ..offline import peak_rss_mb, preview_image, write_outputs
 from ..pipeline import FrameRecord, Pipeline
-from .common import (IMAGE_QOS_DEPTH, REGISTRATION_LAYOUT, TELEMETRY_QOS_DEPTH, encode_registration,
-                     pose_messages)
+from .common import (IMAGE_QOS_DEPTH, REGISTRATION_LAYOUT, TELEMETRY_QOS_DEPTH, diagnostic_array,
+                     encode_registration, pose_messages)
 from .parameters import declare_pipeline_parameters, read_pipeline_config
 
 __all__ = ['MosaicNode', 'REGISTRATION_LAYOUT', 'main']
@@ -312,13 +312,7 @@ class MosaicNode(Node):
             level, message = DiagnosticStatus.WARN, f'last frame not registered: {rec.reason}'
         if stats.get('dropped_frames', 0):
             message += f"; {stats['dropped_frames']} frames dropped (falling behind)"
-        status = DiagnosticStatus(level=level, name='srmosaic: registration and mosaic', message=message,
-                                  hardware_id='srmosaic',
-                                  values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
-        out = DiagnosticArray()
-        out.header.stamp = self.get_clock().now().to_msg()
-        out.status = [status]
-        return out
+        return diagnostic_array(self, 'srmosaic: registration and mosaic', message, values, level=level)
 
     # -- shutdown -------------------------------------------------------------------------------
     def finish(self) -> None:

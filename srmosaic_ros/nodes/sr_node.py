@@ -38,7 +38,7 @@ import traceback
 from typing import Any
 
 import numpy as np
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 from sensor_msgs.msg import CompressedImage, Image
@@ -48,7 +48,7 @@ from msg_adapters import SUPPORTED_ENCODINGS, header_to_ns_frame, image_to_rgb_o
 
 from ..errors import SrMosaicError
 from ..sr_live import LiveFrame, LiveFrameStore, SRError, plan_live_tiles, reconstruct_live_tile
-from .common import IMAGE_QOS_DEPTH, WarnOnce, check_range, decode_registration, input_qos
+from .common import IMAGE_QOS_DEPTH, WarnOnce, check_range, decode_registration, diagnostic_array, input_qos
 from .parameters import declare_pipeline_parameters, read_pipeline_config
 
 __all__ = ['SRNode', 'main']
@@ -257,13 +257,8 @@ class SRNode(Node):
             'factor': self.factor,
         }
         values.update({k: v for k, v in stats.items() if k.startswith('rejected')})
-        status = DiagnosticStatus(level=DiagnosticStatus.OK, name='srmosaic: super-resolution',
-                                  message=f"{values['tiles_published']} tiles published", hardware_id='srmosaic',
-                                  values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
-        out = DiagnosticArray()
-        out.header.stamp = self.get_clock().now().to_msg()
-        out.status = [status]
-        return out
+        return diagnostic_array(self, 'srmosaic: super-resolution', f"{values['tiles_published']} tiles published",
+                                values)
 
     def finish(self) -> None:
         """Stop the worker (a tile in progress completes first, up to 60 s)."""
