@@ -292,10 +292,6 @@ class TorchRegistrar:
             return Registration(False, H_feat, n_matches, n_inl, rms_feat, reason, None, time.perf_counter() - t0,
                                 extras)
         cov = None
-        if opt.covariance:
-            c = homography_covariance_ut(H, src, dst, iterations=opt.covariance_iterations)
-            cov = c.covariance.cpu().numpy()
-            extras['sigma_px'] = c.sigma_px
         H_out = H_feat  # noqa: N806
         extras['refined'] = 0.0
         ph = opt.photometric
@@ -323,6 +319,13 @@ class TorchRegistrar:
                     # the demo flight, where the refined corners are within 0.016 px of the truth).
                     cov = res.covariance if scale <= 1.0 else inverse_covariance(res.image_H_template, res.covariance)
                     extras['covariance_from'] = 1.0
+        if opt.covariance and cov is None:
+            # The feature estimate is returned (or the refinement gave no covariance): its UT
+            # covariance from the inlier residuals (eqs. 4.40-4.43). Not computed when the
+            # refinement's own covariance replaces it.
+            c = homography_covariance_ut(H, src, dst, iterations=opt.covariance_iterations)
+            cov = c.covariance.cpu().numpy()
+            extras['sigma_px'] = c.sigma_px
         Ht = torch.as_tensor(H_out, dtype=torch.float64, device=src.device)  # noqa: N806
         rms = float(((transfer_points(Ht, src) - dst) ** 2).sum(-1).mean().sqrt())
         return Registration(True, H_out, n_matches, n_inl, rms, '', cov, time.perf_counter() - t0, extras)
