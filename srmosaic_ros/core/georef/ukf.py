@@ -25,7 +25,8 @@ current pose is extrapolated at constant velocity from the two poses,
 
 Measurement models (updates, each a filterpy ``UnscentedKalmanFilter.update`` with its own hx and
 R; sigma points are regenerated from the current (x, P) before each one, so sequential updates are
-correct):
+correct; the two linear ones, GNSS and IMU orientation, take the Kalman update that the unscented
+one is exactly equal to for a linear hx, computed directly, see PoseUkf._update):
 
 - GNSS fix at time t in [t_prev, t_cur]: the ENU position interpolated linearly between the two
   slots, ``(1 - a) p_prev + a p_cur``, a = (t - t_prev) / (t_cur - t_prev); R = the fix's ENU
@@ -312,7 +313,8 @@ class PoseUkf:
         accel = np.array([p.accel_sigma_h_m_s2, p.accel_sigma_h_m_s2, p.accel_sigma_v_m_s2])
         R_chord = np.diag((accel * bow) ** 2)  # noqa: N806
         R_total = np.asarray(R, dtype=np.float64) + R_chord  # noqa: N806
-        return self._update('position', np.asarray(enu_m, dtype=np.float64), R_total, hx, inflate=(0, 1, 2))
+        return self._update('position', np.asarray(enu_m, dtype=np.float64), R_total, hx, inflate=(0, 1, 2),
+                            linear=_interpolation_matrix(0, a))
 
     def update_attitude(self, stamp_ns: int, rpy_rad: np.ndarray, R: np.ndarray) -> UpdateResult:  # noqa: N803
         """Body attitude (roll, pitch, yaw; rad) at ``stamp_ns`` with covariance R (3, 3) rad^2."""
@@ -325,7 +327,8 @@ class PoseUkf:
         z = pred + wrap_angle(np.asarray(rpy_rad, dtype=np.float64) - pred)
         bow = self._chord_error_s2(stamp_ns)
         R_chord = (self.params.angular_accel_sigma_rad_s2 * bow) ** 2 * np.eye(3)  # noqa: N806
-        return self._update('attitude', z, np.asarray(R, dtype=np.float64) + R_chord, hx, inflate=(3, 4, 5))
+        return self._update('attitude', z, np.asarray(R, dtype=np.float64) + R_chord, hx, inflate=(3, 4, 5),
+                            linear=_interpolation_matrix(3, a))
 
     def _chord_error_s2(self, stamp_ns: int) -> float:
         """(t - t_prev)(t_cur - t) / 2 in s^2: how far a path of unit acceleration strays from the chord
@@ -380,13 +383,23 @@ class PoseUkf:
         return self._gate_cache[dof]
 
     def _update(self, kind: str, z: np.ndarray, R: np.ndarray, hx: Callable[[np.ndarray], np.ndarray],  # noqa: N803
-                *, inflate: tuple[int, ...] | None) -> UpdateResult:
+                *, inflate: tuple[int, ...] | None, linear: np.ndarray | None = None) -> UpdateResult:
+        """Fuse z ~ hx(x) + N(0, R), gated; ``linear``: the matrix M when hx(x) = M x exactly.
+
+        For a linear hx the unscented transform is exact (the sigma points reproduce x and P, so the
+        predicted z is M x, P_zz = M P M^T and P_xz = P M^T), and the update reduces to the Kalman
+        one, computed directly: identical to filterpy's within rounding, and about ten times cheaper
+        (the IMU orientation at 50 to 100 Hz is most of the filter's updates).
+        """
         ukf = self.ukf
         x0, P0 = ukf.x.copy(), ukf.P.copy()  # noqa: N806
         try:
-            ukf.sigmas_f = ukf.points_fn.sigma_points(ukf.x, ukf.P)
-            ukf.update(z, R=_sym(R), hx=hx)
-            d2 = float(ukf.y @ ukf.SI @ ukf.y)
+            if linear is None:
+                ukf.sigmas_f = ukf.points_fn.sigma_points(ukf.x, ukf.P)
+                ukf.update(z, R=_sym(R), hx=hx)
+                d2 = float(ukf.y @ ukf.SI @ ukf.y)
+            else:
+                d2 = _linear_update(ukf, z, _sym(R), linear)
             np.linalg.cholesky(_sym(ukf.P))
         except (np.linalg.LinAlgError, ValueError, FloatingPointError):
             ukf.x, ukf.P = x0, P0
@@ -421,6 +434,30 @@ class PoseUkf:
 
 def _sym(P: np.ndarray) -> np.ndarray:  # noqa: N803
     return 0.5 * (P + P.T)
+
+
+def _interpolation_matrix(first: int, a: float) -> np.ndarray:
+    """(3, STATE_DIM) M with M x = (1 - a) x[first:first+3] + a x[first+6:first+9] (slot interpolation)."""
+    m = np.zeros((3, STATE_DIM))
+    i = np.arange(3)
+    m[i, first + i] = 1.0 - a
+    m[i, first + POSE_DIM + i] = a
+    return m
+
+
+def _linear_update(ukf: UnscentedKalmanFilter, z: np.ndarray, R: np.ndarray, M: np.ndarray) -> float:  # noqa: N803
+    """Kalman update of ukf.x, ukf.P by z = M x + N(0, R), written where filterpy's update writes it
+    (x, P, y, S, SI, K, z); returns the squared Mahalanobis distance of the innovation."""
+    y = z - M @ ukf.x
+    PMt = ukf.P @ M.T  # noqa: N806
+    S = M @ PMt + R  # noqa: N806
+    SI = np.linalg.inv(S)  # noqa: N806
+    K = PMt @ SI  # noqa: N806
+    ukf.x = ukf.x + K @ y
+    ukf.P = ukf.P - K @ S @ K.T
+    ukf.y, ukf.S, ukf.SI, ukf.K, ukf.z = y, S, SI, K, np.array(z, copy=True)
+    ukf.x_post, ukf.P_post = ukf.x.copy(), ukf.P.copy()
+    return float(y @ SI @ y)
 
 
 def _slot_cur_position(x: np.ndarray) -> np.ndarray:
