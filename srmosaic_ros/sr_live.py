@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import collections
 import math
+import os
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -216,4 +217,34 @@ def reconstruct_live_tile(plan: TilePlan, images: Sequence[np.ndarray], seg_H_fr
     return image, SRTilePlacement(segment, plan.x0, plan.y0, plan.width, plan.height, factor), res
 
 
-__all__ += ['SRError']
+def reconstruct_live_tile_image(plan: TilePlan, images: Sequence[np.ndarray], seg_H_frames: Sequence[np.ndarray],  # noqa: N803
+                                factor: int, config: SRConfig, segment: int) -> tuple[np.ndarray, SRTilePlacement, str]:
+    """:func:`reconstruct_live_tile` for a worker process: (tile, placement, the solver's stop reason),
+    leaving the SRResult's tensors in the worker."""
+    image, placement, res = reconstruct_live_tile(plan, images, seg_H_frames, factor, config, segment)
+    return image, placement, str(res.stop_reason)
+
+
+def init_sr_worker_process(torch_threads: int, niceness: int = 10) -> None:
+    """Initializer of the SR worker process: lower priority (SR is background work and must not take
+    the CPU from registration), torch threads, SIGINT left to the parent (which shuts the worker
+    down), and the SR modules imported now rather than at the first tile."""
+    import signal  # noqa: PLC0415
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        os.nice(niceness)
+    except (AttributeError, OSError):
+        pass
+    import torch  # noqa: PLC0415
+
+    if torch_threads > 0:
+        torch.set_num_threads(torch_threads)
+
+
+def sr_worker_ready() -> bool:
+    """A no-op task: submitted once at start so that the worker process is up before the first tile."""
+    return True
+
+
+__all__ += ['SRError', 'init_sr_worker_process', 'reconstruct_live_tile_image', 'sr_worker_ready']

@@ -15,6 +15,7 @@ import threading
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -334,7 +335,8 @@ def test_node_survives_bad_input(ros_env, tmp_path):
 
 
 @pytest.mark.parametrize(('override', 'name'), [('registration.ratio:=3.0', 'ratio'),
-                                                 ('live.sr_frames_kept:=0', 'sr_frames_kept')])
+                                                 ('live.sr_frames_kept:=0', 'sr_frames_kept'),
+                                                 ('live.sr_worker:=fork', 'sr_worker')])
 def test_invalid_parameter_refused_at_start(ros_env, override, name):
     graph = srmosaic('launch', '--ros-args', '-p', override, env=ros_env)
     out, _ = graph.communicate(timeout=60)
@@ -379,3 +381,34 @@ def test_sr_placement_and_live_planning_without_ros():
     store.add_image(20, 'other scene')
     store.add_registration(20, 1, np.eye(3))  # a new segment: the older one's frames go
     assert [f.stamp_ns for f in store.registered()] == [20]
+
+
+def test_sr_worker_process_gives_the_in_process_tile():
+    """live.sr_worker process: a tile reconstructed in a spawned worker process (the SR node's
+    default) is the tile reconstructed in this process; an SRError crosses the process boundary."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    from srmosaic_ros.core.sr import SRConfig
+    from srmosaic_ros.core.sr.scheduler import TilePlan
+    from srmosaic_ros.sr_live import (SRError, init_sr_worker_process, reconstruct_live_tile,
+                                      reconstruct_live_tile_image)
+
+    rng = np.random.default_rng(0)
+    base = cv2.GaussianBlur(rng.uniform(0, 255, (80, 100)).astype(np.float32), (0, 0), 1.5)
+    images = [np.clip(np.roll(base, (k, 2 * k), (0, 1)) + rng.normal(0, 2, base.shape), 0, 255).astype(np.uint8)
+              for k in range(3)]
+    hs = [_translation(10.0 + 2 * k, 20.0 + k) for k in range(3)]
+    plan = TilePlan(32, 32, 32, 32, (0, 1, 2), 3)
+    config = SRConfig(iterations=3)
+    here, place_here, _ = reconstruct_live_tile(plan, images, hs, 2, config, 4)
+    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context('spawn'), initializer=init_sr_worker_process,
+                             initargs=(1,)) as pool:
+        assert pool.submit(os.getpid).result() != os.getpid()
+        there, place_there, stop = pool.submit(reconstruct_live_tile_image, plan, images, hs, 2, config, 4).result()
+        far = TilePlan(5000, 5000, 32, 32, (0, 1, 2), 3)
+        with pytest.raises(SRError):
+            pool.submit(reconstruct_live_tile_image, far, images, hs, 2, config, 4).result()
+    assert place_there == place_here and isinstance(stop, str) and stop
+    assert there.shape == here.shape == (64, 64)
+    assert np.abs(there.astype(int) - here.astype(int)).max() <= 1

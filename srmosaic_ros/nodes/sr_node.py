@@ -27,14 +27,24 @@ frame into the store of registered frames (`live.sr_frames_kept`, newest segment
 reconstructs up to `live.sr_tiles_per_round` of them (core/sr/reconstruct_tile, settings `sr.*`) and
 publishes them. The executor never waits for a reconstruction; a round that is still running when
 the timer fires is skipped (counted as `rounds_skipped_busy`).
+
+Where the reconstruction runs (`live.sr_worker`): `process` (default) hands each tile to a worker
+process (spawned at start, niceness 10, `live.torch_threads` threads), so that SR in the mosaic
+node's process (`srmosaic launch` runs the graph in one process) takes neither the interpreter
+lock nor the CPU from registration; `thread` reconstructs in the worker thread itself (no extra
+process; it competes with registration for the interpreter). A worker process that dies (out of
+memory, killed) is counted and replaced at the next tile.
 """
 from __future__ import annotations
 
 import collections
+import multiprocessing
 import os
 import threading
 import time
 import traceback
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from typing import Any
 
 import numpy as np
@@ -47,7 +57,16 @@ from std_msgs.msg import Float64MultiArray
 from msg_adapters import SUPPORTED_ENCODINGS, header_to_ns_frame, image_to_rgb_or_mono, numpy_to_image
 
 from ..errors import SrMosaicError
-from ..sr_live import LiveFrame, LiveFrameStore, SRError, plan_live_tiles, reconstruct_live_tile
+from ..sr_live import (
+    LiveFrame,
+    LiveFrameStore,
+    SRError,
+    init_sr_worker_process,
+    plan_live_tiles,
+    reconstruct_live_tile,
+    reconstruct_live_tile_image,
+    sr_worker_ready,
+)
 from .common import IMAGE_QOS_DEPTH, WarnOnce, check_range, decode_registration, diagnostic_array, input_qos
 from .parameters import declare_pipeline_parameters, read_pipeline_config
 
@@ -70,6 +89,14 @@ class SRNode(Node):
                    f'{self.config.sr_tiles.min_frames}: no tile could ever be scheduled; raise it.')
             raise SrMosaicError(msg)
         self.factor = int(self.config.sr_tiles.factor)
+        self.worker_kind = str(self.get_parameter('live.sr_worker').value)
+        if self.worker_kind not in ('process', 'thread'):
+            msg = f"live.sr_worker must be 'process' or 'thread', got {self.worker_kind!r}."
+            raise SrMosaicError(msg)
+        self._torch_threads = int(self.get_parameter('live.torch_threads').value)
+        self._pool: ProcessPoolExecutor | None = None
+        if self.worker_kind == 'process':
+            self._pool = self._start_pool()
         self.warn = WarnOnce(self)
         self._store = LiveFrameStore(pending=pending, kept=kept)
         self._store_lock = threading.Lock()
@@ -145,6 +172,29 @@ class SRNode(Node):
         self.pub_diag.publish(self._diagnostics())
 
     # -- worker -----------------------------------------------------------------------------------
+    def _start_pool(self) -> ProcessPoolExecutor:
+        # spawn, not fork: this process runs DDS threads, which a fork would copy half-alive.
+        pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context('spawn'),
+                                   initializer=init_sr_worker_process, initargs=(self._torch_threads,))
+        pool.submit(sr_worker_ready)  # start it now, not at the first tile
+        return pool
+
+    def _reconstruct(self, plan, images, seg_H_frames, segment) -> tuple[np.ndarray, Any, str]:  # noqa: ANN001, N803
+        """(tile, placement, stop reason) in the worker process or, with live.sr_worker thread, here."""
+        if self._pool is None:
+            image, placement, res = reconstruct_live_tile(plan, images, seg_H_frames, self.factor, self.config.sr,
+                                                          segment)
+            return image, placement, str(res.stop_reason)
+        try:
+            return self._pool.submit(reconstruct_live_tile_image, plan, images, seg_H_frames, self.factor,
+                                     self.config.sr, segment).result()
+        except BrokenProcessPool:
+            self.warn('sr worker died', 'the SR worker process died (out of memory or killed); it is restarted '
+                      'and the tile skipped')
+            self._pool.shutdown(wait=False, cancel_futures=True)
+            self._pool = None if self._stop else self._start_pool()
+            raise SRError('the SR worker process died') from None
+
     def _image(self, frame: LiveFrame) -> np.ndarray | None:
         """The frame's pixels (H, W[, 3]) uint8/uint16, decoded on first use and kept decoded."""
         if isinstance(frame.payload, np.ndarray):
@@ -224,9 +274,8 @@ class SRNode(Node):
             if not decoded:
                 continue
             try:
-                image, placement, res = reconstruct_live_tile(
-                    plan, [im for im, _ in decoded], [f.seg_H_frame for _, f in decoded], self.factor,
-                    self.config.sr, segment)
+                image, placement, stop_reason = self._reconstruct(
+                    plan, [im for im, _ in decoded], [f.seg_H_frame for _, f in decoded], segment)
             except SRError as exc:
                 self.warn('sr tile', f'SR tile at ({plan.x0}, {plan.y0}) skipped: {exc}')
                 continue
@@ -237,7 +286,7 @@ class SRNode(Node):
             self._times_s.append(dt)
             self.warn.count('tiles_published')
             self.get_logger().debug(f'SR tile {placement.frame_id()} from {len(used)} frames in {dt:.2f} s '
-                                    f'({res.stop_reason})')
+                                    f'({stop_reason})')
 
     # -- diagnostics, shutdown ------------------------------------------------------------------
     def _diagnostics(self) -> DiagnosticArray:
@@ -255,17 +304,20 @@ class SRNode(Node):
             'tile_s_median': f'{np.median(times):.2f}',
             'tile_s_p95': f'{np.percentile(times, 95):.2f}',
             'factor': self.factor,
+            'worker': self.worker_kind,
         }
         values.update({k: v for k, v in stats.items() if k.startswith('rejected')})
         return diagnostic_array(self, 'srmosaic: super-resolution', f"{values['tiles_published']} tiles published",
                                 values)
 
     def finish(self) -> None:
-        """Stop the worker (a tile in progress completes first, up to 60 s)."""
+        """Stop the worker (a tile in progress completes first, up to 60 s), then its process."""
         with self._wake:
             self._stop = True
             self._wake.notify()
         self._worker.join(timeout=60)
+        if self._pool is not None:
+            self._pool.shutdown(wait=not self._worker.is_alive(), cancel_futures=True)
 
 
 def main(args: list[str] | None = None) -> int:
