@@ -354,3 +354,56 @@ def test_feather_weight_profiles() -> None:
     mask[2, 3] = False
     wm = feather_weight(5, 7, mask=mask)
     assert wm[2, 3] == 0 and wm[2, 2] < sep[2, 2] and wm[0, 0] == pytest.approx(sep[0, 0])
+
+
+# ---------------------------------------------------------------- live preview
+def _block_means(c: TiledCanvas, f: int) -> tuple[np.ndarray, np.ndarray]:
+    """Reference for render_preview: the full feather render, block sums of acc = image * W and of W."""
+    x0, y0, x1, y1 = c.bounds()
+    bx0, by0 = x0 // f * f, y0 // f * f
+    bx1, by1 = -(-x1 // f) * f, -(-y1 // f) * f
+    region = (bx0, by0, bx1, by1)
+    acc_full, w = c._gather(region, ('acc', 'wsum'))  # the feather accumulators, whatever the blend
+    h, wd = (by1 - by0) // f, (bx1 - bx0) // f
+    acc = acc_full.astype(np.float64).reshape(h, f, wd, f, -1).sum(axis=(1, 3))
+    ws = w.astype(np.float64).reshape(h, f, wd, f).sum(axis=(1, 3))
+    out = np.divide(acc, ws[..., None], out=np.zeros_like(acc), where=ws[..., None] > 0)
+    return out, ws > 0
+
+
+@pytest.mark.parametrize(('blend', 'channels', 'in_memory'), [('feather', 3, 0), ('multiband', 1, 2)])
+def test_render_preview_is_the_block_mean_and_incremental(blend: str, channels: int, in_memory: int,
+                                                          tmp_path) -> None:  # noqa: ANN001
+    """render_preview = weighted block means of the feather blend, at the smallest tile-size divisor
+    that fits max_side; after more frames (new tiles, a growing canvas, spilled tiles) it is again
+    exact, though it only re-reads painted tiles."""
+    spill = {'max_tiles_in_memory': in_memory, 'spill_dir': str(tmp_path)} if in_memory else {}
+    c = TiledCanvas(channels, tile_size=64, blend=blend, **spill)
+    frame = texture(60, 80, channels, seed=3)
+    img = frame[:, :, 0] if channels == 1 else frame
+    for k in range(4):
+        c.paint(img, rotation(7.0 * k, 40, 30, 23.0 * k - 10.0, 11.0 * k))
+    for max_side in (400, 60, 17):
+        x0, y0, x1, y1 = c.bounds()
+        f = next(d for d in (1, 2, 4, 8, 16, 32, 64) if max(x1 - x0, y1 - y0) / d <= max_side)
+        prev, cov = c.render_preview(max_side)
+        ref, ref_cov = _block_means(c, f)
+        assert max(prev.shape[:2]) <= max_side and cov.shape == prev.shape[:2]
+        np.testing.assert_array_equal(cov, ref_cov)
+        np.testing.assert_allclose(prev.reshape(ref.shape), ref, atol=2e-5)
+    # Grow the canvas. 1000: the factor stays 1 (only the painted tiles are re-read); 60: it changes.
+    c.render_preview(1000)
+    for k in range(4, 9):
+        c.paint(img, rotation(-5.0 * k, 40, 30, 30.0 * k - 10.0, -9.0 * k))
+    for max_side in (1000, 60, 120):
+        x0, y0, x1, y1 = c.bounds()
+        f = next(d for d in (1, 2, 4, 8, 16, 32, 64) if max(x1 - x0, y1 - y0) / d <= max_side)
+        prev, cov = c.render_preview(max_side)
+        ref, ref_cov = _block_means(c, f)
+        np.testing.assert_array_equal(cov, ref_cov)
+        np.testing.assert_allclose(prev.reshape(ref.shape), ref, atol=2e-5)
+    empty = TiledCanvas(channels, tile_size=64, blend=blend)
+    e, ec = empty.render_preview(100)
+    assert e.size == 0 and ec.size == 0
+    with pytest.raises(CanvasError, match='max_side'):
+        c.render_preview(0)

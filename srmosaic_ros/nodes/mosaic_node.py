@@ -275,7 +275,9 @@ class MosaicNode(Node):
             try:
                 seg = self.pipeline.segments[-1] if self.pipeline.segments else None
                 if seg is not None and not seg.canvas.is_empty:
-                    image, coverage = seg.canvas.render()
+                    # Incremental and reduced: the worker waits for this lock, so its cost must not
+                    # grow with the mosaic (a full render of a long flight takes seconds).
+                    image, coverage = seg.canvas.render_preview(self.config.mosaic.preview_max_side_px)
             finally:
                 self._lock.release()
         if image is not None:

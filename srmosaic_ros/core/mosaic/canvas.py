@@ -193,6 +193,11 @@ class TiledCanvas:
                                 max_in_memory=int(max_tiles_in_memory), spill_dir=spill_dir)
         self._tile_frames: dict[TileKey, int] = {}  # every tile: how many frames wrote into it
         self._touched: set[TileKey] = set()
+        # Incremental preview (render_preview): block sums of every tile at the preview's factor,
+        # recomputed only for tiles painted since the last preview.
+        self._preview_dirty: set[TileKey] = set()
+        self._preview_sums: dict[TileKey, tuple[np.ndarray, np.ndarray]] = {}
+        self._preview_factor = 0
         self._frames = 0
         self._bounds: tuple[int, int, int, int] | None = None
 
@@ -481,6 +486,7 @@ class TiledCanvas:
             touched.append(key)
         del tiles
         self._touched.update(touched)
+        self._preview_dirty.update(touched)
         bbox = (gx0, gy0, gx1, gy1)
         self._bounds = bbox if self._bounds is None else (
             min(gx0, self._bounds[0]), min(gy0, self._bounds[1]),
@@ -573,6 +579,60 @@ class TiledCanvas:
         if self._channels == 1:
             out = out[:, :, 0]
         return out, covered
+
+    def render_preview(self, max_side: int) -> tuple[np.ndarray, np.ndarray]:
+        """A small feather render of the whole canvas for live previews, in time independent of the
+        canvas's size: only tiles painted since the previous call are read.
+
+        The canvas is reduced by the smallest divisor f of the tile size with longer side / f <=
+        ``max_side`` (f = the tile size when none is large enough: the result is then larger than
+        max_side, resize it); preview pixel (i, j) covers mosaic pixels [x0 + f j, x0 + f (j + 1))
+        x [y0 + f i, ...) with (x0, y0) = (bounds x0 // f * f, bounds y0 // f * f), and is the
+        feather blend of that block, ``sum acc / sum W`` over it (the weighted mean: a block half
+        covered shows its covered half, not half its brightness). Returns ``(image, covered)`` as
+        :meth:`render` does (float32 (h, w, C) or (h, w); bool (h, w)); empty arrays for an empty
+        canvas. Multiband canvases preview their feather blend.
+        """
+        self._check_open()
+        if int(max_side) < 1:
+            msg = f'max_side must be a positive integer, got {max_side!r}.'
+            raise CanvasError(msg)
+        c = self._channels
+        if self._bounds is None:
+            empty = np.zeros((0, 0, c) if c > 1 else (0, 0), np.float32)
+            return empty, np.zeros((0, 0), bool)
+        x0, y0, x1, y1 = self._bounds
+        t = self._tile_size
+        need = max(x1 - x0, y1 - y0) / int(max_side)
+        f = next((d for d in range(1, t + 1) if t % d == 0 and d >= need), t)
+        if f != self._preview_factor:
+            self._preview_factor = f
+            self._preview_sums.clear()
+            dirty = set(self._tile_frames)
+        else:
+            dirty = self._preview_dirty
+        n = t // f
+        for key in dirty:
+            tile = self._store.peek(key)
+            if tile is None:
+                continue
+            self._preview_sums[key] = (tile.acc.reshape(n, f, n, f, c).sum(axis=(1, 3), dtype=np.float32),
+                                       tile.wsum.reshape(n, f, n, f).sum(axis=(1, 3), dtype=np.float32))
+        self._preview_dirty = set()
+        gx0, gy0, gx1, gy1 = x0 // f, y0 // f, -(-x1 // f), -(-y1 // f)
+        acc = np.zeros((gy1 - gy0, gx1 - gx0, c), np.float32)
+        wsum = np.zeros((gy1 - gy0, gx1 - gx0), np.float32)
+        for (kx, ky), (a, w) in self._preview_sums.items():
+            ox, oy = kx * n - gx0, ky * n - gy0
+            xs, ys = max(ox, 0), max(oy, 0)
+            xe, ye = min(ox + n, gx1 - gx0), min(oy + n, gy1 - gy0)
+            if xe > xs and ye > ys:
+                acc[ys:ye, xs:xe] += a[ys - oy:ye - oy, xs - ox:xe - ox]
+                wsum[ys:ye, xs:xe] += w[ys - oy:ye - oy, xs - ox:xe - ox]
+        covered = wsum > 0
+        out = np.full(acc.shape, self._background, np.float32)
+        np.divide(acc, wsum[..., None], out=out, where=covered[..., None])
+        return (out[:, :, 0] if c == 1 else out), covered
 
     def render_blocks(self, block_rows: int = 256, region: tuple[int, int, int, int] | None = None,
                       ) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
