@@ -279,7 +279,7 @@ def _detect_octave(levels: torch.Tensor, sigmas: list[float], index: int, opts: 
     flat = resp.reshape(-1)
     base = (s * hr + y) * wr + x
     offs = cached_constant((0, 1, -1, wr, -wr, wr + 1, wr - 1, -wr + 1, -wr - 1, hr * wr, -hr * wr), dev, torch.long)
-    v = flat[base[:, None] + offs[None, :]]   # (K, 11)
+    v = flat.index_select(0, (base[:, None] + offs[None, :]).view(-1)).view(-1, offs.numel())   # (K, 11)
     v0 = v[:, 0]
     dx = 0.5 * (v[:, 1] - v[:, 2])
     dy = 0.5 * (v[:, 3] - v[:, 4])
@@ -480,8 +480,9 @@ def detect(level_image: torch.Tensor, level: int, opts: FeatureOptions) -> Scale
     order = resp.argsort(descending=True)
     octave = torch.cat([torch.full((o.response.numel(),), o.index, device=dev, dtype=torch.long) for o in octs])
     return ScaleSpaceCandidates(
-        level, torch.cat([o.xy for o in octs])[order], torch.cat([o.sub_s for o in octs])[order], octave[order],
-        resp[order], tall, cached_constant(tuple(rows[:-1]), dev), cached_constant(tuple(sizes), dev),
+        level, torch.cat([o.xy for o in octs]).index_select(0, order),
+        torch.cat([o.sub_s for o in octs]).index_select(0, order), octave.index_select(0, order),
+        resp.index_select(0, order), tall, cached_constant(tuple(rows[:-1]), dev), cached_constant(tuple(sizes), dev),
         opts.sigma0, s_per)
 
 

@@ -179,7 +179,8 @@ def make_template(image: torch.Tensor, level: int, *, points: int) -> Photometri
     by, bx = top // wb, top % wb
     d = torch.arange(b * b, device=top.device)
     cand = (by * (b * wc) + bx * b)[None, :] + ((d // b) * wc + d % b)[:, None]          # (b * b, P)
-    vals = mag.view(-1)[cand]
+    # index_select: several times faster than advanced indexing on the CPU.
+    vals = mag.view(-1).index_select(0, cand.view(-1)).view(cand.shape)
     # First arg-max along dim 0 without argmax (slow on the CPU): largest (b*b - d) where vals is max.
     rank = (b * b - d)[:, None]
     k = b * b - (rank * (vals == vals.amax(0, keepdim=True))).amax(0)
@@ -189,11 +190,12 @@ def make_template(image: torch.Tensor, level: int, *, points: int) -> Photometri
     s = max(w, h) / 2.0
     xn = (x.to(torch.float32) - (w - 1) / 2.0) / s
     yn = (y.to(torch.float32) - (h - 1) / 2.0) / s
-    tx = gx.reshape(-1)[lin] * s
-    ty = gy.reshape(-1)[lin] * s
+    tx = gx.reshape(-1).index_select(0, lin).mul_(s)
+    ty = gy.reshape(-1).index_select(0, lin).mul_(s)
     proj = tx * xn + ty * yn
     sd = torch.stack([tx * xn, tx * yn, tx, ty * xn, ty * yn, ty, -proj * xn, -proj * yn], 0)
-    return PhotometricTemplate(level, (w, h), torch.stack([xn, yn, torch.ones_like(xn)], 0), img.reshape(-1)[lin], sd,
+    return PhotometricTemplate(level, (w, h), torch.stack([xn, yn, torch.ones_like(xn)], 0),
+                               img.reshape(-1).index_select(0, lin), sd,
                                norm_from_full, grid_from_norm)
 
 
