@@ -76,7 +76,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter, unscented_transform
+from scipy.spatial.transform import Rotation
 from scipy.special import chdtri
 
 from .frames import (
@@ -347,8 +348,12 @@ class PoseUkf:
             r_cur = R_enu_from_body(x[9], x[10], x[11])
             return rotvec_from_matrix(r_prev.T @ r_cur)
 
+        def hx_batch(xs: np.ndarray) -> np.ndarray:   # hx of every row of xs (N, STATE_DIM) at once
+            r = np.swapaxes(_R_enu_from_body_batch(xs[:, 3:6]), 1, 2) @ _R_enu_from_body_batch(xs[:, 9:12])
+            return Rotation.from_matrix(r).as_rotvec()
+
         return self._update('rotation', np.asarray(rotvec_body, dtype=np.float64), np.asarray(R, dtype=np.float64),
-                            hx, inflate=None)
+                            hx, inflate=None, hx_batch=hx_batch)
 
     def homography_model(self, K: np.ndarray, mount: CameraMount,  # noqa: N803
                          corners: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
@@ -366,6 +371,35 @@ class PoseUkf:
 
         return hx
 
+    def homography_model_batch(self, K: np.ndarray, mount: CameraMount,  # noqa: N803
+                               corners: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+        """:meth:`homography_model` for every row of xs (N, STATE_DIM) at once -> (N, 2 corners).
+
+        The same 4.28: prev_H_cur = K R_prev^T (I - (C_cur - C_prev) n^T / d) R_cur K^-1 with
+        R = R_enu_from_cam, d = C_cur,z - g, n = (0, 0, 1) (scale left out: the corners are
+        dehomogenised)."""
+        K = np.asarray(K, dtype=np.float64)  # noqa: N806
+        K_inv = np.linalg.inv(K)  # noqa: N806
+        pts = np.c_[np.asarray(corners, dtype=np.float64), np.ones(len(corners))]          # (M, 3)
+        R_bc = R_body_from_cam(mount.gimbal_azimuth_rad, mount.gimbal_elevation_rad)  # noqa: N806
+        lever = np.asarray(mount.lever_arm_body_m, dtype=np.float64)
+
+        def hx_batch(xs: np.ndarray) -> np.ndarray:
+            r_eb_prev, r_eb_cur = _R_enu_from_body_batch(xs[:, 3:6]), _R_enu_from_body_batch(xs[:, 9:12])
+            c_prev = xs[:, 0:3] + r_eb_prev @ lever
+            c_cur = xs[:, 6:9] + r_eb_cur @ lever
+            d = c_cur[:, 2] - xs[:, GROUND]
+            if np.any(np.abs(d) < 1e-12):
+                msg = 'camera 1 lies on the ground plane; the plane-induced homography is undefined.'
+                raise ValueError(msg)
+            plane = np.broadcast_to(np.eye(3), (len(xs), 3, 3)).copy()
+            plane[:, :, 2] -= (c_cur - c_prev) / d[:, None]                # I - (C1 - C2) n^T / d
+            H = K @ np.swapaxes(r_eb_prev @ R_bc, 1, 2) @ plane @ (r_eb_cur @ R_bc) @ K_inv  # noqa: N806
+            q = pts @ np.swapaxes(H, 1, 2)                                  # (N, M, 3)
+            return (q[:, :, :2] / q[:, :, 2:3]).reshape(len(xs), -1)
+
+        return hx_batch
+
     def update_homography(self, prev_H_cur: np.ndarray, R_corners: np.ndarray, K: np.ndarray,  # noqa: N803
                           mount: CameraMount, corners: np.ndarray) -> UpdateResult:
         """A registration prev_H_cur (current -> previous frame pixels) of the two frames in the state.
@@ -374,7 +408,8 @@ class PoseUkf:
         """
         z = apply_H(np.asarray(prev_H_cur, dtype=np.float64), np.asarray(corners, dtype=np.float64)).ravel()
         hx = self.homography_model(K, mount, corners)
-        return self._update('homography', z, R_corners, hx, inflate=None)
+        return self._update('homography', z, R_corners, hx, inflate=None,
+                            hx_batch=self.homography_model_batch(K, mount, corners))
 
     # -- internals -----------------------------------------------------------------------------
     def _gate(self, dof: int) -> float:
@@ -383,18 +418,25 @@ class PoseUkf:
         return self._gate_cache[dof]
 
     def _update(self, kind: str, z: np.ndarray, R: np.ndarray, hx: Callable[[np.ndarray], np.ndarray],  # noqa: N803
-                *, inflate: tuple[int, ...] | None, linear: np.ndarray | None = None) -> UpdateResult:
+                *, inflate: tuple[int, ...] | None, linear: np.ndarray | None = None,
+                hx_batch: Callable[[np.ndarray], np.ndarray] | None = None) -> UpdateResult:
         """Fuse z ~ hx(x) + N(0, R), gated; ``linear``: the matrix M when hx(x) = M x exactly.
 
         For a linear hx the unscented transform is exact (the sigma points reproduce x and P, so the
         predicted z is M x, P_zz = M P M^T and P_xz = P M^T), and the update reduces to the Kalman
         one, computed directly: identical to filterpy's within rounding, and about ten times cheaper
-        (the IMU orientation at 50 to 100 Hz is most of the filter's updates).
+        (the IMU orientation at 50 to 100 Hz is most of the filter's updates). ``hx_batch``: hx of
+        all sigma points at once (N, STATE_DIM) -> (N, m); the unscented update is then filterpy's,
+        step for step (its sigma points, weights and unscented_transform), without its per-point
+        Python loop (the homography and gyro models, once per frame each).
         """
         ukf = self.ukf
         x0, P0 = ukf.x.copy(), ukf.P.copy()  # noqa: N806
         try:
-            if linear is None:
+            if linear is None and hx_batch is not None:
+                ukf.sigmas_f = ukf.points_fn.sigma_points(ukf.x, ukf.P)
+                d2 = _batch_update(ukf, z, _sym(R), hx_batch)
+            elif linear is None:
                 ukf.sigmas_f = ukf.points_fn.sigma_points(ukf.x, ukf.P)
                 ukf.update(z, R=_sym(R), hx=hx)
                 d2 = float(ukf.y @ ukf.SI @ ukf.y)
@@ -443,6 +485,42 @@ def _interpolation_matrix(first: int, a: float) -> np.ndarray:
     m[i, first + i] = 1.0 - a
     m[i, first + POSE_DIM + i] = a
     return m
+
+
+def _R_enu_from_body_batch(rpy: np.ndarray) -> np.ndarray:  # noqa: N802
+    """(N, 3, 3) frames.R_enu_from_body of each row (roll, pitch, yaw) of rpy (N, 3): Rz Ry Rx."""
+    cr, cp, cy = np.cos(rpy).T
+    sr, sp, sy = np.sin(rpy).T
+    out = np.empty((len(rpy), 3, 3))
+    out[:, 0, 0] = cy * cp
+    out[:, 0, 1] = cy * sp * sr - sy * cr
+    out[:, 0, 2] = cy * sp * cr + sy * sr
+    out[:, 1, 0] = sy * cp
+    out[:, 1, 1] = sy * sp * sr + cy * cr
+    out[:, 1, 2] = sy * sp * cr - cy * sr
+    out[:, 2, 0] = -sp
+    out[:, 2, 1] = cp * sr
+    out[:, 2, 2] = cp * cr
+    return out
+
+
+def _batch_update(ukf: UnscentedKalmanFilter, z: np.ndarray, R: np.ndarray,  # noqa: N803
+                  hx_batch: Callable[[np.ndarray], np.ndarray]) -> float:
+    """filterpy's UnscentedKalmanFilter.update with the sigma points mapped by hx_batch in one call
+    (and the cross-covariance as one product); writes x, P, sigmas_h, S, SI, K, y, z as it does.
+    Returns the squared Mahalanobis distance of the innovation."""
+    ukf.sigmas_h = np.atleast_2d(hx_batch(ukf.sigmas_f))
+    zp, ukf.S = unscented_transform(ukf.sigmas_h, ukf.Wm, ukf.Wc, R, ukf.z_mean, ukf.residual_z)
+    ukf.SI = ukf.inv(ukf.S)
+    # P_xz = sum_i Wc_i (chi_i - x)(Z_i - z)^T (filterpy's cross_variance, default residuals)
+    pxz = (ukf.Wc[:, None] * (ukf.sigmas_f - ukf.x)).T @ (ukf.sigmas_h - zp)
+    ukf.K = pxz @ ukf.SI
+    ukf.y = ukf.residual_z(z, zp)
+    ukf.x = ukf.state_add(ukf.x, ukf.K @ ukf.y)
+    ukf.P = ukf.P - ukf.K @ ukf.S @ ukf.K.T
+    ukf.z = np.array(z, copy=True)
+    ukf.x_post, ukf.P_post = ukf.x.copy(), ukf.P.copy()
+    return float(ukf.y @ ukf.SI @ ukf.y)
 
 
 def _linear_update(ukf: UnscentedKalmanFilter, z: np.ndarray, R: np.ndarray, M: np.ndarray) -> float:  # noqa: N803
