@@ -25,8 +25,12 @@ Estimators of the body position at each frame, against the simulator's truth:
   Georeferencer.smoothed_poses).
 
 Mosaics (frames -> north-up UTM raster at the frame GSD): chained only (no drift control), each
-frame placed by its fused pose, the chain corrected by Georeferencer.correct (drift control, live),
-and the same with the smoothed poses (offline).
+frame placed by its fused pose, the chain corrected by Georeferencer.correct (drift control, live:
+a Kalman filter of the chain's corner error, the anchor's similarity error and the pose error, a
+Gauss-Markov process whose time constants come from the filter's information rate and the frame
+spacing, see core/georef/drift.py; the live canvas keeps the anchor's offset, rotation and scale
+error, hence its larger "georef RMS" before re-anchoring), and the same with the smoothed poses
+(offline).
 Figures: geometric error (the project's metric: per-frame mean corner error after the best global
 homography to the truth, RMS over frames and at the last frame), seam error between consecutive
 frames (px), closure between legs (px: the same ground point placed by two frames of different
@@ -36,7 +40,7 @@ Writes bench/out/georef_trajectories.png (the three trajectories and the truth),
 for each flight bench/out/<flight>/{mosaic.tif, mosaic.png, mosaic.kml, poses.csv} (offline
 products: smoothed poses, drift-controlled placement).
 
-    python bench/georef.py [--quick] [--seed 0] [--sigma-px S] [--out bench/out]
+    python bench/georef.py [--quick] [--seed 0] [--sigma-px S] [--pose-time-constant S] [--out bench/out]
 """
 from __future__ import annotations
 
@@ -207,7 +211,7 @@ def chain_only(georef: Georeferencer, flight: SimulatedFlight, regs: list) -> tu
 
 
 def drift_controlled(georef: Georeferencer, poses: list[FramePose], regs: list) -> list[np.ndarray]:
-    georef.reset_drift()
+    georef.reset_drift(new_canvas=True)
     placed = [georef.correct(georef.raster_H_frame(poses[0]), poses[0])]
     for pose, reg in zip(poses[1:], regs[1:]):
         placed.append(georef.correct(placed[-1] @ reg[0], pose, chain_sigma_px=georef.corner_sigma_px(*reg)))
@@ -351,13 +355,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument('--seed', type=int, default=0)
     ap.add_argument('--sigma-px', type=float, default=None,
                     help="corner noise of the registrations (default: calibrated on the pipeline's registrar)")
-    ap.add_argument('--correlation', type=float, default=None,
-                    help='georef.drift_pose_correlation_frames (default: the GeorefConfig default)')
+    ap.add_argument('--pose-time-constant', type=float, default=None, metavar='S',
+                    help='georef.drift_pose_time_constant_s (default: NaN, from the filter; 0: poses independent '
+                         'from frame to frame)')
     ap.add_argument('--out', type=Path, default=ROOT / 'bench' / 'out')
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.ERROR)
     t_start = time.perf_counter()
-    config = GeorefConfig() if args.correlation is None else GeorefConfig(drift_pose_correlation_frames=args.correlation)
+    config = (GeorefConfig() if args.pose_time_constant is None
+              else GeorefConfig(drift_pose_time_constant_s=args.pose_time_constant))
     results, table = {}, {}
     calibration = None
     for name, opts in FLIGHTS.items():

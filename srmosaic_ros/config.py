@@ -24,6 +24,15 @@ __all__ = ['PipelineConfig', 'default_params_path', 'load_params', 'pipeline_con
 
 DEVICES = ('auto', 'cpu', 'cuda')
 
+#: Keys that were replaced: old dotted name -> (new dotted name, why). Their values cannot be
+#: converted, so a file that still sets one is refused with a message naming the new key.
+REPLACED_KEYS = {
+    'georef.drift_pose_correlation_frames': (
+        'georef.drift_pose_time_constant_s',
+        'drift control now models the pose-error correlation as a time constant in seconds, taken from the '
+        'filter by default (NaN); a number of frames meant a different correlation at every frame rate'),
+}
+
 
 @dataclass(frozen=True)
 class PipelineConfig:
@@ -103,6 +112,10 @@ def pipeline_config(overrides: dict[str, Any] | None = None, *, defaults: dict[s
     """
     flat = dict(defaults if defaults is not None else load_params(default_params_path()))
     for key, value in (overrides or {}).items():
+        if key in REPLACED_KEYS:
+            new, why = REPLACED_KEYS[key]
+            msg = f'parameter {key!r} was replaced by {new!r}: {why}. Remove it or set {new!r} instead.'
+            raise ConfigError(msg)
         if key not in flat:
             known = ', '.join(sorted(flat))
             msg = f'unknown parameter {key!r}; known parameters: {known}.'

@@ -174,7 +174,8 @@ class Pipeline:
         if self.georef.raster is None:
             self.georef.make_raster(pose, camera)
         self.georef.reset_drift()
-        return self.georef.raster_H_frame(pose, camera)
+        # the first drift-control call of a chain anchors it (returned unchanged) with this frame's pose
+        return self.georef.correct(self.georef.raster_H_frame(pose, camera), pose, camera)
 
     def _start_segment(self, held: _Held) -> Segment:
         start = self._georeferenced_start(held)

@@ -39,6 +39,7 @@ from .frames import (
     rotvec_from_matrix,
     rpy_from_R_enu_from_body,
 )
+from .drift import CanvasSimilarity, DriftState, InformationRate, drift_init, drift_step
 from .geodetic import LocalTangentPlane
 from .ground_homography import apply_H, ground_H_image, normalize_H
 from .ukf import GROUND, SLOT_CUR, SLOT_PREV, CameraMount, PoseUkf, UkfParams, corner_jacobian, rts_smooth, wrap_angle
@@ -55,6 +56,8 @@ __all__ = [
 
 _LOG = logging.getLogger(__name__)
 _AFFINE_FIT_HALF_SPAN_M = 3000.0
+#: Span over which the information rate of the absolute measurements is averaged (FramePose.info_rate).
+INFO_RATE_WINDOW_S = 10.0
 
 
 @dataclass(frozen=True)
@@ -95,7 +98,8 @@ class GeorefConfig:
     ut_kappa: float = 0.0
     gsd_m_per_px: float = float('nan')       # raster ground sampling; NaN: the first frame's GSD
     drift_chain_sigma_px: float = 0.3        # drift control: random walk of chained corners per frame
-    drift_pose_correlation_frames: float = 4.0   # drift control: frames over which pose errors stay correlated
+    drift_pose_time_constant_s: float = float('nan')  # drift control: pose-error correlation time (s, >= 0; 0:
+    #                                                  independent poses); NaN: from the filter, see drift.py
     history_frames: int = 20000              # filter moments kept for smoothed_poses() (0: none)
 
     def __post_init__(self) -> None:
@@ -109,7 +113,8 @@ class GeorefConfig:
             'homography_min_sigma_px': self.homography_min_sigma_px >= 0,
             'min_agl_m': self.min_agl_m >= 0,
             'drift_chain_sigma_px': self.drift_chain_sigma_px >= 0,
-            'drift_pose_correlation_frames': self.drift_pose_correlation_frames >= 1,
+            'drift_pose_time_constant_s': math.isnan(self.drift_pose_time_constant_s)
+            or 0.0 <= self.drift_pose_time_constant_s < math.inf,
             'ground_walk_m_per_sqrt_s': self.ground_walk_m_per_sqrt_s >= 0,
             'gyro_sigma_rad_s': self.gyro_sigma_rad_s > 0,
             'gyro_bias_sigma_rad_s': self.gyro_bias_sigma_rad_s >= 0,
@@ -158,7 +163,14 @@ class FramePose:
     m^2 / rad^2; ground_z_m: the ground plane's height in the ENU plane as estimated with this
     pose (the frame's footprint lies on it); camera: the camera pose (mounting applied).
     latitude/longitude in degrees, altitude in metres above the WGS84 ellipsoid. ``valid`` False
-    (no fix yet, frame out of order): NaN pose.
+    (no fix yet, frame out of order): NaN pose. info_rate (6, 6): information per second of the
+    absolute measurements fused before this frame (GNSS positions in the position block, IMU
+    attitudes in the attitude block: the sum of their R^-1 over the last ``INFO_RATE_WINDOW_S``,
+    divided by that span), in the order of ``covariance``; drift control takes the correlation
+    time of the pose errors from it (drift.py). None: not known. ground_covariance (7,): the
+    covariance of ground_z_m with (east, north, up, roll, pitch, yaw) and, last, its variance (the
+    footprint scales with the height above the ground, whose uncertainty is mostly the ground's at
+    first); None: the ground is taken as exact. :attr:`pose_ground_covariance` assembles the two.
     """
 
     stamp_ns: int
@@ -175,6 +187,8 @@ class FramePose:
     fixes_used: int = 0
     imu_used: int = 0
     reason: str = ''
+    info_rate: np.ndarray | None = field(default=None, repr=False)
+    ground_covariance: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def std_enu_m(self) -> np.ndarray:
@@ -188,6 +202,17 @@ class FramePose:
     @property
     def pose6(self) -> np.ndarray:
         return np.r_[self.position_enu_m, self.rpy_rad]
+
+    @property
+    def pose_ground_covariance(self) -> np.ndarray:
+        """(7, 7) joint covariance of (east, north, up, roll, pitch, yaw, ground_z_m); the ground row
+        and column are zero when ground_covariance is not known."""
+        out = np.zeros((7, 7))
+        out[:6, :6] = self.covariance
+        g = self.ground_covariance
+        if g is not None and np.shape(g) == (7,) and np.all(np.isfinite(g)):
+            out[6, :] = out[:, 6] = g
+        return out
 
     @classmethod
     def invalid(cls, stamp_ns: int, reason: str) -> FramePose:
@@ -356,7 +381,11 @@ class Georeferencer:
         self._seq = 0
         self._last_stamp: dict[str, int] = {}
         self._utm_affines: dict[int, np.ndarray] = {}
-        self._drift_var_px2: np.ndarray | None = None
+        self._drift: DriftState | None = None
+        self._canvas: CanvasSimilarity | None = None
+        self._last_info_rate: np.ndarray | None = None
+        # absolute measurements fused (R^-1 of the fixes, of the IMU attitudes) for FramePose.info_rate
+        self._info = {'fix': InformationRate(3, INFO_RATE_WINDOW_S), 'imu': InformationRate(3, INFO_RATE_WINDOW_S)}
 
     @property
     def ground_z_m(self) -> float:
@@ -499,7 +528,8 @@ class Georeferencer:
             if h[0] is None:  # a filter-only step across a gap
                 continue
             old = self.poses[h[0]]
-            out[h[0]] = self._pose_from(x, P, old.stamp_ns, old.homography_used, old.fixes_used, old.imu_used)
+            out[h[0]] = self._pose_from(x, P, old.stamp_ns, old.homography_used, old.fixes_used, old.imu_used,
+                                        old.info_rate)
         return out
 
     def previous_pose(self) -> FramePose | None:
@@ -550,40 +580,52 @@ class Georeferencer:
     def correct(self, raster_H_frame_chained: np.ndarray, pose: FramePose,  # noqa: N803
                 camera: CameraIntrinsics | None = None, raster: GeoRaster | None = None, *,
                 chain_sigma_px: float | None = None) -> np.ndarray:
-        """Drift control: blend a chained frame -> raster homography with the pose-predicted one.
+        """Drift control: fuse a chained frame -> raster homography with the pose-predicted one.
 
-        Each frame corner is a scalar Kalman fusion of two estimates of its raster position: the
-        chained one, whose variance grows by ``chain_sigma_px**2`` per call (the registration's
-        corner noise accumulating along the chain: pass it from the registration's covariance,
-        see :meth:`corner_sigma_px`; default ``drift_chain_sigma_px``) and shrinks with every
-        correction; and the
-        pose-predicted one, whose variance is the fused pose covariance carried to the corner
-        (numerical Jacobian). The corrected homography maps the frame corners exactly onto the
-        blended corners. Feed the result back into the chain (``raster_H_next = corrected @
-        cur_H_next``), so corrections accumulate: low frequencies come from the poses, high
-        frequencies from the registrations. Returns the chained homography unchanged when the
-        pose is not valid. Call :meth:`reset_drift` when a new chain starts.
+        A Kalman filter over the chain's corner error, the canvas's similarity error and the pose
+        error (drift.py has the model and its equations). The chain is precise from frame to
+        frame; its error grows by ``chain_sigma_px`` per call (the registration's corner noise:
+        pass it from the registration's covariance, see :meth:`corner_sigma_px`; default
+        ``drift_chain_sigma_px``) and is carried along the chain. The pose-predicted corners carry
+        the error of the fused pose and ground height (``pose.pose_ground_covariance``; the ground
+        is taken as exact when ``pose.ground_covariance`` is not known), a Gauss-Markov process
+        whose time constants come from the pose filter (``pose.info_rate``: how fast the fixes and
+        attitudes renew it, and how fast the pose's own covariance shrinks) over the actual frame
+        spacing (the stamps), or from ``drift_pose_time_constant_s`` when it is set; plus the
+        flat-ground model error ``homography_min_sigma_px``. The frames are placed in the canvas
+        frame: the raster as the first chain's anchor put it, which differs from the true one by a
+        similarity (offset, rotation, scale; see :attr:`canvas_similarity`) that the offline
+        re-anchoring takes out; drift control does not bend the mosaic to follow it, it corrects
+        the chain's drift and the rest of the anchor error. Slow pose wander is not copied into
+        the mosaic. The corrected homography maps the frame corners exactly onto the filtered
+        corners. Feed the result back into the chain (``raster_H_next = corrected @ cur_H_next``).
+
+        The first call after :meth:`reset_drift` anchors a new chain: the first chain of a canvas
+        where it is (returned unchanged), a later one in the canvas frame (the estimated
+        similarity applied). An invalid pose leaves the chain unchanged (its uncertainty grows).
         """
         chained = normalize_H(np.asarray(raster_H_frame_chained, dtype=np.float64))
-        if not pose.valid or not np.all(np.isfinite(pose.covariance)):
-            return chained
         cam = self._camera(camera)
         corners = _frame_corners(cam)
-        c_chain = apply_H(chained, corners)
-        c_pose, var_pose = self._corner_prediction(pose, cam, corners, raster)
-        if self._drift_var_px2 is None:
-            # A new chain starts where the pose puts it; that anchor's error is common to the whole
-            # segment (a placement error, not drift), so the drift variance starts at zero.
-            self._drift_var_px2 = np.zeros_like(var_pose)
-        step = self.config.drift_chain_sigma_px if chain_sigma_px is None else float(chain_sigma_px)
-        var_chain = self._drift_var_px2 + step**2
-        # Filtered pose errors are correlated from frame to frame (the same fixes and attitude
-        # drive many frames): treating each frame's pose as independent would average noise into
-        # the mosaic as jitter. Count a pose as 1/N of an independent measurement.
-        gain = var_chain / (var_chain + var_pose * self.config.drift_pose_correlation_frames)
-        blended = c_chain + gain[:, None] * (c_pose - c_chain)
-        self._drift_var_px2 = (1.0 - gain) * var_chain
-        return homography_from_corners(corners, blended)
+        cfg = self.config
+        measured = None
+        if pose.valid and np.all(np.isfinite(pose.covariance)):
+            z, J = self._corner_prediction(pose, cam, corners, raster)  # noqa: N806
+            measured = (pose.stamp_ns, z.ravel(), J, pose.pose_ground_covariance)
+        if self._drift is None:
+            if measured is None:
+                return chained
+            self._drift, placed = drift_init(chained, pose.stamp_ns, measured[3], measured[2], corners, self._canvas)
+            self._canvas = self._drift.canvas
+            return placed
+        step = cfg.drift_chain_sigma_px if chain_sigma_px is None else float(chain_sigma_px)
+        info = pose.info_rate if pose.info_rate is not None else self._last_info_rate
+        if info is not None:
+            info = np.pad(np.asarray(info, dtype=np.float64), ((0, 1), (0, 1)))  # nothing measures the ground alone
+        out = drift_step(self._drift, chained, corners, step, measured, model_sigma_px=cfg.homography_min_sigma_px,
+                         info_rate=info, time_constant_s=cfg.drift_pose_time_constant_s)
+        self._canvas = self._drift.canvas
+        return out
 
     def corner_sigma_px(self, prev_H_cur: np.ndarray, covariance: np.ndarray | None,  # noqa: N803
                         camera: CameraIntrinsics | None = None) -> float:
@@ -595,9 +637,19 @@ class Georeferencer:
         J = corner_jacobian(H / H[2, 2], _frame_corners(self._camera(camera)))  # noqa: N806
         return float(math.sqrt(max(np.trace(J @ np.asarray(covariance, dtype=np.float64) @ J.T) / 8.0, 0.0)))
 
-    def reset_drift(self) -> None:
-        """Forget the drift controller's state (a new mosaic segment starts)."""
-        self._drift_var_px2 = None
+    def reset_drift(self, *, new_canvas: bool = False) -> None:
+        """Forget the drift controller's chain (a new mosaic segment starts). The next chain is placed
+        in the same canvas frame (the similarity estimated so far applied to its first placement)
+        unless ``new_canvas``: then it defines a canvas of its own, as the first chain did."""
+        self._drift = None
+        if new_canvas:
+            self._canvas = None
+
+    @property
+    def canvas_similarity(self) -> np.ndarray | None:
+        """(3, 3) the drift controller's estimate of the similarity between the true raster and the
+        canvas frame (true raster pixel -> canvas pixel; see drift.py), or None before a chain."""
+        return None if self._canvas is None else self._canvas.homography
 
     # -- internals -----------------------------------------------------------------------------
     def _skip(self, kind: str, message: str) -> None:
@@ -679,7 +731,27 @@ class Georeferencer:
                        f'(squared Mahalanobis distance {res.mahalanobis2:.1f}) and was not fused')
         elif res.status == 'failed':
             self._skip(f'{kind}_failed', f'{kind} update at {stamp_ns} ns failed numerically and was skipped')
+        if res.accepted:
+            self._add_information(kind, stamp_ns, R)
         return res.accepted
+
+    def _add_information(self, kind: str, stamp_ns: int, R: np.ndarray) -> None:  # noqa: N803
+        """Count an absolute measurement fused (a fix: position block; an attitude: attitude block)."""
+        try:
+            info = np.linalg.inv(0.5 * (R + R.T))
+        except np.linalg.LinAlgError:
+            return
+        self._info[kind].add(stamp_ns, info)
+
+    def information_rate(self, stamp_ns: int) -> np.ndarray:
+        """(6, 6) information per second of the absolute measurements fused before ``stamp_ns``: fixes
+        in the position block, IMU attitudes in the attitude block, each averaged over the last
+        ``INFO_RATE_WINDOW_S`` (see FramePose.info_rate and drift.InformationRate); call it with
+        non-decreasing stamps."""
+        out = np.zeros((6, 6))
+        out[:3, :3] = self._info['fix'].rate(stamp_ns)
+        out[3:, 3:] = self._info['imu'].rate(stamp_ns)
+        return out
 
     def _apply_pending(self) -> tuple[int, int]:
         ukf = self.ukf
@@ -734,6 +806,9 @@ class Georeferencer:
         else:
             ground_var = cfg.nominal_agl_sigma_m**2 + float(fix[4][2, 2])
         self.ukf.initialize(stamp_ns, pose, cov, 0.0, ground_var)
+        self._add_information('fix', fix[0], fix[4])
+        if imus:
+            self._add_information('imu', imu[0], imu[4])
         self._pending = [p for p in self._pending if p[0] > stamp_ns]
         return True
 
@@ -814,11 +889,12 @@ class Georeferencer:
             x[SLOT_CUR] = x[SLOT_PREV]
             P = self.ukf.P.copy()  # noqa: N806
             P[SLOT_CUR, SLOT_CUR] = P[SLOT_PREV, SLOT_PREV]
-            return self._pose_from(x, P, stamp_ns, used_h, n_fix, n_imu)
-        return self._pose_from(x, self.ukf.P, stamp_ns, used_h, n_fix, n_imu)
+            return self._pose_from(x, P, stamp_ns, used_h, n_fix, n_imu, self._last_info_rate)
+        self._last_info_rate = self.information_rate(stamp_ns)
+        return self._pose_from(x, self.ukf.P, stamp_ns, used_h, n_fix, n_imu, self._last_info_rate)
 
     def _pose_from(self, x: np.ndarray, P: np.ndarray, stamp_ns: int, used_h: bool, n_fix: int,  # noqa: N803
-                   n_imu: int) -> FramePose:
+                   n_imu: int, info_rate: np.ndarray | None = None) -> FramePose:
         """FramePose of the current slot of a state (13,) and covariance (13, 13)."""
         assert self.origin is not None
         y = x[SLOT_CUR].copy()
@@ -826,7 +902,8 @@ class Georeferencer:
         lat, lon, alt = self.origin.geodetic_from_enu(y[:3])
         return FramePose(stamp_ns, True, y[:3].copy(), y[3:].copy(), P[SLOT_CUR, SLOT_CUR].copy(), float(lat),
                          float(lon), float(alt), camera=self.mount.camera_pose(y), ground_z_m=float(x[GROUND]),
-                         homography_used=used_h, fixes_used=n_fix, imu_used=n_imu)
+                         homography_used=used_h, fixes_used=n_fix, imu_used=n_imu, info_rate=info_rate,
+                         ground_covariance=np.r_[P[GROUND, SLOT_CUR], P[GROUND, GROUND]])
 
     def _record(self, F: np.ndarray | None, *, virtual: bool = False) -> None:  # noqa: N803
         """Moments right after the predict to a new frame (the pose appended next is that frame's;
@@ -886,27 +963,25 @@ class Georeferencer:
 
     def _corner_prediction(self, pose: FramePose, cam: CameraIntrinsics, corners: np.ndarray,
                            raster: GeoRaster | None) -> tuple[np.ndarray, np.ndarray]:
-        """Raster corners (4, 2) of the frame placed by ``pose`` and their scalar variances (4,) in px^2."""
+        """Raster corners (4, 2) of the frame placed by ``pose`` and their Jacobian (8, 7) with respect
+        to (east, north, up, roll, pitch, yaw, ground_z_m) (numerical), corners flattened x0, y0, x1, ..."""
         raster_H_enu = self.raster_H_enu(raster)  # noqa: N806
-        ground_z = _ground(pose)
 
-        def corners_of(y: np.ndarray) -> np.ndarray:
-            cp = self.mount.camera_pose(y)
+        def corners_of(yg: np.ndarray) -> np.ndarray:
+            cp = self.mount.camera_pose(yg[:6])
             H = raster_H_enu @ ground_H_image(cam.K, cp.R_enu_from_cam, cp.center_enu_m,  # noqa: N806
-                                              ground_z_m=ground_z)
+                                              ground_z_m=float(yg[6]))
             return apply_H(H, corners).ravel()
 
-        y0 = pose.pose6
+        y0 = np.r_[pose.pose6, _ground(pose)]
         c0 = corners_of(y0)
-        steps = np.array([0.1, 0.1, 0.1, 1e-4, 1e-4, 1e-4])
-        J = np.empty((8, 6))  # noqa: N806
+        steps = np.array([0.1, 0.1, 0.1, 1e-4, 1e-4, 1e-4, 0.1])
+        J = np.empty((8, 7))  # noqa: N806
         for i, h in enumerate(steps):
-            dy = np.zeros(6)
+            dy = np.zeros(7)
             dy[i] = h
             J[:, i] = (corners_of(y0 + dy) - corners_of(y0 - dy)) / (2.0 * h)
-        S = J @ pose.covariance @ J.T  # noqa: N806
-        var = 0.5 * (np.diag(S)[0::2] + np.diag(S)[1::2])
-        return c0.reshape(4, 2), np.maximum(var, 1e-6)
+        return c0.reshape(4, 2), J
 
 
 def _ground(pose: FramePose) -> float:
