@@ -30,6 +30,7 @@ from .core.image_ops import to_float01
 from .core.mosaic.segments import Segment
 from .core.mosaic.keyframe import KeyframeResult, corner_shift_px, render_view
 from .core.registration import Features, Registration, make_registrar
+from .core.registration.factory import FallbackRegistrar
 from .core.georef.georeferencer import FramePose, Georeferencer
 from .core.types import CameraIntrinsics, Frame, GeoFix, ImuSample
 
@@ -110,6 +111,7 @@ class Pipeline:
         self.camera: CameraIntrinsics | None = None
         self._latest_telemetry_ns: int | None = None
         self._heap = HeapTrimmer()  # long runs: return freed heap pages (malloc_tuning.py)
+        self._centres: dict[int, list[np.ndarray]] = {}  # segment -> centres of its painted frames (_revisits)
 
     # -- input -------------------------------------------------------------------------------
     def feed(self, item: Frame | GeoFix | ImuSample | CameraIntrinsics) -> list[FrameRecord]:
@@ -210,12 +212,15 @@ class Pipeline:
         w, h = held.record.size
         if cfg.keyframe_revisit_frames > 0 and not self._revisits(seg, seg_H_frame, w, h):
             return seg_H_frame
-        view, covered = render_view(seg.canvas, seg_H_frame, w, h)
+        view, covered = render_view(seg.canvas, seg_H_frame, w, h, gray=True)
         coverage = float(covered.mean())
         if coverage < cfg.keyframe_min_coverage:
             result = KeyframeResult(None, coverage, float('nan'), f'mosaic covers {coverage:.0%} of the view')
         else:
-            reg = self.registrar.register(self.registrar.describe(view), held.features)
+            # Optional refinement: no OpenCV second opinion (its SIFT on both images would cost a
+            # live node several frame periods, and a failed keyframe changes nothing).
+            extra = {'second_opinion': False} if isinstance(self.registrar, FallbackRegistrar) else {}
+            reg = self.registrar.register(self.registrar.describe(view), held.features, **extra)
             if not reg.ok:
                 result = KeyframeResult(None, coverage, float('nan'), f'registration to the mosaic failed: {reg.reason}')
             else:
@@ -229,17 +234,30 @@ class Pipeline:
         return seg_H_frame if result.seg_H_frame is None else result.seg_H_frame
 
     def _revisits(self, seg: Segment, seg_H_frame: np.ndarray, w: int, h: int) -> bool:  # noqa: N803
-        """Whether the frame's predicted centre lies within half its smaller side of the centre of a
-        frame painted at least mosaic.keyframe_revisit_frames frames earlier (ground seen before)."""
-        old = seg.frames[:-self.config.mosaic.keyframe_revisit_frames]
-        if not old:
+        """Whether the frame flies over ground an earlier pass painted: its predicted centre lies within
+        half its smaller side of the centre of a frame painted at least mosaic.keyframe_revisit_frames
+        frames earlier that is not part of the current pass (the unbroken run of such nearby frames
+        just before it). At a high frame rate a straight pass keeps overlapping frames many frames
+        back; those are not a revisit, and registering to the mosaic there costs a live node a frame
+        period for nothing the chain does not already have."""
+        n = len(seg.frames)
+        gap = self.config.mosaic.keyframe_revisit_frames
+        if n <= gap:
             return False
         c = np.array([w / 2, h / 2, 1.0])
         p = seg_H_frame @ c
         p = p[:2] / p[2]
-        q = np.array([seg.seg_H_frames[i] @ c for i in old])
-        q = q[:, :2] / q[:, 2:3]
-        return bool((np.linalg.norm(q - p, axis=1) < 0.5 * min(w, h)).any())
+        # Centres of the segment's painted frames, computed once each (long flights: O(1) per frame).
+        cache = self.__dict__.setdefault('_centres', {})  # (also on pipelines resumed from older checkpoints)
+        known = cache.setdefault(seg.index, [])
+        for i in seg.frames[len(known):]:
+            m = seg.seg_H_frames[i] @ c
+            known.append(m[:2] / m[2])
+        near = np.linalg.norm(np.asarray(known) - p, axis=1) < 0.5 * min(w, h)
+        run = n
+        while run > 0 and near[run - 1]:
+            run -= 1
+        return bool(near[:min(run, n - gap)].any())
 
     def _paint(self, seg: Segment, held: _Held, seg_H_frame: np.ndarray) -> bool:  # noqa: N803
         try:

@@ -54,11 +54,13 @@ def corner_shift_px(a: np.ndarray, b: np.ndarray, width: int, height: int) -> fl
     return float(np.linalg.norm(pa[:, :2] / pa[:, 2:3] - pb[:, :2] / pb[:, 2:3], axis=1).max())
 
 
-def render_view(canvas: TiledCanvas, seg_H_frame: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:  # noqa: N803
+def render_view(canvas: TiledCanvas, seg_H_frame: np.ndarray, width: int, height: int, *,  # noqa: N803
+                gray: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """The mosaic as the frame would see it under seg_H_frame.
 
-    Returns (view, covered): view float32 (height, width, C) in [0, 1], uncovered pixels filled
-    with the covered mean (flat: no features there); covered bool (height, width).
+    Returns (view, covered): view float32 (height, width, C) in [0, 1] (C = 1 with ``gray``: the
+    Rec. 601 luminance, all that registration uses, a third of the warping), uncovered pixels
+    filled with the covered mean (flat: no features there); covered bool (height, width).
     """
     corners = np.array([[0.0, 0.0, 1.0], [width, 0.0, 1.0], [width, height, 1.0], [0.0, height, 1.0]]) @ seg_H_frame.T
     xy = corners[:, :2] / corners[:, 2:3]
@@ -67,10 +69,12 @@ def render_view(canvas: TiledCanvas, seg_H_frame: np.ndarray, width: int, height
     y0 = max(int(np.floor(xy[:, 1].min())) - 2, by0)
     x1 = min(int(np.ceil(xy[:, 0].max())) + 3, bx1)
     y1 = min(int(np.ceil(xy[:, 1].max())) + 3, by1)
-    channels = canvas.channels
+    channels = 1 if gray else canvas.channels
     if x1 - x0 < 2 or y1 - y0 < 2:
         return np.zeros((height, width, channels), np.float32), np.zeros((height, width), bool)
     image, covered = canvas.render((x0, y0, x1, y1))
+    if gray and image.ndim == 3 and image.shape[2] == 3:
+        image = cv2.cvtColor(np.ascontiguousarray(image, np.float32), cv2.COLOR_RGB2GRAY)
     if image.ndim == 2:
         image = image[:, :, None]
     # dst(x) = src(M x) with M = T(-x0, -y0) seg_H_frame (WARP_INVERSE_MAP).

@@ -54,11 +54,14 @@ class FallbackRegistrar:
             features.fallback = self.fallback.describe(features.gray)
         return features.fallback
 
-    def register(self, prev: FallbackFeatures, cur: FallbackFeatures) -> Registration:
-        """prev_H_cur from two frames described by this registrar (see the class docstring)."""
+    def register(self, prev: FallbackFeatures, cur: FallbackFeatures, *, second_opinion: bool = True) -> Registration:
+        """prev_H_cur from two frames described by this registrar (see the class docstring).
+
+        second_opinion False: the torch result only (for optional registrations, such as a keyframe
+        to the mosaic, whose failure costs nothing: SIFT on both images takes 50 to 100 ms)."""
         t0 = time.perf_counter()
         reg = self.primary.register(prev.primary, cur.primary)
-        if reg.ok:
+        if reg.ok or not second_opinion:
             return reg
         second = self.fallback.register(self._fallback_features(prev), self._fallback_features(cur))
         if not second.ok:
