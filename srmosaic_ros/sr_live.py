@@ -226,14 +226,18 @@ def reconstruct_live_tile_image(plan: TilePlan, images: Sequence[np.ndarray], se
 
 
 def init_sr_worker_process(torch_threads: int, niceness: int = 10) -> None:
-    """Initializer of the SR worker process: lower priority (SR is background work and must not take
-    the CPU from registration), torch threads, SIGINT left to the parent (which shuts the worker
+    """Initializer of the SR worker process: lowest priority (niceness, and SCHED_IDLE where Linux
+    allows it: SR is background work and must not take the CPU from registration), torch threads, SIGINT left to the parent (which shuts the worker
     down), and the SR modules imported now rather than at the first tile."""
     import signal  # noqa: PLC0415
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
         os.nice(niceness)
+    except (AttributeError, OSError):
+        pass
+    try:  # Linux: run only on otherwise idle CPU time (a niceness still takes ~10% of a busy core)
+        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
     except (AttributeError, OSError):
         pass
     import torch  # noqa: PLC0415
