@@ -551,3 +551,32 @@ def test_camera_dropout_is_bridged_on_telemetry(flight) -> None:  # noqa: ANN001
     assert err[40] < 3.0 * std[40] and err[-20:].max() < 1.5
     smoothed = georef.smoothed_poses()
     assert rmse_h(positions(smoothed), truth) < rmse_h(positions(poses), truth)
+
+
+@pytest.mark.parametrize(('ground_known', 'warns'), [(False, True), (True, False)])
+def test_low_flight_with_a_nominal_ground_warns_about_the_raster_gsd(ground_known: bool, warns: bool, caplog) -> None:  # noqa: ANN001
+    """A 60 m flight with the ground guessed from georef.nominal_agl_m (100 m): the raster's GSD is
+    chosen for 100 m; once the filter knows better, one warning names the keys that fix it. With
+    the ground given, nothing to warn about."""
+    flight = simulate_geometry(SimConfig(width=320, height=240, world_gsd_m=0.3, frames=120, speed_m_s=8.0,
+                                         altitude_m=60.0, seed=5))
+    cfg = GeorefConfig(ground_altitude_m=0.0) if ground_known else GeorefConfig()
+    georef = Georeferencer(cfg, flight.camera)
+    rng = np.random.default_rng(0)
+    events = [(f.stamp_ns, 0, f) for f in flight.fixes] + [(i.stamp_ns, 1, i) for i in flight.imus]
+    events += [(fr.stamp_ns, 2, k) for k, fr in enumerate(flight.frames)]
+    events.sort(key=lambda e: (e[0], e[1]))
+    with caplog.at_level(logging.WARNING):
+        for stamp, kind, item in events:
+            if kind == 0:
+                georef.feed_fix(item)
+            elif kind == 1:
+                georef.feed_imu(item)
+            else:
+                H, cov = (None, None) if item == 0 else noisy_registration(  # noqa: N806
+                    flight.truth.frames[item].prev_H_cur, flight.camera, rng)
+                pose = georef.feed_frame(stamp, H, cov, rms_px=0.5, inliers=200)
+                if georef.raster is None and pose.valid:
+                    georef.make_raster(pose)
+    assert (georef.skipped['raster_gsd_agl'] == 1) is warns
+    assert ('georef.ground_altitude_m' in caplog.text) is warns

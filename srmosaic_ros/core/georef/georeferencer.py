@@ -498,6 +498,7 @@ class Georeferencer:
         n_fix, n_imu = self._apply_pending()
         pose = self._pose(SLOT_CUR, stamp_ns, used_h, n_fix, n_imu)
         self.poses.append(pose)
+        self._check_raster_agl(pose)
         return pose
 
     def _bridge(self, stamp_ns: int) -> int:
@@ -559,6 +560,7 @@ class Georeferencer:
                 if pose.camera is not None else self.config.nominal_agl_m
             raw = agl / math.sqrt(cam.fx * cam.fy)
             gsd = float(f'{raw:.2g}')
+            self._raster_agl_m = float(agl)  # checked against the filter's later estimate (_check_raster_agl)
         epsg = utm_epsg(self.origin.lat0_deg, self.origin.lon0_deg)
         utm_A_enu = self._utm_affine(epsg)  # noqa: N806
         enu_H_frame = self._enu_H_frame(pose, cam)  # noqa: N806
@@ -652,6 +654,28 @@ class Georeferencer:
         return None if self._canvas is None else self._canvas.homography
 
     # -- internals -----------------------------------------------------------------------------
+    def _check_raster_agl(self, pose: FramePose) -> None:
+        """Warn once when the raster's ground sampling was chosen for a height above the ground that
+        the filter, once the ground height is known to 10%, puts more than 20% away: at the first
+        frame the ground is a guess (the first fix minus georef.nominal_agl_m) unless
+        georef.ground_altitude_m is given, so a low flight gets a coarser mosaic than its frames."""
+        agl0 = self.__dict__.get('_raster_agl_m')
+        if agl0 is None or 'raster_gsd_agl' in self._warned or not pose.valid or pose.camera is None:
+            return
+        agl = float(pose.camera.center_enu_m[2]) - _ground(pose)
+        ground_var = self.ukf.ground_z[1] if self.ukf.initialized else float('inf')
+        if not (agl > 0 and math.sqrt(max(ground_var, 0.0)) < 0.1 * agl):
+            return
+        if abs(agl / agl0 - 1.0) > 0.2:
+            self.skipped['raster_gsd_agl'] += 1
+            self._warned.add('raster_gsd_agl')
+            _LOG.warning(
+                'the mosaic raster samples the ground at %.3g m/px, chosen for %.0f m above the ground at the first '
+                'frame; the filter now puts the camera %.0f m above it, so the frames are painted at %.0f%% of their '
+                'own resolution. Set georef.ground_altitude_m (the ground\'s ellipsoidal height), '
+                'georef.nominal_agl_m or georef.gsd_m_per_px for this flight.',
+                self.raster.gsd_m_per_px if self.raster is not None else float('nan'), agl0, agl, 100.0 * min(agl / agl0, 1.0))
+
     def _skip(self, kind: str, message: str) -> None:
         self.skipped[kind] += 1
         if kind not in self._warned:
