@@ -3,7 +3,9 @@
 For each graph layout it starts `srmosaic launch` in a child process, publishes 640x480 frames
 rendered by the simulator at a fixed rate on /camera/image_raw (raw sensor_msgs/Image, header stamp
 = publish time; `--compressed`: JPEG on .../compressed), with the simulated /fix and /imu/data
-re-stamped on the same clock (`--telemetry none` leaves them out: frames then wait for
+re-stamped on the same clock, and /camera/camera_info with every image, so that the mosaic node
+georeferences the mosaic (poses, homography updates, drift control) as in a real graph
+(`--telemetry none` leaves them out: frames then wait for
 SYNC_HOLD_FRAMES newer frames before processing, which adds that many frame periods of latency),
 and listens to /srmosaic/registration (one message per processed frame), /srmosaic/pose and
 /srmosaic/sr_tile. Prints, per layout: frames offered / processed / dropped, processed frames per
@@ -26,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import os
 import signal
 import struct
@@ -62,10 +65,10 @@ def run_layout(layout: str, args: argparse.Namespace, flight, domain: int) -> di
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import qos_profile_sensor_data
     from rclpy.serialization import serialize_message
-    from sensor_msgs.msg import CompressedImage, Image, Imu, NavSatFix
+    from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, NavSatFix
     from std_msgs.msg import Float64MultiArray
 
-    from msg_adapters import fix_to_navsat, numpy_to_compressed, numpy_to_image, sample_to_imu
+    from msg_adapters import fix_to_navsat, intrinsics_to_camera_info, numpy_to_compressed, numpy_to_image, sample_to_imu
 
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
     workdir = Path(tempfile.mkdtemp(prefix='srmosaic_bench_live_'))
@@ -79,6 +82,7 @@ def run_layout(layout: str, args: argparse.Namespace, flight, domain: int) -> di
     pub = node.create_publisher(mtype, topic, qos_profile_sensor_data)
     pub_fix = node.create_publisher(NavSatFix, '/fix', qos_profile_sensor_data)
     pub_imu = node.create_publisher(Imu, '/imu/data', qos_profile_sensor_data)
+    pub_info = node.create_publisher(CameraInfo, '/camera/camera_info', qos_profile_sensor_data)
     latencies: list[float] = []
     done_at: list[float] = []
     counts = {'poses': 0, 'tiles': 0}
@@ -88,8 +92,8 @@ def run_layout(layout: str, args: argparse.Namespace, flight, domain: int) -> di
     def on_reg(msg: Float64MultiArray) -> None:
         stamp_ns = int(msg.data[0]) * 1_000_000_000 + int(msg.data[1])
         if stamp_ns in seen:
-            # A frame that failed and later started a new segment (the flight loops back to its
-            # first frame every --frames frames) is published again, painted: count it once.
+            # A frame that failed and later started a new segment (with --frames shorter than the
+            # run, the flight loops back to its first frame) is published again, painted: count it once.
             return
         seen.add(stamp_ns)
         latencies.append((time.time_ns() - stamp_ns) * 1e-6)
@@ -155,7 +159,10 @@ def run_layout(layout: str, args: argparse.Namespace, flight, domain: int) -> di
             else:
                 pub_imu.publish(sample_to_imu(dataclasses.replace(item, stamp_ns=t_ns)))
             ti += 1
-        pub.publish(_stamped(serialized[k], time.time_ns()))
+        now_ns = time.time_ns()
+        if args.telemetry != 'none':  # as a camera driver does: CameraInfo with every image
+            pub_info.publish(intrinsics_to_camera_info(flight.camera, stamp_ns=now_ns))
+        pub.publish(_stamped(serialized[k], now_ns))
         offered += 1
         time.sleep(max(0.0, t0_wall + offered * period - time.monotonic()))
     time.sleep(3.0)
@@ -187,7 +194,11 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--fps', type=float, default=25.0)
     ap.add_argument('--seconds', type=float, default=20.0)
-    ap.add_argument('--frames', type=int, default=100, help='distinct simulated frames (looped)')
+    ap.add_argument('--frames', type=int, default=0,
+                    help='distinct simulated frames, looped when the run is longer (default 0: the whole run, '
+                         'fps x seconds: no loop; each loop jumps the aircraft back to its start)')
+    ap.add_argument('--speed', type=float, default=12.5,
+                    help='ground speed, m/s (default 12.5: 0.5 m, about 4 px, per frame at 25 fps and 100 m)')
     ap.add_argument('--compressed', action='store_true', help='publish JPEG CompressedImage instead of raw')
     ap.add_argument('--graph', action='append', choices=LAYOUTS, help='layouts to run (default: all)')
     ap.add_argument('--telemetry', choices=('sim', 'none'), default='sim')
@@ -203,8 +214,10 @@ def main() -> int:
 
     from srmosaic_ros.sim import SimConfig, simulate
 
+    if args.frames <= 0:
+        args.frames = int(math.ceil(args.fps * args.seconds)) + 1
     print(f'rendering {args.frames} frames ...', flush=True)
-    flight = simulate(SimConfig(frames=args.frames, rate_hz=args.fps, speed_m_s=10.0 * args.fps / 4.0 / 2.0))
+    flight = simulate(SimConfig(frames=args.frames, rate_hz=args.fps, speed_m_s=args.speed))
     results = []
     for i, layout in enumerate(args.graph or LAYOUTS):
         print(f'{layout}: publishing {args.fps} frames/s for {args.seconds} s ...', flush=True)
