@@ -197,6 +197,9 @@ def main() -> int:
     ap.add_argument('--frames', type=int, default=0,
                     help='distinct simulated frames, looped when the run is longer (default 0: the whole run, '
                          'fps x seconds: no loop; each loop jumps the aircraft back to its start)')
+    ap.add_argument('--trajectory', choices=('auto', 'line', 'lawnmower'), default='auto',
+                    help='auto (default): a line when it fits the 400 m world (up to 250 m), else a lawnmower of '
+                         '4 legs of 150 m, 50 m apart (side overlap: the return legs revisit ground)')
     ap.add_argument('--speed', type=float, default=12.5,
                     help='ground speed, m/s (default 12.5: 0.5 m, about 4 px, per frame at 25 fps and 100 m)')
     ap.add_argument('--compressed', action='store_true', help='publish JPEG CompressedImage instead of raw')
@@ -216,8 +219,12 @@ def main() -> int:
 
     if args.frames <= 0:
         args.frames = int(math.ceil(args.fps * args.seconds)) + 1
-    print(f'rendering {args.frames} frames ...', flush=True)
-    flight = simulate(SimConfig(frames=args.frames, rate_hz=args.fps, speed_m_s=args.speed))
+    print(f'rendering {args.frames} frames ...', flush=True)  # (the trajectory is printed below)
+    trajectory = args.trajectory
+    if trajectory == 'auto':
+        trajectory = 'line' if args.speed * args.frames / args.fps <= 250.0 else 'lawnmower'
+    shape = {'trajectory': 'lawnmower', 'legs': 4, 'leg_length_m': 150.0, 'leg_spacing_m': 50.0} if trajectory == 'lawnmower' else {}
+    flight = simulate(SimConfig(frames=args.frames, rate_hz=args.fps, speed_m_s=args.speed, **shape))
     results = []
     for i, layout in enumerate(args.graph or LAYOUTS):
         print(f'{layout}: publishing {args.fps} frames/s for {args.seconds} s ...', flush=True)
