@@ -50,12 +50,12 @@ def noisy_registration(H: np.ndarray, cam, rng: np.random.Generator,  # noqa: AN
 
 def run(flight, config: GeorefConfig | None = None, *, homographies: bool = True, fixes=None,  # noqa: ANN001
         imus=None, seed: int = 0, frame_hook=None, late=(),  # noqa: ANN001
-        frames=None) -> tuple[Georeferencer, list[FramePose]]:  # noqa: ANN001
+        frames=None, on_pose=None) -> tuple[Georeferencer, list[FramePose]]:  # noqa: ANN001
     """Feed a flight in stamp order (fixes, then IMU, then the frame at equal stamps).
 
     late: (arrival_ns, fix) pairs fed when the stream reaches arrival_ns, whatever their stamp.
     frames: indices of the frames fed (default all); a frame is registered to the previous one
-    only when that one was fed.
+    only when that one was fed. on_pose(georef, pose): called after each frame.
     """
     rng = np.random.default_rng(seed)
     georef = Georeferencer(config or GeorefConfig(), flight.camera)
@@ -80,6 +80,8 @@ def run(flight, config: GeorefConfig | None = None, *, homographies: bool = True
             if frame_hook is not None:
                 H, cov = frame_hook(item, H, cov)  # noqa: N806
             poses.append(georef.feed_frame(stamp, H, cov, rms_px=0.5, inliers=200))
+            if on_pose is not None:
+                on_pose(georef, poses[-1])
     return georef, poses
 
 
@@ -561,22 +563,12 @@ def test_low_flight_with_a_nominal_ground_warns_about_the_raster_gsd(ground_know
     flight = simulate_geometry(SimConfig(width=320, height=240, world_gsd_m=0.3, frames=120, speed_m_s=8.0,
                                          altitude_m=60.0, seed=5))
     cfg = GeorefConfig(ground_altitude_m=0.0) if ground_known else GeorefConfig()
-    georef = Georeferencer(cfg, flight.camera)
-    rng = np.random.default_rng(0)
-    events = [(f.stamp_ns, 0, f) for f in flight.fixes] + [(i.stamp_ns, 1, i) for i in flight.imus]
-    events += [(fr.stamp_ns, 2, k) for k, fr in enumerate(flight.frames)]
-    events.sort(key=lambda e: (e[0], e[1]))
+
+    def raster_at_first_pose(georef: Georeferencer, pose: FramePose) -> None:
+        if georef.raster is None and pose.valid:
+            georef.make_raster(pose)
+
     with caplog.at_level(logging.WARNING):
-        for stamp, kind, item in events:
-            if kind == 0:
-                georef.feed_fix(item)
-            elif kind == 1:
-                georef.feed_imu(item)
-            else:
-                H, cov = (None, None) if item == 0 else noisy_registration(  # noqa: N806
-                    flight.truth.frames[item].prev_H_cur, flight.camera, rng)
-                pose = georef.feed_frame(stamp, H, cov, rms_px=0.5, inliers=200)
-                if georef.raster is None and pose.valid:
-                    georef.make_raster(pose)
+        georef, _ = run(flight, cfg, on_pose=raster_at_first_pose)
     assert (georef.skipped['raster_gsd_agl'] == 1) is warns
     assert ('georef.ground_altitude_m' in caplog.text) is warns
