@@ -20,10 +20,11 @@ point (x0 + (u + 0.5) / factor - 0.5, y0 + (v + 0.5) / factor - 0.5).
 from __future__ import annotations
 
 import collections
+import dataclasses
 import math
 import os
 import re
-from collections.abc import Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -41,6 +42,7 @@ __all__ = ['LiveFrame', 'LiveFrameStore', 'SRTilePlacement', 'plan_live_tiles', 
 #: Planning grids larger than this (segment-plane pixels per side) are refused: an absurd
 #: homography must not allocate a giant coverage raster.
 MAX_PLAN_SIDE_PX = 20000
+_UNCAPPED = 1 << 40
 
 _PLACEMENT_RE = re.compile(r'^srmosaic_segment_(-?\d+);x0=(-?\d+);y0=(-?\d+);width=(\d+);height=(\d+);factor=(\d+)$')
 
@@ -157,14 +159,22 @@ def _translation(dx: float, dy: float) -> np.ndarray:
 
 
 def plan_live_tiles(frames: Sequence[LiveFrame], sizes: dict[int, tuple[int, int]], config: SRTileConfig,
-                    done: set[tuple[int, int, int]] | None = None) -> list[tuple[TilePlan, list[LiveFrame]]]:
+                    done: Collection[tuple[int, int, int]] | Mapping[tuple[int, int, int], int] | None = None, *,
+                    refresh_growth: float = 0.0) -> list[tuple[TilePlan, list[LiveFrame]]]:
     """Tiles of the segment plane that enough of `frames` cover (core/sr/scheduler.plan_tiles).
 
     frames: registered frames of one segment; sizes: stamp_ns -> (width, height) of each frame.
     The tile grid is anchored at plane pixel (0, 0) (tiles at multiples of tile_size, negative
     ones included); the coverage raster is the union of the frames' footprints over their
-    bounding box. Tiles whose (segment, x0, y0) is in `done` are left out.
-    Returns (plan with plane coordinates, the LiveFrames it uses), best covered first.
+    bounding box.
+
+    done: the tiles published already, as (segment, x0, y0) keys; a mapping gives for each the
+    number of frames its last publication was reconstructed from. A published tile is left out,
+    unless `refresh_growth` > 0, `done` is such a mapping and the plan would now use at least
+    refresh_growth times as many frames (a revisit, or frames that arrived after the first
+    publication): it is planned again, a refresh.
+    Returns (plan with plane coordinates, the LiveFrames it uses): tiles never published first,
+    best covered first, then refreshes, largest frame gain first.
     """
     if not frames:
         return []
@@ -188,17 +198,23 @@ def plan_live_tiles(frames: Sequence[LiveFrame], sizes: dict[int, tuple[int, int
         cv2.fillConvexPoly(coverage, np.round(quad - [gx0, gy0]).astype(np.int32), 1)
     shift = _translation(-gx0, -gy0)
     by_index = dict(enumerate(frames))
+    # Every eligible tile, capped to max_tiles only after the published ones are left out (a cap
+    # before would let tiles published long ago crowd the new ones out of every later plan).
     plans = plan_tiles({k: shift @ f.seg_H_frame for k, f in by_index.items()},
-                       {k: sizes[f.stamp_ns] for k, f in by_index.items()}, coverage > 0, config)
-    out = []
+                       {k: sizes[f.stamp_ns] for k, f in by_index.items()}, coverage > 0,
+                       dataclasses.replace(config, max_tiles=_UNCAPPED))
+    fresh, refresh = [], []
     seg = frames[-1].segment
+    counts = done if isinstance(done, Mapping) else None
     for p in plans:
         x0, y0 = p.x0 + gx0, p.y0 + gy0
-        if done is not None and (seg, x0, y0) in done:
-            continue
-        out.append((TilePlan(x0, y0, p.width, p.height, p.frames, p.frames_covering),
-                    [by_index[k] for k in p.frames]))
-    return out
+        entry = (TilePlan(x0, y0, p.width, p.height, p.frames, p.frames_covering), [by_index[k] for k in p.frames])
+        if done is None or (seg, x0, y0) not in done:
+            fresh.append(entry)
+        elif counts is not None and refresh_growth > 0 and len(p.frames) >= refresh_growth * counts[seg, x0, y0]:
+            refresh.append((len(p.frames) / max(counts[seg, x0, y0], 1), entry))
+    refresh.sort(key=lambda r: -r[0])  # stable: equal gains keep the best-covered-first order
+    return (fresh + [entry for _, entry in refresh])[:config.max_tiles]
 
 
 def reconstruct_live_tile(plan: TilePlan, images: Sequence[np.ndarray], seg_H_frames: Sequence[np.ndarray],  # noqa: N803

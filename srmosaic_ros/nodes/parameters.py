@@ -42,6 +42,7 @@ _RANGES: dict[str, tuple[float, float]] = {
     'live.sr_period_s': (0.1, 3600.0),
     'live.sr_tiles_per_round': (1, 100),
     'live.sr_frames_kept': (1, 1000),
+    'live.sr_refresh_growth': (0.0, 100.0),
     'live.sr_images_pending': (1, 1000),
     'sr.psf_sigma': (0.0, 10.0),
     'sr.iterations': (0, 10000),

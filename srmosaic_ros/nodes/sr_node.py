@@ -25,7 +25,10 @@ frame into the store of registered frames (`live.sr_frames_kept`, newest segment
 (core/sr/scheduler.plan_tiles, settings `sr_tiles.*`) picks the tiles that at least
 `sr_tiles.min_frames` registered frames cover entirely and that were not published yet; the worker
 reconstructs up to `live.sr_tiles_per_round` of them (core/sr/reconstruct_tile, settings `sr.*`) and
-publishes them. The executor never waits for a reconstruction; a round that is still running when
+publishes them. A published tile is reconstructed and published again (same placement: a consumer
+keeps the latest it received) once it can be made from `live.sr_refresh_growth` times as many
+frames as its last publication (frames that arrived later, a revisit), counted as
+`tiles_refreshed`; tiles never published go first. The node remembers the published tiles of the newest segment only. The executor never waits for a reconstruction; a round that is still running when
 the timer fires is skipped (counted as `rounds_skipped_busy`).
 
 Where the reconstruction runs (`live.sr_worker`): `process` (default) hands each tile to a worker
@@ -82,6 +85,11 @@ class SRNode(Node):
         self.config = read_pipeline_config(self, defaults)  # ConfigError refuses bad sr / sr_tiles values
         self.period_s = float(check_range(self, 'live.sr_period_s', 0.1, 3600.0))
         self.tiles_per_round = int(check_range(self, 'live.sr_tiles_per_round', 1, 100))
+        self.refresh_growth = float(check_range(self, 'live.sr_refresh_growth', 0.0, 100.0))
+        if 0.0 < self.refresh_growth <= 1.0:
+            msg = (f'live.sr_refresh_growth = {self.refresh_growth} would publish the same tiles again and again; '
+                   'use 0 (each tile once) or a factor above 1 (default 2.0).')
+            raise SrMosaicError(msg)
         kept = int(check_range(self, 'live.sr_frames_kept', 1, 1000))
         pending = int(check_range(self, 'live.sr_images_pending', 1, 1000))
         if kept < self.config.sr_tiles.min_frames:
@@ -101,7 +109,8 @@ class SRNode(Node):
         self._store = LiveFrameStore(pending=pending, kept=kept)
         self._store_lock = threading.Lock()
         self._sizes: dict[int, tuple[int, int]] = {}
-        self._done: set[tuple[int, int, int]] = set()
+        # (segment, x0, y0) of each published tile -> frames its last publication was made from
+        self._done: dict[tuple[int, int, int], int] = {}
         self._last_stamp: int | None = None
         self._planned_at = -1  # store.added at the last round that found nothing to do
         self._times_s: collections.deque[float] = collections.deque(maxlen=200)
@@ -259,7 +268,11 @@ class SRNode(Node):
         frames = [f for f in frames if f.stamp_ns in self._sizes]
         live = {f.stamp_ns for f in frames}
         self._sizes = {k: v for k, v in self._sizes.items() if k in live}
-        plans = plan_live_tiles(frames, self._sizes, self.config.sr_tiles, self._done)
+        if frames and any(key[0] != frames[-1].segment for key in self._done):
+            # the store keeps the newest segment only: older segments' tiles can never come again
+            self._done = {key: n for key, n in self._done.items() if key[0] == frames[-1].segment}
+        plans = plan_live_tiles(frames, self._sizes, self.config.sr_tiles, self._done,
+                                refresh_growth=self.refresh_growth)
         if not plans:
             self._planned_at = added
             return
@@ -268,7 +281,8 @@ class SRNode(Node):
                 return
             t0 = time.perf_counter()
             segment = used[-1].segment
-            self._done.add((segment, plan.x0, plan.y0))
+            refresh = (segment, plan.x0, plan.y0) in self._done
+            self._done[segment, plan.x0, plan.y0] = len(used)
             decoded = [(self._image(f), f) for f in used]
             decoded = [(im, f) for im, f in decoded if im is not None]
             if not decoded:
@@ -285,6 +299,8 @@ class SRNode(Node):
             dt = time.perf_counter() - t0
             self._times_s.append(dt)
             self.warn.count('tiles_published')
+            if refresh:
+                self.warn.count('tiles_refreshed')
             self.get_logger().debug(f'SR tile {placement.frame_id()} from {len(used)} frames in {dt:.2f} s '
                                     f'({stop_reason})')
 
@@ -300,6 +316,7 @@ class SRNode(Node):
             'images_waiting_for_registration': pending,
             'registrations_without_image': missed,
             'tiles_published': stats.get('tiles_published', 0),
+            'tiles_refreshed': stats.get('tiles_refreshed', 0),
             'rounds_skipped_busy': stats.get('rounds_skipped_busy', 0),
             'tile_s_median': f'{np.median(times):.2f}',
             'tile_s_p95': f'{np.percentile(times, 95):.2f}',
