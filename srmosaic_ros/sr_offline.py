@@ -5,13 +5,21 @@ from the input in a second pass (only those frames are kept), and each tile is r
 MAP with the Huber prior (core/sr/reconstruct.py). Output contract (DESIGN.md): DIR/sr/tiles.json,
 a list of {"file", "x0", "y0", "width", "height", "factor"} where (x0, y0, width, height) is the
 tile's region in mosaic.png pixels and tile pixel (u, v) shows mosaic point
-(x0 + (u + 0.5) / factor - 0.5, y0 + (v + 0.5) / factor - 0.5); DIR/sr/preview.png the mosaic
-upscaled by the factor (bicubic) with the SR tiles pasted in, downscaled for viewing.
+(x0 + (u + 0.5) / factor - 0.5, y0 + (v + 0.5) / factor - 0.5).
+
+Also written:
+- DIR/sr/mosaic_sr.tif, the SR mosaic: the whole mosaic upsampled by the factor (bicubic, the
+  same pixel convention: its pixel (u, v) shows mosaic point ((u + 0.5) / factor - 0.5, ...)) with
+  the SR tiles pasted in, alpha from the mosaic's coverage; tiled with overviews, written strip by
+  strip. With georeferencing it is a GeoTIFF on mosaic.tif's grid refined by the factor (same CRS,
+  gsd / factor), so GIS tools lay it over mosaic.tif;
+- with georeferencing, each tile as a GeoTIFF too (the PNG's name with .tif), placed on the map;
+- DIR/sr/preview.png: mosaic_sr.tif downscaled for viewing (longer side 2048 px).
 """
 from __future__ import annotations
 
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -23,11 +31,15 @@ from .config import PipelineConfig
 from .core.sr.reconstruct import SRError, reconstruct_tile
 from .core.sr.scheduler import plan_tiles
 from .core.types import Frame
+from .io.geotiff import MOSAIC_BLOCK_PX, read_raster, write_geotiff, write_geotiff_blocks
 from .io.mosaic_files import read_frames_csv, write_json, write_png
+from .offline import StripPreview
 
-__all__ = ['super_resolve_mosaic']
+__all__ = ['sr_mosaic_strips', 'super_resolve_mosaic']
 
-MAX_PREVIEW_PIXELS = 40_000_000
+#: Mosaic rows upsampled (and written to mosaic_sr.tif) at a time.
+SR_STRIP_ROWS = 128
+_CUBIC_MARGIN = 3  # mosaic rows of context above and below a strip (bicubic reads 2)
 
 
 def _translation(dx: float, dy: float) -> np.ndarray:
@@ -68,11 +80,8 @@ def super_resolve_mosaic(out: Path, items: Iterable[Any], config: PipelineConfig
     s = factor
     tiles_dir = out / 'sr'
     tiles_dir.mkdir(parents=True, exist_ok=True)
-    h, w = coverage.shape
-    big = h * w * s * s <= MAX_PREVIEW_PIXELS
-    rgb = cv2.cvtColor(mosaic[:, :, :3], cv2.COLOR_BGR2RGB).astype(np.float32) / 255.0
-    upscaled = cv2.resize(rgb, (w * s, h * s), interpolation=cv2.INTER_CUBIC) if big else None
-    entries, figures = [], []
+    raster = read_raster(out / 'mosaic.tif') if (out / 'mosaic.tif').is_file() else None
+    entries, figures, pasted = [], [], []
     for plan in tqdm(plans, unit='tile', desc='super-resolve', disable=not progress):
         t0 = time.perf_counter()
         use = [k for k in plan.frames if k in frames]
@@ -86,8 +95,13 @@ def super_resolve_mosaic(out: Path, items: Iterable[Any], config: PipelineConfig
         image = np.clip(image, 0.0, 1.0)
         name = f'tile_x{plan.x0:06d}_y{plan.y0:06d}.png'
         write_png(tiles_dir / name, image)
+        if raster is not None:
+            # tile pixel (u, v) is mosaic pixel (x0 + (u + 0.5) / s - 0.5, ...): a similarity of the grid
+            write_geotiff(tiles_dir / name.replace('.png', '.tif'), image[:, :, 0] if image.shape[2] == 1 else image,
+                          raster.transformed(_sr_H_mosaic_inverse(s, plan.x0, plan.y0)))
         entries.append({'file': name, 'x0': plan.x0, 'y0': plan.y0, 'width': plan.width, 'height': plan.height,
                         'factor': s})
+        pasted.append((plan.x0, plan.y0, np.clip(image * 255.0 + 0.5, 0, 255).astype(np.uint8)))
         last = res.history[-1] if res.history else None
         weights = np.asarray(res.frame_weights, dtype=float)
         figures.append({'file': name, 'frames': len(use), 'frames_covering': plan.frames_covering,
@@ -95,13 +109,59 @@ def super_resolve_mosaic(out: Path, items: Iterable[Any], config: PipelineConfig
                         'lambda': float(getattr(last, 'lam', float('nan'))) if last is not None else None,
                         'min_frame_weight': float(weights[np.isfinite(weights)].min()) if weights.size else None,
                         'time_s': round(time.perf_counter() - t0, 3)})
-        if upscaled is not None and image.shape[2] == upscaled.shape[2]:
-            upscaled[plan.y0 * s:(plan.y0 + plan.height) * s, plan.x0 * s:(plan.x0 + plan.width) * s] = image
     write_json(tiles_dir / 'tiles.json', entries)
-    if upscaled is not None:
-        cov_up = cv2.resize(coverage.astype(np.uint8), (w * s, h * s), interpolation=cv2.INTER_NEAREST) > 0
-        from .offline import preview_image
+    h, w = coverage.shape
+    rgb = mosaic[:, :, 2::-1]  # BGR(A) -> RGB, a view
+    preview = StripPreview(h * s, w * s, 3, 2048)
 
-        write_png(tiles_dir / 'preview.png', preview_image(upscaled, cov_up, 2048))
+    def strips() -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+        for row, image, cov in sr_mosaic_strips(rgb, coverage, s, pasted):
+            preview.add(row, image.astype(np.float32) * (1.0 / 255.0), cov)
+            yield row, image, cov
+
+    write_geotiff_blocks(tiles_dir / 'mosaic_sr.tif', strips(), None if raster is None else
+                         raster.transformed(_sr_H_mosaic_inverse(s, 0, 0)), h * s, w * s, block_px=MOSAIC_BLOCK_PX)
+    write_png(tiles_dir / 'preview.png', preview.image())
     return {'factor': s, 'tiles': len(entries), 'tiles_planned': len(plans), 'frames_read': len(frames),
             'solver': config.sr.solver, 'iterations_cap': config.sr.iterations, 'per_tile': figures}
+
+
+def _sr_H_mosaic_inverse(factor: int, x0: int, y0: int) -> np.ndarray:  # noqa: N802
+    """mosaic_H_sr (3, 3): SR pixel (u, v) of a grid whose pixel (0, 0) lies at mosaic pixel (x0, y0)
+    -> mosaic point (x0 + (u + 0.5) / factor - 0.5, y0 + (v + 0.5) / factor - 0.5)."""
+    f = float(factor)
+    return np.array([[1.0 / f, 0.0, x0 + 0.5 / f - 0.5], [0.0, 1.0 / f, y0 + 0.5 / f - 0.5], [0.0, 0.0, 1.0]])
+
+
+def sr_mosaic_strips(mosaic_rgb: np.ndarray, coverage: np.ndarray, factor: int,
+                     tiles: Sequence[tuple[int, int, np.ndarray]], *,
+                     rows: int = SR_STRIP_ROWS) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+    """The SR mosaic in strips, top to bottom: the mosaic upsampled by ``factor`` with the tiles pasted in.
+
+    mosaic_rgb: (H, W, C) uint8 mosaic; coverage: (H, W) bool; tiles: (x0, y0, image) with image
+    (h s, w s, C or 1) uint8, the SR tile of mosaic region (x0, y0, w, h). Yields (row, strip
+    (n, W s, C) uint8, coverage (n, W s) bool), n = rows * factor (less at the bottom), row in SR
+    pixels. Upsampling is OpenCV's bicubic (SR pixel (u, v) shows mosaic point ((u + 0.5) / s - 0.5,
+    ...), the convention of the tiles); each strip is resized from its rows plus a margin of
+    context, so the strips are exactly the rows of one resize of the whole mosaic, which is never
+    held. Coverage is upsampled by pixel replication.
+    """
+    s = int(factor)
+    h, w = coverage.shape
+    channels = mosaic_rgb.shape[2]
+    for r0 in range(0, h, rows):
+        r1 = min(h, r0 + rows)
+        a, b = max(0, r0 - _CUBIC_MARGIN), min(h, r1 + _CUBIC_MARGIN)
+        up = cv2.resize(np.ascontiguousarray(mosaic_rgb[a:b]), (w * s, (b - a) * s), interpolation=cv2.INTER_CUBIC)
+        strip = np.ascontiguousarray(up.reshape(up.shape[0], up.shape[1], channels)[(r0 - a) * s:(r1 - a) * s])
+        cov = np.repeat(np.repeat(coverage[r0:r1], s, axis=0), s, axis=1)
+        top, bottom = r0 * s, r1 * s
+        for x0, y0, tile in tiles:
+            t0, t1 = max(top, y0 * s), min(bottom, y0 * s + tile.shape[0])
+            if t0 >= t1:
+                continue
+            part = tile[t0 - y0 * s:t1 - y0 * s]
+            if part.ndim == 2 or part.shape[2] != channels:   # a grey tile in an RGB mosaic
+                part = np.repeat(part.reshape(part.shape[0], part.shape[1], -1)[:, :, :1], channels, axis=2)
+            strip[t0 - top:t1 - top, x0 * s:x0 * s + tile.shape[1]] = part
+        yield top, strip, cov

@@ -72,3 +72,16 @@ def test_rotated_geotiff_reads_back_in_place(tmp_path):
             assert np.allclose([e, n], raster.utm_from_pixels(np.array([x, y], float)), atol=1e-6)
     north_up = GeoRaster(32614, 0.2, 587500.0, 3338100.0)
     assert north_up.geotransform == (587499.9, 0.2, 0.0, 3338100.1, 0.0, -0.2)
+
+
+def test_read_raster_gives_back_the_grid_written(tmp_path):
+    from srmosaic_ros.io.geotiff import read_raster, write_geotiff_blocks
+
+    raster = GeoRaster(32614, 0.2, 587500.0, 3338100.0, math.radians(-2.0))
+    write_geotiff(tmp_path / 'r.tif', np.full((30, 20), 9, np.uint8), raster)
+    back = read_raster(tmp_path / 'r.tif')
+    assert back.epsg == 32614
+    np.testing.assert_allclose(back.utm_H_raster, raster.utm_H_raster, atol=1e-7)
+    write_geotiff_blocks(tmp_path / 'plain.tif', [(0, np.zeros((8, 8), np.uint8), None)], None, 8, 8, tiled=False)
+    with pytest.raises(ValueError, match='no CRS'):
+        read_raster(tmp_path / 'plain.tif')

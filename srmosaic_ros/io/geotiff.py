@@ -35,7 +35,7 @@ if TYPE_CHECKING:
     from ..core.georef.georeferencer import GeoRaster
 
 __all__ = ['GDAL_CACHE_BYTES', 'MOSAIC_BLOCK_PX', 'TILED_ABOVE_PX', 'overview_factors', 'png_from_geotiff',
-           'write_geotiff', 'write_geotiff_blocks']
+           'read_raster', 'write_geotiff', 'write_geotiff_blocks']
 
 TILED_ABOVE_PX = 1024
 _BLOCK_PX = 256
@@ -296,3 +296,28 @@ def png_from_geotiff(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -
                     rasterio.shutil.copy(vrt, tmp, driver='PNG', ZLEVEL=PNG_ZLEVEL)
             else:
                 rasterio.shutil.copy(src, tmp, driver='PNG', ZLEVEL=PNG_ZLEVEL)
+
+
+def read_raster(path: str | os.PathLike[str]) -> GeoRaster:
+    """The grid of a GeoTIFF this package wrote (mosaic.tif): its EPSG code and geotransform as a
+    GeoRaster (pixel (0, 0)'s centre, gsd, rotation). Raises ValueError for a file without a CRS
+    with an EPSG code, or whose pixels are not square (not one of ours)."""
+    import math
+
+    import rasterio
+
+    from ..core.georef.georeferencer import GeoRaster
+
+    with _gdal_env(), rasterio.open(path) as src:
+        crs, t = src.crs, src.transform
+    epsg = crs.to_epsg() if crs is not None else None
+    if epsg is None:
+        msg = f'{path} has no CRS with an EPSG code; it is not a georeferenced mosaic of srmosaic_ros.'
+        raise ValueError(msg)
+    g = math.hypot(t.a, t.d)
+    if not (g > 0 and math.isclose(t.e, -t.a, rel_tol=1e-6, abs_tol=1e-9 * g)
+            and math.isclose(t.b, t.d, rel_tol=1e-6, abs_tol=1e-9 * g)):
+        msg = f'{path} has no square, unmirrored pixels (geotransform {tuple(t)[:6]}); not a mosaic of srmosaic_ros.'
+        raise ValueError(msg)
+    e0, n0 = t @ (0.5, 0.5)  # the centre of pixel (0, 0)
+    return GeoRaster(int(epsg), float(g), float(e0), float(n0), math.atan2(t.d, t.a))
