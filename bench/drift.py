@@ -26,6 +26,7 @@ SRMOSAIC = [sys.executable, '-m', 'srmosaic_ros.cli']
 CONFIGS = {
     'georef, no keyframes': {'georef': {'enabled': True}, 'mosaic': {'keyframe_interval': 0}},
     'georef, keyframes on revisits (default)': {'georef': {'enabled': True}, 'mosaic': {}},
+    'georef, keyframes, no settling': {'georef': {'enabled': True}, 'mosaic': {'settle_s': 0.0}},
     'georef, keyframe every 10 frames': {'georef': {'enabled': True}, 'mosaic': {'keyframe_revisit_frames': 0}},
     'first-frame plane, no keyframes': {'georef': {'enabled': False}, 'mosaic': {'keyframe_interval': 0}},
     'first-frame plane, keyframes on revisits': {'georef': {'enabled': False}, 'mosaic': {}},

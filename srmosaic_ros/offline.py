@@ -382,7 +382,7 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
                     bar.set_postfix(segments=len(pipeline.segments), refresh=False)
                     if recorder is not None:
                         recent[item.stamp_ns] = item.image
-                        while len(recent) > SYNC_HOLD_FRAMES + 3:  # frames are decided at most this late
+                        while len(recent) > pipeline.max_decision_lag_frames:  # frames are decided at most this late
                             recent.pop(next(iter(recent)))
                 if recorder is not None:
                     for rec in records:

@@ -15,9 +15,19 @@ samples that precede it. With fixes and camera intrinsics, segments live on one 
 raster (the Georeferencer's), frames are placed by their fused pose, and chained homographies are
 pulled toward the pose-predicted placement (drift control); without them, a segment's plane is
 the pixel plane of its first frame.
+
+Settling (georeferenced segments, `mosaic.settle_s`, `mosaic.settle_max_frames`): the first frame
+of a segment is placed by its pose when the filter knows least, and drift control then pulls the
+next frames toward better poses; painted at once, the first frames would sit up to 1.5 px from the
+later ones (a seam the registrations, good to a few hundredths of a pixel, do not have). So a
+segment's first frames are held, unpainted, until settle_s seconds of them (or settle_max_frames
+frames) have been placed; then they are placed back from the newest one through their own
+registrations (H_k = H_(k+1) inv(prev_H_cur_(k+1))) and painted. Their records are decided then,
+that much later (the poses are ready at once: take_fused()).
 """
 from __future__ import annotations
 
+import collections
 import math
 import time
 from dataclasses import dataclass, field
@@ -83,12 +93,14 @@ class PipelineResult:
 
 @dataclass
 class _Held:
-    """A frame kept for registration: its features, float image and record."""
+    """A frame kept for registration: its features, float image (None while held for settling, then
+    `raw`, the input image, is converted when it is painted) and record."""
 
     features: Features
-    image: np.ndarray
+    image: np.ndarray | None
     record: FrameRecord
     camera: CameraIntrinsics | None = None
+    raw: np.ndarray | None = None
 
 
 class Pipeline:
@@ -112,6 +124,10 @@ class Pipeline:
         self._latest_telemetry_ns: int | None = None
         self._heap = HeapTrimmer()  # long runs: return freed heap pages (malloc_tuning.py)
         self._centres: dict[int, list[np.ndarray]] = {}  # segment -> centres of its painted frames (_revisits)
+        self._settling: list[_Held] = []  # the first frames of the active segment, placed, not painted yet
+        self._settling_seg: Segment | None = None
+        self._settled: list[FrameRecord] = []  # records decided by the last settle (returned by _process)
+        self._fused: collections.deque[FrameRecord] = collections.deque(maxlen=1000)
 
     # -- input -------------------------------------------------------------------------------
     def feed(self, item: Frame | GeoFix | ImuSample | CameraIntrinsics) -> list[FrameRecord]:
@@ -180,6 +196,7 @@ class Pipeline:
         return self.georef.correct(self.georef.raster_H_frame(pose, camera), pose, camera)
 
     def _start_segment(self, held: _Held) -> Segment:
+        self._settle()  # the previous segment's first frames, if still held
         start = self._georeferenced_start(held)
         shared = self._geo_canvas.canvas if (start is not None and self._geo_canvas is not None) else None
         seg = Segment.create(len(self.segments), self._channels or 1, self.config.mosaic, canvas=shared)
@@ -187,7 +204,11 @@ class Pipeline:
         if seg.georeferenced and self._geo_canvas is None:
             self._geo_canvas = seg
         self.segments.append(seg)
-        self._paint(seg, held, start if start is not None else np.eye(3))
+        if seg.georeferenced and self.config.mosaic.settle_s > 0 and self.config.mosaic.settle_max_frames > 1:
+            self._settling_seg = seg
+            self._place(seg, held, start)
+        else:
+            self._paint(seg, held, start if start is not None else np.eye(3))
         return seg
 
     def _chained(self, seg: Segment, prev_seg_H_frame: np.ndarray, reg: Registration, held: _Held) -> np.ndarray:  # noqa: N803
@@ -260,8 +281,9 @@ class Pipeline:
         return bool(near[:min(run, n - gap)].any())
 
     def _paint(self, seg: Segment, held: _Held, seg_H_frame: np.ndarray) -> bool:  # noqa: N803
+        image = held.image if held.image is not None else self._as_canvas_image(held.raw)
         try:
-            seg.add(held.record.index, held.image, seg_H_frame)
+            seg.add(held.record.index, image, seg_H_frame)
         except ValueError as exc:  # absurd footprint: refuse, never allocate a giant canvas
             held.record.reason = f'not painted: {exc}'
             return False
@@ -275,6 +297,7 @@ class Pipeline:
         if self.georef is None:
             return
         use = reg is not None and reg.ok and ref is not None
+        self._fused.append(held.record)
         held.record.pose = self.georef.feed_frame(
             held.record.stamp_ns, reg.prev_H_cur if use else None, reg.covariance if use else None,
             rms_px=reg.rms_px if use else float('nan'), inliers=reg.inliers if use else 0, camera=held.camera,
@@ -290,7 +313,7 @@ class Pipeline:
             record.time_s = time.perf_counter() - t0
             return [record]
         held = _Held(self.registrar.describe(frame.image), self._as_canvas_image(frame.image), record,
-                     frame.camera or self.camera)
+                     frame.camera or self.camera, raw=frame.image)
         decided = [record]
         if self._last_good is None:
             self._fuse(held, None, None)
@@ -300,7 +323,7 @@ class Pipeline:
             reg = self.registrar.register(self._last_good.features, held.features)
             record.registration = reg
             self._fuse(held, reg, self._last_good)
-            if reg.ok and self._paint(self._active, held, self._keyframe(
+            if reg.ok and self._place(self._active, held, self._keyframe(
                     self._active, held, self._chained(self._active, self._last_good.record.seg_H_frame, reg, held))):
                 self._last_good = held
                 self._orphan = None
@@ -312,7 +335,9 @@ class Pipeline:
                 self._orphan = held
         record.time_s = time.perf_counter() - t0
         self._heap.tick()
-        return decided
+        settled = self._take_settled()
+        later = {id(r) for r in settled} | {id(h.record) for h in self._settling}
+        return settled + [r for r in decided if id(r) not in later]
 
     def _try_new_segment(self, held: _Held) -> bool:
         """Register `held` to the orphan; on success the orphan starts a new segment holding both."""
@@ -324,22 +349,87 @@ class Pipeline:
         seg = self._start_segment(orphan)
         orphan.record.reason = ''
         held.record.registration = reg
-        if not self._paint(seg, held, self._chained(seg, orphan.record.seg_H_frame, reg, held)):
+        if not self._place(seg, held, self._chained(seg, orphan.record.seg_H_frame, reg, held)):
             return False
         self._active = seg
         self._last_good = held
         return True
 
     def flush(self) -> list[FrameRecord]:
-        """Process every frame still waiting for telemetry (live: when telemetry stopped coming)."""
-        return self._drain(all_frames=True)
+        """Process every frame still waiting for telemetry (live: when telemetry stopped coming) and
+        paint the frames held for settling: every frame held back is decided."""
+        decided = self._drain(all_frames=True)
+        self._settle()
+        return decided + self._take_settled()
 
     @property
     def waiting(self) -> int:
         """Frames waiting for telemetry at or after their stamp."""
         return len(self._waiting)
 
+    @property
+    def held_back(self) -> int:
+        """Frames not decided yet: waiting for telemetry, or placed and held for settling."""
+        return len(self._waiting) + len(self._settling)
+
+    @property
+    def max_decision_lag_frames(self) -> int:
+        """How many frames later than its own a frame's record may be returned, at most."""
+        cfg = self.config.mosaic
+        return SYNC_HOLD_FRAMES + 3 + (cfg.settle_max_frames if cfg.settle_s > 0 else 0)
+
+    def take_fused(self) -> list[FrameRecord]:
+        """Records whose fused pose (record.pose) was computed since the last call, in order; a frame
+        held for settling is decided later, but its pose is ready now (live: publish it at once)."""
+        out = list(self._fused)
+        self._fused.clear()
+        return out
+
     def finish(self) -> PipelineResult:
-        """Process the frames still waiting for telemetry and return everything."""
-        self._drain(all_frames=True)
+        """Process the frames still waiting for telemetry, paint those held for settling, and return everything."""
+        self.flush()
         return PipelineResult(self.records, self.segments, self.fixes, self.imus, self.georef)
+
+    # -- settling --------------------------------------------------------------------------------
+    def _place(self, seg: Segment, held: _Held, seg_H_frame: np.ndarray) -> bool:  # noqa: N803
+        """Paint the frame now, or hold it while its segment settles (module docstring)."""
+        if seg is not self._settling_seg:
+            return self._paint(seg, held, seg_H_frame)
+        held.record.seg_H_frame = seg_H_frame  # provisional: drift control chains the next frame from it
+        held.image = None                       # the input image is kept instead (held.raw)
+        self._settling.append(held)
+        cfg = self.config.mosaic
+        span_s = (held.record.stamp_ns - self._settling[0].record.stamp_ns) * 1e-9
+        if span_s >= cfg.settle_s or len(self._settling) >= cfg.settle_max_frames:
+            self._settle()
+        return True
+
+    def _settle(self) -> None:
+        """Place the held frames back from the newest through their registrations, and paint them."""
+        held, seg = self._settling, self._settling_seg
+        self._settling, self._settling_seg = [], None
+        if not held or seg is None:
+            return
+        placed = [held[-1].record.seg_H_frame]
+        for k in range(len(held) - 2, -1, -1):
+            rel = held[k + 1].record.registration.prev_H_cur  # frame k+1 -> frame k (its last good frame)
+            h = placed[-1] @ np.linalg.inv(rel)
+            placed.append(h / h[2, 2])
+        for h_k, frame in zip(reversed(placed), held, strict=True):
+            if not self._paint(seg, frame, h_k):
+                frame.record.seg_H_frame = None
+            self._settled.append(frame.record)
+
+    def _take_settled(self) -> list[FrameRecord]:
+        out = self._settled
+        self._settled = []
+        return out
+
+    def __setstate__(self, state: dict) -> None:
+        """Pipelines resumed from checkpoints of earlier versions get the attributes added since."""
+        self.__dict__.update(state)
+        for name, default in (('_centres', dict), ('_settling', list), ('_settled', list),
+                              ('_fused', lambda: collections.deque(maxlen=1000))):
+            if name not in self.__dict__:
+                self.__dict__[name] = default()
+        self.__dict__.setdefault('_settling_seg', None)

@@ -226,8 +226,8 @@ class MosaicNode(Node):
                 try:
                     if frame is not None:
                         records += self.pipeline.feed(frame)
-                    elif idle and self.pipeline.waiting:
-                        records += self.pipeline.flush()  # telemetry stopped: do not hold frames forever
+                    elif idle and self.pipeline.held_back:
+                        records += self.pipeline.flush()  # input paused: do not hold frames forever
                 except SrMosaicError as exc:
                     self._warn_once(f'pipeline: {type(exc).__name__}', f'frame skipped: {exc}')
                     continue
@@ -236,12 +236,14 @@ class MosaicNode(Node):
                                     f'frame skipped after an internal error (please report): {exc!r}')
                     self.get_logger().error(traceback.format_exc())
                     continue
+                fused = self.pipeline.take_fused()
             if records:
                 self._latency_ms.append((time.perf_counter() - t0) * 1e3)
             self.stats['frames_processed'] += len(records)
+            for record in fused:  # poses at once, also of frames held while their segment settles
+                self._publish_pose(record)
             for record in records:
                 self._publish_registration(record)
-                self._publish_pose(record)
                 self._last_record = record
 
     def _publish_registration(self, record: FrameRecord) -> None:

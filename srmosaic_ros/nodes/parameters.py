@@ -36,6 +36,8 @@ _RANGES: dict[str, tuple[float, float]] = {
     'mosaic.max_canvas_side_px': (256, 10000000),
     'mosaic.preview_max_side_px': (16, 16384),
     'mosaic.max_tiles_in_memory': (0, 1000000),
+    'mosaic.settle_s': (0.0, 600.0),
+    'mosaic.settle_max_frames': (1, 1000),
     'live.queue_size': (1, 100),
     'live.torch_threads': (0, 256),
     'live.preview_period_s': (0.05, 3600.0),

@@ -20,6 +20,8 @@ class MosaicConfig:
     keyframe_revisit_frames: int = 20  # only where the frame revisits ground painted this many frames before (0: always)
     keyframe_min_coverage: float = 0.5  # fraction of the frame's view the mosaic must cover
     keyframe_max_correction_px: float = 10.0  # larger corner corrections are refused (prediction kept)
+    settle_s: float = 3.0  # a georeferenced segment's first frames are painted once this span of them is placed (0: at once)
+    settle_max_frames: int = 30  # ... or once this many are held, whichever comes first
 
     def __post_init__(self) -> None:
         if not 64 <= self.tile_size <= 4096:
@@ -51,6 +53,13 @@ class MosaicConfig:
             raise ValueError(msg)
         if not self.keyframe_max_correction_px > 0.0:
             msg = f'mosaic.keyframe_max_correction_px must be > 0, got {self.keyframe_max_correction_px}.'
+            raise ValueError(msg)
+        if not (isinstance(self.settle_s, (int, float)) and 0.0 <= self.settle_s <= 600.0):
+            msg = f'mosaic.settle_s must be in 0 .. 600 seconds (0: paint a segment\'s first frames at once), got {self.settle_s!r}.'
+            raise ValueError(msg)
+        if isinstance(self.settle_max_frames, bool) or not isinstance(self.settle_max_frames, int) \
+                or not 1 <= self.settle_max_frames <= 1000:
+            msg = f'mosaic.settle_max_frames must be an integer in 1 .. 1000, got {self.settle_max_frames!r}.'
             raise ValueError(msg)
         if not isinstance(self.spill_dir, str):
             msg = f"mosaic.spill_dir must be a directory path or '' (a temporary directory), got {self.spill_dir!r}."
