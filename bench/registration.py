@@ -6,8 +6,9 @@ tracks: weak texture, OpenCV SIFT finds ~90 keypoints in a frame) and data/world
 (2000 x 1125, a beach town: the textured aerial frames the issue's baseline figures were taken on,
 SIFT keeps its 1000). 640 x 480 frames, sensor noise sigma 2/255, EO (RGB) and IR-like (single channel, inverted non-linear
 contrast, softer optics, per-frame gain drift), with small and large inter-frame motion (large:
-translation up to 60 px, rotation up to 10 degrees, scale up to 1.2, slight perspective), plus
-textureless frames (sea / cloud) that must fail.
+translation up to 60 px, rotation up to 10 degrees, scale up to 1.2, slight perspective; zoom: scale
+changes of 1.3 to 1.5 between frames, the descriptor's range), plus textureless frames (sea / cloud)
+that must fail.
 
 Every method sees the same frames in the same process, taking turns frame by frame (so that
 load changes on a shared machine hit all alike); each frame is described once and registered to
@@ -65,6 +66,7 @@ class Motion:
 
 SMALL = Motion((2.0, 15.0), (0.0, 1.5), (1.0, 1.03), 1e-5)
 LARGE = Motion((30.0, 60.0), (5.0, 10.0), (1.1, 1.2), 3e-5)
+ZOOM = Motion((5.0, 30.0), (0.0, 5.0), (1.3, 1.5), 1e-5)   # the scale range for the descriptor: up to 1.5
 
 
 def load_worlds(scale: float = 0.5, path: Path = WORLDS['caliterra']) -> dict[str, np.ndarray]:
@@ -306,7 +308,8 @@ def main(argv: list[str] | None = None) -> int:
         worlds = load_worlds(path=WORLDS[wname])
         shape = worlds['eo'].shape[:2]
         for i, (name, kind, motion) in enumerate([('eo-small', 'eo', SMALL), ('eo-large', 'eo', LARGE),
-                                                  ('ir-small', 'ir', SMALL), ('ir-large', 'ir', LARGE)]):
+                                                  ('ir-small', 'ir', SMALL), ('ir-large', 'ir', LARGE),
+                                                  ('eo-zoom', 'eo', ZOOM), ('ir-zoom', 'ir', ZOOM)]):
             poses = flight(shape, motion, n + 1, seed=100 + i)
             rng = np.random.default_rng(200 + i)
             frames = [render(worlds[kind], p, rng, ir=kind == 'ir') for p in poses]

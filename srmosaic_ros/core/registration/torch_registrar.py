@@ -21,7 +21,10 @@ follow Table 1 of the reference, with a direct photometric refinement on top:
    configured), from the feature estimate: the sub-pixel accuracy that super-resolution needs. The template is the frame with
    the finer ground sampling (both frames' templates are cached). A refinement that moves a frame
    corner by more than max_refine_shift_px from the feature estimate is discarded (the feature
-   estimate is returned, extras['refined'] = 0).
+   estimate is returned, extras['refined'] = 0), unless it converged, moves no corner by more than
+   max_refine_shift_converged_px and still explains the feature inliers (their reprojection RMS at
+   most 1.25 x theirs under the feature estimate + 0.05 px): at scale changes near 1.5 the feature
+   estimate extrapolates 2 to 4 px wrong to the frame corners, and the refinement is then right.
 8. failure is explicit: too few keypoints / matches / inliers, low inlier ratio, high residual,
    or an implausible homography (validity.check_homography) give ok = False and the reason. A pair
    that fails for too few matches or inliers is first retried once with more keypoints (up to
@@ -90,7 +93,8 @@ class TorchRegistrarOptions:
     covariance: compute the UT covariance; covariance_iterations: re-estimation steps per sigma
         point (1: one Gauss-Newton step, see covariance.homography_covariance_ut).
     max_refine_shift_px: largest corner shift the photometric refinement may apply to the feature
-        estimate before it is distrusted.
+        estimate before it is distrusted; max_refine_shift_converged_px: the same for a refinement
+        that converged and still fits the feature inliers (see the module docstring, step 7).
     estimation_on_host: on a GPU device, run the estimation on correspondences (RANSAC, LM,
         covariance: a few hundred points, float64, hundreds of tiny kernels) on the CPU; images,
         features, matching and the photometric refinement stay on the GPU. No effect on the CPU.
@@ -106,6 +110,7 @@ class TorchRegistrarOptions:
     covariance: bool = True
     covariance_iterations: int = 1
     max_refine_shift_px: float = 2.0
+    max_refine_shift_converged_px: float = 6.0
     estimation_on_host: bool = True
     seed: int = 0
 
@@ -117,6 +122,7 @@ class TorchRegistrarOptions:
             'guided_rounds': self.guided_rounds >= 0,
             'covariance_iterations': self.covariance_iterations >= 1,
             'max_refine_shift_px': self.max_refine_shift_px > 0.0,
+            'max_refine_shift_converged_px': self.max_refine_shift_converged_px >= self.max_refine_shift_px,
         }
         bad = [name for name, ok in checks.items() if not ok]
         if bad:
@@ -224,6 +230,18 @@ class TorchRegistrar:
                 reg.extras['retry_keypoints'] = float(min(len(prev.keypoints), len(cur.keypoints)))
         return reg
 
+    def _refinement_trusted(self, shift: float, converged: bool, H_ref: np.ndarray, src: torch.Tensor,  # noqa: N803
+                            dst: torch.Tensor, rms_feat: float) -> bool:
+        """Whether the photometric estimate replaces the feature one (module docstring, step 7)."""
+        opt = self.options
+        if shift <= opt.max_refine_shift_px:
+            return True
+        if not (converged and shift <= opt.max_refine_shift_converged_px):
+            return False
+        h = torch.as_tensor(H_ref, dtype=torch.float64, device=src.device)
+        rms_ref = float(((transfer_points(h, src) - dst) ** 2).sum(-1).mean().sqrt())
+        return rms_ref <= 1.25 * rms_feat + 0.05
+
     def _register_once(self, prev: TorchFeatures, cur: TorchFeatures, t0: float) -> Registration:
         cfg, opt = self.config, self.options
         kp, kc = prev.keypoints, cur.keypoints
@@ -309,7 +327,7 @@ class TorchRegistrar:
             extras.update(photometric_iterations=float(res.iterations), photometric_rms=res.rms,
                           photometric_valid=res.valid_fraction, refine_shift_px=shift,
                           photometric_template_prev=float(scale > 1.0))
-            if shift <= opt.max_refine_shift_px and not check_homography(
+            if self._refinement_trusted(shift, res.converged, H_ref, src, dst, rms_feat) and not check_homography(
                     H_ref, w, h, max_scale_change=cfg.max_scale_change, max_perspective=cfg.max_perspective):
                 H_out = H_ref  # noqa: N806
                 extras['refined'] = 1.0
