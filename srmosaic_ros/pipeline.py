@@ -395,6 +395,11 @@ class Pipeline:
         """Paint the frame now, or hold it while its segment settles (module docstring)."""
         if seg is not self._settling_seg:
             return self._paint(seg, held, seg_H_frame)
+        try:  # refused now, as painting it would be: an absurd placement must not become the chain's base
+            seg.canvas.check_placement(seg_H_frame, *held.record.size)
+        except ValueError as exc:
+            held.record.reason = f'not painted: {exc}'
+            return False
         held.record.seg_H_frame = seg_H_frame  # provisional: drift control chains the next frame from it
         held.image = None                       # the input image is kept instead (held.raw)
         self._settling.append(held)

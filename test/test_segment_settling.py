@@ -86,3 +86,18 @@ def test_settle_frames_cap_and_bad_values(flight):
     for bad in ({'settle_s': -1.0}, {'settle_max_frames': 0}, {'settle_max_frames': 2.5}):
         with pytest.raises(ValueError, match='settle'):
             MosaicConfig(**bad)
+
+
+def test_a_bad_frame_inside_the_settle_window_is_skipped_and_the_rest_settles(flight):
+    frames = [i for i, item in enumerate(flight) if isinstance(item, Frame)]
+    bad = frames[5]
+    item = flight[bad]
+    items = list(flight)
+    items[bad] = Frame(item.stamp_ns, np.full_like(item.image, 128), item.camera, item.frame_id)  # lens cap
+    pipe, decided = _run(items)
+    assert sorted(i for _, i in decided) == list(range(60))
+    rec = pipe.records[5]
+    assert not rec.painted and rec.reason
+    assert all(r.painted for r in pipe.records if r.index != 5)
+    err = _errors(pipe)
+    assert len(err) == 59 and err.max() < 0.15, np.round(err[:14], 3)

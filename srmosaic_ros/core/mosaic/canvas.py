@@ -382,6 +382,35 @@ class TiledCanvas:
             raise CanvasError(msg)
         return m
 
+    def check_placement(self, mosaic_H_frame: np.ndarray, width: int, height: int) -> None:  # noqa: N803
+        """Raise CanvasError where :meth:`paint` would refuse a width x height frame at mosaic_H_frame
+        (an absurd homography, or a canvas beyond max_canvas_side_px), without painting it."""
+        self._placement(self._as_homography(mosaic_H_frame, width, height), width, height)
+
+    def _placement(self, m: np.ndarray, w: int, h: int) -> tuple[int, int, int, int]:
+        """Bounding box (x0, y0, x1, y1) of the mosaic pixels a w x h frame at m touches; CanvasError
+        when it is absurd or would make the canvas exceed max_canvas_side_px."""
+        # Bilinear sampling gives non-zero weight to mosaic pixels mapping inside (-1, W) x (-1, H).
+        support, _ = _project(m, np.array([[-1.0, -1.0], [w, -1.0], [w, h], [-1.0, h]]))
+        lo = support.min(axis=0)
+        hi = support.max(axis=0)
+        bw_f, bh_f = hi[0] - lo[0], hi[1] - lo[1]
+        if bw_f * bh_f > self._max_area_ratio * max(w * h, 64):
+            msg = (f'the footprint of a {w}x{h} frame spans {bw_f:.0f}x{bh_f:.0f} mosaic pixels, more than '
+                   f'{self._max_area_ratio:g} times the frame area; mosaic_H_frame is absurd:\n{m}\n'
+                   'skip this frame (or raise max_area_ratio if such a zoom is intended).')
+            raise CanvasError(msg)
+        x0, y0 = math.floor(lo[0]), math.floor(lo[1])
+        x1, y1 = math.floor(hi[0]) + 1, math.floor(hi[1]) + 1
+        ux0, uy0, ux1, uy1 = (x0, y0, x1, y1) if self._bounds is None else (
+            min(x0, self._bounds[0]), min(y0, self._bounds[1]), max(x1, self._bounds[2]), max(y1, self._bounds[3]))
+        if max(ux1 - ux0, uy1 - uy0) > self._max_side:
+            msg = (f'painting this frame would make the canvas {ux1 - ux0}x{uy1 - uy0} px, beyond '
+                   f'max_canvas_side_px={self._max_side} (footprint bbox x [{x0}, {x1}), y [{y0}, {y1})); '
+                   'the chain has drifted or the homography is absurd: skip the frame or start a new segment.')
+            raise CanvasError(msg)
+        return x0, y0, x1, y1
+
     def paint(
         self,
         image: np.ndarray,
@@ -411,27 +440,8 @@ class TiledCanvas:
         h, w = img.shape[:2]
         m = self._as_homography(mosaic_H_frame, w, h)
         valid = self._as_mask(mask, img)
-
         footprint, _ = _project(m, np.array([[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5], [-0.5, h - 0.5]]))
-        # Bilinear sampling gives non-zero weight to mosaic pixels mapping inside (-1, W) x (-1, H).
-        support, _ = _project(m, np.array([[-1.0, -1.0], [w, -1.0], [w, h], [-1.0, h]]))
-        lo = support.min(axis=0)
-        hi = support.max(axis=0)
-        bw_f, bh_f = hi[0] - lo[0], hi[1] - lo[1]
-        if bw_f * bh_f > self._max_area_ratio * max(w * h, 64):
-            msg = (f'the footprint of a {w}x{h} frame spans {bw_f:.0f}x{bh_f:.0f} mosaic pixels, more than '
-                   f'{self._max_area_ratio:g} times the frame area; mosaic_H_frame is absurd:\n{m}\n'
-                   'skip this frame (or raise max_area_ratio if such a zoom is intended).')
-            raise CanvasError(msg)
-        x0, y0 = math.floor(lo[0]), math.floor(lo[1])
-        x1, y1 = math.floor(hi[0]) + 1, math.floor(hi[1]) + 1
-        ux0, uy0, ux1, uy1 = (x0, y0, x1, y1) if self._bounds is None else (
-            min(x0, self._bounds[0]), min(y0, self._bounds[1]), max(x1, self._bounds[2]), max(y1, self._bounds[3]))
-        if max(ux1 - ux0, uy1 - uy0) > self._max_side:
-            msg = (f'painting this frame would make the canvas {ux1 - ux0}x{uy1 - uy0} px, beyond '
-                   f'max_canvas_side_px={self._max_side} (footprint bbox x [{x0}, {x1}), y [{y0}, {y1})); '
-                   'the chain has drifted or the homography is absurd: skip the frame or start a new segment.')
-            raise CanvasError(msg)
+        x0, y0, x1, y1 = self._placement(m, w, h)
 
         weight = feather_weight(h, w, profile=self._profile, power=self._power, mask=valid)
         if valid is not None:
