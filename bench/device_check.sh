@@ -39,10 +39,12 @@ torch.cuda.get_device_name(0) if torch.cuda.is_available() else "-", "| opencv",
     step "CUDA tests (registration, SR)"
     timeout 240 $py -m pytest -q -p no:cacheprovider test/test_registration_torch.py test/test_sr_reconstruct.py \
         -k "cuda or gpu" -rs
-    step "bench/registration.py --device cuda"
-    timeout 240 $py bench/registration.py --device cuda --frames 30 --no-baseline --threads 2
-    step "bench/registration_profile.py --device cuda"
-    timeout 120 $py bench/registration_profile.py --device cuda --frames 30
+    step "bench/registration.py --device cuda (describe: fixed shapes, then replayed as a CUDA graph)"
+    timeout 150 $py bench/registration.py --device cuda --frames 30 --no-baseline --threads 2 --worlds brighton
+    timeout 150 $py bench/registration.py --device cuda --frames 30 --no-baseline --threads 2 --worlds brighton --cuda-graphs
+    step "bench/registration_profile.py --device cuda (without, with CUDA graphs)"
+    timeout 90 $py bench/registration_profile.py --device cuda --frames 30
+    timeout 90 $py bench/registration_profile.py --device cuda --frames 30 --cuda-graphs
     step "bench/sr.py --only speed --device auto (CPU and GPU)"
     timeout 180 $py bench/sr.py --only speed --device auto --threads 2 --out "$out"
 } 2>&1 | tee "$log"

@@ -21,6 +21,7 @@ the failure rate (ok = False), wrong registrations (ok = True but corner error >
 the speed ratio of ours to the baseline.
 
     python bench/registration.py [--frames 40] [--device cpu|cuda|auto] [--threads 2] [--quick] [--repeat 3]
+                                 [--cuda-graphs]
                                  [--worlds caliterra,brighton]
 """
 from __future__ import annotations
@@ -282,6 +283,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument('--threads', type=int, default=2, help='torch and OpenCV threads (default 2)')
     ap.add_argument('--quick', action='store_true', help='12 frames per scenario')
     ap.add_argument('--no-baseline', action='store_true', help='skip the OpenCV baselines')
+    ap.add_argument('--cuda-graphs', action='store_true',
+                    help='on a GPU, replay describe as a CUDA graph (TorchRegistrarOptions.cuda_graphs)')
     ap.add_argument('--worlds', default='caliterra,brighton',
                     help=f'comma-separated orthophotos to fly over, of {", ".join(WORLDS)} (default both)')
     ap.add_argument('--repeat', type=int, default=1,
@@ -291,11 +294,12 @@ def main(argv: list[str] | None = None) -> int:
     cv2.setNumThreads(args.threads)
     n = 12 if args.quick else args.frames
     config = RegistrationConfig()
-    ours = TorchRegistrar(config, device=args.device)
+    ours = TorchRegistrar(config, device=args.device, options=TorchRegistrarOptions(cuda_graphs=args.cuda_graphs))
     device = ours.device
     methods = [Ours(f'torch ({device.type})', ours),
                Ours(f'torch features only ({device.type})',
-                    TorchRegistrar(config, device=device, options=TorchRegistrarOptions(photometric=None)))]
+                    TorchRegistrar(config, device=device, options=TorchRegistrarOptions(
+                        photometric=None, cuda_graphs=args.cuda_graphs)))]
     if not args.no_baseline:
         methods += [OpenCVBaseline(config), OpenCVBaselinePairs(config)]
     world_names = [w.strip() for w in args.worlds.split(',') if w.strip()]

@@ -13,7 +13,7 @@ aten::nonzero; each one waits for the queue to drain).
 Frames: a textured synthetic flight (brighton) at 640x480 as in bench/registration.py (EO, small
 motion, noise sigma 2).
 
-    python bench/registration_profile.py [--device cpu|cuda] [--frames 30] [--threads 2]
+    python bench/registration_profile.py [--device cpu|cuda] [--frames 30] [--threads 2] [--cuda-graphs]
 """
 from __future__ import annotations
 
@@ -34,7 +34,7 @@ sys.path.insert(0, str(ROOT / 'bench'))
 import registration as flights  # noqa: E402  (bench/registration.py: the same synthetic frames)
 
 from srmosaic_ros.core.registration import RegistrationConfig  # noqa: E402
-from srmosaic_ros.core.registration import torch_features, torch_registrar  # noqa: E402
+from srmosaic_ros.core.registration import static_describe, torch_registrar  # noqa: E402
 
 #: (module, function, stage label): the functions TorchRegistrar calls, in the order of a frame.
 STAGES = [
@@ -43,6 +43,7 @@ STAGES = [
     (torch_registrar, 'detect', 'describe: DoH detection'),
     (torch_registrar, 'describe_candidates', 'describe: orientation + descriptors'),
     (torch_registrar, 'make_template', 'describe: photometric templates'),
+    (static_describe.StaticDescriber, 'run', 'describe: fixed shapes (all of it)'),
     (torch_registrar, 'descriptor_sq_distances', 'register: descriptor distances'),
     (torch_registrar, 'mutual_ratio_matches', 'register: mutual ratio matches'),
     (torch_registrar, 'ransac_homography', 'register: RANSAC'),
@@ -84,13 +85,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument('--device', default='cpu')
     ap.add_argument('--frames', type=int, default=30)
     ap.add_argument('--threads', type=int, default=2)
+    ap.add_argument('--cuda-graphs', action='store_true', help='replay describe as a CUDA graph')
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
     worlds = flights.load_worlds(path=flights.WORLDS['brighton'])
     poses = flights.flight(worlds['eo'].shape[:2], flights.SMALL, args.frames + 3, seed=100)
     rng = np.random.default_rng(200)
     frames = [flights.render(worlds['eo'], p, rng, ir=False) for p in poses]
-    reg = torch_registrar.TorchRegistrar(RegistrationConfig(), device=args.device)
+    reg = torch_registrar.TorchRegistrar(RegistrationConfig(), device=args.device,
+                                         options=torch_registrar.TorchRegistrarOptions(cuda_graphs=args.cuda_graphs))
     dev = reg.device
     prev = reg.describe(frames[0])
     for f in frames[1:3]:  # warm-up (allocator, kernels, caches)

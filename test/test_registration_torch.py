@@ -391,3 +391,74 @@ def test_refined_covariance_is_the_photometric_one_and_honest(cpu_registrar):
     sigma_ph, sigma_true = float(np.median(sig_ph)), float(np.sqrt(np.mean(np.square(errs))))
     assert 0.5 < sigma_ph / sigma_true < 2.0, (sigma_ph, sigma_true)
     assert np.median(sig_feat) > 2.0 * sigma_ph
+
+
+# --- fixed shapes (static_describe.py) ------------------------------------------------------------
+
+def _textured_pair(seed: int = 0):
+    world = world_rgb(0.5)
+    world_H_prev = similarity(10.0, 1.0, 150.0, 200.0)  # noqa: N806
+    world_H_cur = world_H_prev @ similarity(4.0, 1.1, 25.0, -10.0, 320.0, 240.0)  # noqa: N806
+    return (view(world_H_prev, 640, 480, noise=2.0, seed=seed, image=world),
+            view(world_H_cur, 640, 480, noise=2.0, seed=seed + 1, image=world),
+            np.linalg.inv(world_H_prev) @ world_H_cur)
+
+
+def test_static_shapes_describe_gives_the_data_dependent_features():
+    """With fixed shapes (topk instead of nonzero, what a CUDA graph records) describe gives the same
+    candidates, keypoints, descriptors and templates, hence the same registration."""
+    prev, cur, prev_H_cur = _textured_pair()  # noqa: N806
+    plain = TorchRegistrar(device='cpu')
+    fixed = TorchRegistrar(device='cpu', options=TorchRegistrarOptions(static_shapes=True))
+    assert plain._static is None and fixed._static is not None  # noqa: SLF001 (the CPU default: data-dependent)
+    a, b = plain.describe(cur), fixed.describe(cur)
+    assert 100 < len(a.candidates) == len(b.candidates) < fixed.options.static_candidates
+    np.testing.assert_array_equal(a.keypoints_px, b.keypoints_px)
+    np.testing.assert_array_equal(a.descriptors, b.descriptors)
+    torch.testing.assert_close(a.candidates.xy, b.candidates.xy, rtol=0, atol=0)
+    for ta, tb in zip(a.templates, b.templates, strict=True):
+        torch.testing.assert_close(ta.sd, tb.sd, rtol=0, atol=0)
+    ra = plain.register(plain.describe(prev), a)
+    rb = fixed.register(fixed.describe(prev), b)
+    assert ra.ok and rb.ok
+    np.testing.assert_allclose(rb.prev_H_cur, ra.prev_H_cur, rtol=1e-12, atol=1e-12)
+    assert corner_error_px(rb.prev_H_cur, prev_H_cur, 640, 480) < 0.1
+    # more keypoints for a hard pair come from the same (trimmed) candidates
+    assert a.extend(400) and b.extend(400)
+    np.testing.assert_array_equal(a.keypoints_px, b.keypoints_px)
+    assert len(b.keypoints) == 400
+
+
+def test_static_shapes_describe_has_a_single_host_synchronisation():
+    """nonzero (a data-dependent size) waits for a GPU to drain; the fixed-shape describe has none,
+    and reads one number at the end (how many candidates are real)."""
+    from torch.profiler import ProfilerActivity, profile
+
+    _, cur, _ = _textured_pair()
+    counts = {}
+    for name, static in (('plain', False), ('fixed', True)):
+        reg = TorchRegistrar(device='cpu', options=TorchRegistrarOptions(static_shapes=static))
+        reg.describe(cur)
+        with profile(activities=[ProfilerActivity.CPU]) as prof:
+            reg.describe(cur)
+        counts[name] = {e.key: e.count for e in prof.key_averages()
+                        if e.key in ('aten::nonzero', 'aten::_local_scalar_dense')}
+    assert counts['plain'].get('aten::nonzero', 0) == 2, counts
+    assert counts['fixed'].get('aten::nonzero', 0) == 0 and counts['fixed'].get('aten::_local_scalar_dense') == 1, counts
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason='no CUDA GPU')
+def test_cuda_graph_describe_matches_eager_and_registers():
+    """On a GPU describe is recorded as a CUDA graph (per frame size) and replayed: same features as
+    running the fixed-shape operations one by one, and each frame's outputs survive the next replay."""
+    prev, cur, prev_H_cur = _textured_pair()  # noqa: N806
+    graphed = TorchRegistrar(device='cuda', options=TorchRegistrarOptions(cuda_graphs=True))
+    eager = TorchRegistrar(device='cuda')  # fixed shapes, operation by operation (the GPU default)
+    assert eager._static is not None and not eager._static.cuda_graphs  # noqa: SLF001
+    fp, fc = graphed.describe(prev), graphed.describe(cur)
+    assert graphed._static.graph_failures == 0  # noqa: SLF001
+    ep, ec = eager.describe(prev), eager.describe(cur)
+    np.testing.assert_allclose(fp.keypoints_px, ep.keypoints_px, atol=1e-4)
+    np.testing.assert_allclose(fc.keypoints_px, ec.keypoints_px, atol=1e-4)
+    reg = graphed.register(fp, fc)
+    assert reg.ok and corner_error_px(reg.prev_H_cur, prev_H_cur, 640, 480) < 0.1

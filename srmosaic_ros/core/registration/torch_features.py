@@ -247,8 +247,15 @@ class _Octave:
     response: torch.Tensor    # (K,)
 
 
-def _detect_octave(levels: torch.Tensor, sigmas: list[float], index: int, opts: FeatureOptions) -> _Octave:
-    """Scale-normalised DoH maxima of one octave; levels: (S + 2, H, W) Gaussian stack."""
+def _detect_octave(levels: torch.Tensor, sigmas: list[float], index: int, opts: FeatureOptions,
+                   static_k: int | None = None) -> _Octave:
+    """Scale-normalised DoH maxima of one octave; levels: (S + 2, H, W) Gaussian stack.
+
+    static_k: None selects every maximum (``nonzero``: the count is data-dependent, a host
+    synchronisation on a GPU); an int selects the static_k strongest positions of the masked
+    response instead (``topk``: fixed shapes, no synchronisation, what a CUDA graph can capture),
+    the positions that are no maximum carrying response -inf (they sort last).
+    """
     dev = levels.device
     n_s, h, w = levels.shape
     sig = cached_constant(tuple(sigmas), dev)
@@ -268,14 +275,24 @@ def _detect_octave(levels: torch.Tensor, sigmas: list[float], index: int, opts: 
         is_max[:, -b:, :] = False
         is_max[:, :, :b] = False
         is_max[:, :, -b:] = False
-    idx = is_max.nonzero()  # (K, 3): s-1, y-2, x-2
-    if idx.shape[0] == 0:
-        z = torch.zeros(0, device=dev)
-        return _Octave(index, torch.zeros(0, 2, device=dev), z, z)
-    s = idx[:, 0] + 1
-    y = idx[:, 1] + 1     # in resp coordinates (offset 1)
-    x = idx[:, 2] + 1
     hr, wr = h - 2, w - 2
+    invalid = None
+    if static_k is None:
+        idx = is_max.nonzero()  # (K, 3): s-1, y-2, x-2
+        if idx.shape[0] == 0:
+            z = torch.zeros(0, device=dev)
+            return _Octave(index, torch.zeros(0, 2, device=dev), z, z)
+        s = idx[:, 0] + 1
+        y = idx[:, 1] + 1     # in resp coordinates (offset 1)
+        x = idx[:, 2] + 1
+    else:
+        masked = torch.where(is_max, centre, torch.full_like(centre, -math.inf)).view(-1)
+        top = masked.topk(min(static_k, masked.numel()))
+        invalid = torch.isinf(top.values)
+        hc, wc = h - 4, w - 4     # is_max is (S, h - 4, w - 4)
+        s = top.indices // (hc * wc) + 1
+        y = (top.indices // wc) % hc + 1
+        x = top.indices % wc + 1
     flat = resp.reshape(-1)
     base = (s * hr + y) * wr + x
     offs = cached_constant((0, 1, -1, wr, -wr, wr + 1, wr - 1, -wr + 1, -wr - 1, hr * wr, -hr * wr), dev, torch.long)
@@ -297,6 +314,8 @@ def _detect_octave(levels: torch.Tensor, sigmas: list[float], index: int, opts: 
                       torch.zeros_like(dss)).clamp(-0.5, 0.5)
     xy = torch.stack([x.float() + 1.0 + ox, y.float() + 1.0 + oy], dim=1)
     peak = v0 + 0.5 * (dx * ox + dy * oy)
+    if invalid is not None:
+        peak = peak.masked_fill(invalid, -math.inf)
     return _Octave(index, xy, s.float() + os_, peak)
 
 
@@ -419,7 +438,9 @@ class ScaleSpaceCandidates:
     (N,) refined level index within the octave; octave: (N,) long; response: (N,); tall:
     (1, 2, R, W) gradients (gx, gy) of every Gaussian level of every octave, stacked vertically;
     row0: (O,) first row of each octave in tall; size: (O, 2) (w, h) of each octave;
-    sigma0, scales_per_octave: the scale space (sigma_i = sigma0 * 2**(i / S)).
+    sigma0, scales_per_octave: the scale space (sigma_i = sigma0 * 2**(i / S)); count: with fixed
+    shapes (detect's static_k), a 0-d long tensor, the number of real candidates (the first count
+    entries; the rest have response -inf), else None (every entry is real).
     """
 
     level: int
@@ -432,17 +453,26 @@ class ScaleSpaceCandidates:
     size: torch.Tensor
     sigma0: float
     scales_per_octave: int
+    count: torch.Tensor | None = None
 
     def __len__(self) -> int:
-        return int(self.response.numel())
+        return int(self.response.numel()) if self.count is None else int(self.count)
+
+    def trimmed(self, n: int) -> ScaleSpaceCandidates:
+        """The first n candidates, as the data-dependent path (static_k None) gives them."""
+        return ScaleSpaceCandidates(self.level, self.xy[:n], self.sub_level[:n], self.octave[:n], self.response[:n],
+                                    self.tall, self.row0, self.size, self.sigma0, self.scales_per_octave)
 
 
-def detect(level_image: torch.Tensor, level: int, opts: FeatureOptions) -> ScaleSpaceCandidates:
+def detect(level_image: torch.Tensor, level: int, opts: FeatureOptions, *,
+           static_k: int | None = None) -> ScaleSpaceCandidates:
     """Scale-space maxima of a pyramid level image (1, 1, h, w), strongest first.
 
     Scale space (per octave o, S = scales_per_octave): sigma_i = sigma0 * 2**(i / S), i = 0..S+1,
     on the detection level downscaled by 2**o; DoH = sigma**4 (Lxx Lyy - Lxy**2); candidates are its
-    3 x 3 x 3 maxima above response_threshold.
+    3 x 3 x 3 maxima above response_threshold. static_k: fixed shapes (see _detect_octave): at most
+    static_k candidates per octave, ``count`` of them real; the first ``count`` are those of the
+    data-dependent path when no octave has more than static_k.
     """
     dev = level_image.device
     s_per = opts.scales_per_octave
@@ -467,7 +497,7 @@ def detect(level_image: torch.Tensor, level: int, opts: FeatureOptions) -> Scale
         for i in range(1, n_lv):
             lv.append(gaussian_blur(lv[-1], math.sqrt(sig[i] ** 2 - sig[i - 1] ** 2)))
         stack = torch.cat(lv, 1)[0]
-        octs.append(_detect_octave(stack, sig, o, opts))
+        octs.append(_detect_octave(stack, sig, o, opts, static_k))
         _gradients_into(stack, tall[0, :, rows[o]:rows[o + 1], :w_o].view(2, n_lv, h_o, w_o))
         if o + 1 < len(sizes):
             # Next octave from the level at 2 sigma0 (index S), 2 x 2 averaged: sigma ~ sigma0 again.
@@ -477,13 +507,14 @@ def detect(level_image: torch.Tensor, level: int, opts: FeatureOptions) -> Scale
         return ScaleSpaceCandidates(level, torch.zeros(0, 2, device=dev), z, z.long(), z, tall,
                                     z.long(), torch.zeros(0, 2, device=dev), opts.sigma0, s_per)
     resp = torch.cat([o.response for o in octs])
-    order = resp.argsort(descending=True)
+    order = resp.argsort(descending=True, stable=True)
     octave = torch.cat([torch.full((o.response.numel(),), o.index, device=dev, dtype=torch.long) for o in octs])
+    count = None if static_k is None else torch.isfinite(resp).sum()
     return ScaleSpaceCandidates(
         level, torch.cat([o.xy for o in octs]).index_select(0, order),
         torch.cat([o.sub_s for o in octs]).index_select(0, order), octave.index_select(0, order),
         resp.index_select(0, order), tall, cached_constant(tuple(rows[:-1]), dev), cached_constant(tuple(sizes), dev),
-        opts.sigma0, s_per)
+        opts.sigma0, s_per, count)
 
 
 def _empty_keypoints(dev: torch.device) -> KeypointSet:

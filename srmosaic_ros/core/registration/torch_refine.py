@@ -153,10 +153,14 @@ def _level_matrices(level: int, w: int, h: int) -> tuple[np.ndarray, np.ndarray]
     return norm_from_level @ level_from_full, grid_from_level @ np.linalg.inv(norm_from_level)
 
 
-def make_template(image: torch.Tensor, level: int, *, points: int) -> PhotometricTemplate:
+def make_template(image: torch.Tensor, level: int, *, points: int, static: bool = False) -> PhotometricTemplate:
     """Template of a level image (1, 1, h, w): the image is cut into about `points` square blocks,
     each block offers its pixel of largest gradient, and the `points` strongest offers are kept
-    (blocks on the border are left out), with intensities and steepest-descent images."""
+    (blocks on the border are left out), with intensities and steepest-descent images.
+
+    static: exactly min(points, interior blocks) pixels, chosen by ``topk`` (fixed shapes, no host
+    synchronisation: what a CUDA graph can capture); by default every block at or above the
+    points-th strongest offer (``nonzero``: ties at the cut may add a few)."""
     _, _, h, w = image.shape
     b = max(1, round(math.sqrt(h * w / points)))
     hb, wb = h // b, w // b
@@ -172,8 +176,11 @@ def make_template(image: torch.Tensor, level: int, *, points: int) -> Photometri
     bmax[:, -1] = -1.0
     flat = bmax.view(-1)
     n_in = max((hb - 2) * (wb - 2), 0)
-    cut = flat.kthvalue(flat.numel() - points + 1).values if points < n_in else flat.new_tensor(0.0)
-    top = (flat >= cut).nonzero()[:, 0]
+    if static:
+        top = flat.topk(min(points, n_in)).indices.sort().values   # in block order, as nonzero gives them
+    else:
+        cut = flat.kthvalue(flat.numel() - points + 1).values if points < n_in else flat.new_tensor(0.0)
+        top = (flat >= cut).nonzero()[:, 0]
     # The arg-max pixel inside each kept block (flat indices into the cropped level, width wc).
     wc = wb * b
     by, bx = top // wb, top % wb

@@ -48,6 +48,7 @@ import torch
 from ..device import resolve_device
 from .covariance import homography_covariance_ut
 from .registrar import Features, Registration, RegistrationConfig
+from .static_describe import StaticDescriber
 from .torch_features import (
     FeatureOptions,
     KeypointSet,
@@ -98,6 +99,12 @@ class TorchRegistrarOptions:
     estimation_on_host: on a GPU device, run the estimation on correspondences (RANSAC, LM,
         covariance: a few hundred points, float64, hundreds of tiny kernels) on the CPU; images,
         features, matching and the photometric refinement stay on the GPU. No effect on the CPU.
+    static_shapes: describe with fixed tensor shapes (static_describe.py: no host synchronisation
+        inside describe); None: on a GPU only. cuda_graphs: there, record describe as a CUDA graph
+        per frame size and replay it (one launch instead of some 800); off by default until it has
+        been measured on a GPU (bench/device_check.sh; the CUDA test is
+        test_cuda_graph_describe_matches_eager_and_registers). static_candidates: scale-space
+        candidates kept per octave with fixed shapes (the strongest; 640x480 frames have 400 to 550).
     seed: RANSAC sampling seed (reset at every register call: results do not depend on history).
     """
 
@@ -112,6 +119,9 @@ class TorchRegistrarOptions:
     max_refine_shift_px: float = 2.0
     max_refine_shift_converged_px: float = 6.0
     estimation_on_host: bool = True
+    static_shapes: bool | None = None
+    cuda_graphs: bool = False
+    static_candidates: int = 2048
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -123,6 +133,7 @@ class TorchRegistrarOptions:
             'covariance_iterations': self.covariance_iterations >= 1,
             'max_refine_shift_px': self.max_refine_shift_px > 0.0,
             'max_refine_shift_converged_px': self.max_refine_shift_converged_px >= self.max_refine_shift_px,
+            'static_candidates': self.static_candidates >= 16,
         }
         bad = [name for name, ok in checks.items() if not ok]
         if bad:
@@ -187,6 +198,10 @@ class TorchRegistrar:
         host = self.options.estimation_on_host and self.device.type != 'cpu'
         self._est_device = torch.device('cpu') if host else self.device
         self._generator = torch.Generator(device=self._est_device)
+        static = self.options.static_shapes if self.options.static_shapes is not None else self.device.type == 'cuda'
+        self._static = StaticDescriber(self._levels, self.options.pyramid_sigma, f, ph,
+                                       static_k=max(self.options.static_candidates, f.max_keypoints),
+                                       cuda_graphs=self.options.cuda_graphs) if static else None
 
     def __getstate__(self) -> dict:
         """Picklable (checkpoints): settings and the device name; the generator is rebuilt (it is
@@ -200,6 +215,11 @@ class TorchRegistrar:
         """Features of a frame: numpy (H, W) / (H, W, 3) uint8, uint16 or float, or a tensor in [0, 1]."""
         gray = image_to_gray_tensor(image, self.device)
         _, _, h, w = gray.shape
+        if self._static is not None:
+            out = self._static.run(gray)
+            kps = out.keypoints
+            return TorchFeatures(kps.xy.cpu().numpy(), kps.descriptors.cpu().numpy(), (w, h), kps, out.pyramid,
+                                 out.templates, out.candidates)
         pyr = build_pyramid(gray, self._levels, sigma=self.options.pyramid_sigma)
         lvl = self._features.level_for(w)
         cands = detect(pyr[lvl], lvl, self._features)
