@@ -318,7 +318,8 @@ class Pipeline:
         if self._last_good is None:
             self._fuse(held, None, None)
             self._active = self._start_segment(held)
-            self._last_good = held
+            if record.seg_H_frame is not None:  # placed (its placement refused: the next frame starts anew)
+                self._last_good = held
         else:
             reg = self.registrar.register(self._last_good.features, held.features)
             record.registration = reg
@@ -347,6 +348,8 @@ class Pipeline:
         if not reg.ok:
             return False
         seg = self._start_segment(orphan)
+        if orphan.record.seg_H_frame is None:  # its placement was refused
+            return False
         orphan.record.reason = ''
         held.record.registration = reg
         if not self._place(seg, held, self._chained(seg, orphan.record.seg_H_frame, reg, held)):
