@@ -79,6 +79,12 @@ class Listener:
 
         self.node.create_subscription(PoseWithCovarianceStamped, '/srmosaic/pose', self.poses.append, 100)
         self.node.create_subscription(NavSatFix, '/srmosaic/fix', self.fixes.append, 100)
+        from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+        from std_msgs.msg import String
+
+        self.rasters: list = []
+        self.node.create_subscription(String, '/srmosaic/raster', self.rasters.append, QoSProfile(
+            depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL))
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self._thread = threading.Thread(target=self._spin, daemon=True)
@@ -165,6 +171,40 @@ def check_sr_tile_against_truth(tile_msg, registration_msgs) -> dict:
     return {'mae': errors[0, 0], 'best_shift': min(errors, key=errors.get), 'errors': errors, 'placement': place}
 
 
+def sr_tile_map_error_m(tile_msg, registration_msgs, raster_text: str) -> dict:
+    """How far from the true ground position /srmosaic/raster puts an SR tile's centre (m), with
+    drift control's canvas similarity taken out (the default) and kept (the raster as painted)."""
+    from pyproj import Transformer
+
+    from srmosaic_ros.core.georef.geodetic import LocalTangentPlane
+    from srmosaic_ros.core.metrics import apply_homography
+    from srmosaic_ros.live_raster import LiveRaster
+    from srmosaic_ros.nodes.common import decode_registration
+    from srmosaic_ros.sim.truth import load_truth
+    from srmosaic_ros.sr_live import SRTilePlacement
+
+    raster = LiveRaster.parse(raster_text)
+    place = SRTilePlacement.parse(tile_msg.header.frame_id)
+    s = place.factor
+    centre = np.array([(place.width * s - 1) / 2, (place.height * s - 1) / 2])
+    plane = apply_homography(place.plane_H_tile(), centre[None])
+    truth = load_truth(DEMO / 'ground_truth.json')
+    true_H = {f.stamp_ns: f.world_px_H_frame for f in truth.frames}  # noqa: N806
+    stamp = tile_msg.header.stamp.sec * 1_000_000_000 + tile_msg.header.stamp.nanosec
+    reg = next(r for r in map(decode_registration, registration_msgs) if r.stamp_ns == stamp)
+    world = apply_homography(true_H[stamp] @ np.linalg.inv(reg.seg_H_frame), plane)
+    enu = apply_homography(truth.enu_H_world_px, world)
+    lat, lon, _ = LocalTangentPlane(*truth.origin).geodetic_from_enu(np.c_[enu, np.zeros(1)])
+    e_true = np.c_[Transformer.from_crs(4326, raster.epsg, always_xy=True).transform(lon, lat)][0]
+    out = {}
+    for name, removed in (('removed', True), ('kept', False)):
+        gt = raster.tile_geotransform(place, canvas_frame_removed=removed)
+        u, v = centre + 0.5   # pixel corners in GDAL's convention
+        est = np.array([gt[0] + gt[1] * u + gt[2] * v, gt[3] + gt[4] * u + gt[5] * v])
+        out[name] = float(np.linalg.norm(est - e_true))
+    return out
+
+
 def _stop(proc: subprocess.Popen, timeout: float = 60) -> str:
     proc.send_signal(signal.SIGINT)
     out, _ = proc.communicate(timeout=timeout)
@@ -207,6 +247,12 @@ def test_live_graph_matches_offline_process(ros_env, tmp_path):
             fit = check_sr_tile_against_truth(tile, listener.registrations)
             assert max(abs(v) for v in fit['best_shift']) <= 1, fit
             assert fit['mae'] < 6.0, fit
+        # On the map: /srmosaic/raster puts the tiles where the ground is (GPS sigma 2.5 m in the demo).
+        assert listener.rasters, 'no /srmosaic/raster'
+        for tile in listener.tiles[:3]:
+            err = sr_tile_map_error_m(tile, listener.registrations, listener.rasters[-1].data)
+            print('SR tile on the map: error', err)
+            assert err['removed'] < 3.0, err
         # Tiles published again (live.sr_refresh_growth) are counted, and each placement at most
         # 1 + log2(max_frames / min_frames) times with the defaults (8 / 3: twice).
         assert listener.diag_value('tiles_refreshed', SR) is not None

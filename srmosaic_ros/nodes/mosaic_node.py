@@ -12,7 +12,9 @@ The georeferencing filter runs inside this node (each frame is placed on the geo
 by its fused pose before it is painted; see nodes/georef_node.py for the reasons); with
 `live.georef_standalone: true` it does not, the mosaic lies in the first frame's pixel plane, and
 the georef node publishes /srmosaic/pose and /srmosaic/fix instead. /srmosaic/registration is what
-the SR and georef nodes need from this one, so they can run in other processes.
+the SR and georef nodes need from this one, so they can run in other processes. With
+georeferencing, /srmosaic/raster (std_msgs/String, transient local; live_raster.py) says where the
+plane of seg_H_frame (and of the SR tiles' placements) lies on the map.
 
 Back-pressure: image callbacks only convert and enqueue into a bounded queue (parameter
 `live.queue_size`); when it is full the oldest frame is dropped and counted (`dropped_frames` in the
@@ -39,7 +41,7 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, NavSatFix
-from std_msgs.msg import Float64MultiArray
+from std_msgs.msg import Float64MultiArray, String
 
 from msg_adapters import (
     camera_info_to_intrinsics,
@@ -52,6 +54,7 @@ from msg_adapters import (
 )
 
 from ..errors import SrMosaicError
+from ..live_raster import LiveRaster
 from ..core.types import Frame
 from ..io.mosaic_files import write_json
 from ..offline import peak_rss_mb, preview_image, write_outputs
@@ -130,6 +133,10 @@ class MosaicNode(Node):
         self.pub_preview_c = self.create_publisher(CompressedImage, '/srmosaic/mosaic_preview/compressed', 1)
         self.pub_registration = self.create_publisher(Float64MultiArray, '/srmosaic/registration', 50)
         self.pub_diag = self.create_publisher(DiagnosticArray, '/srmosaic/diagnostics', 10)
+        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                             history=HistoryPolicy.KEEP_LAST)
+        self.pub_raster = self.create_publisher(String, '/srmosaic/raster', latched)
+        self._raster_sent: LiveRaster | None = None
         if not self.georef_standalone:  # else the georef node publishes them (one publisher per graph)
             self.pub_pose = self.create_publisher(PoseWithCovarianceStamped, '/srmosaic/pose', 50)
             self.pub_fix = self.create_publisher(NavSatFix, '/srmosaic/fix', 50)
@@ -272,9 +279,10 @@ class MosaicNode(Node):
         self._preview_thread.start()
 
     def _render_and_publish(self) -> None:
-        image = coverage = None
+        image = coverage = raster = None
         if self._lock.acquire(timeout=2.0):  # the worker holds it per frame; skip a round when busy
             try:
+                raster = self._live_raster()
                 seg = self.pipeline.segments[-1] if self.pipeline.segments else None
                 if seg is not None and not seg.canvas.is_empty:
                     # Incremental and reduced: the worker waits for this lock, so its cost must not
@@ -282,6 +290,8 @@ class MosaicNode(Node):
                     image, coverage = seg.canvas.render_preview(self.config.mosaic.preview_max_side_px)
             finally:
                 self._lock.release()
+        if raster is not None:
+            self.pub_raster.publish(String(data=raster.text()))
         if image is not None:
             preview = preview_image(image, coverage, self.config.mosaic.preview_max_side_px)
             stamp = self.get_clock().now().nanoseconds
@@ -290,6 +300,25 @@ class MosaicNode(Node):
             self.pub_preview.publish(numpy_to_image(u8, encoding, stamp_ns=stamp, frame_id='srmosaic_mosaic'))
             self.pub_preview_c.publish(numpy_to_compressed(u8, stamp_ns=stamp, frame_id='srmosaic_mosaic'))
         self.pub_diag.publish(self._diagnostics())
+
+    def _live_raster(self) -> LiveRaster | None:
+        """The raster to publish on /srmosaic/raster: when it is new, or drift control's canvas
+        similarity moved a point 1000 px from the origin by more than 0.01 px (else None). Called
+        under the pipeline lock."""
+        georef = self.pipeline.georef
+        if georef is None or georef.raster is None:
+            return None
+        new = LiveRaster.from_georaster(georef.raster, georef.canvas_similarity)
+        old = self._raster_sent
+        if old is not None and old.epsg == new.epsg and old.gsd_m_per_px == new.gsd_m_per_px:
+            probe = np.array([[0.0, 1000.0, 0.0], [0.0, 0.0, 1000.0], [1.0, 1.0, 1.0]])
+            eye = np.eye(3)
+            a = (old.canvas_H_raster if old.canvas_H_raster is not None else eye) @ probe
+            b = (new.canvas_H_raster if new.canvas_H_raster is not None else eye) @ probe
+            if np.abs(a[:2] / a[2] - b[:2] / b[2]).max() <= 0.01:
+                return None
+        self._raster_sent = new
+        return new
 
     def _diagnostics(self) -> DiagnosticArray:
         stats = dict(self.stats)
