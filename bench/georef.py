@@ -358,12 +358,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument('--pose-time-constant', type=float, default=None, metavar='S',
                     help='georef.drift_pose_time_constant_s (default: NaN, from the filter; 0: poses independent '
                          'from frame to frame)')
+    ap.add_argument('--nominal-agl-sigma', type=float, default=None, metavar='M',
+                    help='georef.nominal_agl_sigma_m (default: params/default.yaml\'s)')
     ap.add_argument('--out', type=Path, default=ROOT / 'bench' / 'out')
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.ERROR)
     t_start = time.perf_counter()
-    config = (GeorefConfig() if args.pose_time_constant is None
-              else GeorefConfig(drift_pose_time_constant_s=args.pose_time_constant))
+    overrides = {}
+    if args.pose_time_constant is not None:
+        overrides['drift_pose_time_constant_s'] = args.pose_time_constant
+    if args.nominal_agl_sigma is not None:
+        overrides['nominal_agl_sigma_m'] = args.nominal_agl_sigma
+    config = GeorefConfig(**overrides)
     results, table = {}, {}
     calibration = None
     for name, opts in FLIGHTS.items():

@@ -70,7 +70,7 @@ class GeorefConfig:
     ground_altitude_m: float = float('nan')  # ellipsoidal height of the ground plane; NaN: first fix - nominal_agl_m
     ground_altitude_sigma_m: float = 1.0     # prior uncertainty of ground_altitude_m when it is given
     nominal_agl_m: float = 100.0             # height of the first fix above the ground, when ground_altitude_m is NaN
-    nominal_agl_sigma_m: float = 10.0        # prior uncertainty of nominal_agl_m
+    nominal_agl_sigma_m: float = 30.0        # prior uncertainty of nominal_agl_m
     ground_walk_m_per_sqrt_s: float = 0.05   # random walk of the ground plane height (terrain is not flat)
     gimbal_azimuth_deg: float = 0.0
     gimbal_elevation_deg: float = -90.0      # nadir
