@@ -18,13 +18,15 @@ the live plane land where the filter now believes they are. The mosaic node publ
 raster is made and whenever the estimate changes by more than 0.01 px at 1000 px.
 
     raster = LiveRaster.parse(msg.data)
-    gt = raster.tile_geotransform(SRTilePlacement.parse(tile.header.frame_id))   # GDAL order
+    gt = raster.image_geotransform(image.header.frame_id, image.width, image.height)   # GDAL order
+    # (an SR tile of /srmosaic/sr_tile, or the preview of /srmosaic/mosaic_preview)
     # -> rasterio.open('tile.tif', 'w', ..., crs=f'EPSG:{raster.epsg}', transform=Affine.from_gdal(*gt))
 """
 from __future__ import annotations
 
 import json
 import math
+import re
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -36,7 +38,7 @@ if TYPE_CHECKING:
     from .core.georef.georeferencer import GeoRaster
     from .sr_live import SRTilePlacement
 
-__all__ = ['LiveRaster']
+__all__ = ['ImagePlacement', 'LiveRaster']
 
 
 @dataclass(frozen=True)
@@ -95,11 +97,59 @@ class LiveRaster:
             return self.utm_H_raster @ np.linalg.inv(self.canvas_H_raster)
         return self.utm_H_raster
 
-    def tile_geotransform(self, placement: SRTilePlacement, *,
-                          canvas_frame_removed: bool = True) -> tuple[float, float, float, float, float, float]:
-        """GDAL geotransform (pixel corners) of an SR tile of /srmosaic/sr_tile (or any image placed
-        by an SRTilePlacement on the live plane)."""
+    def image_geotransform(self, frame_id: str, image_width: int, image_height: int, *,
+                           canvas_frame_removed: bool = True) -> tuple[float, float, float, float, float, float]:
+        """GDAL geotransform (pixel corners) of an image placed on the live plane by its
+        header.frame_id: an SR tile of /srmosaic/sr_tile or the mosaic preview of
+        /srmosaic/mosaic_preview (see :class:`ImagePlacement`)."""
+        placement = ImagePlacement.parse(frame_id)
         corner = np.array([[1.0, 0.0, -0.5], [0.0, 1.0, -0.5], [0.0, 0.0, 1.0]])  # corner (u, v) = centre - 0.5
-        m = self.utm_H_plane(canvas_frame_removed=canvas_frame_removed) @ placement.plane_H_tile() @ corner
+        m = (self.utm_H_plane(canvas_frame_removed=canvas_frame_removed)
+             @ placement.plane_H_image(image_width, image_height) @ corner)
         m = m / m[2, 2]
         return (float(m[0, 2]), float(m[0, 0]), float(m[0, 1]), float(m[1, 2]), float(m[1, 0]), float(m[1, 1]))
+
+    def tile_geotransform(self, placement: SRTilePlacement, *,
+                          canvas_frame_removed: bool = True) -> tuple[float, float, float, float, float, float]:
+        """GDAL geotransform (pixel corners) of an SR tile of /srmosaic/sr_tile."""
+        return self.image_geotransform(placement.frame_id(), placement.width * placement.factor,
+                                       placement.height * placement.factor, canvas_frame_removed=canvas_frame_removed)
+
+
+_REGION_RE = re.compile(r'^srmosaic_segment_(-?\d+);x0=(-?\d+);y0=(-?\d+);width=(\d+);height=(\d+)(?:;factor=(\d+))?$')
+
+
+@dataclass(frozen=True)
+class ImagePlacement:
+    """The region (x0, y0, width, height) of a segment's plane that an image shows, as its
+    header.frame_id carries it: ``srmosaic_segment_<k>;x0=<int>;y0=<int>;width=<int>;height=<int>``
+    (the mosaic preview), with ``;factor=<int>`` for an SR tile (sr_live.SRTilePlacement). The image
+    spans the region: its pixel (u, v) shows plane point (x0 + (u + 0.5) width / image_width - 0.5,
+    y0 + (v + 0.5) height / image_height - 0.5), which for an SR tile (image width = width * factor)
+    is the tiles.json convention."""
+
+    segment: int
+    x0: int
+    y0: int
+    width: int
+    height: int
+
+    def frame_id(self) -> str:
+        return f'srmosaic_segment_{self.segment};x0={self.x0};y0={self.y0};width={self.width};height={self.height}'
+
+    @classmethod
+    def parse(cls, frame_id: str) -> ImagePlacement:
+        m = _REGION_RE.match(frame_id.strip())
+        if not m:
+            msg = (f'{frame_id!r} is not an image placement on the live plane; expected '
+                   "'srmosaic_segment_<k>;x0=<int>;y0=<int>;width=<int>;height=<int>[;factor=<int>]'.")
+            raise SrMosaicError(msg)
+        return cls(*(int(g) for g in m.groups()[:5]))
+
+    def plane_H_image(self, image_width: int, image_height: int) -> np.ndarray:  # noqa: N802
+        """(3, 3) image pixel (centres at integers) -> plane pixel, for an image of that size."""
+        if image_width < 1 or image_height < 1:
+            msg = f'an image of {image_width}x{image_height} pixels cannot be placed.'
+            raise SrMosaicError(msg)
+        sx, sy = self.width / image_width, self.height / image_height
+        return np.array([[sx, 0.0, self.x0 + 0.5 * sx - 0.5], [0.0, sy, self.y0 + 0.5 * sy - 0.5], [0.0, 0.0, 1.0]])

@@ -10,7 +10,7 @@ import pytest
 from srmosaic_ros.core.georef.drift import similarity_homography
 from srmosaic_ros.core.georef.georeferencer import GeoRaster
 from srmosaic_ros.errors import SrMosaicError
-from srmosaic_ros.live_raster import LiveRaster
+from srmosaic_ros.live_raster import ImagePlacement, LiveRaster
 from srmosaic_ros.sr_live import SRTilePlacement
 
 
@@ -40,3 +40,21 @@ def test_tile_geotransform_follows_the_placement_and_the_canvas_similarity():
             expect = geo.utm_from_pixels((raster_px[:2] / raster_px[2])[None])[0]
             got = (gt[0] + gt[1] * (u + 0.5) + gt[2] * (v + 0.5), gt[3] + gt[4] * (u + 0.5) + gt[5] * (v + 0.5))
             np.testing.assert_allclose(got, expect, atol=1e-6)
+
+
+def test_image_placement_of_previews_and_tiles():
+    tile = SRTilePlacement(3, 256, -128, 128, 64, 2)
+    region = ImagePlacement.parse(tile.frame_id())          # an SR tile's text parses as a region too
+    assert region == ImagePlacement(3, 256, -128, 128, 64)
+    np.testing.assert_allclose(region.plane_H_image(256, 128), tile.plane_H_tile())
+    preview = ImagePlacement(0, -64, 128, 1024, 512)
+    assert ImagePlacement.parse(preview.frame_id()) == preview
+    h = preview.plane_H_image(700, 350)                     # a preview resized to 700 x 350
+    np.testing.assert_allclose(h @ [-0.5, -0.5, 1], [-64 - 0.5, 128 - 0.5, 1])   # the outer corners
+    np.testing.assert_allclose(h @ [699.5, 349.5, 1], [-64 + 1024 - 0.5, 128 + 512 - 0.5, 1])
+    raster = LiveRaster.from_georaster(GeoRaster(32614, 0.2, 587500.0, 3338100.0), None)
+    gt = raster.image_geotransform(preview.frame_id(), 700, 350)
+    assert gt[0] == pytest.approx(587500.0 + 0.2 * (-64 - 0.5)) and gt[1] == pytest.approx(0.2 * 1024 / 700)
+    for bad in ('srmosaic_mosaic', 'srmosaic_segment_0;x0=1;y0=2'):
+        with pytest.raises(SrMosaicError, match='placement'):
+            ImagePlacement.parse(bad)

@@ -389,6 +389,8 @@ def test_render_preview_is_the_block_mean_and_incremental(blend: str, channels: 
         prev, cov = c.render_preview(max_side)
         ref, ref_cov = _block_means(c, f)
         assert max(prev.shape[:2]) <= max_side and cov.shape == prev.shape[:2]
+        rx, ry, rw, rh = c.last_preview_region  # the region the preview shows: f times its size
+        assert (rx, ry, rw, rh) == (x0 // f * f, y0 // f * f, f * prev.shape[1], f * prev.shape[0])
         np.testing.assert_array_equal(cov, ref_cov)
         np.testing.assert_allclose(prev.reshape(ref.shape), ref, atol=2e-5)
     # Grow the canvas. 1000: the factor stays 1 (only the painted tiles are re-read); 60: it changes.

@@ -231,6 +231,14 @@ def test_live_graph_matches_offline_process(ros_env, tmp_path):
         assert len(listener.registrations) == 60
         preview = listener.previews[-1]
         assert preview.encoding == 'rgb8' and max(preview.width, preview.height) <= 1024
+        # The preview says which region of the plane it shows, hence where it lies on the map.
+        from srmosaic_ros.live_raster import ImagePlacement, LiveRaster
+
+        region = ImagePlacement.parse(preview.header.frame_id)
+        assert region.segment == 0 and region.width >= preview.width
+        gt = LiveRaster.parse(listener.rasters[-1].data).image_geotransform(preview.header.frame_id, preview.width,
+                                                                            preview.height)
+        assert gt[1] > 0 > gt[5]  # north-up to first order, x east, y south
         assert listener.diag_value('dropped_frames') == '0'
         # The fused pose of every frame, near the simulated flight (100 m above the ground plane).
         # (frames whose pose is not valid yet, e.g. before the filter has its first fix, publish none)

@@ -54,7 +54,7 @@ from msg_adapters import (
 )
 
 from ..errors import SrMosaicError
-from ..live_raster import LiveRaster
+from ..live_raster import ImagePlacement, LiveRaster
 from ..core.types import Frame
 from ..io.mosaic_files import write_json
 from ..offline import peak_rss_mb, preview_image, write_outputs
@@ -280,6 +280,7 @@ class MosaicNode(Node):
 
     def _render_and_publish(self) -> None:
         image = coverage = raster = None
+        region = 'srmosaic_mosaic'
         if self._lock.acquire(timeout=2.0):  # the worker holds it per frame; skip a round when busy
             try:
                 raster = self._live_raster()
@@ -288,6 +289,7 @@ class MosaicNode(Node):
                     # Incremental and reduced: the worker waits for this lock, so its cost must not
                     # grow with the mosaic (a full render of a long flight takes seconds).
                     image, coverage = seg.canvas.render_preview(self.config.mosaic.preview_max_side_px)
+                    region = ImagePlacement(seg.index, *seg.canvas.last_preview_region).frame_id()
             finally:
                 self._lock.release()
         if raster is not None:
@@ -297,8 +299,9 @@ class MosaicNode(Node):
             stamp = self.get_clock().now().nanoseconds
             u8 = np.clip(preview * 255.0 + 0.5, 0, 255).astype(np.uint8)
             encoding = 'mono8' if u8.ndim == 2 else 'rgb8'
-            self.pub_preview.publish(numpy_to_image(u8, encoding, stamp_ns=stamp, frame_id='srmosaic_mosaic'))
-            self.pub_preview_c.publish(numpy_to_compressed(u8, stamp_ns=stamp, frame_id='srmosaic_mosaic'))
+            # header.frame_id: the plane region the preview shows (live_raster.ImagePlacement)
+            self.pub_preview.publish(numpy_to_image(u8, encoding, stamp_ns=stamp, frame_id=region))
+            self.pub_preview_c.publish(numpy_to_compressed(u8, stamp_ns=stamp, frame_id=region))
         self.pub_diag.publish(self._diagnostics())
 
     def _live_raster(self) -> LiveRaster | None:

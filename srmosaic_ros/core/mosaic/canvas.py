@@ -198,6 +198,7 @@ class TiledCanvas:
         self._preview_dirty: set[TileKey] = set()
         self._preview_sums: dict[TileKey, tuple[np.ndarray, np.ndarray]] = {}
         self._preview_factor = 0
+        self.last_preview_region = (0, 0, 0, 0)
         self._frames = 0
         self._bounds: tuple[int, int, int, int] | None = None
 
@@ -601,7 +602,8 @@ class TiledCanvas:
         feather blend of that block, ``sum acc / sum W`` over it (the weighted mean: a block half
         covered shows its covered half, not half its brightness). Returns ``(image, covered)`` as
         :meth:`render` does (float32 (h, w, C) or (h, w); bool (h, w)); empty arrays for an empty
-        canvas. Multiband canvases preview their feather blend.
+        canvas. Multiband canvases preview their feather blend. ``last_preview_region`` is then the
+        mosaic region (x0, y0, width, height) the result covers: f times its size, from (x0, y0).
         """
         self._check_open()
         if int(max_side) < 1:
@@ -630,6 +632,7 @@ class TiledCanvas:
                                        tile.wsum.reshape(n, f, n, f).sum(axis=(1, 3), dtype=np.float32))
         self._preview_dirty = set()
         gx0, gy0, gx1, gy1 = x0 // f, y0 // f, -(-x1 // f), -(-y1 // f)
+        self.last_preview_region = (gx0 * f, gy0 * f, (gx1 - gx0) * f, (gy1 - gy0) * f)
         acc = np.zeros((gy1 - gy0, gx1 - gx0, c), np.float32)
         wsum = np.zeros((gy1 - gy0, gx1 - gx0), np.float32)
         for (kx, ky), (a, w) in self._preview_sums.items():
