@@ -152,6 +152,24 @@ def _run_launch(args: argparse.Namespace) -> int:
     return launch(args.description, args.params, args.ros_args)
 
 
+def _add_record_tiles(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser('record-tiles', help='write the live SR tiles (and the preview) into a folder as GeoTIFFs '
+                       '(a ground station; then --ros-args ...)')
+    p.add_argument('dir', type=Path, help='output folder (created): sr_tiles/*.tif, preview.tif')
+    p.add_argument('--preview', action='store_true', help='also keep the newest /srmosaic/mosaic_preview')
+    p.set_defaults(func=_run_record_tiles)
+
+
+def _run_record_tiles(args: argparse.Namespace) -> int:
+    import functools
+
+    from .nodes.runner import run_nodes
+    from .nodes.tile_recorder import TileRecorderNode
+
+    node = functools.partial(TileRecorderNode, args.dir, previews=args.preview)
+    return run_nodes([node], ['srmosaic', *args.ros_args])
+
+
 def _add_play(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser('play', help='publish a bag on its topics (the stand-in for ros2 bag play)')
     p.add_argument('bag', type=Path)
@@ -180,6 +198,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_node(sub)
     _add_launch(sub)
     _add_play(sub)
+    _add_record_tiles(sub)
     return parser
 
 

@@ -205,6 +205,30 @@ def sr_tile_map_error_m(tile_msg, registration_msgs, raster_text: str) -> dict:
     return out
 
 
+def check_recorded_tiles(folder: Path, tiles: list, raster_text: str) -> None:
+    """`srmosaic record-tiles`: every SR tile placement as a GeoTIFF (the latest tile's pixels) on the
+    map where /srmosaic/raster puts it; the preview as a GeoTIFF too."""
+    import rasterio
+
+    from msg_adapters import image_to_numpy
+    from srmosaic_ros.live_raster import ImagePlacement, LiveRaster
+
+    raster = LiveRaster.parse(raster_text)
+    latest = {t.header.frame_id: t for t in tiles}
+    files = sorted((folder / 'sr_tiles').glob('*.tif'))
+    assert len(files) == len(latest), (files, list(latest))
+    for frame_id, tile in latest.items():
+        place = ImagePlacement.parse(frame_id)
+        with rasterio.open(folder / 'sr_tiles' / f'seg{place.segment}_x{place.x0}_y{place.y0}.tif') as ds:
+            assert ds.crs.to_epsg() == raster.epsg
+            np.testing.assert_array_equal(np.moveaxis(ds.read(), 0, -1), image_to_numpy(tile))
+            want = raster.image_geotransform(frame_id, tile.width, tile.height)
+            # written with the raster known then, moved since to the newest estimate (metres apart)
+            np.testing.assert_allclose(ds.transform.to_gdal(), want, rtol=0, atol=1e-3)
+    with rasterio.open(folder / 'preview.tif') as ds:
+        assert ds.crs.to_epsg() == raster.epsg and ds.width > 100
+
+
 def _stop(proc: subprocess.Popen, timeout: float = 60) -> str:
     proc.send_signal(signal.SIGINT)
     out, _ = proc.communicate(timeout=timeout)
@@ -218,6 +242,7 @@ def test_live_graph_matches_offline_process(ros_env, tmp_path):
     graph = srmosaic('launch', '--ros-args', '-p', f'live.output_dir:={live_dir}', '-p', 'live.queue_size:=100',
                      '-p', 'live.preview_period_s:=0.5', '-p', 'live.reliable_inputs:=true', env=ros_env)
     listener = Listener()
+    recorder = srmosaic('record-tiles', str(tmp_path / 'ground'), '--preview', env=ros_env)  # a ground station
     try:
         assert listener.wait_for(lambda: listener.diagnostics, 30), 'graph published no diagnostics'
         player = srmosaic('play', str(DEMO), '--rate', '2.0', '--delay', '15', env=ros_env)
@@ -267,11 +292,14 @@ def test_live_graph_matches_offline_process(ros_env, tmp_path):
         placements = collections.Counter(t.header.frame_id for t in listener.tiles)
         assert max(placements.values()) <= 2, placements
     except AssertionError as exc:
-        raise AssertionError(f'{exc}\n--- graph output ---\n{_stop(graph)}') from None
+        raise AssertionError(f'{exc}\n--- graph output ---\n{_stop(graph)}\n--- recorder ---\n{_stop(recorder)}') from None
     finally:
         log = _stop(graph) if graph.returncode is None else ''
+        rec_log = _stop(recorder) if recorder.returncode is None else ''
         listener.close()
     assert graph.returncode == 0, log
+    assert recorder.returncode == 0, rec_log
+    check_recorded_tiles(tmp_path / 'ground', listener.tiles, listener.rasters[-1].data)
     offline_dir = tmp_path / 'offline'
     run = subprocess.run([sys.executable, '-m', 'srmosaic_ros.cli', 'process', str(DEMO), '--out', str(offline_dir),
                           '--no-progress'], capture_output=True, text=True, timeout=600)

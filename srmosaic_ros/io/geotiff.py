@@ -25,7 +25,7 @@ import warnings
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
@@ -34,7 +34,7 @@ from .mosaic_files import atomic_path
 if TYPE_CHECKING:
     from ..core.georef.georeferencer import GeoRaster
 
-__all__ = ['GDAL_CACHE_BYTES', 'MOSAIC_BLOCK_PX', 'TILED_ABOVE_PX', 'overview_factors', 'png_from_geotiff',
+__all__ = ['GDAL_CACHE_BYTES', 'MOSAIC_BLOCK_PX', 'TILED_ABOVE_PX', 'GeoGrid', 'overview_factors', 'png_from_geotiff',
            'read_raster', 'write_geotiff', 'write_geotiff_blocks']
 
 TILED_ABOVE_PX = 1024
@@ -50,6 +50,15 @@ PNG_ZLEVEL = 1
 
 #: One strip of rows: (first row, image (rows, W) / (rows, W, C), coverage (rows, W) bool or None).
 Strip = tuple[int, np.ndarray, 'np.ndarray | None']
+
+
+class GeoGrid(NamedTuple):
+    """Any affine grid for the writers, where a GeoRaster (square pixels) does not fit: EPSG code,
+    GDAL geotransform (pixel corners) and the pixel size recorded in the GSD tag (m)."""
+
+    epsg: int
+    geotransform: tuple[float, float, float, float, float, float]
+    gsd_m_per_px: float
 
 
 def _to_u8(image: np.ndarray) -> np.ndarray:
@@ -100,7 +109,7 @@ def overview_factors(height: int, width: int, block_px: int) -> list[int]:
     return factors
 
 
-def _profile(width: int, height: int, count: int, has_alpha: bool, raster: GeoRaster | None, *,
+def _profile(width: int, height: int, count: int, has_alpha: bool, raster: GeoRaster | GeoGrid | None, *,
              tiled: bool, block_px: int, compress: str) -> dict[str, Any]:
     """rasterio creation profile of a GTiff of ``count`` uint8 bands (alpha last when has_alpha)."""
     colour = count - int(has_alpha)
@@ -169,7 +178,7 @@ def _chunked(strips: Iterable[Strip], rows: int) -> Iterator[Strip]:
             yield row + r, image[r:r + rows], None if coverage is None else coverage[r:r + rows]
 
 
-def write_geotiff_blocks(path: str | os.PathLike[str], strips: Iterable[Strip], raster: GeoRaster | None,
+def write_geotiff_blocks(path: str | os.PathLike[str], strips: Iterable[Strip], raster: GeoRaster | GeoGrid | None,
                          height: int, width: int, *, block_px: int = MOSAIC_BLOCK_PX, tiled: bool = True,
                          overviews: bool = True, compress: str = 'deflate') -> None:
     """Write a GeoTIFF strip by strip, atomically.
@@ -228,7 +237,7 @@ def write_geotiff_blocks(path: str | os.PathLike[str], strips: Iterable[Strip], 
                 dst.update_tags(ns='rio_overview', resampling='average')
 
 
-def write_geotiff(path: str | os.PathLike[str], image: np.ndarray, raster: GeoRaster, *,
+def write_geotiff(path: str | os.PathLike[str], image: np.ndarray, raster: GeoRaster | GeoGrid, *,
                   coverage: np.ndarray | None = None, tiled: bool | None = None, overviews: bool | None = None,
                   compress: str = 'deflate') -> None:
     """Write ``image`` on ``raster``'s grid as a GeoTIFF.
@@ -237,7 +246,8 @@ def write_geotiff(path: str | os.PathLike[str], image: np.ndarray, raster: GeoRa
         path: output file (.tif).
         image: (H, W) grey, (H, W, 3) RGB, (H, W, 2) grey+alpha or (H, W, 4) RGBA; uint8, uint16 or
             float in [0, 1] (NaN: uncovered).
-        raster: the grid (CRS, gsd, pixel (0, 0) centre) of image pixel (0, 0).
+        raster: the grid (CRS, gsd, pixel (0, 0) centre) of image pixel (0, 0): a GeoRaster, or a
+            GeoGrid for any affine grid.
         coverage: (H, W) bool, False where nothing was painted (transparent); combined with an
             alpha channel if the image has one.
         tiled, overviews: default True when a side exceeds ``TILED_ABOVE_PX`` (256 x 256 tiles).

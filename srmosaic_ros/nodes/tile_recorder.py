@@ -1,0 +1,124 @@
+"""TileRecorderNode: the ground station's end of the live graph, SR tiles (and the preview) as GeoTIFFs.
+
+`srmosaic record-tiles DIR [--preview]` subscribes to /srmosaic/sr_tile, /srmosaic/raster
+(transient local: the last one arrives at once) and, with --preview, /srmosaic/mosaic_preview, and
+writes what it receives into DIR:
+
+- ``sr_tiles/seg<k>_x<x0>_y<y0>.tif``: each SR tile as a GeoTIFF on the map (the live raster's CRS,
+  drift control's canvas similarity taken out: live_raster.py); a tile published again (a refresh,
+  made from more frames) replaces its file. When a newer /srmosaic/raster moves the estimate, the
+  geotransforms of the tiles written so far are updated in place (pixels untouched), so that all
+  tiles follow the newest estimate and stay consistent with each other. Without georeferencing (no
+  /srmosaic/raster yet) the tile is written as ``.png`` with its placement in ``.json`` beside it;
+- ``preview.tif`` (or ``preview.png``): the newest mosaic preview, placed the same way.
+
+Files are written under temporary names and renamed into place (a GIS tool watching the folder
+never reads half a file). Messages that cannot be placed are counted and logged once per kind.
+"""
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+from typing import Any
+
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Image
+from std_msgs.msg import String
+
+from msg_adapters import image_to_rgb_or_mono
+
+from ..core.image_ops import to_float01
+from ..errors import SrMosaicError
+from ..io.geotiff import GeoGrid, write_geotiff
+from ..io.mosaic_files import write_json, write_png
+from ..live_raster import ImagePlacement, LiveRaster
+from .common import WarnOnce
+
+__all__ = ['TileRecorderNode']
+
+
+class TileRecorderNode(Node):
+    """Writes /srmosaic/sr_tile (and /srmosaic/mosaic_preview) into a folder (module docstring)."""
+
+    def __init__(self, out_dir: str | Path, *, previews: bool = False, **kwargs: Any) -> None:  # noqa: ANN401
+        super().__init__('srmosaic_tile_recorder', **kwargs)
+        self.out = Path(out_dir)
+        (self.out / 'sr_tiles').mkdir(parents=True, exist_ok=True)
+        self.warn = WarnOnce(self)
+        self._raster: LiveRaster | None = None
+        self._placed: dict[Path, tuple[str, int, int]] = {}  # GeoTIFFs written: frame_id, width, height
+        self._lock = threading.Lock()
+        self.written: dict[str, int] = {'tiles': 0, 'previews': 0}
+        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self.create_subscription(String, '/srmosaic/raster', self._on_raster, latched)
+        self.create_subscription(Image, '/srmosaic/sr_tile', self._on_tile, 20)
+        if previews:
+            self.create_subscription(Image, '/srmosaic/mosaic_preview', self._on_preview, 1)
+        # The executor waits in rcl without a timer; this one returns to Python twice a second, so that
+        # SIGINT / SIGTERM (runner.py's handlers) stop the node.
+        self.create_timer(0.5, lambda: None)
+        self.get_logger().info(f'recording SR tiles{" and previews" if previews else ""} into {self.out}')
+
+    def _on_raster(self, msg: String) -> None:
+        try:
+            raster = LiveRaster.parse(msg.data)
+        except SrMosaicError as exc:
+            self.warn('raster', f'/srmosaic/raster skipped: {exc}')
+            return
+        with self._lock:
+            self._raster = raster
+            placed = dict(self._placed)
+        self._update_geotransforms(raster, placed)
+
+    def _update_geotransforms(self, raster: LiveRaster, placed: dict[Path, tuple[str, int, int]]) -> None:
+        """Put the GeoTIFFs written so far where the newest raster estimate says (metadata only)."""
+        import rasterio
+        from rasterio.transform import Affine
+
+        for path, (frame_id, width, height) in placed.items():
+            gt = raster.image_geotransform(frame_id, width, height)
+            try:
+                with rasterio.open(path, 'r+') as ds:
+                    old = ds.transform.to_gdal()
+                    if ds.crs is not None and ds.crs.to_epsg() == raster.epsg and \
+                            max(abs(a - b) for a, b in zip(old, gt, strict=True)) <= 1e-3:
+                        continue
+                    ds.crs = f'EPSG:{raster.epsg}'
+                    ds.transform = Affine.from_gdal(*gt)
+            except (OSError, rasterio.errors.RasterioError) as exc:
+                self.warn('geotransform update', f'{path}: geotransform not updated: {exc}')
+
+    def _on_tile(self, msg: Image) -> None:
+        try:
+            place = ImagePlacement.parse(msg.header.frame_id)
+        except SrMosaicError as exc:
+            self.warn('tile placement', f'SR tile skipped: {exc}')
+            return
+        self._write(msg, self.out / 'sr_tiles' / f'seg{place.segment}_x{place.x0}_y{place.y0}', 'tiles')
+
+    def _on_preview(self, msg: Image) -> None:
+        self._write(msg, self.out / 'preview', 'previews')
+
+    def _write(self, msg: Image, stem: Path, kind: str) -> None:
+        try:
+            image = image_to_rgb_or_mono(msg)
+            with self._lock:
+                raster = self._raster
+            if raster is not None:
+                gt = raster.image_geotransform(msg.header.frame_id, int(msg.width), int(msg.height))
+                write_geotiff(stem.with_suffix('.tif'), image, GeoGrid(raster.epsg, gt, abs(gt[1])))
+                with self._lock:
+                    self._placed[stem.with_suffix('.tif')] = (msg.header.frame_id, int(msg.width), int(msg.height))
+            else:
+                write_png(stem.with_suffix('.png'), to_float01(image))
+                write_json(stem.with_suffix('.json'), {'frame_id': msg.header.frame_id, 'width': int(msg.width),
+                                                       'height': int(msg.height)})
+        except (SrMosaicError, ValueError, OSError) as exc:
+            self.warn(f'{kind} not written', f'{kind[:-1]} not written to {stem}: {exc}')
+            return
+        self.written[kind] += 1
+
+    def finish(self) -> None:
+        self.get_logger().info(f"wrote {self.written['tiles']} SR tiles and {self.written['previews']} previews "
+                               f'into {self.out}')
