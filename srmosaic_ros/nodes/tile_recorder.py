@@ -6,9 +6,10 @@ writes what it receives into DIR:
 
 - ``sr_tiles/seg<k>_x<x0>_y<y0>.tif``: each SR tile as a GeoTIFF on the map (the live raster's CRS,
   drift control's canvas similarity taken out: live_raster.py); a tile published again (a refresh,
-  made from more frames) replaces its file. When a newer /srmosaic/raster moves the estimate, the
-  geotransforms of the tiles written so far are updated in place (pixels untouched), so that all
-  tiles follow the newest estimate and stay consistent with each other. Without georeferencing (no
+  made from more frames) replaces its file. When a newer /srmosaic/raster moves the estimate by
+  more than 2 cm (at 1000 px from the plane's origin), the geotransforms of the tiles written so far
+  are updated in place (pixels untouched), so that all tiles follow the newest estimate and stay
+  consistent with each other. Without georeferencing (no
   /srmosaic/raster yet) the tile is written as ``.png`` with its placement in ``.json`` beside it;
 - ``preview.tif`` (or ``preview.png``): the newest mosaic preview, placed the same way.
 
@@ -21,6 +22,7 @@ import threading
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image
@@ -48,6 +50,7 @@ class TileRecorderNode(Node):
         self.warn = WarnOnce(self)
         self._raster: LiveRaster | None = None
         self._placed: dict[Path, tuple[str, int, int]] = {}  # GeoTIFFs written: frame_id, width, height
+        self._updated_for: LiveRaster | None = None  # the raster the written files were last placed by
         self._lock = threading.Lock()
         self.written: dict[str, int] = {'tiles': 0, 'previews': 0}
         latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -69,7 +72,19 @@ class TileRecorderNode(Node):
         with self._lock:
             self._raster = raster
             placed = dict(self._placed)
-        self._update_geotransforms(raster, placed)
+            moved = self._moved(raster)
+        if moved:  # (the estimate moves by millimetres most seconds: leave the files alone then)
+            self._update_geotransforms(raster, placed)
+            self._updated_for = raster
+
+    def _moved(self, raster: LiveRaster) -> bool:
+        """Whether raster puts the live plane more than 2 cm (at 1000 px from its origin) away from
+        where the files were last placed."""
+        last = self._updated_for
+        if last is None or last.epsg != raster.epsg:
+            return True
+        probe = np.array([[0.0, 1000.0, 0.0], [0.0, 0.0, 1000.0], [1.0, 1.0, 1.0]])
+        return float(np.abs(last.utm_H_plane() @ probe - raster.utm_H_plane() @ probe).max()) > 0.02
 
     def _update_geotransforms(self, raster: LiveRaster, placed: dict[Path, tuple[str, int, int]]) -> None:
         """Put the GeoTIFFs written so far where the newest raster estimate says (metadata only)."""
