@@ -26,13 +26,13 @@ from __future__ import annotations
 
 import json
 import math
-import re
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .errors import SrMosaicError
+from .sr_live import ImagePlacement
 
 if TYPE_CHECKING:
     from .core.georef.georeferencer import GeoRaster
@@ -97,6 +97,15 @@ class LiveRaster:
             return self.utm_H_raster @ np.linalg.inv(self.canvas_H_raster)
         return self.utm_H_raster
 
+    def moved_m(self, other: LiveRaster | None) -> float:
+        """How far (m) this raster puts the live plane from where ``other`` put it: the largest
+        displacement of plane points 1000 px from the origin (canvas similarity taken out); inf when
+        other is None or in another CRS."""
+        if other is None or other.epsg != self.epsg:
+            return math.inf
+        probe = np.array([[0.0, 1000.0, 0.0], [0.0, 0.0, 1000.0], [1.0, 1.0, 1.0]])
+        return float(np.abs(self.utm_H_plane() @ probe - other.utm_H_plane() @ probe).max())
+
     def image_geotransform(self, frame_id: str, image_width: int, image_height: int, *,
                            canvas_frame_removed: bool = True) -> tuple[float, float, float, float, float, float]:
         """GDAL geotransform (pixel corners) of an image placed on the live plane by its
@@ -114,42 +123,3 @@ class LiveRaster:
         """GDAL geotransform (pixel corners) of an SR tile of /srmosaic/sr_tile."""
         return self.image_geotransform(placement.frame_id(), placement.width * placement.factor,
                                        placement.height * placement.factor, canvas_frame_removed=canvas_frame_removed)
-
-
-_REGION_RE = re.compile(r'^srmosaic_segment_(-?\d+);x0=(-?\d+);y0=(-?\d+);width=(\d+);height=(\d+)(?:;factor=(\d+))?$')
-
-
-@dataclass(frozen=True)
-class ImagePlacement:
-    """The region (x0, y0, width, height) of a segment's plane that an image shows, as its
-    header.frame_id carries it: ``srmosaic_segment_<k>;x0=<int>;y0=<int>;width=<int>;height=<int>``
-    (the mosaic preview), with ``;factor=<int>`` for an SR tile (sr_live.SRTilePlacement). The image
-    spans the region: its pixel (u, v) shows plane point (x0 + (u + 0.5) width / image_width - 0.5,
-    y0 + (v + 0.5) height / image_height - 0.5), which for an SR tile (image width = width * factor)
-    is the tiles.json convention."""
-
-    segment: int
-    x0: int
-    y0: int
-    width: int
-    height: int
-
-    def frame_id(self) -> str:
-        return f'srmosaic_segment_{self.segment};x0={self.x0};y0={self.y0};width={self.width};height={self.height}'
-
-    @classmethod
-    def parse(cls, frame_id: str) -> ImagePlacement:
-        m = _REGION_RE.match(frame_id.strip())
-        if not m:
-            msg = (f'{frame_id!r} is not an image placement on the live plane; expected '
-                   "'srmosaic_segment_<k>;x0=<int>;y0=<int>;width=<int>;height=<int>[;factor=<int>]'.")
-            raise SrMosaicError(msg)
-        return cls(*(int(g) for g in m.groups()[:5]))
-
-    def plane_H_image(self, image_width: int, image_height: int) -> np.ndarray:  # noqa: N802
-        """(3, 3) image pixel (centres at integers) -> plane pixel, for an image of that size."""
-        if image_width < 1 or image_height < 1:
-            msg = f'an image of {image_width}x{image_height} pixels cannot be placed.'
-            raise SrMosaicError(msg)
-        sx, sy = self.width / image_width, self.height / image_height
-        return np.array([[sx, 0.0, self.x0 + 0.5 * sx - 0.5], [0.0, sy, self.y0 + 0.5 * sy - 0.5], [0.0, 0.0, 1.0]])

@@ -36,7 +36,7 @@ from .core.sr.reconstruct import SRConfig, SRError, reconstruct_tile
 from .core.sr.scheduler import SRTileConfig, TilePlan, plan_tiles
 from .errors import SrMosaicError
 
-__all__ = ['LiveFrame', 'LiveFrameStore', 'SRTilePlacement', 'plan_live_tiles', 'reconstruct_live_tile',
+__all__ = ['ImagePlacement', 'LiveFrame', 'LiveFrameStore', 'SRTilePlacement', 'plan_live_tiles', 'reconstruct_live_tile',
            'MAX_PLAN_SIDE_PX']
 
 #: Planning grids larger than this (segment-plane pixels per side) are refused: an absurd
@@ -44,7 +44,8 @@ __all__ = ['LiveFrame', 'LiveFrameStore', 'SRTilePlacement', 'plan_live_tiles', 
 MAX_PLAN_SIDE_PX = 20000
 _UNCAPPED = 1 << 40
 
-_PLACEMENT_RE = re.compile(r'^srmosaic_segment_(-?\d+);x0=(-?\d+);y0=(-?\d+);width=(\d+);height=(\d+);factor=(\d+)$')
+# an image's region of a segment plane in header.frame_id; SR tiles add their factor
+_PLACEMENT_RE = re.compile(r'^srmosaic_segment_(-?\d+);x0=(-?\d+);y0=(-?\d+);width=(\d+);height=(\d+)(?:;factor=(\d+))?$')
 
 
 @dataclass(frozen=True)
@@ -68,7 +69,7 @@ class SRTilePlacement:
     def parse(cls, frame_id: str) -> SRTilePlacement:
         """Inverse of :meth:`frame_id`; raises SrMosaicError on any other text."""
         m = _PLACEMENT_RE.match(frame_id.strip())
-        if not m:
+        if not m or m.group(6) is None:
             msg = (f'{frame_id!r} is not an SR tile placement; expected '
                    "'srmosaic_segment_<k>;x0=<int>;y0=<int>;width=<int>;height=<int>;factor=<int>'.")
             raise SrMosaicError(msg)
@@ -81,6 +82,42 @@ class SRTilePlacement:
         return np.array([[1.0 / s, 0.0, self.x0 + 0.5 / s - 0.5],
                          [0.0, 1.0 / s, self.y0 + 0.5 / s - 0.5],
                          [0.0, 0.0, 1.0]])
+
+
+@dataclass(frozen=True)
+class ImagePlacement:
+    """The region (x0, y0, width, height) of a segment's plane that an image shows, as its
+    header.frame_id carries it: ``srmosaic_segment_<k>;x0=<int>;y0=<int>;width=<int>;height=<int>``
+    (the mosaic preview), with ``;factor=<int>`` for an SR tile (sr_live.SRTilePlacement). The image
+    spans the region: its pixel (u, v) shows plane point (x0 + (u + 0.5) width / image_width - 0.5,
+    y0 + (v + 0.5) height / image_height - 0.5), which for an SR tile (image width = width * factor)
+    is the tiles.json convention."""
+
+    segment: int
+    x0: int
+    y0: int
+    width: int
+    height: int
+
+    def frame_id(self) -> str:
+        return f'srmosaic_segment_{self.segment};x0={self.x0};y0={self.y0};width={self.width};height={self.height}'
+
+    @classmethod
+    def parse(cls, frame_id: str) -> ImagePlacement:
+        m = _PLACEMENT_RE.match(frame_id.strip())
+        if not m:
+            msg = (f'{frame_id!r} is not an image placement on the live plane; expected '
+                   "'srmosaic_segment_<k>;x0=<int>;y0=<int>;width=<int>;height=<int>[;factor=<int>]'.")
+            raise SrMosaicError(msg)
+        return cls(*(int(g) for g in m.groups()[:5]))
+
+    def plane_H_image(self, image_width: int, image_height: int) -> np.ndarray:  # noqa: N802
+        """(3, 3) image pixel (centres at integers) -> plane pixel, for an image of that size."""
+        if image_width < 1 or image_height < 1:
+            msg = f'an image of {image_width}x{image_height} pixels cannot be placed.'
+            raise SrMosaicError(msg)
+        sx, sy = self.width / image_width, self.height / image_height
+        return np.array([[sx, 0.0, self.x0 + 0.5 * sx - 0.5], [0.0, sy, self.y0 + 0.5 * sy - 0.5], [0.0, 0.0, 1.0]])
 
 
 @dataclass

@@ -34,6 +34,7 @@ from .core.types import Frame
 from .io.geotiff import MOSAIC_BLOCK_PX, read_raster, write_geotiff, write_geotiff_blocks
 from .io.mosaic_files import read_frames_csv, write_json, write_png
 from .offline import StripPreview
+from .sr_live import SRTilePlacement
 
 __all__ = ['sr_mosaic_strips', 'super_resolve_mosaic']
 
@@ -97,8 +98,9 @@ def super_resolve_mosaic(out: Path, items: Iterable[Any], config: PipelineConfig
         write_png(tiles_dir / name, image)
         if raster is not None:
             # tile pixel (u, v) is mosaic pixel (x0 + (u + 0.5) / s - 0.5, ...): a similarity of the grid
+            place = SRTilePlacement(0, plan.x0, plan.y0, plan.width, plan.height, s)
             write_geotiff(tiles_dir / name.replace('.png', '.tif'), image[:, :, 0] if image.shape[2] == 1 else image,
-                          raster.transformed(_sr_H_mosaic_inverse(s, plan.x0, plan.y0)))
+                          raster.transformed(place.plane_H_tile()))
         entries.append({'file': name, 'x0': plan.x0, 'y0': plan.y0, 'width': plan.width, 'height': plan.height,
                         'factor': s})
         pasted.append((plan.x0, plan.y0, np.clip(image * 255.0 + 0.5, 0, 255).astype(np.uint8)))
@@ -119,18 +121,12 @@ def super_resolve_mosaic(out: Path, items: Iterable[Any], config: PipelineConfig
             preview.add(row, image.astype(np.float32) * (1.0 / 255.0), cov)
             yield row, image, cov
 
+    whole = SRTilePlacement(0, 0, 0, w, h, s)  # the SR mosaic: the whole mosaic as one tile
     write_geotiff_blocks(tiles_dir / 'mosaic_sr.tif', strips(), None if raster is None else
-                         raster.transformed(_sr_H_mosaic_inverse(s, 0, 0)), h * s, w * s, block_px=MOSAIC_BLOCK_PX)
+                         raster.transformed(whole.plane_H_tile()), h * s, w * s, block_px=MOSAIC_BLOCK_PX)
     write_png(tiles_dir / 'preview.png', preview.image())
     return {'factor': s, 'tiles': len(entries), 'tiles_planned': len(plans), 'frames_read': len(frames),
             'solver': config.sr.solver, 'iterations_cap': config.sr.iterations, 'per_tile': figures}
-
-
-def _sr_H_mosaic_inverse(factor: int, x0: int, y0: int) -> np.ndarray:  # noqa: N802
-    """mosaic_H_sr (3, 3): SR pixel (u, v) of a grid whose pixel (0, 0) lies at mosaic pixel (x0, y0)
-    -> mosaic point (x0 + (u + 0.5) / factor - 0.5, y0 + (v + 0.5) / factor - 0.5)."""
-    f = float(factor)
-    return np.array([[1.0 / f, 0.0, x0 + 0.5 / f - 0.5], [0.0, 1.0 / f, y0 + 0.5 / f - 0.5], [0.0, 0.0, 1.0]])
 
 
 def sr_mosaic_strips(mosaic_rgb: np.ndarray, coverage: np.ndarray, factor: int,

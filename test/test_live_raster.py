@@ -58,3 +58,12 @@ def test_image_placement_of_previews_and_tiles():
     for bad in ('srmosaic_mosaic', 'srmosaic_segment_0;x0=1;y0=2'):
         with pytest.raises(SrMosaicError, match='placement'):
             ImagePlacement.parse(bad)
+
+
+def test_moved_m_measures_how_far_the_plane_moves():
+    geo = GeoRaster(32614, 0.2, 587500.0, 3338100.0)
+    a = LiveRaster.from_georaster(geo, None)
+    b = LiveRaster.from_georaster(geo, similarity_homography(np.array([0.5, 0.0, 0.0, 0.0]), np.zeros(2)))
+    assert a.moved_m(None) == math.inf and a.moved_m(a) == 0.0
+    assert b.moved_m(a) == pytest.approx(0.1)   # half a pixel of 0.2 m
+    assert a.moved_m(LiveRaster.from_georaster(GeoRaster(32615, 0.2, 0.0, 0.0), None)) == math.inf

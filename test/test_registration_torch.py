@@ -447,7 +447,8 @@ def test_static_shapes_describe_has_a_single_host_synchronisation():
     assert counts['fixed'].get('aten::nonzero', 0) == 0 and counts['fixed'].get('aten::_local_scalar_dense') == 1, counts
 
 
-@pytest.mark.skipif(not torch.cuda.is_available(), reason='no CUDA GPU')
+@pytest.mark.skipif(not torch.cuda.is_available(),
+                    reason='CUDA graphs need a CUDA GPU; run on a lent one by bench/device_check.sh')
 def test_cuda_graph_describe_matches_eager_and_registers():
     """On a GPU describe is recorded as a CUDA graph (per frame size) and replayed: same features as
     running the fixed-shape operations one by one, and each frame's outputs survive the next replay."""

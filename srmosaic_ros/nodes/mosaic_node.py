@@ -306,20 +306,13 @@ class MosaicNode(Node):
 
     def _live_raster(self) -> LiveRaster | None:
         """The raster to publish on /srmosaic/raster: when it is new, or drift control's canvas
-        similarity moved a point 1000 px from the origin by more than 0.01 px (else None). Called
-        under the pipeline lock."""
+        similarity moved the plane by more than 2 mm (else None). Called under the pipeline lock."""
         georef = self.pipeline.georef
         if georef is None or georef.raster is None:
             return None
         new = LiveRaster.from_georaster(georef.raster, georef.canvas_similarity)
-        old = self._raster_sent
-        if old is not None and old.epsg == new.epsg and old.gsd_m_per_px == new.gsd_m_per_px:
-            probe = np.array([[0.0, 1000.0, 0.0], [0.0, 0.0, 1000.0], [1.0, 1.0, 1.0]])
-            eye = np.eye(3)
-            a = (old.canvas_H_raster if old.canvas_H_raster is not None else eye) @ probe
-            b = (new.canvas_H_raster if new.canvas_H_raster is not None else eye) @ probe
-            if np.abs(a[:2] / a[2] - b[:2] / b[2]).max() <= 0.01:
-                return None
+        if new.moved_m(self._raster_sent) <= 0.002:
+            return None
         self._raster_sent = new
         return new
 

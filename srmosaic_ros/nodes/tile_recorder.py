@@ -22,7 +22,6 @@ import threading
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image
@@ -72,19 +71,10 @@ class TileRecorderNode(Node):
         with self._lock:
             self._raster = raster
             placed = dict(self._placed)
-            moved = self._moved(raster)
+            moved = raster.moved_m(self._updated_for) > 0.02
         if moved:  # (the estimate moves by millimetres most seconds: leave the files alone then)
             self._update_geotransforms(raster, placed)
             self._updated_for = raster
-
-    def _moved(self, raster: LiveRaster) -> bool:
-        """Whether raster puts the live plane more than 2 cm (at 1000 px from its origin) away from
-        where the files were last placed."""
-        last = self._updated_for
-        if last is None or last.epsg != raster.epsg:
-            return True
-        probe = np.array([[0.0, 1000.0, 0.0], [0.0, 0.0, 1000.0], [1.0, 1.0, 1.0]])
-        return float(np.abs(last.utm_H_plane() @ probe - raster.utm_H_plane() @ probe).max()) > 0.02
 
     def _update_geotransforms(self, raster: LiveRaster, placed: dict[Path, tuple[str, int, int]]) -> None:
         """Put the GeoTIFFs written so far where the newest raster estimate says (metadata only)."""

@@ -458,11 +458,6 @@ class ScaleSpaceCandidates:
     def __len__(self) -> int:
         return int(self.response.numel()) if self.count is None else int(self.count)
 
-    def trimmed(self, n: int) -> ScaleSpaceCandidates:
-        """The first n candidates, as the data-dependent path (static_k None) gives them."""
-        return ScaleSpaceCandidates(self.level, self.xy[:n], self.sub_level[:n], self.octave[:n], self.response[:n],
-                                    self.tall, self.row0, self.size, self.sigma0, self.scales_per_octave)
-
 
 def detect(level_image: torch.Tensor, level: int, opts: FeatureOptions, *,
            static_k: int | None = None) -> ScaleSpaceCandidates:
