@@ -96,6 +96,8 @@ class GeorefConfig:
     ut_alpha: float = 1.0                    # sigma points: Merwe scaled (alpha, beta, kappa); see ukf.py
     ut_beta: float = 2.0
     ut_kappa: float = 0.0
+    ut_iterations: int = 5                   # passes of the homography and gyro updates (posterior
+    #                                          linearisation, see ukf._batch_update); 1: plain UKF update
     gsd_m_per_px: float = float('nan')       # raster ground sampling; NaN: the first frame's GSD
     drift_chain_sigma_px: float = 0.3        # drift control: random walk of chained corners per frame
     drift_pose_time_constant_s: float = float('nan')  # drift control: pose-error correlation time (s, >= 0; 0:
@@ -126,6 +128,7 @@ class GeorefConfig:
             'lever_arm_m': len(self.lever_arm_m) == 3 and all(map(math.isfinite, self.lever_arm_m)),
             'gsd_m_per_px': math.isnan(self.gsd_m_per_px) or self.gsd_m_per_px > 0,
             'ut_kappa': 13 + self.ut_kappa > 0,
+            'ut_iterations': self.ut_iterations == int(self.ut_iterations) and 1 <= self.ut_iterations <= 50,
         })
         bad = [name for name, ok in checks.items() if not ok]
         if bad:
@@ -151,7 +154,7 @@ class GeorefConfig:
             initial_rate_sigma_rad_s=math.radians(self.initial_rate_sigma_deg_s),
             ground_walk_m_per_sqrt_s=self.ground_walk_m_per_sqrt_s,
             gate_probability=self.gate_probability, max_gated_in_a_row=self.max_gated_in_a_row,
-            alpha=self.ut_alpha, beta=self.ut_beta, kappa=self.ut_kappa)
+            alpha=self.ut_alpha, beta=self.ut_beta, kappa=self.ut_kappa, iterations=int(self.ut_iterations))
 
 
 @dataclass(frozen=True)

@@ -53,6 +53,12 @@ one is exactly equal to for a linear hx, computed directly, see PoseUkf._update)
   Jacobian of that map, J P_h J^T, plus an isotropic model-error floor (non-flat ground,
   residual distortion, time-stamp jitter).
 
+The two nonlinear updates (homography, gyro) are iterated: after the UKF pass, the sigma points
+are redrawn from the posterior and the update of the prior is repeated with the statistical
+linearisation there (posterior linearisation, up to ``UkfParams.iterations`` passes, see
+:func:`_batch_update`); this keeps the filter consistent while the ground height is still far
+from its prior.
+
 Every update is gated by its Mahalanobis distance (chi-square at ``gate_probability``): a wrong
 registration or a GNSS outlier is refused rather than fused. After ``max_gated_in_a_row``
 refusals in a row of one kind the filter admits it is the one that is wrong: the absolute
@@ -76,6 +82,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.linalg
 from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter, unscented_transform
 from scipy.spatial.transform import Rotation
 from scipy.special import chdtri
@@ -161,6 +168,7 @@ class UkfParams:
     alpha: float = 1.0
     beta: float = 2.0
     kappa: float = 0.0
+    iterations: int = 5  # passes of the nonlinear (homography, gyro) updates; 1: the plain UKF update
 
 
 @dataclass(frozen=True)
@@ -435,7 +443,7 @@ class PoseUkf:
         try:
             if linear is None and hx_batch is not None:
                 ukf.sigmas_f = ukf.points_fn.sigma_points(ukf.x, ukf.P)
-                d2 = _batch_update(ukf, z, _sym(R), hx_batch)
+                d2 = _batch_update(ukf, z, _sym(R), hx_batch, iterations=self.params.iterations)
             elif linear is None:
                 ukf.sigmas_f = ukf.points_fn.sigma_points(ukf.x, ukf.P)
                 ukf.update(z, R=_sym(R), hx=hx)
@@ -505,10 +513,29 @@ def _R_enu_from_body_batch(rpy: np.ndarray) -> np.ndarray:  # noqa: N802
 
 
 def _batch_update(ukf: UnscentedKalmanFilter, z: np.ndarray, R: np.ndarray,  # noqa: N803
-                  hx_batch: Callable[[np.ndarray], np.ndarray]) -> float:
+                  hx_batch: Callable[[np.ndarray], np.ndarray], iterations: int = 1,
+                  tolerance_sigma: float = 1e-3) -> float:
     """filterpy's UnscentedKalmanFilter.update with the sigma points mapped by hx_batch in one call
     (and the cross-covariance as one product); writes x, P, sigmas_h, S, SI, K, y, z as it does.
-    Returns the squared Mahalanobis distance of the innovation."""
+    Returns the squared Mahalanobis distance of the innovation (of the first pass: the gate tests
+    the measurement against the prediction).
+
+    iterations > 1: iterated posterior linearisation (García-Fernández, Svensson, Morelande and
+    Särkkä, "Posterior linearization filter", IEEE TSP 63(20), 2015). The first pass is the UKF
+    update above. Each further pass draws the sigma points from the latest posterior (x_i, P_i)
+    instead of the prior, fits the statistical linear regression of hx there,
+    z ~ A x + b + N(0, Omega) with A = Psi^T P_i^-1, b = z_bar - A x_i, Omega = Phi - A P_i A^T
+    (Psi, Phi: the sigma points' cross- and output covariances), and updates the *prior* (x0, P0)
+    with that linear model and R + Omega. Why: a homography constrains displacement / height
+    above ground, a ratio; linearised once at a ground prior 40 m off (a 60 m flight with the
+    default nominal 100 m AGL) every update is fused at the wrong slope, the estimate creeps
+    toward the truth over seconds while P shrinks at once (ground error 5 sigma after 1 s,
+    normalised estimation error squared 17 averaged over 50 to 160 m flights). Re-linearising at
+    the posterior brings that to about 3 (the prior itself is 1.8 there) and the horizontal error
+    after 2 s from 3.4 m to 1.5 m (see test_georef_ukf). Stops when the estimate moves by less than
+    ``tolerance_sigma`` prior standard deviations in every component.
+    """
+    x0, P0 = ukf.x.copy(), ukf.P.copy()  # noqa: N806
     ukf.sigmas_h = np.atleast_2d(hx_batch(ukf.sigmas_f))
     zp, ukf.S = unscented_transform(ukf.sigmas_h, ukf.Wm, ukf.Wc, R, ukf.z_mean, ukf.residual_z)
     ukf.SI = ukf.inv(ukf.S)
@@ -516,11 +543,37 @@ def _batch_update(ukf: UnscentedKalmanFilter, z: np.ndarray, R: np.ndarray,  # n
     pxz = (ukf.Wc[:, None] * (ukf.sigmas_f - ukf.x)).T @ (ukf.sigmas_h - zp)
     ukf.K = pxz @ ukf.SI
     ukf.y = ukf.residual_z(z, zp)
+    d2 = float(ukf.y @ ukf.SI @ ukf.y)
     ukf.x = ukf.state_add(ukf.x, ukf.K @ ukf.y)
     ukf.P = ukf.P - ukf.K @ ukf.S @ ukf.K.T
+    prior_sd = np.sqrt(np.maximum(np.diag(P0), _EPS_VAR))
+    for _ in range(iterations - 1):
+        x_i, P_i = ukf.x, _sym(ukf.P)  # noqa: N806
+        try:
+            sig = ukf.points_fn.sigma_points(x_i, P_i)
+            zs = np.atleast_2d(hx_batch(sig))
+            z_bar = ukf.Wm @ zs
+            dz = zs - z_bar
+            psi = (ukf.Wc[:, None] * (sig - x_i)).T @ dz                    # (n, m)
+            phi = (ukf.Wc[:, None] * dz).T @ dz                             # (m, m)
+            A = scipy.linalg.solve(P_i, psi, assume_a='pos').T              # noqa: N806 - (m, n)
+            omega = nearest_positive_definite(phi - A @ P_i @ A.T, floor=0.0)
+            S = A @ P0 @ A.T + omega + R                                    # noqa: N806
+            SI = ukf.inv(S)                                                 # noqa: N806
+            K = P0 @ A.T @ SI                                               # noqa: N806
+            y = z - (A @ x0 + (z_bar - A @ x_i))
+            x_new, P_new = x0 + K @ y, P0 - K @ S @ K.T                     # noqa: N806
+        except (np.linalg.LinAlgError, ValueError, scipy.linalg.LinAlgError):
+            break  # keep the last good pass
+        if not np.all(np.isfinite(x_new)) or not np.all(np.isfinite(P_new)):
+            break
+        step = np.max(np.abs(x_new - x_i) / prior_sd)
+        ukf.x, ukf.P, ukf.S, ukf.SI, ukf.K, ukf.y = x_new, P_new, S, SI, K, y
+        if step < tolerance_sigma:
+            break
     ukf.z = np.array(z, copy=True)
     ukf.x_post, ukf.P_post = ukf.x.copy(), ukf.P.copy()
-    return float(ukf.y @ ukf.SI @ ukf.y)
+    return d2
 
 
 def _linear_update(ukf: UnscentedKalmanFilter, z: np.ndarray, R: np.ndarray, M: np.ndarray) -> float:  # noqa: N803
