@@ -30,10 +30,14 @@ def _covariance(msg: Any, name: str) -> np.ndarray:  # noqa: ANN401
 
 
 def _vector(msg: Any, name: str) -> np.ndarray:  # noqa: ANN401
+    """(3,) values of a Vector3 field; all NaN when its covariance[0] == -1 marks it missing (so that
+    the zeros a driver sends then are not read as a measurement of no rotation)."""
     vec = getattr(msg, name)
     values = np.array([vec.x, vec.y, vec.z], dtype=np.float64)
     provided = _covariance(msg, f'{name}_covariance')[0] != -1.0
-    if provided and not np.all(np.isfinite(values)):
+    if not provided:
+        return np.full(3, np.nan)
+    if not np.all(np.isfinite(values)):
         msg_ = (
             f'Imu.{name} {values.tolist()} is not finite although Imu.{name}_covariance[0] '
             'is not -1; the driver should mark missing data with covariance[0] = -1.'
@@ -46,8 +50,8 @@ def imu_to_sample(msg: Any) -> ImuSample:  # noqa: ANN401
     """ImuSample from a sensor_msgs/Imu of either flavour.
 
     ``orientation_xyzw`` is the unit (normalised) quaternion, or None when
-    ``orientation_covariance[0] == -1``. A vector marked missing (its covariance[0] == -1) is kept
-    as sent (zeros or NaN).
+    ``orientation_covariance[0] == -1``. A vector marked missing (its covariance[0] == -1) becomes
+    NaN, whatever was sent in it.
 
     Raises:
         MessageError: NaN/infinite or zero-norm orientation quaternion (when provided), or a
@@ -90,7 +94,8 @@ def imu_to_sample(msg: Any) -> ImuSample:  # noqa: ANN401
 def sample_to_imu(sample: ImuSample, *, flavor: str = 'rclpy') -> Any:  # noqa: ANN401
     """sensor_msgs/Imu of ``flavor``; a None orientation becomes covariance[0] = -1.
 
-    Angular velocity and linear acceleration covariances are written as zeros (unknown).
+    Angular velocity and linear acceleration covariances are written as zeros (unknown); a NaN
+    vector (not provided) is written as zeros with covariance[0] = -1.
     """
     flavor = check_flavor(flavor)
     if sample.orientation_xyzw is None:
@@ -102,8 +107,15 @@ def sample_to_imu(sample: ImuSample, *, flavor: str = 'rclpy') -> Any:  # noqa: 
         cov = np.asarray(sample.orientation_covariance, dtype=np.float64).reshape(9)
 
     def vector3(values: np.ndarray) -> Any:  # noqa: ANN401
-        x, y, z = (float(v) for v in np.asarray(values, dtype=np.float64).reshape(3))
+        values = np.asarray(values, dtype=np.float64).reshape(3)
+        x, y, z = (float(v) for v in (np.zeros(3) if np.all(np.isnan(values)) else values))
         return new_message(flavor, 'geometry_msgs/msg/Vector3', x=x, y=y, z=z)
+
+    def vector_covariance(values: np.ndarray) -> Any:  # noqa: ANN401
+        cov = np.zeros(9)
+        if np.all(np.isnan(np.asarray(values, dtype=np.float64))):
+            cov[0] = -1.0
+        return float_field(cov, flavor)
 
     return new_message(
         flavor,
@@ -119,7 +131,7 @@ def sample_to_imu(sample: ImuSample, *, flavor: str = 'rclpy') -> Any:  # noqa: 
         ),
         orientation_covariance=float_field(cov, flavor),
         angular_velocity=vector3(sample.angular_velocity_rad_s),
-        angular_velocity_covariance=float_field(np.zeros(9), flavor),
+        angular_velocity_covariance=vector_covariance(sample.angular_velocity_rad_s),
         linear_acceleration=vector3(sample.linear_acceleration_m_s2),
-        linear_acceleration_covariance=float_field(np.zeros(9), flavor),
+        linear_acceleration_covariance=vector_covariance(sample.linear_acceleration_m_s2),
     )

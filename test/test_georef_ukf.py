@@ -653,3 +653,14 @@ def test_wrong_ground_prior_keeps_the_filter_consistent() -> None:
     err = {n: np.sqrt(np.mean(np.square([r[1] for r in rs]))) for n, rs in runs.items()}
     assert nees[5] < 5.0 < 12.0 < nees[1]
     assert err[5] < 0.7 * err[1]
+
+
+def test_imu_without_rates_gives_no_gyro_update(flight) -> None:  # noqa: ANN001
+    """Orientation-only Imu samples (rates NaN: a flight log, EXIF, covariance[0] = -1) are fused as
+    attitudes, never as a gyro measuring no rotation; they are counted, not warned about."""
+    imus = [dataclasses.replace(i, angular_velocity_rad_s=np.full(3, np.nan)) for i in flight.imus]
+    georef, poses = run(flight, imus=imus, frames=range(40))
+    assert georef.updates['gyro_accepted'] == 0 and georef.updates['gyro_gated'] == 0
+    assert georef.skipped['imu_no_rate'] == len(imus)
+    assert 'imu_gyro_nan' not in georef.skipped and 'gyro_gap' not in georef.skipped
+    assert all(p.valid for p in poses)

@@ -317,6 +317,21 @@ def test_imu_without_orientation(flavor: str) -> None:
 
 
 @pytest.mark.parametrize('flavor', FLAVORS)
+def test_imu_rates_marked_missing_become_nan(flavor: str) -> None:
+    """An Imu that gives orientation only (angular_velocity_covariance[0] = -1, zeros sent): the
+    zeros must not reach the filter as a gyro measuring no rotation; NaN round-trips to -1."""
+    msg = ma.sample_to_imu(_imu(np.array([0.0, 0.0, 0.0, 1.0])), flavor=flavor)
+    msg.angular_velocity_covariance[0] = -1.0
+    sample = ma.imu_to_sample(msg)
+    assert np.all(np.isnan(sample.angular_velocity_rad_s))
+    np.testing.assert_array_equal(sample.linear_acceleration_m_s2, [0.0, 0.5, 9.81])
+    again = ma.sample_to_imu(sample, flavor=flavor)
+    assert again.angular_velocity_covariance[0] == -1.0
+    assert (again.angular_velocity.x, again.angular_velocity.y, again.angular_velocity.z) == (0.0, 0.0, 0.0)
+    assert again.linear_acceleration_covariance[0] == 0.0
+
+
+@pytest.mark.parametrize('flavor', FLAVORS)
 def test_imu_normalises_quaternion(flavor: str) -> None:
     msg = ma.sample_to_imu(_imu(np.array([0.0, 0.0, 0.0, 2.0])), flavor=flavor)
     np.testing.assert_array_equal(ma.imu_to_sample(msg).orientation_xyzw, [0.0, 0.0, 0.0, 1.0])

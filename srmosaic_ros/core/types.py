@@ -67,7 +67,8 @@ class ImuSample:
 
     ``orientation_xyzw``: unit quaternion of the body (x forward, y left, z up) in ENU (REP 145),
     or None when the message says orientation is not provided (covariance[0] == -1).
-    Angular velocity rad/s and linear acceleration m/s^2 in the body frame.
+    Angular velocity rad/s and linear acceleration m/s^2 in the body frame; all NaN when not
+    provided (the message's covariance[0] == -1, or a source without rates: a flight log, EXIF).
     """
 
     stamp_ns: int

@@ -48,7 +48,8 @@ def read_telemetry_csv(path: str | Path) -> list[GeoFix | ImuSample]:
             stamp = round(vals['time_s'] * 1e9)
             out.append(GeoFix(stamp, vals['latitude'], vals['longitude'], vals['altitude'], status=0))
             R = R_enu_from_body(*np.radians([vals['roll'], vals['pitch'], vals['yaw']]))  # noqa: N806
-            out.append(ImuSample(stamp, quat_xyzw_from_matrix(R), np.zeros(3), np.zeros(3)))
+            # a flight log has no rates: NaN (not provided), never zeros (a gyro saying "no rotation")
+            out.append(ImuSample(stamp, quat_xyzw_from_matrix(R), np.full(3, np.nan), np.full(3, np.nan)))
     out.sort(key=lambda item: item.stamp_ns)
     return out
 

@@ -422,7 +422,9 @@ class Georeferencer:
         if not self._in_order('imu', imu.stamp_ns):
             return
         w = np.asarray(imu.angular_velocity_rad_s, dtype=np.float64)
-        if w.shape == (3,) and np.all(np.isfinite(w)):
+        if w.shape == (3,) and np.all(np.isnan(w)):
+            self.skipped['imu_no_rate'] += 1  # not provided (flight log, EXIF): orientation only, no gyro update
+        elif w.shape == (3,) and np.all(np.isfinite(w)):
             self._gyro.append((int(imu.stamp_ns), w))
             if self.ukf.initialized:
                 keep_from = int(self.ukf.t_prev_ns or 0) - int(self.config.gyro_max_gap_s * 1e9)
