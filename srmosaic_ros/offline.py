@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import collections
+import logging
 import math
 import resource
 import shutil
@@ -26,6 +27,8 @@ from .core.types import Frame
 if TYPE_CHECKING:
     from .core.georef import GeoRaster
     from .core.mosaic import TiledCanvas
+
+_LOG = logging.getLogger(__name__)
 
 __all__ = ['StripPreview', 'open_source', 'peak_rss_mb', 'preview_image', 'process_input', 'write_outputs']
 
@@ -246,11 +249,17 @@ def _merge_by_time(frames: Iterable[Frame], telemetry: list[Any]) -> Iterator[An
 def open_source(path: Path, *, topics: TopicConfig | None = None, select: str = 'all',
                 camera_yaml: Path | None = None, hfov_deg: float | None = None,
                 telemetry_csv: Path | None = None) -> tuple[Iterable[Any], Any, str]:
-    """(items in time order, the reader (frame_count, skipped), 'bag' or 'video') for a bag or a video file."""
+    """(items in time order, the reader (frame_count, skipped), 'bag', 'video' or 'images') for a bag,
+    a video file or a folder of stills."""
     from .io.image_folder import ImageFolderReader, is_image_folder
     from .io.video import VideoReader, is_video, load_camera_yaml, parse_selection
 
     if is_image_folder(path):
+        if select != 'all' or camera_yaml or hfov_deg or telemetry_csv:
+            msg = ('--select, --camera, --hfov and --telemetry apply to video input; a folder of stills takes its '
+                   'stamps and geotags from telemetry_from_exif.csv beside the images and is georeferenced by '
+                   'fitting the mosaic to the geotags (see srmosaic_ros/core/georef/geotag_fit.py).')
+            raise InputError(msg)
         reader = ImageFolderReader(path)
         return reader, reader, 'images'
     if is_video(path):
@@ -280,11 +289,18 @@ def _write_main_mosaic(out: Path, result: PipelineResult, config: PipelineConfig
     x0, y0, x1, y1 = bounds
     preview = StripPreview(y1 - y0, x1 - x0, canvas.channels, config.mosaic.preview_max_side_px)
     georef = result.georef
-    if not (main.georeferenced and georef is not None and georef.raster is not None):
-        _write_canvas(canvas, None, out / 'mosaic.png', preview=preview)
-        write_png(out / 'preview.png', preview.image())
-        return {}
     from .io.kml import write_kml_for_raster
+
+    if not (main.georeferenced and georef is not None and georef.raster is not None):
+        fit = _geotag_fit(result, (x0, y0)) if config.georef_enabled else None
+        _write_canvas(canvas, out / 'mosaic.tif' if fit else None, out / 'mosaic.png', fit.raster if fit else None,
+                      preview)
+        write_png(out / 'preview.png', preview.image())
+        if fit is None:
+            return {}
+        write_kml_for_raster(out / 'mosaic.kml', 'mosaic.png', fit.raster, x1 - x0, y1 - y0)
+        return {'epsg': fit.raster.epsg, 'gsd_m_per_px': fit.raster.gsd_m_per_px,
+                'geotransform': list(fit.raster.geotransform), **fit.figures()}
     from .io.poses_csv import write_poses_csv
 
     poses = georef.smoothed_poses()
@@ -334,6 +350,34 @@ def _mosaic_raster(result: PipelineResult, poses: list[Any], origin: tuple[int, 
                'anchor_rotation_deg': float(np.degrees(np.arctan2(fix[1, 0], fix[0, 0]))),
                'anchor_frames': len(chained)}
     return raster, figures
+
+
+def _geotag_fit(result: PipelineResult, origin: tuple[int, int]) -> Any:  # noqa: ANN401
+    """GeotagFit of mosaic.png's grid (pixel (0, 0) = canvas pixel ``origin``) from the frames of the
+    main canvas and the fixes at their stamps (core/georef/geotag_fit.py), or None (with the reason
+    logged) when there are no fixes or they cannot place the mosaic."""
+    from .core.georef.geotag_fit import fit_mosaic_to_geotags, geotags_at
+    from .core.metrics import apply_homography
+
+    fixes = [f for f in result.fixes if f.status >= 0]
+    if not fixes:
+        return None
+    main_canvas = result.main_segment.canvas
+    on_main = {seg.index for seg in result.segments if seg.canvas is main_canvas}
+    recs = [r for r in result.records if r.segment in on_main and r.painted and r.seg_H_frame is not None]
+    centres = np.array([apply_homography(r.seg_H_frame, np.array([[(r.size[0] - 1) / 2.0, (r.size[1] - 1) / 2.0]]))[0]
+                        for r in recs]).reshape(-1, 2) - np.asarray(origin, dtype=np.float64)
+    fixes.sort(key=lambda f: f.stamp_ns)
+    tags = geotags_at(np.array([f.stamp_ns for f in fixes]), np.array([[f.longitude_deg, f.latitude_deg] for f in fixes]),
+                      np.array([r.stamp_ns for r in recs], dtype=np.int64))
+    try:
+        fit = fit_mosaic_to_geotags(centres, tags)
+    except ValueError as exc:
+        _LOG.warning('the mosaic is not georeferenced: no camera intrinsics, and its geotags cannot place it: %s', exc)
+        return None
+    _LOG.info('no camera intrinsics: mosaic georeferenced by its %d geotagged frames (residual RMS %.2f m, '
+              '%d left out)', int(fit.used.sum()), fit.rms_m, int((~fit.used).sum()))
+    return fit
 
 
 def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: TopicConfig | None = None,

@@ -138,8 +138,8 @@ def test_write_outputs_of_a_real_run_match_the_whole_image_writers(tmp_path: Pat
         np.testing.assert_array_equal(ds.read([1, 2, 3]).transpose(1, 2, 0),
                                       cv2.cvtColor(_read_png(tmp_path / 'before.png'), cv2.COLOR_BGRA2RGB))
 
-    plain = tmp_path / 'plain'  # the same run without georeferencing: no mosaic.tif, as before
-    report = write_outputs(dataclasses.replace(result, georef=None), plain, config, {})
+    plain = tmp_path / 'plain'  # the same run without georeferencing or fixes: no mosaic.tif, as before
+    report = write_outputs(dataclasses.replace(result, georef=None, fixes=[]), plain, config, {})
     assert report['georeferenced'] is None
     assert sorted(p.name for p in plain.iterdir()) == ['frames.csv', 'mosaic.png', 'preview.png']
     assert np.array_equal(_read_png(plain / 'mosaic.png'), _read_png(tmp_path / 'before.png'))

@@ -1,0 +1,147 @@
+"""Georeferencing by geotags (core/georef/geotag_fit.py): a mosaic without camera intrinsics placed
+on the map by the GNSS positions of its frames, checked against known similarities, a simulated
+flight's ground truth, and the real survey stills."""
+from __future__ import annotations
+
+import csv
+import datetime as dt
+import json
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import rasterio
+from pyproj import Transformer
+
+from srmosaic_ros.config import pipeline_config
+from srmosaic_ros.core.georef.geodetic import LocalTangentPlane
+from srmosaic_ros.core.georef.geotag_fit import fit_mosaic_to_geotags, geotags_at
+from srmosaic_ros.core.georef.ground_homography import apply_H, ground_H_image
+from srmosaic_ros.offline import process_input
+from srmosaic_ros.sim import SimConfig, simulate
+
+SEQUENCES = Path(__file__).resolve().parent.parent / 'data' / 'sequences'
+EPSG = 32633  # UTM 33N
+
+
+def _lonlat(utm: np.ndarray) -> np.ndarray:
+    lon, lat = Transformer.from_crs(EPSG, 4326, always_xy=True).transform(utm[:, 0], utm[:, 1])
+    return np.stack([lon, lat], axis=1)
+
+
+def _similarity(scale: float, angle_deg: float, e0: float, n0: float) -> np.ndarray:
+    """mosaic pixel (x, y down) -> UTM: UTM = scale R(angle) (x, -y) + (e0, n0)."""
+    c, s = math.cos(math.radians(angle_deg)), math.sin(math.radians(angle_deg))
+    return np.array([[scale * c, scale * s, e0], [scale * s, -scale * c, n0], [0, 0, 1]])
+
+
+def test_fit_recovers_a_known_similarity_and_leaves_out_a_wrong_geotag() -> None:
+    rng = np.random.default_rng(4)
+    centres = rng.uniform(0, 2000, size=(25, 2))
+    truth = _similarity(0.12, 35.0, 500_000.0, 5_000_000.0)
+    utm = apply_H(truth, centres)
+    noisy = utm + rng.normal(0, 2.0, utm.shape)
+    noisy[7] += [40.0, -25.0]                       # one geotag 47 m off
+    fit = fit_mosaic_to_geotags(centres, _lonlat(noisy))
+    assert fit.raster.epsg == EPSG
+    assert not fit.used[7] and fit.used.sum() == 24
+    assert fit.raster.gsd_m_per_px == pytest.approx(0.12, rel=0.02)
+    assert math.degrees(fit.raster.rotation_rad) == pytest.approx(35.0, abs=1.0)
+    err = np.linalg.norm(fit.raster.utm_from_pixels(centres) - utm, axis=1)
+    assert err.max() < 2.0                          # the fit averages the 2 m noise of 24 tags
+    assert 2.0 < fit.rms_m < 3.6                    # 2-D distance: sigma sqrt(2) = 2.8 m
+    f = fit.figures()
+    assert f['method'] == 'geotags' and f['frames_rejected'] == 1 and f['scale_rel_sigma'] < 0.02
+
+
+def test_fit_refuses_what_cannot_place_a_mosaic() -> None:
+    centres = np.array([[0.0, 0.0], [100.0, 0.0], [0.0, 100.0]])
+    with pytest.raises(ValueError, match='at least 3'):
+        fit_mosaic_to_geotags(centres[:2], _lonlat(np.array([[5e5, 5e6], [5e5 + 10, 5e6]])))
+    hover = _lonlat(np.array([[5e5, 5e6]] * 3) + np.random.default_rng(0).normal(0, 0.3, (3, 2)))
+    with pytest.raises(ValueError, match='too close'):
+        fit_mosaic_to_geotags(centres, hover)
+
+
+def test_geotags_at_frame_stamps() -> None:
+    ts = np.array([0, 1_000_000_000, 2_000_000_000, 10_000_000_000])
+    ll = np.array([[10.0, 50.0], [10.001, 50.0], [10.002, 50.001], [10.01, 50.01]])
+    got = geotags_at(ts, ll, np.array([1_000_000_000, 1_500_000_000, 5_000_000_000, -1]))
+    np.testing.assert_allclose(got[0], ll[1])
+    np.testing.assert_allclose(got[1], [10.0015, 50.0005])
+    assert np.all(np.isnan(got[2])) and np.all(np.isnan(got[3]))   # 8 s gap; before the first fix
+
+
+def _write_stills(flight, folder: Path) -> None:  # noqa: ANN001
+    """A simulated flight as a folder of stills with telemetry_from_exif.csv (no intrinsics)."""
+    (folder / 'images').mkdir(parents=True)
+    fix_at = {f.stamp_ns: f for f in flight.fixes}
+    with open(folder / 'telemetry_from_exif.csv', 'w', newline='') as handle:
+        w = csv.writer(handle)
+        w.writerow(['file', 'datetime', 'lat', 'lon', 'alt_msl'])
+        for k, fr in enumerate(flight.frames):
+            name = f'IMG_{k:04d}.png'
+            cv2.imwrite(str(folder / 'images' / name), cv2.cvtColor(fr.image, cv2.COLOR_RGB2BGR))
+            fix = fix_at[fr.stamp_ns]
+            when = dt.datetime.fromtimestamp(fr.stamp_ns // 1_000_000_000, tz=dt.timezone.utc)
+            w.writerow([name, when.strftime('%Y:%m:%d %H:%M:%S'), f'{fix.latitude_deg:.8f}',
+                        f'{fix.longitude_deg:.8f}', f'{fix.altitude_m:.2f}'])
+
+
+def test_stills_without_intrinsics_are_georeferenced_by_their_geotags(tmp_path: Path) -> None:
+    """A simulated survey (stills 2 s apart over a lawnmower from a gimbal, 0.3 deg RMS off nadir,
+    GNSS sigma 2.5 m, no camera model): mosaic.tif opens with a UTM CRS and puts the frames' centres
+    and corners within the GNSS noise averaged over the flight of the truth."""
+    flight = simulate(SimConfig(width=320, height=240, world_gsd_m=0.3, trajectory='lawnmower', legs=2,
+                                leg_length_m=160.0, leg_spacing_m=50.0, speed_m_s=10.0, rate_hz=0.5,
+                                fix_rate_hz=0.5, gust_deg=0.3, seed=3))
+    _write_stills(flight, tmp_path / 'survey')
+    report = process_input(tmp_path / 'survey', tmp_path / 'out', pipeline_config(), progress=False)
+    geo = report['georeferenced']
+    assert geo is not None and geo['method'] == 'geotags'
+    assert report['frames_registered'] == len(flight.frames)
+    with rasterio.open(tmp_path / 'out' / 'mosaic.tif') as ds:
+        assert ds.crs.to_epsg() == geo['epsg']
+        transform = ds.transform
+    rows = list(csv.DictReader(open(tmp_path / 'out' / 'frames.csv')))
+    ltp = LocalTangentPlane(*flight.truth.origin)
+    to_utm = Transformer.from_crs(4326, geo['epsg'], always_xy=True)
+    cam = flight.camera
+    errors = []
+    for row, t in zip(rows, flight.truth.frames):
+        H = np.array([float(row[f'h{i}{j}']) for i in range(3) for j in range(3)]).reshape(3, 3)  # noqa: N806
+        for px in ([cam.cx, cam.cy], [0.0, 0.0], [cam.width - 1.0, cam.height - 1.0]):
+            m = apply_H(H, np.array([px]))[0]
+            e, n = transform @ (m[0] + 0.5, m[1] + 0.5)      # GDAL: pixel corner convention
+            g = apply_H(ground_H_image(cam.K, t.R_enu_from_cam, t.camera_enu_m), np.array([px]))[0]
+            lat, lon, _ = ltp.geodetic_from_enu(np.array([g[0], g[1], 0.0]))
+            errors.append(math.dist((e, n), to_utm.transform(float(lon), float(lat))))
+    errors = np.array(errors)
+    # measured 1.30 m RMS, 2.5 m max (one geotag alone: 3.5 m RMS)
+    assert np.sqrt(np.mean(errors**2)) < 1.7 and errors.max() < 3.5, (errors.mean(), errors.max())
+    assert 1.0 < geo['geotag_residual_rms_m'] < 4.5
+    assert geo['gsd_m_per_px'] == pytest.approx(100.0 / cam.fx, rel=0.05)
+
+
+@pytest.mark.parametrize(('name', 'epsg', 'max_rms'), [('brighton_beach', 32615, 4.0), ('caliterra', 32614, 6.0)])
+def test_real_stills_are_georeferenced_by_their_geotags(tmp_path: Path, name: str, epsg: int, max_rms: float) -> None:
+    """The real surveys: GeoTIFF in the right UTM zone, every frame centre within consumer-GNSS
+    distance of its EXIF position. Brighton's DJI also records its height above take-off and its
+    lens, which the fit does not use: the fitted scale must agree with them (an independent check)."""
+    report = process_input(SEQUENCES / name, tmp_path / 'out', pipeline_config(), progress=False)
+    geo = report['georeferenced']
+    assert geo['method'] == 'geotags' and geo['epsg'] == epsg
+    assert geo['frames_used'] == report['frames_in'] and geo['geotag_residual_rms_m'] < max_rms
+    with rasterio.open(tmp_path / 'out' / 'mosaic.tif') as ds:
+        assert ds.crs.to_epsg() == epsg
+    kml = (tmp_path / 'out' / 'mosaic.kml').read_text()
+    assert '<GroundOverlay>' in kml or 'LatLonQuad' in kml or 'LatLonBox' in kml
+    if name == 'brighton_beach':
+        rows = list(csv.DictReader(open(SEQUENCES / name / 'telemetry_from_exif.csv')))
+        width = cv2.imread(str(next((SEQUENCES / name / 'images').iterdir()))).shape[1]
+        fx = float(rows[0]['focal_mm']) / 6.17 * width          # FC300S: 1/2.3" sensor, 6.17 mm wide
+        gsd_exif = np.mean([float(r['RelativeAltitude']) for r in rows]) / fx
+        assert geo['gsd_m_per_px'] == pytest.approx(gsd_exif, rel=0.08)
+    json.dumps(report)  # the report stays JSON
