@@ -145,3 +145,11 @@ def test_real_stills_are_georeferenced_by_their_geotags(tmp_path: Path, name: st
         gsd_exif = np.mean([float(r['RelativeAltitude']) for r in rows]) / fx
         assert geo['gsd_m_per_px'] == pytest.approx(gsd_exif, rel=0.08)
     json.dumps(report)  # the report stays JSON
+
+
+def test_image_folder_refuses_video_options() -> None:
+    from srmosaic_ros.errors import InputError
+    from srmosaic_ros.offline import open_source
+
+    with pytest.raises(InputError, match='--hfov and --telemetry apply to video input'):
+        open_source(SEQUENCES / 'caliterra', hfov_deg=60.0)
