@@ -39,6 +39,7 @@ class PipelineConfig:
     """Everything the offline and live pipelines need; mirrors params/default.yaml."""
 
     device: str = 'auto'
+    undistort: bool = True
     registration: RegistrationConfig = RegistrationConfig()
     mosaic: MosaicConfig = MosaicConfig()
     georef_enabled: bool = True
@@ -127,6 +128,7 @@ def pipeline_config(overrides: dict[str, Any] | None = None, *, defaults: dict[s
         raise ConfigError(msg)
     return PipelineConfig(
         device=device,
+        undistort=bool(flat.get('undistort', True)),
         registration=_build(RegistrationConfig, 'registration.', flat),
         mosaic=_build(MosaicConfig, 'mosaic.', flat),
         georef_enabled=bool(flat.get('georef.enabled', True)),

@@ -42,6 +42,7 @@ from .core.mosaic.keyframe import KeyframeResult, corner_shift_px, render_view
 from .core.registration import Features, Registration, make_registrar
 from .core.registration.factory import FallbackRegistrar
 from .core.georef.georeferencer import FramePose, Georeferencer
+from .core.undistort import Undistorter
 from .core.types import CameraIntrinsics, Frame, GeoFix, ImuSample
 
 __all__ = ['FrameRecord', 'Pipeline', 'PipelineResult', 'SYNC_HOLD_FRAMES']
@@ -121,6 +122,7 @@ class Pipeline:
         self._channels: int | None = None
         self._waiting: list[Frame] = []
         self.camera: CameraIntrinsics | None = None
+        self.undistorter = Undistorter(self.config.undistort)
         self._latest_telemetry_ns: int | None = None
         self._heap = HeapTrimmer()  # long runs: return freed heap pages (malloc_tuning.py)
         self._centres: dict[int, list[np.ndarray]] = {}  # segment -> centres of its painted frames (_revisits)
@@ -306,6 +308,9 @@ class Pipeline:
 
     def _process(self, frame: Frame) -> list[FrameRecord]:
         t0 = time.perf_counter()
+        # a camera with lens distortion: from here on the frame is that of its pinhole camera
+        # (core/undistort.py); an unusable distortion model raises InputError before any record
+        frame = self.undistorter.frame(frame, self.camera)
         h, w = frame.image.shape[:2]
         record = FrameRecord(len(self.records), frame.stamp_ns, (w, h))
         self.records.append(record)

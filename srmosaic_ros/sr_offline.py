@@ -30,7 +30,8 @@ from tqdm import tqdm
 from .config import PipelineConfig
 from .core.sr.reconstruct import SRError, reconstruct_tile
 from .core.sr.scheduler import plan_tiles
-from .core.types import Frame
+from .core.types import CameraIntrinsics, Frame
+from .core.undistort import Undistorter
 from .io.geotiff import MOSAIC_BLOCK_PX, read_raster, write_geotiff, write_geotiff_blocks
 from .io.mosaic_files import read_frames_csv, write_json, write_png
 from .offline import StripPreview
@@ -61,9 +62,13 @@ def super_resolve_mosaic(out: Path, items: Iterable[Any], config: PipelineConfig
     needed: set[int] | None = None
     plans = []
     buffered: dict[int, np.ndarray] = {}
+    undistorter, camera = Undistorter(config.undistort), None  # the frames as the first pass saw them
     for item in items:
+        if isinstance(item, CameraIntrinsics):
+            camera = item
         if not isinstance(item, Frame) or item.stamp_ns not in stamps:
             continue
+        item = undistorter.frame(item, camera)  # noqa: PLW2901
         k = stamps[item.stamp_ns]
         sizes[k] = (item.image.shape[1], item.image.shape[0])
         buffered[k] = item.image  # kept until planning: frames of one flight share a size

@@ -42,6 +42,7 @@ from std_msgs.msg import Float64MultiArray
 from msg_adapters import camera_info_to_intrinsics, imu_to_sample, navsat_to_fix
 
 from ..core.georef.georeferencer import Georeferencer
+from ..core.undistort import Undistorter
 from ..errors import SrMosaicError
 from ..pipeline import SYNC_HOLD_FRAMES
 from .common import (TELEMETRY_QOS_DEPTH, RegistrationMsg, WarnOnce, decode_registration, diagnostic_array, input_qos,
@@ -61,6 +62,7 @@ class GeorefNode(Node):
         super().__init__('srmosaic_georef', **kwargs)
         defaults = declare_pipeline_parameters(self)
         self.config = read_pipeline_config(self, defaults)  # ConfigError refuses bad georef.* values
+        self._undistorter = Undistorter(self.config.undistort)
         self.active = bool(self.get_parameter('live.georef_standalone').value)
         self.warn = WarnOnce(self)
         self.georef: Georeferencer | None = None
@@ -125,7 +127,8 @@ class GeorefNode(Node):
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
         try:
-            self._camera = camera_info_to_intrinsics(msg)
+            # registrations are of undistorted frames: their camera is the pinhole one (core/undistort.py)
+            self._camera = self._undistorter.camera(camera_info_to_intrinsics(msg))
         except SrMosaicError as exc:
             self.warn('camera_info', f'camera info skipped: {exc}')
 

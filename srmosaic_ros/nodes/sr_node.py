@@ -3,9 +3,10 @@
 Subscribes to /camera/image_raw (sensor_msgs/Image) and /camera/image_raw/compressed
 (CompressedImage), the same frames the mosaic node registers, and to /srmosaic/registration
 (std_msgs/Float64MultiArray, REGISTRATION_LAYOUT in nodes/common.py), which carries each processed
-frame's stamp and its homography into the segment plane. It needs nothing else, so it runs in the
-mosaic node's process or in its own (ground-station SR, behind a radio link that carries the
-frames and the registrations).
+frame's stamp and its homography into the segment plane, and to /camera/camera_info only to
+remove lens distortion from the images as the mosaic node does (``undistort``, core/undistort.py).
+It needs nothing else, so it runs in the mosaic node's process or in its own (ground-station SR,
+behind a radio link that carries the frames and the registrations).
 
 Publishes /srmosaic/sr_tile (sensor_msgs/Image, rgb8 or mono8) and /srmosaic/diagnostics.
 
@@ -54,11 +55,14 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
-from sensor_msgs.msg import CompressedImage, Image
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import Float64MultiArray
 
-from msg_adapters import SUPPORTED_ENCODINGS, header_to_ns_frame, image_to_rgb_or_mono, numpy_to_image
+from msg_adapters import (SUPPORTED_ENCODINGS, camera_info_to_intrinsics, header_to_ns_frame, image_to_rgb_or_mono,
+                          numpy_to_image)
 
+from ..core.types import CameraIntrinsics
+from ..core.undistort import Undistorter
 from ..errors import SrMosaicError
 from ..sr_live import (
     LiveFrame,
@@ -126,6 +130,11 @@ class SRNode(Node):
                                  callback_group=images)
         self.create_subscription(CompressedImage, '/camera/image_raw/compressed', self._on_image,
                                  input_qos(reliable, depth), callback_group=images)
+        # the registrations are of undistorted frames: the images must be undistorted alike
+        self._camera: CameraIntrinsics | None = None
+        self._undistorter = Undistorter(self.config.undistort)
+        self.create_subscription(CameraInfo, '/camera/camera_info', self._on_camera_info, input_qos(False, 5),
+                                 callback_group=images)
         # Registrations are few and each matters: reliable, deep.
         self.create_subscription(Float64MultiArray, '/srmosaic/registration', self._on_registration,
                                  input_qos(True, 200), callback_group=MutuallyExclusiveCallbackGroup())
@@ -161,6 +170,12 @@ class SRNode(Node):
                 return
             self._last_stamp = stamp_ns
             self._store.add_image(stamp_ns, msg)
+
+    def _on_camera_info(self, msg: CameraInfo) -> None:
+        try:
+            self._camera = camera_info_to_intrinsics(msg)
+        except SrMosaicError as exc:
+            self.warn('camera_info', f'camera info skipped: {exc}')
 
     def _on_registration(self, msg: Float64MultiArray) -> None:
         try:
@@ -215,6 +230,11 @@ class SRNode(Node):
             return None
         if image.size == 0:
             self.warn('image: empty', 'empty image skipped')
+            return None
+        try:
+            image = self._undistorter.image(image, self._camera)
+        except SrMosaicError as exc:
+            self.warn(f'image: {type(exc).__name__}', f'image skipped: {exc}')
             return None
         frame.payload = image
         return image
