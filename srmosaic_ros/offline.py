@@ -292,7 +292,7 @@ def _write_main_mosaic(out: Path, result: PipelineResult, config: PipelineConfig
     from .io.kml import write_kml_for_raster
 
     if not (main.georeferenced and georef is not None and georef.raster is not None):
-        fit = _geotag_fit(result, (x0, y0)) if config.georef_enabled else None
+        fit = _geotag_fit(result, (x0, y0), config) if config.georef_enabled else None
         _write_canvas(canvas, out / 'mosaic.tif' if fit else None, out / 'mosaic.png', fit.raster if fit else None,
                       preview)
         write_png(out / 'preview.png', preview.image())
@@ -352,7 +352,34 @@ def _mosaic_raster(result: PipelineResult, poses: list[Any], origin: tuple[int, 
     return raster, figures
 
 
-def _geotag_fit(result: PipelineResult, origin: tuple[int, int]) -> Any:  # noqa: ANN401
+def _ground_offsets(result: PipelineResult, stamps_ns: np.ndarray, config: PipelineConfig,
+                    max_gap_s: float = 0.5) -> np.ndarray:
+    """(M, 2) east, north offset per metre of height of where each frame's optical axis meets the
+    ground (-r_xy / r_z), from the Imu orientation nearest its stamp (within max_gap_s) and the
+    camera mount (georef.gimbal_*); NaN without an orientation or for an axis near the horizon."""
+    from .core.georef.frames import R_body_from_cam, matrix_from_quat_xyzw
+
+    imus = [i for i in result.imus if i.orientation_xyzw is not None]
+    out = np.full((len(stamps_ns), 2), np.nan)
+    if not imus:
+        return out
+    t = np.array([i.stamp_ns for i in imus], dtype=np.int64)
+    order = np.argsort(t)
+    t = t[order]
+    mount = config.georef.mount
+    R_bc = R_body_from_cam(mount.gimbal_azimuth_rad, mount.gimbal_elevation_rad)  # noqa: N806
+    for k, stamp in enumerate(stamps_ns):
+        j = int(np.clip(np.searchsorted(t, stamp), 1, len(t) - 1)) if len(t) > 1 else 0
+        j = j - 1 if len(t) > 1 and abs(t[j - 1] - stamp) < abs(t[j] - stamp) else j
+        if abs(int(t[j]) - int(stamp)) > max_gap_s * 1e9:
+            continue
+        axis = matrix_from_quat_xyzw(np.asarray(imus[order[j]].orientation_xyzw)) @ R_bc @ np.array([0.0, 0.0, 1.0])
+        if axis[2] < -0.2:  # looking down, not near the horizon
+            out[k] = -axis[:2] / axis[2]
+    return out
+
+
+def _geotag_fit(result: PipelineResult, origin: tuple[int, int], config: PipelineConfig) -> Any:  # noqa: ANN401
     """GeotagFit of mosaic.png's grid (pixel (0, 0) = canvas pixel ``origin``) from the frames of the
     main canvas and the fixes at their stamps (core/georef/geotag_fit.py), or None (with the reason
     logged) when there are no fixes or they cannot place the mosaic."""
@@ -370,13 +397,16 @@ def _geotag_fit(result: PipelineResult, origin: tuple[int, int]) -> Any:  # noqa
     fixes.sort(key=lambda f: f.stamp_ns)
     tags = geotags_at(np.array([f.stamp_ns for f in fixes]), np.array([[f.longitude_deg, f.latitude_deg] for f in fixes]),
                       np.array([r.stamp_ns for r in recs], dtype=np.int64))
+    offsets = _ground_offsets(result, np.array([r.stamp_ns for r in recs], dtype=np.int64), config) \
+        if result.imus else None
     try:
-        fit = fit_mosaic_to_geotags(centres, tags)
+        fit = fit_mosaic_to_geotags(centres, tags, offsets)
     except ValueError as exc:
         _LOG.warning('the mosaic is not georeferenced: no camera intrinsics, and its geotags cannot place it: %s', exc)
         return None
     _LOG.info('no camera intrinsics: mosaic georeferenced by its %d geotagged frames (residual RMS %.2f m, '
-              '%d left out)', int(fit.used.sum()), fit.rms_m, int((~fit.used).sum()))
+              '%d left out, tilt %s)', int(fit.used.sum()), fit.rms_m, int((~fit.used).sum()),
+              'corrected' if fit.height_m is not None else 'not corrected')
     return fit
 
 
