@@ -112,7 +112,7 @@ def super_resolve_mosaic(out: Path, items: Iterable[Any], config: PipelineConfig
         last = res.history[-1] if res.history else None
         weights = np.asarray(res.frame_weights, dtype=float)
         figures.append({'file': name, 'frames': len(use), 'frames_covering': plan.frames_covering,
-                        'iterations': len(res.history) - 1 if res.history else 0, 'stop_reason': res.stop_reason,
+                        'iterations': len(res.history), 'stop_reason': res.stop_reason,
                         'lambda': float(getattr(last, 'lam', float('nan'))) if last is not None else None,
                         'min_frame_weight': float(weights[np.isfinite(weights)].min()) if weights.size else None,
                         'time_s': round(time.perf_counter() - t0, 3)})

@@ -83,6 +83,12 @@ def test_evaluate_reports_sr_gain_over_bicubic(sr_run):
     assert sr['gain_db'] > 1.0, sr
     assert sr['gain_db_median'] > 0.5 and sr['ssim_sr'] > sr['ssim_bicubic']
     assert sr['gain_db'] == pytest.approx(sr['psnr_sr'] - sr['psnr_bicubic'])
+    # the report's iteration counts are the solver's (one history record per iteration)
+    report = json.loads((out / 'report.json').read_text())['sr']
+    for t in report['per_tile']:
+        cap = report['iterations_cap']
+        assert 1 <= t['iterations'] <= cap
+        assert (t['iterations'] == cap) == t['stop_reason'].startswith('iteration cap'), t
 
 
 def test_evaluate_truth_misplaced_by_a_pixel_costs_psnr(sr_run):
