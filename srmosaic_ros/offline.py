@@ -309,8 +309,8 @@ def _write_main_mosaic(out: Path, result: PipelineResult, config: PipelineConfig
     write_png(out / 'preview.png', preview.image())
     write_kml_for_raster(out / 'mosaic.kml', 'mosaic.png', raster, x1 - x0, y1 - y0)
     write_poses_csv(out / 'poses.csv', poses)
-    return {'epsg': raster.epsg, 'gsd_m_per_px': raster.gsd_m_per_px, 'geotransform': list(raster.geotransform),
-            **anchoring, 'poses': len(poses),
+    return {'method': 'filter', 'epsg': raster.epsg, 'gsd_m_per_px': raster.gsd_m_per_px,
+            'geotransform': list(raster.geotransform), **anchoring, 'poses': len(poses),
             'skipped_telemetry': dict(georef.skipped)}
 
 
@@ -402,9 +402,10 @@ def _geotag_fit(result: PipelineResult, origin: tuple[int, int], config: Pipelin
     try:
         fit = fit_mosaic_to_geotags(centres, tags, offsets)
     except ValueError as exc:
-        _LOG.warning('the mosaic is not georeferenced: no camera intrinsics, and its geotags cannot place it: %s', exc)
+        _LOG.warning('the mosaic is not georeferenced: the filter did not place it (no camera intrinsics, or no fix '
+                     'before its first frame) and its geotags cannot: %s', exc)
         return None
-    _LOG.info('no camera intrinsics: mosaic georeferenced by its %d geotagged frames (residual RMS %.2f m, '
+    _LOG.info('mosaic not placed by the filter: georeferenced by its %d geotagged frames (residual RMS %.2f m, '
               '%d left out, tilt %s)', int(fit.used.sum()), fit.rms_m, int((~fit.used).sum()),
               'corrected' if fit.height_m is not None else 'not corrected')
     return fit

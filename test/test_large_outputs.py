@@ -124,7 +124,7 @@ def test_write_outputs_of_a_real_run_match_the_whole_image_writers(tmp_path: Pat
 
     geo = tmp_path / 'geo'
     report = write_outputs(result, geo, config, {})
-    assert report['georeferenced'] is not None
+    assert report['georeferenced'] is not None and report['georeferenced']['method'] == 'filter'
     assert {'mosaic.png', 'mosaic.tif', 'mosaic.kml', 'poses.csv', 'preview.png', 'frames.csv'} <= {
         p.name for p in geo.iterdir()}
     assert np.array_equal(_read_png(geo / 'mosaic.png'), _read_png(tmp_path / 'before.png'))
