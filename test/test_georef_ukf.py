@@ -664,3 +664,10 @@ def test_imu_without_rates_gives_no_gyro_update(flight) -> None:  # noqa: ANN001
     assert georef.skipped['imu_no_rate'] == len(imus)
     assert 'imu_gyro_nan' not in georef.skipped and 'gyro_gap' not in georef.skipped
     assert all(p.valid for p in poses)
+
+
+def test_steps_longer_than_the_motion_model_holds_are_refused() -> None:
+    """georef.max_step_s over 1.5 s made the filter diverge on simulated stills 2 s apart: refused."""
+    GeorefConfig(max_step_s=1.5)
+    with pytest.raises(ValueError, match='max_step_s=2.0'):
+        GeorefConfig(max_step_s=2.0)
