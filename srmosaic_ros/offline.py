@@ -30,6 +30,10 @@ if TYPE_CHECKING:
 
 _LOG = logging.getLogger(__name__)
 
+#: Offline re-anchoring fits frame corners unless the height above ground is known worse than this
+#: (relative standard deviation, median over the frames): then the frame centres only.
+ANCHOR_CORNERS_MAX_REL_AGL_SD = 0.02
+
 __all__ = ['StripPreview', 'open_source', 'peak_rss_mb', 'preview_image', 'process_input', 'write_outputs']
 
 
@@ -330,12 +334,21 @@ def _mosaic_raster(result: PipelineResult, poses: list[Any], origin: tuple[int, 
     chained, by_poses = [], []
     main_canvas = result.main_segment.canvas
     seg_of = {seg.index: seg for seg in result.segments}
+    # A pose-predicted footprint is as large as its height above the ground says. Where the filter
+    # never learnt the ground (registrations not fused: stills further apart than georef.max_step_s,
+    # the nominal AGL prior left at +-30 m), the corners would carry that error into the scale
+    # (stills 2 s apart: 2.7 m RMS); the frame centres do not depend on it (1.5 m).
+    rel_sd = [math.sqrt(max(float(p.ground_covariance[-1]), 0.0)) / max(p.camera.center_enu_m[2] - p.ground_z_m, 1.0)
+              for p in poses if p.valid and p.ground_covariance is not None and p.camera is not None]
+    centres_only = bool(rel_sd) and float(np.median(rel_sd)) > ANCHOR_CORNERS_MAX_REL_AGL_SD
     for rec, pose in zip(result.records, poses):
         seg = seg_of.get(rec.segment)
         if seg is None or seg.canvas is not main_canvas or not pose.valid or rec.seg_H_frame is None:
             continue
         w_f, h_f = rec.size
         corners = np.array([[0, 0], [w_f - 1, 0], [w_f - 1, h_f - 1], [0, h_f - 1]], dtype=float)
+        if centres_only:
+            corners = np.array([[(w_f - 1) / 2.0, (h_f - 1) / 2.0]])
         by_poses.append(apply_homography(georef.raster_H_frame(pose), corners))
         chained.append(apply_homography(rec.seg_H_frame, corners))
     if chained:
@@ -348,7 +361,7 @@ def _mosaic_raster(result: PipelineResult, poses: list[Any], origin: tuple[int, 
     figures = {'anchor_shift_px': [float(fix[0, 2]), float(fix[1, 2])],
                'anchor_scale': float(np.hypot(fix[0, 0], fix[1, 0])),
                'anchor_rotation_deg': float(np.degrees(np.arctan2(fix[1, 0], fix[0, 0]))),
-               'anchor_frames': len(chained)}
+               'anchor_frames': len(chained), 'anchor_points': 'centres' if centres_only else 'corners'}
     return raster, figures
 
 
