@@ -93,6 +93,8 @@ class GeorefConfig:
     max_gated_in_a_row: int = 5              # then the filter re-acquires (fixes, attitude)
     telemetry_buffer_s: float = 10.0         # telemetry kept while waiting for frames
     max_step_s: float = 1.0                  # longer gaps between frames are bridged by filter-only steps
+    #                                          (their registration not fused); stills seconds apart: their spacing
+    max_attitude_step_sigma_deg: float = 20.0  # bound of the motion model's attitude noise per step
     ut_alpha: float = 1.0                    # sigma points: Merwe scaled (alpha, beta, kappa); see ukf.py
     ut_beta: float = 2.0
     ut_kappa: float = 0.0
@@ -128,11 +130,8 @@ class GeorefConfig:
             'lever_arm_m': len(self.lever_arm_m) == 3 and all(map(math.isfinite, self.lever_arm_m)),
             'gsd_m_per_px': math.isnan(self.gsd_m_per_px) or self.gsd_m_per_px > 0,
             'ut_kappa': 13 + self.ut_kappa > 0,
-            # Steps over 1.5 s: the motion model's noise grows as dt^2 (attitude sigma 80 deg over 2 s at
-            # 20 deg/s^2) and the filter diverged on simulated stills 2 s apart (pose error 30 m to
-            # 1.5 km); frames further apart are bridged by steps of at most this, their registration
-            # not fused (a folder of stills without intrinsics is georeferenced by its geotags).
-            'max_step_s': 0.0 < self.max_step_s <= 1.5,
+            'max_step_s': 0.0 < self.max_step_s <= 10.0,
+            'max_attitude_step_sigma_deg': 0.0 < self.max_attitude_step_sigma_deg <= 90.0,
             'ut_iterations': self.ut_iterations == int(self.ut_iterations) and 1 <= self.ut_iterations <= 50,
         })
         bad = [name for name, ok in checks.items() if not ok]
@@ -158,6 +157,7 @@ class GeorefConfig:
             initial_speed_sigma_m_s=self.initial_speed_sigma_m_s,
             initial_rate_sigma_rad_s=math.radians(self.initial_rate_sigma_deg_s),
             ground_walk_m_per_sqrt_s=self.ground_walk_m_per_sqrt_s,
+            max_attitude_step_sigma_rad=math.radians(self.max_attitude_step_sigma_deg),
             gate_probability=self.gate_probability, max_gated_in_a_row=self.max_gated_in_a_row,
             alpha=self.ut_alpha, beta=self.ut_beta, kappa=self.ut_kappa, iterations=int(self.ut_iterations))
 

@@ -169,6 +169,7 @@ class UkfParams:
     beta: float = 2.0
     kappa: float = 0.0
     iterations: int = 5  # passes of the nonlinear (homography, gyro) updates; 1: the plain UKF update
+    max_attitude_step_sigma_rad: float = math.radians(20.0)  # bound of the attitude process noise per step
 
 
 @dataclass(frozen=True)
@@ -282,6 +283,11 @@ class PoseUkf:
         if not self._rate_known:  # first step: the velocity is not known at all
             q[0:3] += (p.initial_speed_sigma_m_s * dt) ** 2
             q[3:6] += (p.initial_rate_sigma_rad_s * dt) ** 2
+        # The white angular acceleration makes the attitude's extrapolation error grow as dt^2 (80 deg
+        # over 2 s at 20 deg/s^2); an aircraft's attitude does not wander that far between two frames,
+        # and sigma points at +-3.6 such sigmas make the homography and gyro models meaningless (the
+        # filter diverged on stills 2 s apart). Bounded per step; inactive below 1 s at the defaults.
+        q[3:6] = np.minimum(q[3:6], p.max_attitude_step_sigma_rad**2)
         Q = np.zeros((STATE_DIM, STATE_DIM))  # noqa: N806
         Q[SLOT_PREV, SLOT_PREV] = _EPS_VAR * np.eye(POSE_DIM)
         Q[SLOT_CUR, SLOT_CUR] = np.diag(q)
