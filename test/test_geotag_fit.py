@@ -193,13 +193,12 @@ def stills_bag(tmp_path_factory) -> Path:  # noqa: ANN001
 
 
 def test_stills_with_intrinsics_are_anchored_on_frame_centres(stills_bag: Path, tmp_path: Path) -> None:
-    """The filter places the survey, but frames 2 s apart are bridged (georef.max_step_s 1 s) and
-    their registrations not fused, so the ground height stays at its +-30 m prior; the offline
-    re-anchoring then fits frame centres, not corners (whose spread would carry the height error
-    into the scale: 2.7 m RMS)."""
+    """With georef.max_step_s 1 s the frames 2 s apart are bridged and their registrations not
+    fused, so the ground height stays at its +-30 m prior; the offline re-anchoring then fits frame
+    centres, not corners (whose spread would carry the height error into the scale: 2.7 m RMS)."""
     from srmosaic_ros.evaluate import evaluate_dir
 
-    report = process_input(stills_bag, tmp_path / 'out', pipeline_config(), progress=False)
+    report = process_input(stills_bag, tmp_path / 'out', pipeline_config({'georef.max_step_s': 1.0}), progress=False)
     geo = report['georeferenced']
     assert geo['method'] == 'filter' and geo['anchor_points'] == 'centres'
     assert geo['skipped_telemetry'].get('homography_after_gap', 0) >= 15
@@ -208,16 +207,15 @@ def test_stills_with_intrinsics_are_anchored_on_frame_centres(stills_bag: Path, 
 
 
 def test_stills_registrations_are_fused_with_a_step_as_long_as_their_spacing(stills_bag: Path, tmp_path: Path) -> None:
-    """georef.max_step_s 3: one filter step per still, every registration fused (the filter learns
-    the ground; poses 0.74 m RMS instead of 1.2 m). It needs the bound on the attitude noise per
-    step: without it (90 deg) the 2 s steps spread the sigma points over +-290 deg and the filter
-    diverged (pose error 1.5 km)."""
+    """Default georef.max_step_s (10 s): one filter step per still, every registration fused (the
+    filter learns the ground; poses 0.74 m RMS instead of 1.2 m bridged). It needs the bound on the
+    attitude noise per step: without it (90 deg) the 2 s steps spread the sigma points over +-290
+    deg and the filter diverged (pose error 1.5 km)."""
     from srmosaic_ros.evaluate import evaluate_dir
 
     def run(cap_deg: float) -> tuple[dict, dict]:
         out = tmp_path / f'out_{cap_deg}'
-        report = process_input(stills_bag, out, pipeline_config({'georef.max_step_s': 3.0,
-                                                                 'georef.max_attitude_step_sigma_deg': cap_deg}),
+        report = process_input(stills_bag, out, pipeline_config({'georef.max_attitude_step_sigma_deg': cap_deg}),
                                progress=False)
         return report['georeferenced'], evaluate_dir(out, stills_bag / 'ground_truth.json')
 

@@ -92,8 +92,8 @@ class GeorefConfig:
     gate_probability: float = 0.99999        # chi-square gate of every update
     max_gated_in_a_row: int = 5              # then the filter re-acquires (fixes, attitude)
     telemetry_buffer_s: float = 10.0         # telemetry kept while waiting for frames
-    max_step_s: float = 1.0                  # longer gaps between frames are bridged by filter-only steps
-    #                                          (their registration not fused); stills seconds apart: their spacing
+    max_step_s: float = 10.0                 # longer gaps between frames are bridged by filter-only steps
+    #                                          (their registration not fused)
     max_attitude_step_sigma_deg: float = 20.0  # bound of the motion model's attitude noise per step
     ut_alpha: float = 1.0                    # sigma points: Merwe scaled (alpha, beta, kappa); see ukf.py
     ut_beta: float = 2.0
