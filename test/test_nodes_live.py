@@ -6,6 +6,7 @@ event-driven (a condition polled with a generous timeout), so a loaded machine i
 from __future__ import annotations
 
 import collections
+import contextlib
 import json
 import math
 import os
@@ -14,6 +15,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
@@ -236,15 +238,42 @@ def _stop(proc: subprocess.Popen, timeout: float = 60) -> str:
     return out
 
 
+class _Supervision:
+    """What :func:`supervised` gives the test: the Listener, and each process's output once stopped."""
+
+    def __init__(self, procs: dict[str, subprocess.Popen]) -> None:
+        self.procs = procs
+        self.listener = Listener()
+        self.logs: dict[str, str] = {}
+
+
+@contextlib.contextmanager
+def supervised(**procs: subprocess.Popen) -> Iterator[_Supervision]:
+    """Run a test against started srmosaic processes: a failed assertion carries their output, and
+    at the end each one is stopped (its output in ``.logs``) and must have exited cleanly."""
+    sup = _Supervision(procs)
+    try:
+        yield sup
+    except AssertionError as exc:
+        outputs = ''.join(f'\n--- {name} output ---\n{_stop(proc)}' for name, proc in procs.items())
+        raise AssertionError(f'{exc}{outputs}') from None
+    finally:
+        for name, proc in procs.items():
+            sup.logs[name] = _stop(proc) if proc.returncode is None else sup.logs.get(name, '')
+        sup.listener.close()
+    for name, proc in procs.items():
+        assert proc.returncode == 0, sup.logs[name]
+
+
 def test_live_graph_matches_offline_process(ros_env, tmp_path):
     live_dir = tmp_path / 'live'
     # Reliable inputs: the comparison with the offline run needs every frame (best effort may drop
     # some on a loaded machine, which the node would count and survive, but the mosaics would differ).
     graph = srmosaic('launch', '--ros-args', '-p', f'live.output_dir:={live_dir}', '-p', 'live.queue_size:=100',
                      '-p', 'live.preview_period_s:=0.5', '-p', 'live.reliable_inputs:=true', env=ros_env)
-    listener = Listener()
     recorder = srmosaic('record-tiles', str(tmp_path / 'ground'), '--preview', env=ros_env)  # a ground station
-    try:
+    with supervised(graph=graph, recorder=recorder) as sup:
+        listener = sup.listener
         assert listener.wait_for(lambda: listener.diagnostics, 30), 'graph published no diagnostics'
         player = srmosaic('play', str(DEMO), '--rate', '2.0', '--delay', '15', env=ros_env)
         out, _ = player.communicate(timeout=120)
@@ -292,14 +321,6 @@ def test_live_graph_matches_offline_process(ros_env, tmp_path):
         assert listener.diag_value('tiles_refreshed', SR) is not None
         placements = collections.Counter(t.header.frame_id for t in listener.tiles)
         assert max(placements.values()) <= 2, placements
-    except AssertionError as exc:
-        raise AssertionError(f'{exc}\n--- graph output ---\n{_stop(graph)}\n--- recorder ---\n{_stop(recorder)}') from None
-    finally:
-        log = _stop(graph) if graph.returncode is None else ''
-        rec_log = _stop(recorder) if recorder.returncode is None else ''
-        listener.close()
-    assert graph.returncode == 0, log
-    assert recorder.returncode == 0, rec_log
     check_recorded_tiles(tmp_path / 'ground', listener.tiles, listener.rasters[-1].data)
     offline_dir = tmp_path / 'offline'
     run = subprocess.run([sys.executable, '-m', 'srmosaic_ros.cli', 'process', str(DEMO), '--out', str(offline_dir),
@@ -332,8 +353,8 @@ def test_split_graph_in_separate_processes(ros_env, tmp_path):
     graph = srmosaic('launch', str(description), '--ros-args', '-p', 'live.georef_standalone:=true',
                      '-p', 'live.reliable_inputs:=true', '-p', 'live.preview_period_s:=0.5',
                      '-p', 'live.sr_period_s:=0.5', env=ros_env)
-    listener = Listener()
-    try:
+    with supervised(graph=graph) as sup:
+        listener = sup.listener
         names = (MOSAIC, GEOREF, SR)
         assert listener.wait_for(lambda: all(listener.diag_value('frames_received' if n != GEOREF else 'frames_fused', n)
                                              is not None for n in names), 60), 'a node of the split graph is missing'
@@ -357,12 +378,6 @@ def test_split_graph_in_separate_processes(ros_env, tmp_path):
         print('split graph SR tile', fit['placement'], 'mae', round(fit['mae'], 2), 'best shift', fit['best_shift'])
         assert max(abs(v) for v in fit['best_shift']) <= 1, fit
         assert fit['mae'] < 6.0, fit
-    except AssertionError as exc:
-        raise AssertionError(f'{exc}\n--- graph output ---\n{_stop(graph)}') from None
-    finally:
-        log = _stop(graph) if graph.returncode is None else ''
-        listener.close()
-    assert graph.returncode == 0, log
 
 
 def test_sr_node_refreshes_a_tile_when_more_frames_cover_it(ros_env):
@@ -380,8 +395,8 @@ def test_sr_node_refreshes_a_tile_when_more_frames_cover_it(ros_env):
     node = srmosaic('node', 'sr', '--ros-args', '-p', 'live.sr_period_s:=0.2', '-p', 'live.sr_worker:=thread',
                     '-p', 'sr_tiles.tile_size:=64', '-p', 'sr_tiles.max_frames:=12', '-p', 'sr.iterations:=5',
                     env=ros_env)
-    listener = Listener()
-    try:
+    with supervised(node=node) as sup:
+        listener = sup.listener
         assert listener.wait_for(lambda: listener.diag_value('frames_received', SR) is not None, 60), 'no SR node'
         images = listener.publisher(Image, '/camera/image_raw')
         regs = listener.publisher(Float64MultiArray, '/srmosaic/registration')
@@ -414,12 +429,6 @@ def test_sr_node_refreshes_a_tile_when_more_frames_cover_it(ros_env):
             assert mae < 2.2 and mae < 0.75 * misplaced, (tile.header.frame_id, mae, misplaced)
             maes[tile.header.frame_id].append(mae)
         assert all(m[-1] <= m[0] + 0.02 for m in maes.values()), dict(maes)
-    except AssertionError as exc:
-        raise AssertionError(f'{exc}\n--- node output ---\n{_stop(node)}') from None
-    finally:
-        log = _stop(node) if node.returncode is None else ''
-        listener.close()
-    assert node.returncode == 0, log
 
 
 def test_sr_node_removes_lens_distortion_like_the_mosaic_node(ros_env):
@@ -450,8 +459,8 @@ def test_sr_node_removes_lens_distortion_like_the_mosaic_node(ros_env):
         node = srmosaic('node', 'sr', '--ros-args', '-p', 'live.sr_period_s:=0.2', '-p', 'live.sr_worker:=thread',
                         '-p', 'sr_tiles.tile_size:=64', '-p', 'sr_tiles.max_frames:=8', '-p', 'sr.iterations:=5',
                         '-p', 'live.sr_refresh_growth:=0.0', '-p', f'undistort:={str(undistort).lower()}', env=ros_env)
-        listener = Listener()
-        try:
+        with supervised(node=node) as sup:
+            listener = sup.listener
             assert listener.wait_for(lambda: listener.diag_value('frames_received', SR) is not None, 60), 'no SR node'
             infos = listener.publisher(CameraInfo, '/camera/camera_info')
             images = listener.publisher(Image, '/camera/image_raw')
@@ -476,13 +485,7 @@ def test_sr_node_removes_lens_distortion_like_the_mosaic_node(ros_env):
                 place = SRTilePlacement.parse(tile.header.frame_id)
                 truth = view(_translation(*origin) @ place.plane_H_tile(), 128, 128)
                 maes.append(np.abs(image_to_numpy(tile).astype(float) - truth)[8:-8, 8:-8].mean())
-            return float(np.mean(maes))
-        except AssertionError as exc:
-            raise AssertionError(f'{exc}\n--- node output ---\n{_stop(node)}') from None
-        finally:
-            log = _stop(node) if node.returncode is None else ''
-            listener.close()
-            assert node.returncode == 0, log
+        return float(np.mean(maes))
 
     fixed, raw = run(True), run(False)
     print(f"tile MAE against the truth: undistorted {fixed:.2f}, raw {raw:.2f} grey levels")
@@ -498,8 +501,8 @@ def test_node_survives_bad_input(ros_env, tmp_path):
 
     graph = srmosaic('launch', '--ros-args', '-p', 'live.preview_period_s:=0.3', '-p', 'live.sr_period_s:=0.3',
                      '-p', 'live.georef_standalone:=true', env=ros_env)
-    listener = Listener()
-    try:
+    with supervised(graph=graph) as sup:
+        listener = sup.listener
         assert listener.wait_for(lambda: all(listener.diag_value('frames_received', n) is not None
                                              for n in (MOSAIC, SR)) and listener.diag_value('frames_fused', GEOREF),
                                  60), 'a node of the graph is missing'
@@ -543,10 +546,7 @@ def test_node_survives_bad_input(ros_env, tmp_path):
         assert listener.wait_for(counted, 30), {n: [k for k in keys if not listener.diag_value(k, n)]
                                                 for n, keys in expected.items()}
         assert graph.poll() is None, 'a node died on bad input'
-    finally:
-        log = _stop(graph)
-        listener.close()
-    assert graph.returncode == 0, log
+    log = sup.logs['graph']
     # Logged once per kind and node, not per message.
     assert log.count('not supported') == 1, log
     assert log.count("image with encoding 'yuv422'") == 1, log
