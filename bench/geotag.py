@@ -13,13 +13,11 @@ from __future__ import annotations
 
 import argparse
 import csv
-import datetime as dt
 import math
 import sys
 import tempfile
 from pathlib import Path
 
-import cv2
 import numpy as np
 import rasterio
 from pyproj import Transformer
@@ -32,23 +30,9 @@ from srmosaic_ros.core.georef.geodetic import LocalTangentPlane  # noqa: E402
 from srmosaic_ros.core.georef.ground_homography import apply_H, ground_H_image  # noqa: E402
 from srmosaic_ros.offline import process_input  # noqa: E402
 from srmosaic_ros.sim import SimConfig, simulate  # noqa: E402
+from srmosaic_ros.sim.record import write_stills_folder  # noqa: E402
 
 CASES = [(2.5, 0.1), (2.5, 0.5), (2.5, 2.0), (5.0, 0.5), (1.0, 0.1)]  # (GNSS sigma m, tilt deg RMS)
-
-
-def write_stills(flight, folder: Path) -> None:  # noqa: ANN001
-    (folder / 'images').mkdir(parents=True)
-    fix_at = {f.stamp_ns: f for f in flight.fixes}
-    with open(folder / 'telemetry_from_exif.csv', 'w', newline='') as handle:
-        w = csv.writer(handle)
-        w.writerow(['file', 'datetime', 'lat', 'lon', 'alt_msl'])
-        for k, fr in enumerate(flight.frames):
-            name = f'IMG_{k:04d}.png'
-            cv2.imwrite(str(folder / 'images' / name), cv2.cvtColor(fr.image, cv2.COLOR_RGB2BGR))
-            fix = fix_at[fr.stamp_ns]
-            when = dt.datetime.fromtimestamp(fr.stamp_ns // 1_000_000_000, tz=dt.timezone.utc)
-            w.writerow([name, when.strftime('%Y:%m:%d %H:%M:%S'), f'{fix.latitude_deg:.8f}', f'{fix.longitude_deg:.8f}',
-                        f'{fix.altitude_m:.2f}'])
 
 
 def run_case(sigma_h: float, tilt_deg: float, seed: int, work: Path) -> dict[str, float]:
@@ -56,7 +40,7 @@ def run_case(sigma_h: float, tilt_deg: float, seed: int, work: Path) -> dict[str
                                 leg_length_m=160.0, leg_spacing_m=50.0, speed_m_s=10.0, rate_hz=0.5, fix_rate_hz=0.5,
                                 gust_deg=tilt_deg, gps_sigma_h_m=sigma_h, seed=seed))
     folder = work / f'survey_{sigma_h}_{tilt_deg}_{seed}'
-    write_stills(flight, folder)
+    write_stills_folder(flight, folder)
     report = process_input(folder, folder / 'out', pipeline_config(), progress=False)
     geo = report['georeferenced']
     with rasterio.open(folder / 'out' / 'mosaic.tif') as ds:

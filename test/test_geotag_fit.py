@@ -4,7 +4,6 @@ flight's ground truth, and the real survey stills."""
 from __future__ import annotations
 
 import csv
-import datetime as dt
 import json
 import math
 from pathlib import Path
@@ -21,6 +20,7 @@ from srmosaic_ros.core.georef.geotag_fit import fit_mosaic_to_geotags, geotags_a
 from srmosaic_ros.core.georef.ground_homography import apply_H, ground_H_image
 from srmosaic_ros.offline import process_input
 from srmosaic_ros.sim import SimConfig, simulate
+from srmosaic_ros.sim.record import write_stills_folder
 
 SEQUENCES = Path(__file__).resolve().parent.parent / 'data' / 'sequences'
 EPSG = 32633  # UTM 33N
@@ -74,22 +74,6 @@ def test_geotags_at_frame_stamps() -> None:
     assert np.all(np.isnan(got[2])) and np.all(np.isnan(got[3]))   # 8 s gap; before the first fix
 
 
-def _write_stills(flight, folder: Path) -> None:  # noqa: ANN001
-    """A simulated flight as a folder of stills with telemetry_from_exif.csv (no intrinsics)."""
-    (folder / 'images').mkdir(parents=True)
-    fix_at = {f.stamp_ns: f for f in flight.fixes}
-    with open(folder / 'telemetry_from_exif.csv', 'w', newline='') as handle:
-        w = csv.writer(handle)
-        w.writerow(['file', 'datetime', 'lat', 'lon', 'alt_msl'])
-        for k, fr in enumerate(flight.frames):
-            name = f'IMG_{k:04d}.png'
-            cv2.imwrite(str(folder / 'images' / name), cv2.cvtColor(fr.image, cv2.COLOR_RGB2BGR))
-            fix = fix_at[fr.stamp_ns]
-            when = dt.datetime.fromtimestamp(fr.stamp_ns // 1_000_000_000, tz=dt.timezone.utc)
-            w.writerow([name, when.strftime('%Y:%m:%d %H:%M:%S'), f'{fix.latitude_deg:.8f}',
-                        f'{fix.longitude_deg:.8f}', f'{fix.altitude_m:.2f}'])
-
-
 def test_stills_without_intrinsics_are_georeferenced_by_their_geotags(tmp_path: Path) -> None:
     """A simulated survey (stills 2 s apart over a lawnmower from a gimbal, 0.3 deg RMS off nadir,
     GNSS sigma 2.5 m, no camera model): mosaic.tif opens with a UTM CRS and puts the frames' centres
@@ -97,7 +81,7 @@ def test_stills_without_intrinsics_are_georeferenced_by_their_geotags(tmp_path: 
     flight = simulate(SimConfig(width=320, height=240, world_gsd_m=0.3, trajectory='lawnmower', legs=2,
                                 leg_length_m=160.0, leg_spacing_m=50.0, speed_m_s=10.0, rate_hz=0.5,
                                 fix_rate_hz=0.5, gust_deg=0.3, seed=3))
-    _write_stills(flight, tmp_path / 'survey')
+    write_stills_folder(flight, tmp_path / 'survey')
     report = process_input(tmp_path / 'survey', tmp_path / 'out', pipeline_config(), progress=False)
     geo = report['georeferenced']
     assert geo is not None and geo['method'] == 'geotags'

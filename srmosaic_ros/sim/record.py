@@ -28,7 +28,7 @@ if TYPE_CHECKING:
 
     from .flight import SimulatedFlight
 
-__all__ = ['write_flight', 'STORAGES', 'TRANSPORTS', 'IMAGE_TOPIC', 'COMPRESSED_TOPIC', 'CAMERA_INFO_TOPIC',
+__all__ = ['write_flight', 'write_stills_folder', 'STORAGES', 'TRANSPORTS', 'IMAGE_TOPIC', 'COMPRESSED_TOPIC', 'CAMERA_INFO_TOPIC',
            'FIX_TOPIC', 'IMU_TOPIC', 'TRUTH_FILE']
 
 STORAGES = ('sqlite3', 'mcap')
@@ -122,3 +122,35 @@ def write_flight(flight: SimulatedFlight, out_dir: str | os.PathLike[str], *, st
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     return out
+
+
+def write_stills_folder(flight: SimulatedFlight, folder: str | os.PathLike[str]) -> Path:
+    """A simulated flight as a folder of geotagged stills, as survey cameras leave them: images/
+    (PNG, in name order) and telemetry_from_exif.csv (file, datetime, lat, lon, alt_msl; the fix at
+    each frame's stamp, so ``fix_rate_hz`` must be a multiple of ``rate_hz``), with no intrinsics
+    (io/image_folder.py reads it). Returns the folder."""
+    import csv
+    import datetime as dt
+
+    import cv2
+
+    folder = Path(folder)
+    (folder / 'images').mkdir(parents=True)
+    fix_at = {f.stamp_ns: f for f in flight.fixes}
+    missing = [fr.stamp_ns for fr in flight.frames if fr.stamp_ns not in fix_at]
+    if missing:
+        msg = (f'{len(missing)} frames have no fix at their stamp (first at {missing[0]} ns): simulate with a '
+               'fix rate that is a multiple of the frame rate.')
+        raise ConfigError(msg)
+    with open(folder / 'telemetry_from_exif.csv', 'w', newline='') as handle:
+        writer = csv.writer(handle)
+        writer.writerow(['file', 'datetime', 'lat', 'lon', 'alt_msl'])
+        for k, fr in enumerate(flight.frames):
+            name = f'IMG_{k:04d}.png'
+            image = fr.image if fr.image.ndim == 2 else cv2.cvtColor(fr.image, cv2.COLOR_RGB2BGR)
+            cv2.imwrite(str(folder / 'images' / name), image)
+            fix = fix_at[fr.stamp_ns]
+            when = dt.datetime.fromtimestamp(fr.stamp_ns // 1_000_000_000, tz=dt.timezone.utc)
+            writer.writerow([name, when.strftime('%Y:%m:%d %H:%M:%S'), f'{fix.latitude_deg:.8f}',
+                             f'{fix.longitude_deg:.8f}', f'{fix.altitude_m:.2f}'])
+    return folder
