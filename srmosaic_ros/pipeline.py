@@ -298,8 +298,7 @@ class Pipeline:
         """Feed the georeferencing filter with this frame (and its registration when it placed it)."""
         if self.georef is None:
             return
-        # a homography says nothing to the filter without the intrinsics that turn it into motion
-        use = reg is not None and reg.ok and ref is not None and held.camera is not None
+        use = reg is not None and reg.ok and ref is not None
         self._fused.append(held.record)
         held.record.pose = self.georef.feed_frame(
             held.record.stamp_ns, reg.prev_H_cur if use else None, reg.covariance if use else None,

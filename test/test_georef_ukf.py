@@ -672,3 +672,20 @@ def test_filter_steps_are_bounded() -> None:
         GeorefConfig(max_step_s=12.0)
     with pytest.raises(ValueError, match='max_attitude_step_sigma_deg=0.0'):
         GeorefConfig(max_attitude_step_sigma_deg=0.0)
+
+
+def test_registrations_without_intrinsics_are_counted_not_fused(flight) -> None:  # noqa: ANN001
+    """No camera model: the filter tracks the telemetry and counts the registrations it cannot use
+    (also across frame gaps, which would otherwise be reported as bridged)."""
+    georef = Georeferencer(GeorefConfig(max_step_s=0.1))  # every frame gap bridged
+    events = sorted([(f.stamp_ns, 0, f) for f in flight.fixes] + [(i.stamp_ns, 1, i) for i in flight.imus]
+                    + [(fr.stamp_ns, 2, k) for k, fr in enumerate(flight.frames[:20])], key=lambda e: (e[0], e[1]))
+    for _, kind, item in events:
+        if kind == 0:
+            georef.feed_fix(item)
+        elif kind == 1:
+            georef.feed_imu(item)
+        else:
+            georef.feed_frame(flight.frames[item].stamp_ns, flight.truth.frames[item].prev_H_cur if item else None)
+    assert georef.skipped['homography_no_camera'] == 19 and 'homography_after_gap' not in georef.skipped
+    assert georef.updates['homography_accepted'] == 0

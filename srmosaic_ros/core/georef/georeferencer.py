@@ -497,7 +497,9 @@ class Georeferencer:
             self.ukf.advance(stamp_ns)
             self._record(self.ukf.last_F)
             self._update_gyro()
-            if prev_H_cur is not None and bridged:
+            if prev_H_cur is not None and self.camera is None:
+                self._skip('homography_no_camera', 'no camera intrinsics: registrations are not fused')
+            elif prev_H_cur is not None and bridged:
                 self._skip('homography_after_gap', f'frames more than max_step_s = {self.config.max_step_s} s apart: '
                            'their registration is not fused (the filter bridged the gap on telemetry)')
             elif prev_H_cur is not None and ref_stamp_ns is not None and int(ref_stamp_ns) != self.ukf.t_prev_ns:
@@ -884,9 +886,6 @@ class Georeferencer:
         H = np.asarray(prev_H_cur, dtype=np.float64)  # noqa: N806
         if H.shape != (3, 3) or not np.all(np.isfinite(H)) or abs(H[2, 2]) < 1e-12:
             self._skip('homography_invalid', 'registration homography with NaN entries or h22 = 0 ignored')
-            return False
-        if self.camera is None:
-            self._skip('homography_no_camera', 'no camera intrinsics: registrations are not fused')
             return False
         H = H / H[2, 2]  # noqa: N806
         agl = self.mount.camera_pose(self.ukf.x[SLOT_CUR]).center_enu_m[2] - self.ground_z_m
