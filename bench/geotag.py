@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import logging
 import math
 import sys
 import tempfile
@@ -76,6 +77,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument('--seeds', type=int, default=3)
     ap.add_argument('--out', type=Path, default=None, help='work folder (default: a temporary one)')
     args = ap.parse_args(argv)
+    logging.basicConfig(level=logging.ERROR)  # the per-run notes (no intrinsics, no attitude) are expected here
     work = args.out or Path(tempfile.mkdtemp(prefix='bench_geotag_'))
     print(f'{"GNSS sigma":>10s} {"tilt":>6s} {"frames":>6s} {"one tag":>8s} {"fit resid":>9s} {"mosaic RMS":>10s} '
           f'{"max":>6s} {"scale err":>9s}   (m; mean over {args.seeds} seeds)')
