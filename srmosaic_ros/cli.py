@@ -1,4 +1,4 @@
-"""`srmosaic` command line: process, evaluate, simulate, launch, play, node.
+"""`srmosaic` command line: process, evaluate, simulate, launch, play, node, record-tiles, psf.
 
 Every SrMosaicError ends the command with a one-line message on stderr and exit status 2;
 nothing half-written is left under a final file name.
@@ -189,6 +189,34 @@ def _run_play(args: argparse.Namespace) -> int:
     return 0
 
 
+def _add_psf(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser('psf', help="measure the camera's PSF (sr.psf_sigma) on straight edges of a target "
+                       '(slanted-edge method)')
+    p.add_argument('inputs', type=Path, nargs='+', help='image files, folders of images, a video or a bag')
+    p.add_argument('--max-frames', type=int, default=20, help='frames taken per folder, video or bag (spread evenly)')
+    p.add_argument('--quantile', type=float, default=0.25, help='quantile of the edge sigmas reported (default 0.25)')
+    p.add_argument('--no-undistort', action='store_true', help='measure the raw frames of a bag or video '
+                   '(default: with lens distortion removed, as SR sees them)')
+    p.add_argument('--json', action='store_true', help='print the figures (and every edge sigma) as JSON')
+    p.set_defaults(func=_run_psf)
+
+
+def _run_psf(args: argparse.Namespace) -> int:
+    from .errors import ConfigError
+    from .psf_tool import as_json, measure_psf, summary_lines
+
+    if args.max_frames < 1 or not 0.0 < args.quantile < 1.0:
+        msg = f'--max-frames must be >= 1 and --quantile in (0, 1), got {args.max_frames} and {args.quantile}.'
+        raise ConfigError(msg)
+    est = measure_psf(args.inputs, max_frames=args.max_frames, undistort=not args.no_undistort,
+                      quantile=args.quantile)
+    if args.json:
+        print(json.dumps(as_json(est), indent=2))
+    else:
+        print('\n'.join(summary_lines(est)))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog='srmosaic', description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest='command', required=True)
@@ -198,6 +226,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_node(sub)
     _add_launch(sub)
     _add_play(sub)
+    _add_psf(sub)
     _add_record_tiles(sub)
     return parser
 
