@@ -105,6 +105,10 @@ def _run_evaluate(args: argparse.Namespace) -> int:
                   f"(per tile: median {sr['gain_db_median']:+.2f}, min {sr['gain_db_min']:+.2f}); "
                   f"SSIM {sr['ssim_sr']:.3f} (bicubic {sr['ssim_bicubic']:.3f}); "
                   f"bicubic | SR | truth: {Path(args.dir) / sr['compare']['file'] if 'compare' in sr else '-'}")
+            used, true = sr.get('psf_sigma_px'), sr.get('psf_sigma_true_px')
+            if used is not None and true is not None and abs(used - true) > 0.1:
+                print(f'note: SR modelled the camera blur as {used:.2f} px, the simulated camera\'s is {true:.2f} px '
+                      '(sr.psf_sigma; `srmosaic psf` measures it on frames of a target with straight edges)')
     return 0
 
 

@@ -76,7 +76,26 @@ def evaluate_dir(out_dir: Path, truth_path: Path) -> dict[str, Any]:
         figures.update(_georef_errors(Path(out_dir), truth, ok, by_stamp, w, h))
     if (Path(out_dir) / 'sr' / 'tiles.json').is_file() and len(ok) >= 2:
         figures['sr'] = sr_figures(Path(out_dir), truth, ok, by_stamp)
+        figures['sr'].update(_psf_figures(Path(out_dir), truth.config))
     return figures
+
+
+def _psf_figures(out_dir: Path, sim_config: dict[str, Any]) -> dict[str, float]:
+    """The PSF the SR run modelled (report.json sr.psf_sigma_px) and the simulated camera's true
+    blur in frame pixels (``psf_sigma_true_px``), when both are known."""
+    import json
+
+    from .sim.render import frame_blur_px
+
+    out: dict[str, float] = {}
+    report = Path(out_dir) / 'report.json'
+    if report.is_file():
+        used = json.loads(report.read_text()).get('sr', {}).get('psf_sigma_px')
+        if used is not None:
+            out['psf_sigma_px'] = float(used)
+    if 'psf_sigma_px' in sim_config:
+        out['psf_sigma_true_px'] = frame_blur_px(float(sim_config['psf_sigma_px']), int(sim_config.get('decimate', 1)))
+    return out
 
 
 def _georef_errors(out_dir: Path, truth: Any, ok: list[dict[str, Any]], by_stamp: dict[int, Any],

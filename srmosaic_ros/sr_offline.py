@@ -131,7 +131,8 @@ def super_resolve_mosaic(out: Path, items: Iterable[Any], config: PipelineConfig
                          raster.transformed(whole.plane_H_tile()), h * s, w * s, block_px=MOSAIC_BLOCK_PX)
     write_png(tiles_dir / 'preview.png', preview.image())
     return {'factor': s, 'tiles': len(entries), 'tiles_planned': len(plans), 'frames_read': len(frames),
-            'solver': config.sr.solver, 'iterations_cap': config.sr.iterations, 'per_tile': figures}
+            'solver': config.sr.solver, 'iterations_cap': config.sr.iterations,
+            'psf_sigma_px': config.sr.psf_sigma, 'per_tile': figures}
 
 
 def sr_mosaic_strips(mosaic_rgb: np.ndarray, coverage: np.ndarray, factor: int,

@@ -83,6 +83,9 @@ def test_evaluate_reports_sr_gain_over_bicubic(sr_run):
     assert sr['gain_db'] > 1.0, sr
     assert sr['gain_db_median'] > 0.5 and sr['ssim_sr'] > sr['ssim_bicubic']
     assert sr['gain_db'] == pytest.approx(sr['psnr_sr'] - sr['psnr_bicubic'])
+    # the PSF SR modelled (the default) beside the simulated camera's: sqrt(0.7^2 + 1/12) px
+    assert sr['psf_sigma_px'] == 0.5
+    assert sr['psf_sigma_true_px'] == pytest.approx(0.757, abs=1e-3)
     # the report's iteration counts are the solver's (one history record per iteration)
     report = json.loads((out / 'report.json').read_text())['sr']
     for t in report['per_tile']:

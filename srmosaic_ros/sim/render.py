@@ -28,7 +28,7 @@ import math
 import cv2
 import numpy as np
 
-__all__ = ['PIXEL_SIGMA_PX', 'effective_sigma_px', 'local_scales', 'render_frame', 'quantize',
+__all__ = ['PIXEL_SIGMA_PX', 'effective_sigma_px', 'frame_blur_px', 'local_scales', 'render_frame', 'quantize',
            'reference_render', 'hr_H_lr']
 
 PIXEL_SIGMA_PX = 1.0 / math.sqrt(12.0)
@@ -37,6 +37,14 @@ PIXEL_SIGMA_PX = 1.0 / math.sqrt(12.0)
 def effective_sigma_px(psf_sigma_px: float) -> float:
     """Total Gaussian blur in sensor pixels: optical PSF and pixel integration."""
     return math.sqrt(psf_sigma_px**2 + PIXEL_SIGMA_PX**2)
+
+
+def frame_blur_px(psf_sigma_px: float, decimate: int = 1) -> float:
+    """The blur of the published (decimated) frames in their own pixels: what ``sr.psf_sigma`` should be.
+
+    Decimation samples one point per d x d block (step 3 above), so the sensor's blur shrinks by d.
+    """
+    return effective_sigma_px(psf_sigma_px) / int(decimate)
 
 
 def hr_H_lr(decimate: int) -> np.ndarray:  # noqa: N802
