@@ -18,6 +18,7 @@ Also written:
 """
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
@@ -41,6 +42,7 @@ __all__ = ['sr_mosaic_strips', 'super_resolve_mosaic']
 
 #: Mosaic rows upsampled (and written to mosaic_sr.tif) at a time.
 SR_STRIP_ROWS = 128
+_LOG = logging.getLogger(__name__)
 _CUBIC_MARGIN = 3  # mosaic rows of context above and below a strip (bicubic reads 2)
 
 
@@ -95,7 +97,7 @@ def super_resolve_mosaic(out: Path, items: Iterable[Any], config: PipelineConfig
         try:
             res = reconstruct_tile([frames[k] for k in use], tile_H, (plan.height, plan.width), s, config=config.sr)
         except SRError as exc:
-            figures.append({'x0': plan.x0, 'y0': plan.y0, 'error': str(exc)})
+            figures.append({'x0': plan.x0, 'y0': plan.y0, 'frames': len(use), 'error': str(exc)})
             continue
         image = res.image.detach().cpu().numpy().transpose(1, 2, 0)
         image = np.clip(image, 0.0, 1.0)
@@ -112,6 +114,8 @@ def super_resolve_mosaic(out: Path, items: Iterable[Any], config: PipelineConfig
         last = res.history[-1] if res.history else None
         weights = np.asarray(res.frame_weights, dtype=float)
         figures.append({'file': name, 'frames': len(use), 'frames_covering': plan.frames_covering,
+                        'frames_consistent': int(np.count_nonzero(res.frame_consistent)),
+                        'agrees_with_mosaic': bool(res.consistency.get('reference_kept', 1.0)),
                         'iterations': len(res.history), 'stop_reason': res.stop_reason,
                         'lambda': float(getattr(last, 'lam', float('nan'))) if last is not None else None,
                         'min_frame_weight': float(weights[np.isfinite(weights)].min()) if weights.size else None,
@@ -130,7 +134,13 @@ def super_resolve_mosaic(out: Path, items: Iterable[Any], config: PipelineConfig
     write_geotiff_blocks(tiles_dir / 'mosaic_sr.tif', strips(), None if raster is None else
                          raster.transformed(whole.plane_H_tile()), h * s, w * s, block_px=MOSAIC_BLOCK_PX)
     write_png(tiles_dir / 'preview.png', preview.image())
-    return {'factor': s, 'tiles': len(entries), 'tiles_planned': len(plans), 'frames_read': len(frames),
+    refused = sum(1 for f in figures if 'error' in f)
+    if refused:
+        _LOG.warning('%d of %d SR tiles not reconstructed (left to the mosaic in mosaic_sr.tif); the reasons are '
+                    "in report.json sr.per_tile: %s", refused, len(plans),
+                    next(f['error'] for f in figures if 'error' in f))
+    return {'factor': s, 'tiles': len(entries), 'tiles_planned': len(plans), 'tiles_refused': refused,
+            'frames_read': len(frames),
             'solver': config.sr.solver, 'iterations_cap': config.sr.iterations,
             'psf_sigma_px': config.sr.psf_sigma, 'per_tile': figures}
 

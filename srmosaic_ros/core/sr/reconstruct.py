@@ -20,6 +20,12 @@ compared with the per-pixel median of all of them (three frames or more); after 
 ``reweight_at`` it is compared with its prediction from the current HR estimate. From the RMS
 residuals ``e_k``: ``tau = median(e) + outlier_threshold * max(1.4826 MAD(e), 0.1 median(e))``;
 ``w_k = 1`` when ``e_k <= tau``, else ``(tau / e_k)^outlier_power``.
+
+Those weights are relative: they cannot see a tile where every frame disagrees with every other
+(3-D ground seen from stills far apart). Before them, the consistency test of
+:mod:`.consistency` keeps the largest set of frames that correlate as well as their noise allows
+(weight 0 for the others) and refuses the tile (SRError) when fewer than two agree: such a tile is
+left to the mosaic instead of being averaged into blur.
 """
 from __future__ import annotations
 
@@ -33,6 +39,7 @@ import torch
 import torch.nn.functional as F  # noqa: N812
 
 from ..device import resolve_device
+from .consistency import consistent_frames, noise_sigma
 from .observation import FrameStack, build_frame_stack
 from .operators import Warp, gaussian_psf
 from .prior import HuberPrior, clique_differences, huber_sum
@@ -87,6 +94,9 @@ class SRConfig:
         tile and cut away (the tile's border then sees as many frames as its interior).
     robust: per-frame outlier weights.  reweight_at: iterations after which they are re-estimated.
     outlier_threshold, outlier_power: the weight rule.  device: 'auto' | 'cpu' | 'cuda'.
+    consistency: frames that do not see the same picture on the tile are left out before the solve
+        (pairwise NCC below this fraction of what their noise allows; core/sr/consistency.py), and
+        a tile where fewer than two agree is refused (SRError); 0 turns the test off.
     lm_inner: inner CG iterations of LM.
     """
 
@@ -105,6 +115,7 @@ class SRConfig:
     reweight_at: tuple[int, ...] = (3,)
     outlier_threshold: float = 3.0
     outlier_power: float = 2.0
+    consistency: float = 0.8
     min_observed: int = 16
     lm_inner: int = 8
     device: str = 'auto'
@@ -121,6 +132,7 @@ class SRConfig:
             (self.huber_alpha > 0, f'huber_alpha must be > 0, got {self.huber_alpha}'),
             (self.lam >= 0 and self.lambda_gamma >= 0, 'lam and lambda_gamma must be >= 0'),
             (self.margin >= 0, f'margin must be >= 0 LR pixels, got {self.margin}'),
+            (0.0 <= self.consistency < 1.0, f'consistency must be in [0, 1) (0: off), got {self.consistency}'),
             (self.lm_inner >= 1, f'lm_inner must be >= 1, got {self.lm_inner}'),
         ]
         for ok, msg in checks:
@@ -138,6 +150,8 @@ class SRResult:
     lr_mosaic: (C, H, W) the frames averaged in the tile; coverage: (H, W) frames covering each pixel.
     history: per-iteration records (objective, lambda, relative change, time).
     frame_weights, frame_rms: (N,) per input frame (0 / NaN for frames that do not observe the tile).
+    frame_consistent: (N,) False for frames left out by the consistency test (or not observing);
+    consistency: its figures (noise, ncc_min, ncc_median, kept, frames; empty when off).
     timings: seconds for 'setup', 'initial', 'solve', 'total'.
     """
 
@@ -149,6 +163,8 @@ class SRResult:
     history: list[IterationRecord] = field(default_factory=list)
     frame_weights: np.ndarray = field(default_factory=lambda: np.zeros(0))
     frame_rms: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    frame_consistent: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    consistency: dict[str, float] = field(default_factory=dict)
     timings: dict[str, float] = field(default_factory=dict)
     converged: bool = False
     stop_reason: str = ''
@@ -300,6 +316,20 @@ def _median_rms(warped: torch.Tensor, covered: torch.Tensor) -> torch.Tensor:
     return torch.sqrt((d.double() ** 2).reshape(d.shape[0], -1).sum(dim=1) / n)
 
 
+def _nearest_frame(index: Sequence[int], tile_H_frames: Sequence[np.ndarray], frames: Sequence[torch.Tensor],  # noqa: N803
+                   tile_shape: tuple[int, int]) -> int:
+    """Position in ``index`` of the frame whose centre lands nearest the tile's centre (the frame the
+    mosaic shows there, as the SR scheduler ranks frames)."""
+    h_t, w_t = tile_shape
+    c = np.array([(w_t - 1) / 2.0, (h_t - 1) / 2.0])
+    dist = []
+    for i in index:
+        h, w = frames[i].shape[-2:]
+        p = np.asarray(tile_H_frames[i]) @ np.array([(w - 1) / 2.0, (h - 1) / 2.0, 1.0])
+        dist.append(float(np.hypot(*(p[:2] / p[2] - c))))
+    return int(np.argmin(dist))
+
+
 TileCallback = Callable[[int, torch.Tensor], None]
 
 
@@ -372,10 +402,36 @@ def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames:
 
     # Initial estimate: the robustly weighted LR mosaic, bicubically upsampled.
     warped, covered = warp_frames_to_tile(stack, (hm, wm))
-    w0 = torch.ones(k_frames, dtype=torch.float64, device=device)
-    if cfg.robust and k_frames >= 3:
-        w0 = robust_frame_weights(_median_rms(luma(warped), covered), threshold=cfg.outlier_threshold,
-                                  power=cfg.outlier_power)
+    keep, consistency = np.ones(k_frames, dtype=bool), {}
+    if cfg.consistency > 0 and k_frames >= 2:
+        # noise of the frames themselves: the bilinear warp smooths it, which a high-pass estimate on
+        # the warped frames would take for less noise (a stricter bar)
+        keep, consistency = consistent_frames(luma(warped), covered, threshold=cfg.consistency,
+                                              noise=noise_sigma(luma(stack.crops), stack.in_frame),
+                                              reference=_nearest_frame(stack.index, tilem_H_frames, ts, (hm, wm)))
+        if keep.sum() < 2:
+            msg = (f'the {k_frames} frames on this tile disagree with each other (pairwise NCC median '
+                   f'{consistency["ncc_median"]:.2f}, min {consistency["ncc_min"]:.2f}, against a noise of '
+                   f'{255 * consistency["noise"]:.1f} grey levels): parallax, misregistration or motion, which '
+                   'SR would average into blur; the tile is left to the mosaic (sr.consistency sets the test, 0 '
+                   'turns it off).')
+            raise SRError(msg)
+    kept = torch.as_tensor(np.flatnonzero(keep), device=device)
+    robust = cfg.robust and len(kept) >= 3
+
+    def gated(rms: torch.Tensor) -> torch.Tensor:
+        """Weights: 0 for inconsistent frames, the relative outlier rule among the others."""
+        w = torch.zeros(k_frames, dtype=torch.float64, device=device)
+        w[kept] = robust_frame_weights(rms[kept], threshold=cfg.outlier_threshold,
+                                       power=cfg.outlier_power) if robust else 1.0
+        return w
+
+    w0 = torch.zeros(k_frames, dtype=torch.float64, device=device)
+    w0[kept] = 1.0
+    if robust:
+        rms0 = torch.zeros(k_frames, dtype=torch.float64, device=device)
+        rms0[kept] = _median_rms(luma(warped[kept]), covered[kept])
+        w0 = gated(rms0)
     mosaic, coverage = average_frames(warped, covered, w0)
     x0_rgb = F.interpolate(mosaic[None], scale_factor=s, mode='bicubic', align_corners=False).clamp(0, 1)
     t2 = time.perf_counter()
@@ -402,13 +458,12 @@ def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames:
         full = (x0_rgb + (x - x0)) if solve_c != channels else x
         return full[0, :, m * s:(m + h_t) * s, m * s:(m + w_t) * s].clamp(0, 1)
 
-    reweight_at = set(cfg.reweight_at) if cfg.robust and k_frames >= 3 else set()
+    reweight_at = set(cfg.reweight_at) if robust else set()
 
     def reweight(n: int, _x: torch.Tensor, r: torch.Tensor) -> torch.Tensor | None:
         if n not in reweight_at:
             return None
-        return robust_frame_weights(problem.frame_rms(r), threshold=cfg.outlier_threshold,
-                                    power=cfg.outlier_power)
+        return gated(problem.frame_rms(r).double()).to(r.dtype)
 
     cb = None if callback is None else (lambda n, x: callback(n, compose(x)))
     lm_opts = {'inner_iterations': cfg.lm_inner} if cfg.solver == 'lm' else {}
@@ -422,15 +477,17 @@ def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames:
     rms = problem.frame_rms(final_r).cpu().numpy()
     weights_all = np.zeros(n_frames)
     rms_all = np.full(n_frames, math.nan)
+    consistent_all = np.zeros(n_frames, dtype=bool)
     for k, i in enumerate(stack.index):
         weights_all[i] = float(problem.frame_weights[k])
         rms_all[i] = float(rms[k])
+        consistent_all[i] = bool(keep[k])
     crop = (slice(None), slice(m * s, (m + h_t) * s), slice(m * s, (m + w_t) * s))
     image = compose(res.x)
     t4 = time.perf_counter()
     return SRResult(
         image=image, initial=x0_rgb[0][crop], lr_mosaic=mosaic[:, m:m + h_t, m:m + w_t],
         coverage=coverage[m:m + h_t, m:m + w_t], factor=s, history=res.history,
-        frame_weights=weights_all, frame_rms=rms_all,
+        frame_weights=weights_all, frame_rms=rms_all, frame_consistent=consistent_all, consistency=consistency,
         timings={'setup': t1 - t0, 'initial': t2 - t1, 'solve': t3 - t2, 'total': t4 - t0},
         converged=res.converged, stop_reason=res.stop_reason, config=cfg)
