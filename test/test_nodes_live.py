@@ -618,7 +618,7 @@ def test_sr_worker_process_gives_the_in_process_tile():
     base = cv2.GaussianBlur(rng.uniform(0, 255, (80, 100)).astype(np.float32), (0, 0), 1.5)
     images = [np.clip(np.roll(base, (k, 2 * k), (0, 1)) + rng.normal(0, 2, base.shape), 0, 255).astype(np.uint8)
               for k in range(3)]
-    hs = [_translation(10.0 + 2 * k, 20.0 + k) for k in range(3)]
+    hs = [_translation(10.0 - 2 * k, 20.0 - k) for k in range(3)]  # the rolls undone: one picture
     plan = TilePlan(32, 32, 32, 32, (0, 1, 2), 3)
     config = SRConfig(iterations=3)
     here, place_here, _ = reconstruct_live_tile(plan, images, hs, 2, config, 4)
