@@ -67,6 +67,20 @@ def test_misregistered_frame_is_down_weighted(tile):
     assert p_robust > p_clean - 0.5          # as if the bad frame were not there
 
 
+def test_lambda_noise_cap_acts_on_misfit_only(world, tile):
+    """Where the model fits, the residual is below the noise and the cap changes nothing; with every
+    frame misregistered by 0.5 px (misfit) the residual exceeds the noise and the cap lowers lambda."""
+    def last_lambda(mats, **kw):
+        return reconstruct_tile(tile.frames, mats, TILE, 2, iterations=5, device='cpu', **kw).history[-1].lam
+    fit_on, fit_off = last_lambda(tile.tile_H_frames), last_lambda(tile.tile_H_frames, lambda_noise_cap=0)
+    assert fit_on == pytest.approx(fit_off, rel=0.2)
+    rng = np.random.default_rng(1)
+    off = [perturb_homography(h, f.shape[:2], 0.5, rng) for h, f in zip(tile.tile_H_frames, tile.frames, strict=True)]
+    mis_on, mis_off = (last_lambda(off, lambda_noise_cap=c, consistency=0) for c in (1.0, 0.0))
+    assert mis_off > 2 * fit_off       # the misfit raises the residual, so (5.6) raises lambda ...
+    assert mis_on < 0.7 * mis_off      # ... and the cap takes most of that back
+
+
 def test_moving_object_frame_is_down_weighted(world):
     st = make_synthetic_tile(world, (150, 480), TILE, 2, 6, noise_sigma=1.0, seed=4)
     frames = [f.copy() for f in st.frames]

@@ -126,6 +126,17 @@ def test_lambda_rule_reference_freezes_the_prior_activity():
     assert live.lam_from(fsq, 1e-3, n) > live.lam_from(fsq, 1e-2, n)   # the live one follows the iterate
 
 
+def test_lambda_rule_noise_cap_bounds_the_residual():
+    """sigma(n) of (5.6) is the frames' RMS residual (0.01 here), capped at the noise when given."""
+    op, x_true = _dense_problem(seed=9)
+    y = op.apply(x_true)
+    fsq = torch.tensor([1e-4, 1e-4, 1e-4], dtype=torch.float64) * 36
+    n = 4 * 16
+    for cap, expect in ((0.005, 0.5 * 0.005**2 / 2e-4), (0.02, 0.5 * 1e-4 / 2e-4), (None, 0.5 * 1e-4 / 2e-4)):
+        p = Problem(op, y, prior=HuberPrior(0.05), lam=LambdaRule('adaptive', gamma=0.5, reference=2e-4, noise_cap=cap))
+        assert math.isclose(p.lam_from(fsq, 1e-3, n), expect)
+
+
 # ----------------------------------------------------------------------------------- line search
 
 

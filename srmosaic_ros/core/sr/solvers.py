@@ -86,13 +86,17 @@ class LambdaRule:
     collapses (bench/sr.py, ``--world brighton``); a fixed reference such as the initial estimate's
     activity leaves only the residual to move lambda, which it does gently, and the iteration
     settles. ``fixed``: ``value``. ``paper``: (5.6) exactly as printed (size dependent; for
-    comparison).
+    comparison). ``noise_cap``: in ``adaptive`` mode, each frame's RMS residual is capped at this
+    value (intensity) before it enters (5.6): the residual stands for the noise only where the
+    model fits; on real frames it also holds misfit (parallax, lens, lighting) that a stronger
+    prior does not cure (bench/sr_real.py).
     """
 
     mode: str = 'adaptive'
     value: float = 0.0
     gamma: float = 1.0
     reference: float | None = None
+    noise_cap: float | None = None
 
     def __post_init__(self) -> None:
         if self.mode not in LAMBDA_MODES:
@@ -182,6 +186,8 @@ class Problem:
         if rule.mode == 'paper':
             return float(paper_lambda(torch.sqrt(fsq), rho_sum))
         rms = torch.sqrt(fsq / self._counts_cpu.clamp_min(1.0))
+        if rule.noise_cap is not None:
+            rms = rms.clamp_max(rule.noise_cap)
         mean_rho = rho_sum / n_cliques if rule.reference is None else rule.reference
         return float(adaptive_lambda(rms, self._w_cpu, mean_rho, gamma=rule.gamma))
 
