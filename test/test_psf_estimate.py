@@ -116,6 +116,20 @@ def test_cli_on_a_folder_and_on_a_bag(chart_world: str, tmp_path, capsys: pytest
     assert figures['frames'] == 3 and len(figures['edge_sigmas_px']) == figures['edges']
 
 
+def test_cli_on_a_video(chart_world: str, tmp_path, capsys: pytest.CaptureFixture[str]) -> None:
+    """H.264 at crf 18 keeps the edges: the video's frames measure as the stills do."""
+    from srmosaic_ros.io.video import write_video
+
+    flight = simulate(SimConfig(world=chart_world, frames=6, psf_sigma_px=0.7, seed=5, **ORIGIN))
+    video = tmp_path / 'chart.mp4'
+    write_video(video, (f.image for f in flight.frames), fps=4.0)
+    assert main(['psf', str(video), '--max-frames', '3', '--json']) == 0
+    figures = json.loads(capsys.readouterr().out)
+    eff = effective_sigma_px(0.7)
+    assert figures['frames'] == 3
+    assert eff <= figures['sigma_px'] <= math.hypot(eff, EXTRA_PX) and not figures['scene_limited']
+
+
 def test_cli_errors(tmp_path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(['psf', str(tmp_path / 'missing.png')]) == 2
     assert 'does not exist' in capsys.readouterr().err
