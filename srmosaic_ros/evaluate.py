@@ -16,7 +16,7 @@ from .errors import InputError
 from .io.mosaic_files import read_frames_csv
 from .sim import load_truth
 
-__all__ = ['evaluate_dir', 'sr_figures']
+__all__ = ['evaluate_dir', 'sr_figures', 'tile_grid_H']
 
 
 def evaluate_dir(out_dir: Path, truth_path: Path) -> dict[str, Any]:
@@ -138,7 +138,7 @@ def _georef_errors(out_dir: Path, truth: Any, ok: list[dict[str, Any]], by_stamp
     return out
 
 
-def _tile_grid_H(entry: dict[str, Any]) -> np.ndarray:  # noqa: N802
+def tile_grid_H(entry: dict[str, Any]) -> np.ndarray:  # noqa: N802
     """(3, 3) SR tile pixel (u, v) -> mosaic.png point (x0 + (u + 0.5) / s - 0.5, y0 + (v + 0.5) / s - 0.5)."""
     s = float(entry['factor'])
     return np.array([[1.0 / s, 0.0, entry['x0'] + 0.5 / s - 0.5], [0.0, 1.0 / s, entry['y0'] + 0.5 / s - 0.5],
@@ -242,7 +242,7 @@ def sr_figures(out_dir: Path, truth: Any, ok: list[dict[str, Any]], by_stamp: di
         sr = _same_channels(sr.astype(np.float64) / 255.0, channels)
         th, tw = sr.shape[:2]
         world_H_mosaic, n_frames = _world_H_mosaic_local(entry, ok, by_stamp, w, h)  # noqa: N806
-        grid_H = _tile_grid_H(entry)  # noqa: N806
+        grid_H = tile_grid_H(entry)  # noqa: N806
         world_H_tile = world_H_mosaic @ grid_H  # noqa: N806
         centre = np.array([[(tw - 1) / 2.0, (th - 1) / 2.0]])
         d = float(np.sqrt(np.prod(local_scales(world_H_tile, centre)[0])))  # world px per tile px

@@ -1,0 +1,86 @@
+"""SR on real stills, evaluated against their own originals (no simulation anywhere).
+
+A folder of stills (`data/sequences` layout: images/ and telemetry_from_exif.csv) is halved (area
+average, JPEG quality 98) into an LR folder for `srmosaic process --sr`; each SR tile is then
+compared with the HR original of its reference frame (the one whose centre is nearest the tile's,
+which the mosaic shows there), sampled at the tile's pixels through that frame's registered
+homography: HR pixel = 2 * LR pixel + 0.5 (pixel centres at integers). The baseline is mosaic.png
+sampled bicubically at the same points. Used by bench/sr_real.py and test/test_sr_consistency.py.
+"""
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .evaluate import tile_grid_H
+from .io.mosaic_files import read_frames_csv
+
+__all__ = ['TileErrors', 'halve_stills', 'pooled_gain_db', 'psnr_from_sse', 'sr_errors_against_originals']
+
+#: Per SR tile file: (sum of squared errors of SR, of bicubic, number of values), 0..255 units.
+TileErrors = dict[str, tuple[float, float, int]]
+_HR_H_LR = np.array([[2.0, 0.0, 0.5], [0.0, 2.0, 0.5], [0.0, 0.0, 1.0]])
+
+
+def halve_stills(src: Path, dst: Path, *, jpeg_quality: int = 98) -> dict[str, np.ndarray]:
+    """Write the LR copy of the stills folder ``src`` into ``dst``; returns the HR images (BGR) by name."""
+    (dst / 'images').mkdir(parents=True, exist_ok=True)
+    shutil.copy(src / 'telemetry_from_exif.csv', dst / 'telemetry_from_exif.csv')
+    hr = {}
+    for f in sorted((src / 'images').iterdir()):
+        img = cv2.imread(str(f))
+        if img is None:
+            continue
+        hr[f.name] = img
+        h, w = img.shape[:2]
+        cv2.imwrite(str(dst / 'images' / f.name), cv2.resize(img, (w // 2, h // 2), interpolation=cv2.INTER_AREA),
+                    [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality])
+    return hr
+
+
+def _sample(img: np.ndarray, img_H_tile: np.ndarray, shape: tuple[int, int]) -> np.ndarray:  # noqa: N803
+    out = cv2.warpPerspective(img.astype(np.float32), img_H_tile, (shape[1], shape[0]),
+                              flags=cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE)
+    return np.clip(out, 0, 255).astype(np.float64)
+
+
+def sr_errors_against_originals(out: Path, hr: dict[str, np.ndarray]) -> TileErrors:
+    """Errors of every tile of ``out``/sr/tiles.json against the HR originals ``hr`` (name -> BGR
+    image, in the folder's frame order = sorted names, one per frames.csv row)."""
+    names = sorted(hr)
+    rows = read_frames_csv(out / 'frames.csv')
+    ok = [(names[i], r['mosaic_H_frame']) for i, r in enumerate(rows) if r['ok']]
+    mosaic = cv2.imread(str(out / 'mosaic.png'), cv2.IMREAD_UNCHANGED)[:, :, :3]
+    h_hr, w_hr = next(iter(hr.values())).shape[:2]
+    centre = np.array([(w_hr // 2 - 1) / 2, (h_hr // 2 - 1) / 2, 1.0])
+    result: TileErrors = {}
+    for entry in json.loads((out / 'sr' / 'tiles.json').read_text()):
+        sr = cv2.imread(str(out / 'sr' / entry['file']))[:, :, :3].astype(np.float64)
+        grid_H = tile_grid_H(entry)  # noqa: N806
+        c = np.array([entry['x0'] + (entry['width'] - 1) / 2, entry['y0'] + (entry['height'] - 1) / 2])
+
+        def dist(item: tuple[str, np.ndarray], c: np.ndarray = c) -> float:
+            p = item[1] @ centre
+            return float(np.hypot(*(p[:2] / p[2] - c)))
+
+        name, mosaic_H_frame = min(ok, key=dist)  # noqa: N806
+        truth = _sample(hr[name], _HR_H_LR @ np.linalg.inv(mosaic_H_frame) @ grid_H, sr.shape[:2])
+        bicubic = _sample(mosaic, grid_H, sr.shape[:2])
+        result[entry['file']] = (float(((sr - truth) ** 2).sum()), float(((bicubic - truth) ** 2).sum()), truth.size)
+    return result
+
+
+def psnr_from_sse(sse: float, n: int) -> float:
+    return float(10 * np.log10(255.0**2 / max(sse / max(n, 1), 1e-12)))
+
+
+def pooled_gain_db(errors: TileErrors, files: list[str] | None = None) -> tuple[float, float, float]:
+    """(PSNR of SR, PSNR of bicubic, gain dB) pooled over ``files`` (default all)."""
+    use = list(errors) if files is None else files
+    sse_sr, sse_bi, n = (sum(errors[f][i] for f in use) for i in range(3))
+    p_sr, p_bi = psnr_from_sse(sse_sr, n), psnr_from_sse(sse_bi, n)
+    return p_sr, p_bi, p_sr - p_bi
