@@ -260,7 +260,7 @@ def reconstruct_live_tile(plan: TilePlan, images: Sequence[np.ndarray], seg_H_fr
 
     images: (h, w) or (h, w, 3) uint8/uint16 frames; seg_H_frames: their (3, 3) frame -> plane maps.
     Returns (tile (H s, W s[, 3]) uint8, its placement, the SRResult); raises SRError when no frame
-    observes the tile.
+    observes the tile or its frames disagree (core/sr/consistency.py).
     """
     tile_H = [_translation(-plan.x0, -plan.y0) @ H for H in seg_H_frames]  # noqa: N806
     res = reconstruct_tile(list(images), tile_H, (plan.height, plan.width), factor, config=config)

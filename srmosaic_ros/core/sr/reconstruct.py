@@ -359,7 +359,8 @@ def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames:
     callback(iteration, image (C, H s, W s)): called with the current tile estimate (iteration 0 is
         the initial estimate); for studies, it costs a colour composition per iteration.
 
-    Returns an :class:`SRResult`; raises :class:`SRError` when no frame observes the tile.
+    Returns an :class:`SRResult`; raises :class:`SRError` when no frame observes the tile, or when
+    fewer than two of the frames agree on it (``consistency``; the message gives the figures).
     """
     t0 = time.perf_counter()
     known = {f.name for f in fields(SRConfig)}
