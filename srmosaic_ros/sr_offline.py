@@ -29,7 +29,7 @@ import numpy as np
 from tqdm import tqdm
 
 from .config import PipelineConfig
-from .core.sr.reconstruct import SRError, reconstruct_tile
+from .core.sr.reconstruct import SRError, SRFramesDisagree, reconstruct_tile
 from .core.sr.scheduler import plan_tiles
 from .core.types import CameraIntrinsics, Frame
 from .core.undistort import Undistorter
@@ -97,7 +97,8 @@ def super_resolve_mosaic(out: Path, items: Iterable[Any], config: PipelineConfig
         try:
             res = reconstruct_tile([frames[k] for k in use], tile_H, (plan.height, plan.width), s, config=config.sr)
         except SRError as exc:
-            figures.append({'x0': plan.x0, 'y0': plan.y0, 'frames': len(use), 'error': str(exc)})
+            figures.append({'x0': plan.x0, 'y0': plan.y0, 'frames': len(use), 'error': str(exc),
+                            'frames_disagree': isinstance(exc, SRFramesDisagree)})
             continue
         image = res.image.detach().cpu().numpy().transpose(1, 2, 0)
         image = np.clip(image, 0.0, 1.0)
@@ -134,11 +135,14 @@ def super_resolve_mosaic(out: Path, items: Iterable[Any], config: PipelineConfig
     write_geotiff_blocks(tiles_dir / 'mosaic_sr.tif', strips(), None if raster is None else
                          raster.transformed(whole.plane_H_tile()), h * s, w * s, block_px=MOSAIC_BLOCK_PX)
     write_png(tiles_dir / 'preview.png', preview.image())
-    refused = sum(1 for f in figures if 'error' in f)
+    refused = sum(1 for f in figures if f.get('frames_disagree'))
+    failed = [f['error'] for f in figures if 'error' in f and not f.get('frames_disagree')]
     if refused:
-        _LOG.warning('%d of %d SR tiles not reconstructed (left to the mosaic in mosaic_sr.tif); the reasons are '
-                    "in report.json sr.per_tile: %s", refused, len(plans),
-                    next(f['error'] for f in figures if 'error' in f))
+        _LOG.warning('%d of %d SR tiles left to the mosaic (mosaic_sr.tif) because their frames disagree; per tile '
+                     'in report.json sr.per_tile, e.g.: %s', refused, len(plans),
+                     next(f['error'] for f in figures if f.get('frames_disagree')))
+    if failed:
+        _LOG.warning('%d of %d SR tiles failed: %s', len(failed), len(plans), failed[0])
     return {'factor': s, 'tiles': len(entries), 'tiles_planned': len(plans), 'tiles_refused': refused,
             'frames_read': len(frames),
             'solver': config.sr.solver, 'iterations_cap': config.sr.iterations,

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from srmosaic_ros.config import pipeline_config
-from srmosaic_ros.core.sr import SRError, reconstruct_tile
+from srmosaic_ros.core.sr import SRFramesDisagree, reconstruct_tile
 from srmosaic_ros.core.sr.consistency import consistent_frames, noise_sigma
 from srmosaic_ros.core.sr.synthetic import make_synthetic_tile
 from srmosaic_ros.evaluate_stills import halve_stills, pooled_gain_db, sr_errors_against_originals
@@ -62,7 +62,7 @@ def test_frames_of_different_ground_refuse_the_tile(world) -> None:
         st = make_synthetic_tile(world, origin, TILE, 2, 1, noise_sigma=1.0, seed=k)
         frames += st.frames
         mats += st.tile_H_frames
-    with pytest.raises(SRError, match='disagree with each other.*left to the mosaic'):
+    with pytest.raises(SRFramesDisagree, match='disagree with each other.*left to the mosaic'):
         reconstruct_tile(frames, mats, TILE, 2, iterations=5, device='cpu')
     res = reconstruct_tile(frames, mats, TILE, 2, iterations=5, device='cpu', consistency=0)  # the test off
     assert res.frame_consistent.all()
@@ -96,7 +96,7 @@ def test_brighton_stills_tree_tiles_are_left_to_the_mosaic(tmp_path) -> None:
     refused = [t for t in report['per_tile'] if 'error' in t]
     made = [t for t in report['per_tile'] if 'error' not in t]
     assert report['tiles_refused'] == len(refused) >= report['tiles_planned'] // 3
-    assert all('disagree' in t['error'] for t in refused)
+    assert all('disagree' in t['error'] and t['frames_disagree'] for t in refused)
     assert made and all(t['frames_consistent'] >= 2 for t in made)
     tiles = json.loads((out / 'sr' / 'tiles.json').read_text())
     assert sorted(t['file'] for t in tiles) == sorted(t['file'] for t in made)

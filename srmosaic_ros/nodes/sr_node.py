@@ -61,6 +61,7 @@ from std_msgs.msg import Float64MultiArray
 from msg_adapters import (SUPPORTED_ENCODINGS, camera_info_to_intrinsics, header_to_ns_frame, image_to_rgb_or_mono,
                           numpy_to_image)
 
+from ..core.sr.reconstruct import SRFramesDisagree
 from ..core.types import CameraIntrinsics
 from ..core.undistort import Undistorter
 from ..errors import SrMosaicError
@@ -310,6 +311,9 @@ class SRNode(Node):
             try:
                 image, placement, stop_reason = self._reconstruct(
                     plan, [im for im, _ in decoded], [f.seg_H_frame for _, f in decoded], segment)
+            except SRFramesDisagree as exc:  # 3-D ground or motion: expected, counted apart
+                self.warn('sr tile frames disagree', f'SR tile at ({plan.x0}, {plan.y0}) left to the mosaic: {exc}')
+                continue
             except SRError as exc:
                 self.warn('sr tile', f'SR tile at ({plan.x0}, {plan.y0}) skipped: {exc}')
                 continue

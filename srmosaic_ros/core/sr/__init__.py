@@ -19,7 +19,7 @@ from .operators import (
     lr_H_hr,
 )
 from .prior import HuberPrior, adaptive_lambda, clique_differences, clique_differences_adjoint, huber
-from .reconstruct import SRConfig, SRError, SRResult, lr_mosaic, reconstruct_tile, robust_frame_weights
+from .reconstruct import SRConfig, SRError, SRFramesDisagree, SRResult, lr_mosaic, reconstruct_tile, robust_frame_weights
 from .solvers import IterationRecord, LambdaRule, Problem, SolveResult, solve
 
 __all__ = [
@@ -27,6 +27,6 @@ __all__ = [
     'hr_H_lr', 'lr_H_hr',
     'FrameStack', 'ObservationOperator', 'build_frame_stack',
     'HuberPrior', 'adaptive_lambda', 'clique_differences', 'clique_differences_adjoint', 'huber',
-    'SRConfig', 'SRError', 'SRResult', 'lr_mosaic', 'reconstruct_tile', 'robust_frame_weights',
+    'SRConfig', 'SRError', 'SRFramesDisagree', 'SRResult', 'lr_mosaic', 'reconstruct_tile', 'robust_frame_weights',
     'IterationRecord', 'LambdaRule', 'Problem', 'SolveResult', 'solve',
 ]

@@ -49,6 +49,7 @@ __all__ = [
     'SRConfig',
     'SRResult',
     'SRError',
+    'SRFramesDisagree',
     'reconstruct_tile',
     'robust_frame_weights',
     'luma',
@@ -63,6 +64,11 @@ COLOR_MODES = ('luma', 'rgb')
 
 class SRError(ValueError):
     """A super-resolution request cannot be served (no frame covers the tile, bad shapes...)."""
+
+
+class SRFramesDisagree(SRError):
+    """Fewer than two of a tile's frames see the same picture (core/sr/consistency.py): the tile is
+    left to the mosaic. Expected over 3-D ground or motion; counted apart from real errors."""
 
 
 @dataclass(frozen=True)
@@ -424,7 +430,7 @@ def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames:
                    f'{255 * consistency["noise"]:.1f} grey levels): parallax, misregistration or motion, which '
                    'SR would average into blur; the tile is left to the mosaic (sr.consistency sets the test, 0 '
                    'turns it off).')
-            raise SRError(msg)
+            raise SRFramesDisagree(msg)
     kept = torch.as_tensor(np.flatnonzero(keep), device=device)
     robust = cfg.robust and len(kept) >= 3
 
