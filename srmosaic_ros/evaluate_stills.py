@@ -16,6 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from .core.sr.scheduler import frame_centres
 from .evaluate import tile_grid_H
 from .io.mosaic_files import read_frames_csv
 
@@ -56,18 +57,13 @@ def sr_errors_against_originals(out: Path, hr: dict[str, np.ndarray]) -> TileErr
     ok = [(names[i], r['mosaic_H_frame']) for i, r in enumerate(rows) if r['ok']]
     mosaic = cv2.imread(str(out / 'mosaic.png'), cv2.IMREAD_UNCHANGED)[:, :, :3]
     h_hr, w_hr = next(iter(hr.values())).shape[:2]
-    centre = np.array([(w_hr // 2 - 1) / 2, (h_hr // 2 - 1) / 2, 1.0])
+    centres = frame_centres([h for _, h in ok], [(w_hr // 2, h_hr // 2)] * len(ok))
     result: TileErrors = {}
     for entry in json.loads((out / 'sr' / 'tiles.json').read_text()):
         sr = cv2.imread(str(out / 'sr' / entry['file']))[:, :, :3].astype(np.float64)
         grid_H = tile_grid_H(entry)  # noqa: N806
         c = np.array([entry['x0'] + (entry['width'] - 1) / 2, entry['y0'] + (entry['height'] - 1) / 2])
-
-        def dist(item: tuple[str, np.ndarray], c: np.ndarray = c) -> float:
-            p = item[1] @ centre
-            return float(np.hypot(*(p[:2] / p[2] - c)))
-
-        name, mosaic_H_frame = min(ok, key=dist)  # noqa: N806
+        name, mosaic_H_frame = ok[int(np.argmin(np.hypot(*(centres - c).T)))]  # noqa: N806
         truth = _sample(hr[name], _HR_H_LR @ np.linalg.inv(mosaic_H_frame) @ grid_H, sr.shape[:2])
         bicubic = _sample(mosaic, grid_H, sr.shape[:2])
         result[entry['file']] = (float(((sr - truth) ** 2).sum()), float(((bicubic - truth) ** 2).sum()), truth.size)

@@ -34,7 +34,7 @@ def _read_image(path: Path) -> np.ndarray:
 
 
 def _stream_frames(path: Path, max_frames: int, undistort: bool) -> Iterator[np.ndarray]:
-    """Up to ``max_frames`` images of a video or bag, spread evenly over it when its length is known."""
+    """Up to ``max_frames`` images of a folder, video or bag, spread evenly over it when its length is known."""
     from .offline import open_source
 
     items, reader, _kind = open_source(path)
@@ -65,11 +65,7 @@ def collect_frames(inputs: Sequence[Path], *, max_frames: int = 20, undistort: b
             raise InputError(msg)
         if path.is_file() and path.suffix.lower() in IMAGE_SUFFIXES:
             frames.append(_read_image(path))
-        elif path.is_dir() and any(p.suffix.lower() in IMAGE_SUFFIXES for p in path.iterdir()):
-            files = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
-            stride = max(1, len(files) // max_frames)
-            frames.extend(_read_image(p) for p in files[::stride][:max_frames])
-        else:
+        else:  # a folder of images, a video or a bag: the readers `srmosaic process` uses
             frames.extend(_stream_frames(path, max_frames, undistort))
     if not frames:
         msg = f'no image in {", ".join(map(str, inputs))}.'

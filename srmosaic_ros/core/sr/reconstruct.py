@@ -43,6 +43,7 @@ from .consistency import consistent_frames, noise_sigma
 from .observation import FrameStack, build_frame_stack
 from .operators import Warp, gaussian_psf
 from .prior import HuberPrior, clique_differences, huber_sum
+from .scheduler import frame_centres
 from .solvers import LAMBDA_MODES, SOLVERS, IterationRecord, LambdaRule, Problem, solve
 
 __all__ = [
@@ -335,13 +336,9 @@ def _nearest_frame(index: Sequence[int], tile_H_frames: Sequence[np.ndarray], fr
     """Position in ``index`` of the frame whose centre lands nearest the tile's centre (the frame the
     mosaic shows there, as the SR scheduler ranks frames)."""
     h_t, w_t = tile_shape
-    c = np.array([(w_t - 1) / 2.0, (h_t - 1) / 2.0])
-    dist = []
-    for i in index:
-        h, w = frames[i].shape[-2:]
-        p = np.asarray(tile_H_frames[i]) @ np.array([(w - 1) / 2.0, (h - 1) / 2.0, 1.0])
-        dist.append(float(np.hypot(*(p[:2] / p[2] - c))))
-    return int(np.argmin(dist))
+    centres = frame_centres([np.asarray(tile_H_frames[i]) for i in index],
+                            [(int(frames[i].shape[-1]), int(frames[i].shape[-2])) for i in index])
+    return int(np.argmin(np.hypot(*(centres - [(w_t - 1) / 2.0, (h_t - 1) / 2.0]).T)))
 
 
 TileCallback = Callable[[int, torch.Tensor], None]

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..metrics import apply_homography
 
-__all__ = ['SRTileConfig', 'TilePlan', 'plan_tiles']
+__all__ = ['SRTileConfig', 'TilePlan', 'frame_centres', 'plan_tiles']
 
 
 @dataclass(frozen=True)
@@ -53,6 +53,16 @@ class TilePlan:
     frames_covering: int
 
 
+def frame_centres(plane_H_frames: list[np.ndarray], frame_sizes: list[tuple[int, int]]) -> np.ndarray:  # noqa: N803
+    """(N, 2) plane points of the frames' centres; frame_sizes (width, height), pixel centres at integers.
+
+    "The frame nearest a tile" (nearest centre) is the one the scheduler prefers, the mosaic shows
+    there, and the consistency gate seeds its set with.
+    """
+    return np.array([apply_homography(H, np.array([[(w - 1) / 2, (h - 1) / 2]]))[0]
+                     for H, (w, h) in zip(plane_H_frames, frame_sizes, strict=True)]).reshape(-1, 2)
+
+
 def plan_tiles(mosaic_H_frames: dict[int, np.ndarray], frame_sizes: dict[int, tuple[int, int]],  # noqa: N803
                coverage: np.ndarray, config: SRTileConfig) -> list[TilePlan]:
     """Tiles to reconstruct. mosaic_H_frames: frame index -> (3, 3) frame pixels -> mosaic pixels;
@@ -60,8 +70,9 @@ def plan_tiles(mosaic_H_frames: dict[int, np.ndarray], frame_sizes: dict[int, tu
     t = config.tile_size
     h, w = coverage.shape
     inverse = {k: np.linalg.inv(H) for k, H in mosaic_H_frames.items()}
-    centres = {k: apply_homography(H, np.array([[(frame_sizes[k][0] - 1) / 2, (frame_sizes[k][1] - 1) / 2]]))[0]
-               for k, H in mosaic_H_frames.items()}
+    keys = list(mosaic_H_frames)
+    centres = dict(zip(keys, frame_centres([mosaic_H_frames[k] for k in keys], [frame_sizes[k] for k in keys]),
+                       strict=True))
     plans = []
     for y0 in range(0, h - t + 1, t):
         for x0 in range(0, w - t + 1, t):
