@@ -21,7 +21,8 @@ INSTALL_REQUIRES = [
     'tqdm==4.70.1',    # progress of long offline jobs
     'pyproj==3.7.2',   # UTM zones and WGS84 transforms of the georeferenced raster
     'rasterio==1.4.4',  # GeoTIFF output that GDAL-based tools open in place
-    'av==18.1.0',      # PyAV: video decoding with picture types (I-frame selection) and H.264 encoding
+    'av==18.1.0',      # PyAV: video decoding with picture types (I-frame selection) and H.264 encoding; KLV and GPMF data streams
+    'Pillow==13.0.0',  # EXIF and XMP of stills, read without decoding the pixels (io/exif.py)
 ]
 
 setup(

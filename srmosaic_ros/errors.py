@@ -12,6 +12,7 @@ __all__ = [
     'MessageError',
     'BagError',
     'InputError',
+    'MetadataError',
     'RegistrationError',
     'SimulationError',
 ]
@@ -35,6 +36,14 @@ class BagError(SrMosaicError):
 
 class InputError(SrMosaicError):
     """An input file or argument is unusable (missing file, unreadable image...)."""
+
+
+class MetadataError(InputError):
+    """Metadata carried by an input (EXIF/XMP, MISB KLV, DJI SRT, GoPro GPMF) is unusable as a whole.
+
+    A single bad record (a packet failing its checksum, an SRT block without GPS) is not an error:
+    readers count and skip it, and say so in the report.
+    """
 
 
 class RegistrationError(SrMosaicError):

@@ -1,0 +1,119 @@
+"""GoPro GPMF telemetry on the real karma.mp4 (HERO5 Black on a Karma drone), its GPMF track kept
+byte for byte in test/data/real/gopro/karma_telemetry.mp4 (see the folder's README.md).
+
+Reference values were decoded independently by GoPro's own gpmf-parser C library (through the
+py-gpmf-parser 0.1.1 bindings, GPMF_ScaledData): they are not produced by the code under test.
+"""
+from __future__ import annotations
+
+import math
+from datetime import datetime, timezone
+from pathlib import Path
+
+import av
+import numpy as np
+import pytest
+
+from srmosaic_ros.errors import InputError, MetadataError
+from srmosaic_ros.io.gpmf import GpsSample, read_gpmf
+
+KARMA = Path(__file__).parent / 'data' / 'real' / 'gopro' / 'karma_telemetry.mp4'
+VIDEO_END_NS = 12_078_733_333  # 1087086 / 90000 s: the original video track's duration (362 frames)
+
+
+@pytest.fixture(scope='module')
+def karma():
+    return read_gpmf(KARMA)
+
+
+def test_payloads_devices_and_counts(karma):
+    assert karma.payloads == 13
+    assert karma.device == 'Camera, GoPro Karma v1.0'
+    assert karma.skipped == {}
+    # sample totals equal the streams' own TSMP counters in the last payload
+    assert (len(karma.accel), len(karma.gyro), len(karma.gps)) == (2397, 4795, 47)
+    assert karma.orientation == []  # CORI starts with HERO8
+
+
+def test_gps_comes_from_the_karma_receiver(karma):
+    # The HERO5 wrote no GPS5 (its GPS was off): the fixes are the drone's "GPS RAW" (GPRI).
+    assert karma.gps_source == 'GPRI'
+    first, last = karma.gps[0], karma.gps[-1]
+    # gpmf-parser: GPRI first [145.911705, 33.125368, -117.3310641, 15.445, 0.25, 0.42, 0.59, 334.35, 3, 20]
+    assert first == GpsSample(stamp_ns=0, latitude_deg=33.125368, longitude_deg=-117.3310641, altitude_m=15.445,
+                              speed_2d_m_s=0.59, fix=3, dop=0.25, utc_ns=first.utc_ns)
+    # gpmf-parser: GPRI last [157.615923, 33.126003, -117.3314762, 16.167, 0.27, 0.41, 8.09, 331.15, 3, 20]
+    assert (last.latitude_deg, last.longitude_deg, last.altitude_m, last.speed_2d_m_s, last.fix, last.dop) == (
+        33.126003, -117.3314762, 16.167, 8.09, 3, 0.27)
+    assert {g.fix for g in karma.gps} == {3}
+    assert all(15.3 < g.altitude_m < 16.7 for g in karma.gps)
+
+
+def test_gps_utc_from_the_drone_clock(karma):
+    # SYST (boot 146.544283 s = UNIX 1492457278.0 s) maps GPRI's boot time 145.911705 s to UTC.
+    assert karma.gps[0].utc_ns == 1_492_457_277_367_422_000
+    assert karma.gps[-1].utc_ns == 1_492_457_289_072_353_000
+    # independent check: the MP4's creation_time is 2017-04-17T19:27:57Z
+    created = datetime(2017, 4, 17, 19, 27, 57, tzinfo=timezone.utc).timestamp()
+    assert abs(karma.gps[0].utc_ns / 1e9 - created) < 1.0
+
+
+def test_gps_stamps_spread_over_each_payload(karma):
+    stamps = [g.stamp_ns for g in karma.gps]
+    assert stamps[:5] == [0, 250_250_000, 500_500_000, 750_750_000, 1_001_000_000]
+    assert stamps == sorted(stamps)
+    rate_hz = (len(stamps) - 1) / ((stamps[-1] - stamps[0]) / 1e9)
+    assert 3.5 < rate_hz < 4.5  # the Karma logs GPS at about 4 Hz, not the HERO5's 18 Hz
+
+
+def test_imu_values_match_gpmf_parser(karma):
+    assert karma.accel[0] == (0, (10.157894736842104, -0.8516746411483254, -3.700956937799043))
+    assert karma.accel[-1][1] == (9.961722488038278, -4.117224880382775, 2.8014354066985647)
+    assert karma.gyro[0] == (0, (0.04580559254327563, 0.018641810918774968, 0.033288948069241014))
+    assert karma.gyro[-1][1] == (-0.7944074567243675, -0.009587217043941412, 0.005858854860186418)
+    magnitude = np.linalg.norm(np.array([a for _, a in karma.accel]), axis=1)
+    assert 9.7 < float(magnitude.mean()) < 9.9  # gravity: the drone cruises without accelerating much
+
+
+def test_last_payload_keeps_the_stream_rate(karma):
+    # The closing payload (12.012 s) holds 14 ACCL and 28 GYRO samples but the MP4 gives it 1.001 s:
+    # spread at the streams' own rates they end with the video (within a few ms) instead of 0.9 s after.
+    last_payload = [s for s, _ in karma.accel if s >= 12_012_000_000]
+    assert len(last_payload) == 14
+    step = np.diff(last_payload)
+    assert np.all((step > 4_900_000) & (step < 5_200_000))  # about 200 Hz
+    assert abs(karma.accel[-1][0] - VIDEO_END_NS) < 5_000_000
+    assert abs(karma.gyro[-1][0] - VIDEO_END_NS) < 5_000_000
+
+
+def test_mp4_without_gpmf_gives_an_empty_track(tmp_path):
+    path = tmp_path / 'plain.mp4'
+    with av.open(str(path), 'w') as out:
+        stream = out.add_stream('mpeg4', rate=25)
+        stream.width, stream.height, stream.pix_fmt = 64, 48, 'yuv420p'
+        for i in range(3):
+            frame = av.VideoFrame.from_ndarray(np.full((48, 64, 3), 40 * i, np.uint8), format='rgb24')
+            for packet in stream.encode(frame):
+                out.mux(packet)
+        for packet in stream.encode():
+            out.mux(packet)
+    track = read_gpmf(path)
+    assert (track.payloads, track.gps, track.accel, track.device, track.gps_source) == (0, [], [], '', '')
+
+
+def test_cut_file_is_a_metadata_error(tmp_path):
+    path = tmp_path / 'cut.mp4'
+    path.write_bytes(KARMA.read_bytes()[:4096])  # the moov index is at the end: gone
+    with pytest.raises(MetadataError, match='cut.mp4'):
+        read_gpmf(path)
+
+
+def test_missing_file_is_an_input_error(tmp_path):
+    with pytest.raises(InputError, match='does not exist'):
+        read_gpmf(tmp_path / 'GOPR0001.MP4')
+
+
+def test_stamps_are_finite_integers(karma):
+    for seq in (karma.accel, karma.gyro):
+        assert all(isinstance(s, int) for s, _ in seq)
+        assert all(math.isfinite(v) for _, values in seq for v in values)
