@@ -1,4 +1,4 @@
-"""`srmosaic` command line: process, evaluate, simulate, launch, play, node, record-tiles, psf.
+"""`srmosaic` command line: process, evaluate, inspect, simulate, launch, play, node, record-tiles, psf.
 
 Every SrMosaicError ends the command with a one-line message on stderr and exit status 2;
 nothing half-written is left under a final file name.
@@ -71,16 +71,28 @@ def _run_process(args: argparse.Namespace) -> int:
 
 
 def _add_evaluate(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser('evaluate', help='compare a process output with a simulated flight\'s ground truth')
+    p = sub.add_parser('evaluate', help='figures of a process output: truth-free ones for real footage, or against a '
+                       'simulated flight\'s ground truth (--truth)')
     p.add_argument('dir', type=Path, help='output directory of `srmosaic process`')
-    p.add_argument('--truth', type=Path, required=True, help='ground_truth.json written by `srmosaic simulate`')
+    p.add_argument('--truth', type=Path, default=None,
+                   help='ground_truth.json written by `srmosaic simulate`; without it, the truth-free figures of a real '
+                   'run (frames in the main mosaic, frame-to-mosaic consistency, sharpness, position error against the '
+                   'footage\'s own GPS/KLV)')
+    p.add_argument('--input', type=Path, default=None, help='the input of the run, when it moved since `process`')
     p.add_argument('--json', action='store_true', help='print the figures as JSON')
+    p.add_argument('--no-progress', action='store_true', help='no progress bar')
     p.set_defaults(func=_run_evaluate)
 
 
 def _run_evaluate(args: argparse.Namespace) -> int:
     from .evaluate import evaluate_dir
 
+    if args.truth is None:
+        from .evaluate_real import evaluate_real, format_real_figures
+
+        real = evaluate_real(args.dir, progress=not args.no_progress, input_path=args.input)
+        print(json.dumps(real, indent=2, default=float) if args.json else '\n'.join(format_real_figures(real)))
+        return 0
     figures = evaluate_dir(args.dir, args.truth)
     if args.json:
         print(json.dumps(figures, indent=2))
@@ -221,11 +233,28 @@ def _run_psf(args: argparse.Namespace) -> int:
     return 0
 
 
+def _add_inspect(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser('inspect', help='what an input carries (streams, KLV, SRT, GPMF, EXIF camera) and what '
+                       '`process` will do with it')
+    p.add_argument('input', type=Path, help='video file, folder of stills or bag')
+    p.add_argument('--json', action='store_true', help='print as JSON')
+    p.set_defaults(func=_run_inspect)
+
+
+def _run_inspect(args: argparse.Namespace) -> int:
+    from .inspect_tool import format_inspection, inspect_input
+
+    info = inspect_input(args.input)
+    print(json.dumps(info, indent=2, default=str) if args.json else '\n'.join(format_inspection(info)))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog='srmosaic', description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest='command', required=True)
     _add_process(sub)
     _add_evaluate(sub)
+    _add_inspect(sub)
     _add_simulate(sub)
     _add_node(sub)
     _add_launch(sub)

@@ -33,6 +33,8 @@ _LOG = logging.getLogger(__name__)
 #: Offline re-anchoring fits frame corners unless the height above ground is known worse than this
 #: (relative standard deviation, median over the frames): then the frame centres only.
 ANCHOR_CORNERS_MAX_REL_AGL_SD = 0.02
+#: ... and fits only the offset when the similarity's rotation would be known worse than this (deg).
+ANCHOR_MAX_ROTATION_SD_DEG = 1.0
 
 __all__ = ['StripPreview', 'open_source', 'peak_rss_mb', 'preview_image', 'process_input', 'write_outputs']
 
@@ -178,9 +180,12 @@ def _write_canvas(canvas: TiledCanvas, tif: Path | None, png: Path, raster: GeoR
         png_from_geotiff(scratch, png)
 
 
-def write_outputs(result: PipelineResult, out: Path, config: PipelineConfig, extra: dict[str, Any]) -> dict[str, Any]:
+def write_outputs(result: PipelineResult, out: Path, config: PipelineConfig, extra: dict[str, Any], *,
+                  meta_centres: dict[int, tuple[float, float]] | None = None) -> dict[str, Any]:
     """Write mosaic.png (main canvas), preview.png, segments/, frames.csv, and with georeferencing
     mosaic.tif, mosaic.kml and poses.csv. Returns the report (the caller adds timings and writes it).
+    ``meta_centres``: stamp_ns -> (lat, lon) where the input's metadata puts each frame's centre
+    (frames.csv's meta_latitude, meta_longitude).
 
     The mosaics are rendered and written strip by strip (see _write_canvas): memory does not grow
     with the mosaic's area.
@@ -216,6 +221,7 @@ def write_outputs(result: PipelineResult, out: Path, config: PipelineConfig, ext
             'inliers': reg.inliers if reg is not None else 0,
             'rms_px': reg.rms_px if reg is not None else float('nan'),
             'mosaic_H_frame': mosaic_H_seg @ rec.seg_H_frame if in_main else None,
+            'meta_latlon': (meta_centres or {}).get(rec.stamp_ns),
         })
     write_frames_csv(out / 'frames.csv', rows)
     failures = collections.Counter(rec.reason.split(' (')[0] for rec in result.records if not rec.painted)
@@ -241,28 +247,30 @@ def write_outputs(result: PipelineResult, out: Path, config: PipelineConfig, ext
 
 def _merge_by_time(frames: Iterable[Frame], telemetry: list[Any]) -> Iterator[Any]:
     """Interleave telemetry (sorted by stamp) before the frames that follow it in time."""
-    i = 0
-    for frame in frames:
-        while i < len(telemetry) and telemetry[i].stamp_ns <= frame.stamp_ns:
-            yield telemetry[i]
-            i += 1
-        yield frame
-    yield from telemetry[i:]
+    from .io.metadata import merge_by_time
+
+    return merge_by_time(frames, telemetry)
 
 
 def open_source(path: Path, *, topics: TopicConfig | None = None, select: str = 'all',
                 camera_yaml: Path | None = None, hfov_deg: float | None = None,
                 telemetry_csv: Path | None = None) -> tuple[Iterable[Any], Any, str]:
-    """(items in time order, the reader (frame_count, skipped), 'bag', 'video' or 'images') for a bag,
-    a video file or a folder of stills."""
+    """(items in time order, the reader (frame_count, skipped, summary), 'bag', 'video' or 'images')
+    for a bag, a video file or a folder of stills.
+
+    The metadata the input carries is read and merged (io/metadata.py): a folder's EXIF/XMP; a
+    video's MISB KLV stream, a DJI .SRT beside it or a GoPro GPMF track, in that order, unless
+    ``telemetry_csv`` is given (it overrides them). ``reader.summary`` says what was found.
+    """
     from .io.image_folder import ImageFolderReader, is_image_folder
+    from .io.metadata import MetadataSummary
     from .io.video import VideoReader, is_video, load_camera_yaml, parse_selection
 
     if is_image_folder(path):
         if select != 'all' or camera_yaml or hfov_deg or telemetry_csv:
             msg = ('--select, --camera, --hfov and --telemetry apply to video input; a folder of stills takes its '
-                   'stamps and geotags from telemetry_from_exif.csv beside the images and is georeferenced by '
-                   'fitting the mosaic to the geotags (see srmosaic_ros/core/georef/geotag_fit.py).')
+                   'stamps, geotags and camera from each image\'s EXIF/XMP (or a telemetry_from_exif.csv beside the '
+                   'images).')
             raise InputError(msg)
         reader = ImageFolderReader(path)
         return reader, reader, 'images'
@@ -274,13 +282,50 @@ def open_source(path: Path, *, topics: TopicConfig | None = None, select: str = 
             from .io.telemetry_csv import read_telemetry_csv
 
             items = _merge_by_time(reader, read_telemetry_csv(telemetry_csv))
-        return items, reader, 'video'
+            reader.summary = MetadataSummary(source='telemetry CSV', fields=['gps position', 'attitude'])
+            return items, reader, 'video'
+        return _video_with_metadata(path, reader)
     if select != 'all' or camera_yaml or hfov_deg or telemetry_csv:
         msg = ('--select, --camera, --hfov and --telemetry apply to video input; a bag carries its own camera '
                'info and telemetry topics.')
         raise InputError(msg)
     reader = read_flight(path, topics=topics or TopicConfig())
+    reader.summary = MetadataSummary(source='bag topics')
     return reader, reader, 'bag'
+
+
+def _video_with_metadata(path: Path, reader: Any) -> tuple[Iterable[Any], Any, str]:  # noqa: ANN401
+    """A video's own metadata, found in order: MISB KLV stream, DJI SRT beside it, GoPro GPMF track."""
+    from .io.dji_srt import find_srt, read_srt
+    from .io.gpmf import read_gpmf
+    from .io.klv import read_klv
+    from .io.metadata import KlvVideoSource, MetadataSummary, gpmf_items, srt_items
+    from .errors import MetadataError
+
+    track = read_klv(path)
+    if track.records:
+        source = KlvVideoSource(reader, track)
+        return source, source, 'video'
+    summary = MetadataSummary(frames=reader.frame_count or 0)
+    srt = find_srt(path)
+    if srt is not None:
+        try:
+            items = srt_items(read_srt(srt), summary)
+        except MetadataError as exc:
+            _LOG.warning('%s; the video is processed without its telemetry.', exc)
+            summary.problems['srt_unusable'] += 1
+        else:
+            reader.summary = summary
+            return _merge_by_time(reader, items), reader, 'video'
+    gpmf = read_gpmf(path)
+    if gpmf.gps:
+        items = gpmf_items(gpmf, summary)
+        reader.summary = summary
+        return _merge_by_time(reader, items), reader, 'video'
+    if track.packets:
+        summary.note(f'{track.packets} KLV packets, none usable')
+    reader.summary = summary
+    return reader, reader, 'video'
 
 
 def _write_main_mosaic(out: Path, result: PipelineResult, config: PipelineConfig,
@@ -351,9 +396,21 @@ def _mosaic_raster(result: PipelineResult, poses: list[Any], origin: tuple[int, 
             corners = np.array([[(w_f - 1) / 2.0, (h_f - 1) / 2.0]])
         by_poses.append(apply_homography(georef.raster_H_frame(pose), corners))
         chained.append(apply_homography(rec.seg_H_frame, corners))
+    translation_only = False
     if chained:
+        src, dst = np.concatenate(chained), np.concatenate(by_poses)
         # raster pixel by the poses ~ fix @ chained raster pixel
-        fix = fit_similarity(np.concatenate(chained), np.concatenate(by_poses))
+        fix = fit_similarity(src, dst)
+        # Points that stay within their own noise of each other (a stare at a site from kilometres)
+        # cannot tell a rotation or a scale: the fit's angle is then uncertain by about residual /
+        # (spread sqrt(n)) rad, and beyond ANCHOR_MAX_ROTATION_SD_DEG only the offset is re-anchored.
+        residual = float(np.sqrt(np.mean(np.sum((apply_homography(fix, src) - dst) ** 2, axis=1))))
+        spread = float(np.sqrt(np.mean(np.sum((src - src.mean(axis=0)) ** 2, axis=1))))
+        rotation_sd = residual / max(spread * math.sqrt(len(src)), 1e-9)
+        translation_only = rotation_sd > math.radians(ANCHOR_MAX_ROTATION_SD_DEG)
+        if translation_only:
+            fix = np.eye(3)
+            fix[:2, 2] = (dst - src).mean(axis=0)
     else:
         fix = np.eye(3)
     # mosaic pixel m is chained raster pixel m + origin, truly at raster pixel fix @ (m + origin).
@@ -361,7 +418,8 @@ def _mosaic_raster(result: PipelineResult, poses: list[Any], origin: tuple[int, 
     figures = {'anchor_shift_px': [float(fix[0, 2]), float(fix[1, 2])],
                'anchor_scale': float(np.hypot(fix[0, 0], fix[1, 0])),
                'anchor_rotation_deg': float(np.degrees(np.arctan2(fix[1, 0], fix[0, 0]))),
-               'anchor_frames': len(chained), 'anchor_points': 'centres' if centres_only else 'corners'}
+               'anchor_frames': len(chained), 'anchor_points': 'centres' if centres_only else 'corners',
+               'anchor_model': 'translation' if translation_only else 'similarity'}
     return raster, figures
 
 
@@ -442,6 +500,8 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
         raise InputError(msg)
     items, reader, kind = open_source(path, topics=topics, select=select, camera_yaml=camera_yaml,
                                       hfov_deg=hfov_deg, telemetry_csv=telemetry_csv)
+    summary = getattr(reader, 'summary', None)
+    config = _with_ground_hint(config, summary)
     settings = {'select': select, 'topics': repr(topics), 'config': repr(config), 'mosaic_video': mosaic_video,
                 'camera': str(camera_yaml), 'hfov': hfov_deg, 'telemetry': str(telemetry_csv)}
     run_id = fingerprint(path, settings)
@@ -487,12 +547,18 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
     result = pipeline.finish()
     report_extra: dict[str, Any] = {'input': str(path), 'input_kind': kind,
                                     'skipped_messages': dict(getattr(reader, 'skipped', {}))}
+    if summary is not None:
+        report_extra['metadata'] = _metadata_report(summary, result)
     if kind == 'video':
         report_extra['video'] = {'codec': reader.codec, 'fps': reader.fps, 'frames_decoded': reader.decoded,
                                  'frames_selected': reader.selected, 'select': select}
     if error is not None:
         report_extra['error'] = str(error)
-    report = write_outputs(result, out, config, report_extra)
+    report = write_outputs(result, out, config, report_extra,
+                           meta_centres=summary.centres if summary is not None else None)
+    if report.get('georeferenced') is None:
+        report['not_georeferenced_reason'] = not_georeferenced_reason(result, config)
+        _LOG.warning('the mosaic is not georeferenced: %s', report['not_georeferenced_reason'])
     if recorder is not None and result.main_segment is not None:
         main = result.main_segment
         report['mosaic_video_frames'] = recorder.write(out / 'mosaic.mp4', main.index, main.canvas.bounds())
@@ -517,6 +583,55 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
         raise error
     shutil.rmtree(checkpoint_path(out).parent, ignore_errors=True)  # complete: the checkpoint is spent
     return report
+
+
+def _with_ground_hint(config: PipelineConfig, summary: Any) -> PipelineConfig:  # noqa: ANN401
+    """The ground height the metadata implies (KLV frame centre elevation, a DJI take-off altitude)
+    as the filter's prior, unless georef.ground_altitude_m is set."""
+    import dataclasses
+
+    if summary is None or not math.isfinite(summary.ground_altitude_m) or math.isfinite(config.georef.ground_altitude_m):
+        return config
+    _LOG.info('ground altitude %.1f m (+- %.0f m) from %s', summary.ground_altitude_m, summary.ground_altitude_sigma_m,
+              summary.ground_altitude_source)
+    georef = dataclasses.replace(config.georef, ground_altitude_m=summary.ground_altitude_m,
+                                 ground_altitude_sigma_m=summary.ground_altitude_sigma_m)
+    return dataclasses.replace(config, georef=georef)
+
+
+def _covered(stamps: np.ndarray, frames_ns: np.ndarray, within_ns: int = 1_000_000_000) -> int:
+    """How many frame stamps have a telemetry stamp within ``within_ns``."""
+    if not len(stamps) or not len(frames_ns):
+        return 0
+    stamps = np.sort(stamps)
+    i = np.clip(np.searchsorted(stamps, frames_ns), 1, len(stamps) - 1) if len(stamps) > 1 else np.zeros(len(frames_ns), int)
+    d = np.minimum(np.abs(stamps[i] - frames_ns), np.abs(stamps[np.maximum(i - 1, 0)] - frames_ns))
+    return int(np.sum(d <= within_ns))
+
+
+def _metadata_report(summary: Any, result: PipelineResult) -> dict[str, Any]:  # noqa: ANN401
+    """report.json ``metadata``: the carrier, the fields used and how many frames each covers."""
+    out = summary.to_dict()
+    frames_ns = np.array([r.stamp_ns for r in result.records], dtype=np.int64)
+    attitudes = [a.stamp_ns for a in result.attitudes] + [i.stamp_ns for i in result.imus if i.orientation_xyzw is not None]
+    out['frames'] = len(frames_ns)
+    out['frames_with_position'] = _covered(np.array([f.stamp_ns for f in result.fixes], dtype=np.int64), frames_ns)
+    out['frames_with_attitude'] = _covered(np.array(attitudes, dtype=np.int64), frames_ns)
+    out['frames_with_centre'] = int(sum(1 for r in result.records if r.stamp_ns in summary.centres))
+    return out
+
+
+def not_georeferenced_reason(result: PipelineResult, config: PipelineConfig) -> str:
+    """One sentence: why the mosaic has no place on the map."""
+    if not config.georef_enabled:
+        return 'georeferencing is off (georef.enabled: false).'
+    if not result.fixes:
+        return ('the input carries no GPS positions (no NavSatFix topic, EXIF GPS, KLV, SRT or GPMF track); give a '
+                'flight log with --telemetry (video) or a telemetry_from_exif.csv beside the stills.')
+    if result.georef is None or result.georef.raster is None:
+        return ('the input has GPS positions but no camera intrinsics, and its geotags could not place the mosaic '
+                '(too few distinct positions under the main mosaic); give --camera or --hfov.')
+    return 'the frames placed on the map are not in the main mosaic (see segments).'
 
 
 def skip_frames_note(items: int, frames: int) -> dict[str, int]:

@@ -1,7 +1,7 @@
 """The one place where the stages meet: frames and telemetry in, registrations and mosaic out.
 
     pipeline = Pipeline(config)
-    for item in source:                  # Frame | GeoFix | ImuSample, in time order
+    for item in source:                  # Frame | GeoFix | ImuSample | CameraAttitude, in time order
         for record in pipeline.feed(item):
             ...                          # FrameRecord: registered (or not) and painted
     result = pipeline.finish()           # segments; the largest is the main mosaic
@@ -43,7 +43,7 @@ from .core.registration import Features, Registration, make_registrar
 from .core.registration.factory import FallbackRegistrar
 from .core.georef.georeferencer import FramePose, Georeferencer
 from .core.undistort import Undistorter
-from .core.types import CameraIntrinsics, Frame, GeoFix, ImuSample
+from .core.types import CameraAttitude, CameraIntrinsics, Frame, GeoFix, ImuSample
 
 __all__ = ['FrameRecord', 'Pipeline', 'PipelineResult', 'SYNC_HOLD_FRAMES']
 
@@ -83,6 +83,7 @@ class PipelineResult:
     fixes: list[GeoFix] = field(default_factory=list)
     imus: list[ImuSample] = field(default_factory=list)
     georef: Georeferencer | None = None
+    attitudes: list[CameraAttitude] = field(default_factory=list)
 
     @property
     def main_segment(self) -> Segment | None:
@@ -114,6 +115,7 @@ class Pipeline:
         self.segments: list[Segment] = []
         self.fixes: list[GeoFix] = []
         self.imus: list[ImuSample] = []
+        self.attitudes: list[CameraAttitude] = []
         self.georef: Georeferencer | None = None
         self._geo_canvas: Segment | None = None  # the first georeferenced segment: owner of the shared canvas
         self._active: Segment | None = None
@@ -153,8 +155,12 @@ class Pipeline:
             self.imus.append(item)
             if self.georef is not None:
                 self.georef.feed_imu(item)
+        elif isinstance(item, CameraAttitude):
+            self.attitudes.append(item)
+            if self.georef is not None:
+                self.georef.feed_camera_attitude(item)
         else:
-            msg = f'Pipeline.feed takes Frame, GeoFix or ImuSample, not {type(item).__name__}.'
+            msg = f'Pipeline.feed takes Frame, GeoFix, ImuSample or CameraAttitude, not {type(item).__name__}.'
             raise TypeError(msg)
         self._latest_telemetry_ns = max(self._latest_telemetry_ns or item.stamp_ns, item.stamp_ns)
         return self._drain()
@@ -396,7 +402,7 @@ class Pipeline:
     def finish(self) -> PipelineResult:
         """Process the frames still waiting for telemetry, paint those held for settling, and return everything."""
         self.flush()
-        return PipelineResult(self.records, self.segments, self.fixes, self.imus, self.georef)
+        return PipelineResult(self.records, self.segments, self.fixes, self.imus, self.georef, self.attitudes)
 
     # -- settling --------------------------------------------------------------------------------
     def _place(self, seg: Segment, held: _Held, seg_H_frame: np.ndarray) -> bool:  # noqa: N803
@@ -441,7 +447,7 @@ class Pipeline:
     def __setstate__(self, state: dict) -> None:
         """Pipelines resumed from checkpoints of earlier versions get the attributes added since."""
         self.__dict__.update(state)
-        for name, default in (('_centres', dict), ('_settling', list), ('_settled', list),
+        for name, default in (('_centres', dict), ('_settling', list), ('_settled', list), ('attitudes', list),
                               ('_fused', lambda: collections.deque(maxlen=1000))):
             if name not in self.__dict__:
                 self.__dict__[name] = default()

@@ -68,7 +68,7 @@ def test_telemetry_is_kept_and_unknown_input_refused():
     pipe = Pipeline(pipeline_config())
     pipe.feed(GeoFix(1, 30.0, -98.0, 300.0))
     assert len(pipe.finish().fixes) == 1
-    with pytest.raises(TypeError, match='Frame, GeoFix or ImuSample'):
+    with pytest.raises(TypeError, match='Frame, GeoFix, ImuSample or CameraAttitude'):
         pipe.feed('not a frame')
 
 

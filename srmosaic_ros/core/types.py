@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ['CameraIntrinsics', 'GeoFix', 'ImuSample', 'Frame', 'FIX_STATUS_NO_FIX']
+__all__ = ['CameraIntrinsics', 'CameraAttitude', 'GeoFix', 'ImuSample', 'Frame', 'FIX_STATUS_NO_FIX']
 
 FIX_STATUS_NO_FIX = -1  # sensor_msgs/NavSatStatus.STATUS_NO_FIX
 
@@ -77,6 +77,22 @@ class ImuSample:
     linear_acceleration_m_s2: np.ndarray
     orientation_covariance: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
     frame_id: str = ''
+
+
+@dataclass(frozen=True)
+class CameraAttitude:
+    """The orientation of the camera itself in ENU, measured per frame (a gimbal's angles in EXIF/XMP,
+    MISB KLV platform attitude composed with the sensor's relative angles).
+
+    ``R_enu_from_cam``: (3, 3) optical frame (x right in the image, y down, z along the optical axis)
+    in ENU. ``sigma_rad``: isotropic standard deviation of the orientation (rad), NaN when the source
+    gives none. It replaces the fixed camera mount of the body for that instant: the georeferencer
+    turns it into the body attitude that its mount implies.
+    """
+
+    stamp_ns: int
+    R_enu_from_cam: np.ndarray  # noqa: N815 - the frames are in the name
+    sigma_rad: float = float('nan')
 
 
 @dataclass

@@ -1,26 +1,37 @@
 """A folder of still images (survey photos taken seconds apart) as a flight.
 
-Images (*.jpg, *.jpeg, *.png, *.tif, *.tiff) are taken in file-name order. Stamps and fixes come
-from a `telemetry_from_exif.csv` in the folder or its parent when present (columns file,
-datetime 'YYYY:MM:DD HH:MM:SS', lat, lon, alt_msl, as written by exiftool-based exports), else
-stamps are one second apart.
+Images (*.jpg, *.jpeg, *.png, *.tif, *.tiff) are taken in file-name order. Their metadata is read
+from each file's EXIF and XMP (io/exif.py): time, GPS position, the camera's intrinsics (focal
+length and sensor size, io/camera_db.py) and, where the XMP has them, the gimbal's angles, which
+become a camera attitude per frame. A `telemetry_from_exif.csv` in the folder or its parent
+(columns file, datetime 'YYYY:MM:DD HH:MM:SS', lat, lon, alt_msl, as exiftool-based exports write)
+overrides the EXIF's time and position when present. Without times, stamps are one second apart.
 """
 from __future__ import annotations
 
 import csv
 import datetime as dt
+import math
+from collections import Counter
 from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
+import numpy as np
 
-from ..core.types import Frame, GeoFix
+from ..core.georef.frames import R_enu_from_cam_aviation
+from ..core.types import CameraAttitude, CameraIntrinsics, Frame, GeoFix
 from ..errors import InputError
+from .metadata import NADIR_TOLERANCE_DEG, RECORDED_ATTITUDE_SIGMA_DEG, MetadataSummary
 
 __all__ = ['IMAGE_SUFFIXES', 'ImageFolderReader', 'is_image_folder']
 
 IMAGE_SUFFIXES = {'.jpg', '.jpeg', '.png', '.tif', '.tiff'}
 TELEMETRY_NAME = 'telemetry_from_exif.csv'
+#: Horizontal standard deviation of a still's GPS tag (m): a consumer receiver.
+STILLS_GPS_SIGMA_H_M = 2.5
+#: Vertical standard deviation of a GPS altitude without a height above take-off to vouch for it (m).
+CAMERA_GPS_SIGMA_V_M = 30.0
 
 
 def _images(path: Path) -> list[Path]:
@@ -34,9 +45,9 @@ def is_image_folder(path: Path) -> bool:
 
 
 class ImageFolderReader:
-    """Frames (and fixes, when a telemetry CSV exists) of an image folder, in name order."""
+    """Frames, fixes and camera attitudes of an image folder, in name order (see the module docstring)."""
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, *, use_exif: bool = True) -> None:
         self.path = Path(path)
         self.files = _images(self.path)
         if not self.files:
@@ -49,12 +60,90 @@ class ImageFolderReader:
                     self.telemetry = {row['file']: row for row in csv.DictReader(handle)}
                 break
         self.skipped: dict[str, int] = {}
+        self.summary = MetadataSummary(source='telemetry CSV' if self.telemetry else 'none', frames=len(self.files))
+        self.meta: list = [None] * len(self.files)
+        self._exif_stamps: list[int | None] = [None] * len(self.files)
+        if use_exif:
+            self._read_exif()
+
+    def _read_exif(self) -> None:
+        """Every file's EXIF/XMP (headers only, no decoding), summarised for the report."""
+        from .exif import intrinsics_from_metadata, read_still_metadata
+
+        s = self.summary
+        s.source = 'telemetry CSV + EXIF' if self.telemetry else 'EXIF/XMP'
+        ground: list[float] = []
+        sources: Counter[str] = Counter()
+        for i, file in enumerate(self.files):
+            try:
+                meta = read_still_metadata(file)
+            except InputError as exc:
+                s.problem('exif_unreadable', f'{file.name}: {exc}')
+                continue
+            self.meta[i] = meta
+            if not (math.isfinite(meta.latitude_deg) and math.isfinite(meta.longitude_deg)):
+                s.problem('exif_no_gps', f'{file.name}: no GPS position in its EXIF; the frame is placed by '
+                          'registration only')
+            if meta.gimbal_ypr_deg is not None:
+                s.frames_with_attitude += 1
+            if math.isfinite(meta.altitude_m) and math.isfinite(meta.relative_altitude_m):
+                ground.append(meta.altitude_m - meta.relative_altitude_m)
+            camera, why = intrinsics_from_metadata(meta)
+            sources[why] += 1
+            if camera is not None:
+                s.frames_with_intrinsics += 1
+            else:
+                s.problem('exif_no_intrinsics', f'{file.name}: no camera intrinsics ({why})')
+        s.frames_with_position = sum(1 for m in self.meta if m is not None and math.isfinite(m.latitude_deg))
+        if s.frames_with_position:
+            s.use('gps position')
+        if s.frames_with_attitude:
+            s.use('gimbal attitude (XMP)')
+        if s.frames_with_intrinsics:
+            s.use('intrinsics')
+        if sources:
+            s.intrinsics_source = sources.most_common(1)[0][0]
+        if any(m is not None and m.stamp_ns is not None for m in self.meta):
+            s.use('time')
+        if ground:
+            s.ground_altitude_m = float(np.median(ground))
+            s.ground_altitude_sigma_m = 5.0
+            s.ground_altitude_source = 'EXIF GPS altitude minus XMP relative altitude (the take-off point)'
+        for m in self.meta:
+            for note in (m.notes if m is not None else ()):
+                s.note(note)
+        known = [(i, m.stamp_ns) for i, m in enumerate(self.meta) if m is not None and m.stamp_ns is not None]
+        if known and len(known) < len(self.meta):
+            # a still without its time between stills with theirs: the survey's median interval from a neighbour
+            gaps = [(b - a) / (j - i) for (i, a), (j, b) in zip(known, known[1:]) if j > i]
+            step = int(np.median(gaps)) if gaps else 1_000_000_000
+            for i, m in enumerate(self.meta):
+                if m is None or m.stamp_ns is None:
+                    j, t = min(known, key=lambda k: abs(k[0] - i))
+                    self._exif_stamps[i] = t + (i - j) * step
+                    s.problem('exif_no_time', f'{self.files[i].name}: no capture time in its EXIF; placed at the '
+                              'survey\'s median interval from its neighbours')
+        last = None
+        for i, m in enumerate(self.meta):
+            t = m.stamp_ns if m is not None and m.stamp_ns is not None else self._exif_stamps[i]
+            if t is not None:
+                # the capture time; one not after the previous still's (a clock of 1 s) just after it
+                stamp = int(t) if last is None or t > last else last + 1
+                if last is not None and t < last:
+                    s.problem('exif_time_backwards', f'{self.files[i].name}: capture time before the previous still\'s '
+                              '(in name order); placed just after it')
+                self._exif_stamps[i] = last = stamp
+        if s.frames_with_intrinsics and not s.frames_with_attitude:
+            s.note('intrinsics known but no gimbal angles: the camera attitude is unknown, so the mosaic is fitted '
+                   'to the geotags (a similarity) instead of placed by the filter')
 
     @property
     def frame_count(self) -> int:
         return len(self.files)
 
     def _stamp_ns(self, index: int, name: str) -> int:
+        if not self.telemetry.get(name) and self._exif_stamps[index] is not None:
+            return self._exif_stamps[index]
         row = self.telemetry.get(name)
         if row and row.get('datetime'):
             try:
@@ -66,15 +155,61 @@ class ImageFolderReader:
 
     def __iter__(self) -> Iterator[Frame | GeoFix]:
         for index, file in enumerate(self.files):
-            bgr = cv2.imread(str(file), cv2.IMREAD_COLOR)
+            # the sensor as it recorded (no EXIF rotation): intrinsics and gimbal angles refer to it
+            bgr = cv2.imread(str(file), cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)
             if bgr is None:
                 self.skipped[f'{file.name}: unreadable image'] = 1
                 continue
             stamp = self._stamp_ns(index, file.name)
             row = self.telemetry.get(file.name)
+            meta = self.meta[index]
+            latlon = None
             if row:
                 try:
-                    yield GeoFix(stamp, float(row['lat']), float(row['lon']), float(row['alt_msl']), status=0)
+                    fix = GeoFix(stamp, float(row['lat']), float(row['lon']), float(row['alt_msl']), status=0)
+                    latlon = (fix.latitude_deg, fix.longitude_deg)
+                    yield fix
                 except (KeyError, ValueError):
                     pass
-            yield Frame(stamp, cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), None, file.name)
+            elif meta is not None and math.isfinite(meta.latitude_deg) and math.isfinite(meta.longitude_deg):
+                alt = meta.altitude_m if math.isfinite(meta.altitude_m) else meta.relative_altitude_m
+                if math.isfinite(alt):
+                    yield GeoFix(stamp, meta.latitude_deg, meta.longitude_deg, alt, status=0,
+                                 position_covariance_m2=self._fix_covariance(meta), covariance_type=2)
+                latlon = (meta.latitude_deg, meta.longitude_deg)
+            camera = None
+            if meta is not None:
+                if meta.gimbal_ypr_deg is not None:
+                    yaw, pitch, roll = meta.gimbal_ypr_deg
+                    yield CameraAttitude(stamp, R_enu_from_cam_aviation(yaw, pitch, roll),
+                                         math.radians(RECORDED_ATTITUDE_SIGMA_DEG))
+                    if abs(pitch + 90.0) > NADIR_TOLERANCE_DEG:
+                        latlon = None  # an oblique still's GPS position is not its frame centre
+                    # the filter places stills whose camera attitude is known; without it (no gimbal
+                    # angles) the mosaic is fitted to the geotags (core/georef/geotag_fit.py)
+                    camera = self._camera(meta, bgr.shape[1], bgr.shape[0])
+            if latlon is not None:
+                self.summary.centres[stamp] = latlon
+            yield Frame(stamp, cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), camera, file.name)
+
+    @staticmethod
+    def _fix_covariance(meta) -> np.ndarray:  # noqa: ANN001
+        """ENU covariance (m^2) of a still's GPS tag: a consumer receiver horizontally; vertically the
+        same when the XMP's height above take-off vouches for the altitude, else CAMERA_GPS_SIGMA_V_M
+        (cameras with their own GPS drift in altitude: the caliterra survey's climbs 114 m while the
+        stills keep their scale), so the height comes from the registrations and the ground prior."""
+        sigma_v = STILLS_GPS_SIGMA_H_M * 2.0 if math.isfinite(meta.relative_altitude_m) else CAMERA_GPS_SIGMA_V_M
+        return np.diag([STILLS_GPS_SIGMA_H_M**2, STILLS_GPS_SIGMA_H_M**2, sigma_v**2])
+
+    def _camera(self, meta, width: int, height: int) -> CameraIntrinsics | None:  # noqa: ANN001
+        """The still's intrinsics from its EXIF, for the image as decoded (None when unknown)."""
+        from .exif import intrinsics_from_metadata
+
+        camera, _ = intrinsics_from_metadata(meta)
+        if camera is None:
+            return None
+        if (camera.width, camera.height) != (width, height):
+            sx, sy = width / camera.width, height / camera.height
+            camera = CameraIntrinsics(width, height, camera.fx * sx, camera.fy * sy,
+                                      (camera.cx + 0.5) * sx - 0.5, (camera.cy + 0.5) * sy - 0.5)
+        return camera

@@ -19,6 +19,7 @@ import numpy as np
 
 __all__ = [
     'FRAMES_CSV_HEADER',
+    'FRAMES_CSV_META',
     'atomic_path',
     'read_frames_csv',
     'write_frames_csv',
@@ -27,6 +28,9 @@ __all__ = [
 ]
 
 FRAMES_CSV_HEADER = ['stamp_ns', 'ok', 'inliers', 'rms_px'] + [f'h{r}{c}' for r in range(3) for c in range(3)]
+#: Trailing columns: where the input's own metadata puts the frame centre on the ground (WGS84 deg;
+#: the GPS position of a nadir still, the KLV frame centre of a video frame), NaN when it does not say.
+FRAMES_CSV_META = ['meta_latitude', 'meta_longitude']
 
 
 @contextmanager
@@ -76,16 +80,18 @@ def write_png(path: str | os.PathLike[str], image: np.ndarray, coverage: np.ndar
 
 
 def write_frames_csv(path: str | os.PathLike[str], rows: Iterable[dict[str, Any]]) -> None:
-    """frames.csv: one row per input frame; h = mosaic_H_frame (NaN when the frame is not in mosaic.png)."""
+    """frames.csv: one row per input frame; h = mosaic_H_frame (NaN when the frame is not in mosaic.png);
+    ``meta_latlon`` (lat, lon) of a row fills the FRAMES_CSV_META columns (NaN when absent)."""
     with _atomic_text(path) as handle:
         writer = csv.writer(handle)
-        writer.writerow(FRAMES_CSV_HEADER)
+        writer.writerow(FRAMES_CSV_HEADER + FRAMES_CSV_META)
         for row in rows:
             H = row.get('mosaic_H_frame')  # noqa: N806
             h = [float('nan')] * 9 if H is None else [float(v) for v in np.asarray(H, dtype=np.float64).ravel()]
             rms = row.get('rms_px', float('nan'))
+            meta = row.get('meta_latlon') or (float('nan'), float('nan'))
             writer.writerow([int(row['stamp_ns']), int(bool(row['ok'])), int(row.get('inliers', 0)),
-                             f'{rms:.6g}'] + [repr(v) for v in h])
+                             f'{rms:.6g}'] + [repr(v) for v in h] + [f'{float(v):.9f}' for v in meta])
 
 
 def read_frames_csv(path: str | os.PathLike[str]) -> list[dict[str, Any]]:

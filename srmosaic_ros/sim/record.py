@@ -154,3 +154,68 @@ def write_stills_folder(flight: SimulatedFlight, folder: str | os.PathLike[str])
             writer.writerow([name, when.strftime('%Y:%m:%d %H:%M:%S'), f'{fix.latitude_deg:.8f}',
                              f'{fix.longitude_deg:.8f}', f'{fix.altitude_m:.2f}'])
     return folder
+
+
+#: The DJI XMP namespace a drone's stills carry their gimbal angles and height above take-off in.
+_DJI_XMP = ('<x:xmpmeta xmlns:x="adobe:ns:meta/"><rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#">'
+            '<rdf:Description rdf:about="" xmlns:drone-dji="http://www.dji.com/drone-dji/1.0/" '
+            'drone-dji:AbsoluteAltitude="{abs:+.2f}" drone-dji:RelativeAltitude="{rel:+.2f}" '
+            'drone-dji:GimbalRollDegree="{groll:+.2f}" drone-dji:GimbalYawDegree="{gyaw:+.2f}" '
+            'drone-dji:GimbalPitchDegree="{gpitch:+.2f}" drone-dji:FlightRollDegree="{froll:+.2f}" '
+            'drone-dji:FlightYawDegree="{fyaw:+.2f}" drone-dji:FlightPitchDegree="{fpitch:+.2f}"/>'
+            '</rdf:RDF></x:xmpmeta>')
+
+
+def write_drone_stills(flight: SimulatedFlight, folder: str | os.PathLike[str], *, focal_length_mm: float = 8.8,
+                       gimbal_sigma_deg: float = 0.5, baro_sigma_m: float = 0.3, seed: int = 0) -> Path:
+    """A simulated flight as a DJI drone leaves its survey: images/ of JPEG stills carrying their
+    metadata in EXIF (time with offset, GPS position and altitude from the flight's fixes, make and
+    model, focal length and focal-plane resolution) and DJI XMP (height above take-off, gimbal and
+    flight angles: the true camera and body attitude plus ``gimbal_sigma_deg`` of noise), and no
+    sidecar file. ``fix_rate_hz`` must be a multiple of ``rate_hz``. Returns the folder."""
+    import datetime as dt
+
+    import numpy as np
+    from PIL import Image
+
+    from ..core.georef.frames import aviation_angles_from_R_enu_from_cam, matrix_from_rotvec
+
+    folder = Path(folder)
+    (folder / 'images').mkdir(parents=True)
+    fix_at = {f.stamp_ns: f for f in flight.fixes}
+    rng = np.random.default_rng(seed)
+    cam = flight.camera
+    for k, (fr, truth) in enumerate(zip(flight.frames, flight.truth.frames)):
+        fix = fix_at.get(fr.stamp_ns)
+        if fix is None:
+            msg = f'frame {k} has no fix at its stamp: simulate with a fix rate that is a multiple of the frame rate.'
+            raise ConfigError(msg)
+        image = Image.fromarray(fr.image if fr.image.ndim == 3 else np.repeat(fr.image[..., None], 3, axis=2))
+        exif = Image.Exif()
+        exif[0x010F], exif[0x0110] = 'DJI', 'FC6310'
+        when = dt.datetime.fromtimestamp(fr.stamp_ns // 1_000_000_000, tz=dt.timezone.utc)
+        sub = exif.get_ifd(0x8769)
+        sub[0x9003] = when.strftime('%Y:%m:%d %H:%M:%S')
+        sub[0x9291] = f'{(fr.stamp_ns % 1_000_000_000) // 1_000_000:03d}'
+        sub[0x9011] = '+00:00'
+        sub[0x920A] = focal_length_mm
+        sub[0xA20E] = sub[0xA20F] = cam.fx / focal_length_mm  # pixels per mm
+        sub[0xA210] = 4  # millimetres
+        sub[0xA002], sub[0xA003] = cam.width, cam.height
+        gps = exif.get_ifd(0x8825)
+        gps[1], gps[3] = ('N' if fix.latitude_deg >= 0 else 'S'), ('E' if fix.longitude_deg >= 0 else 'W')
+        gps[2], gps[4] = _dms(fix.latitude_deg), _dms(fix.longitude_deg)
+        gps[5], gps[6] = (0 if fix.altitude_m >= 0 else 1), abs(fix.altitude_m)
+        R = matrix_from_rotvec(rng.normal(0.0, np.radians(gimbal_sigma_deg), 3)) @ truth.R_enu_from_cam  # noqa: N806
+        gyaw, gpitch, groll = aviation_angles_from_R_enu_from_cam(R)
+        xmp = _DJI_XMP.format(abs=fix.altitude_m, rel=float(truth.camera_enu_m[2]) + rng.normal(0.0, baro_sigma_m),
+                              gyaw=gyaw, gpitch=gpitch, groll=groll, froll=truth.roll_deg, fpitch=-truth.pitch_deg,
+                              fyaw=(90.0 - truth.yaw_deg + 180.0) % 360.0 - 180.0)
+        image.save(folder / 'images' / f'DJI_{k:04d}.JPG', quality=95, exif=exif, xmp=xmp.encode())
+    return folder
+
+
+def _dms(deg: float) -> tuple[float, float, float]:
+    d = abs(deg)
+    minutes = (d - int(d)) * 60.0
+    return float(int(d)), float(int(minutes)), (minutes - int(minutes)) * 60.0

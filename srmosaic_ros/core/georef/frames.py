@@ -47,6 +47,9 @@ __all__ = [
     'matrix_from_rotvec',
     'make_T',
     'invert_T',
+    'R_enu_from_cam_aviation',
+    'R_enu_from_cam_platform_sensor',
+    'aviation_angles_from_R_enu_from_cam',
 ]
 
 NADIR_ELEVATION_RAD = -np.pi / 2.0
@@ -198,3 +201,56 @@ def invert_T(a_T_b: np.ndarray) -> np.ndarray:  # noqa: N802, N803
     """(4, 4) ``b_T_a`` of a rigid ``a_T_b``: [[R^T, -R^T t], [0, 1]] (4.12)."""
     R, t = a_T_b[:3, :3], a_T_b[:3, 3]  # noqa: N806
     return make_T(R.T, -R.T @ t)
+
+
+#: NED (x north, y east, z down) axes in ENU.
+R_ENU_FROM_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+#: Optical axes (x right, y down, z forward) in a forward-right-down "look" frame (x along the axis).
+R_LOOK_FROM_CAM = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+
+
+def _R_ned_from_ypr(yaw_deg: float, pitch_deg: float, roll_deg: float) -> np.ndarray:  # noqa: N802
+    """Aviation Euler angles (Z-Y-X, NED): yaw clockwise from north, pitch up positive, roll right down positive."""
+    y, p, r = np.radians([yaw_deg, pitch_deg, roll_deg])
+    return rot_z(y) @ rot_y(p) @ rot_x(r)
+
+
+def R_enu_from_cam_aviation(yaw_deg: float, pitch_deg: float, roll_deg: float) -> np.ndarray:  # noqa: N802
+    """(3, 3) optical frame in ENU of a camera whose line of sight has the absolute aviation angles given.
+
+    The angles of a gimbal as drones record them (DJI XMP GimbalYaw/Pitch/RollDegree, SRT gimbal
+    fields): yaw clockwise from true north, pitch of the optical axis above the horizon (-90 is
+    nadir), roll about the optical axis (right side down positive), applied Z-Y-X in NED. At yaw 0
+    and pitch -90 the image top points north and the image right east.
+    """
+    return R_ENU_FROM_NED @ _R_ned_from_ypr(yaw_deg, pitch_deg, roll_deg) @ R_LOOK_FROM_CAM
+
+
+def R_enu_from_cam_platform_sensor(heading_deg: float, pitch_deg: float, roll_deg: float,  # noqa: N802
+                                   rel_azimuth_deg: float, rel_elevation_deg: float,
+                                   rel_roll_deg: float = 0.0) -> np.ndarray:
+    """(3, 3) optical frame in ENU of a turret camera (MISB ST0601 / EG0104 angles).
+
+    The platform's attitude (heading clockwise from north, pitch nose up, roll right wing down; NED
+    Z-Y-X) composed with the sensor's angles relative to the platform (azimuth clockwise from the
+    nose, elevation negative below the platform's horizontal plane, roll about the line of sight),
+    applied in that order about the platform axes (ST0601 tags 5-7 and 18-20).
+    """
+    R_ned_from_body = _R_ned_from_ypr(heading_deg, pitch_deg, roll_deg)  # noqa: N806
+    R_body_from_look = _R_ned_from_ypr(rel_azimuth_deg, rel_elevation_deg, rel_roll_deg)  # noqa: N806
+    return R_ENU_FROM_NED @ R_ned_from_body @ R_body_from_look @ R_LOOK_FROM_CAM
+
+
+def aviation_angles_from_R_enu_from_cam(R_enu_from_cam: np.ndarray) -> tuple[float, float, float]:  # noqa: N802, N803
+    """(yaw, pitch, roll) in degrees of a camera's line of sight, the inverse of R_enu_from_cam_aviation.
+
+    Pitch in [-90, 90]; at nadir exactly, yaw and roll turn about the same axis and the split
+    returned puts it all in yaw.
+    """
+    R = R_ENU_FROM_NED.T @ np.asarray(R_enu_from_cam, dtype=np.float64) @ R_LOOK_FROM_CAM.T  # noqa: N806
+    pitch = float(np.arcsin(np.clip(-R[2, 0], -1.0, 1.0)))
+    if abs(abs(pitch) - np.pi / 2) < 1e-9:
+        yaw, roll = float(np.arctan2(-R[0, 1], R[1, 1])), 0.0
+    else:
+        yaw, roll = float(np.arctan2(R[1, 0], R[0, 0])), float(np.arctan2(R[2, 1], R[2, 2]))
+    return float(np.degrees(yaw)), float(np.degrees(pitch)), float(np.degrees(roll))

@@ -2,6 +2,7 @@
 
     georef = Georeferencer(GeorefConfig(), camera)
     georef.feed_fix(fix); georef.feed_imu(imu)             # any time, in stamp order per sensor
+    georef.feed_camera_attitude(att)                       # a measured camera orientation (gimbal, KLV)
     pose = georef.feed_frame(stamp_ns, prev_H_cur, cov)    # one FramePose per frame (fused)
     raster = georef.make_raster(pose)                      # north-up UTM grid, once
     raster_H_frame = georef.raster_H_frame(pose)           # place a frame by its pose (flat ground)
@@ -31,9 +32,10 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from ..types import FIX_STATUS_NO_FIX, CameraIntrinsics, GeoFix, ImuSample
+from ..types import FIX_STATUS_NO_FIX, CameraAttitude, CameraIntrinsics, GeoFix, ImuSample
 from .frames import (
     CameraPose,
+    R_body_from_cam,
     matrix_from_quat_xyzw,
     matrix_from_rotvec,
     rotvec_from_matrix,
@@ -457,6 +459,42 @@ class Georeferencer:
             cov = default
         self._telemetry('imu', int(imu.stamp_ns), rpy, 0.5 * (cov + cov.T) + 1e-10 * np.eye(3))
 
+    def feed_camera_attitude(self, attitude: CameraAttitude) -> None:
+        """A measured orientation of the camera (gimbal angles, KLV sensor angles) in ENU.
+
+        It is fused as the body attitude that the configured mount implies
+        (``R_enu_from_body = R_enu_from_cam R_body_from_cam^T``), so the filter's camera is the
+        measured one whatever the mount; its isotropic sigma (else ``imu_sigma_deg``) is carried
+        to roll, pitch and yaw through the Jacobian of that map. Cameras looking at or above the
+        horizon (optical axis less than 5 degrees below it) cannot see a ground plane and are skipped.
+        """
+        if not self._in_order('camera_attitude', attitude.stamp_ns):
+            return
+        R_ec = np.asarray(attitude.R_enu_from_cam, dtype=np.float64)  # noqa: N806
+        if R_ec.shape != (3, 3) or not np.all(np.isfinite(R_ec)) or abs(np.linalg.det(R_ec) - 1.0) > 1e-3:
+            self._skip('camera_attitude_nan', 'camera attitude with NaN fields or not a rotation ignored')
+            return
+        if R_ec[2, 2] > -math.sin(math.radians(5.0)):
+            self._skip('camera_attitude_horizon', 'camera attitude looking at or above the horizon ignored: the '
+                       'flat-ground model cannot place such frames')
+            return
+        sigma = attitude.sigma_rad if math.isfinite(attitude.sigma_rad) and attitude.sigma_rad > 0 \
+            else math.radians(self.config.imu_sigma_deg)
+        R_cb = R_body_from_cam(self.mount.gimbal_azimuth_rad, self.mount.gimbal_elevation_rad).T  # noqa: N806
+
+        def rpy_of(dv: np.ndarray) -> np.ndarray:
+            return np.array(rpy_from_R_enu_from_body(matrix_from_rotvec(dv) @ R_ec @ R_cb))
+
+        rpy = rpy_of(np.zeros(3))
+        J = np.empty((3, 3))  # noqa: N806 - d rpy / d small rotation of the camera (ENU rotation vector)
+        for i in range(3):
+            d = np.zeros(3)
+            d[i] = 1e-6
+            diff = rpy_of(d) - rpy_of(-d)
+            J[:, i] = np.array([wrap_angle(v) for v in diff]) / 2e-6
+        cov = sigma**2 * J @ J.T
+        self._telemetry('imu', int(attitude.stamp_ns), rpy, 0.5 * (cov + cov.T) + 1e-10 * np.eye(3))
+
     # -- frames --------------------------------------------------------------------------------
     def feed_frame(self, stamp_ns: int, prev_H_cur: np.ndarray | None = None,  # noqa: N803
                    covariance: np.ndarray | None = None, *, rms_px: float = float('nan'), inliers: int = 0,
@@ -570,7 +608,10 @@ class Georeferencer:
         if not (gsd and math.isfinite(gsd) and gsd > 0):
             agl = max(float(pose.camera.center_enu_m[2]) - _ground(pose), self.config.min_agl_m, 1.0) \
                 if pose.camera is not None else self.config.nominal_agl_m
-            raw = agl / math.sqrt(cam.fx * cam.fy)
+            # the depth of the ground under the principal point: the height for a nadir camera,
+            # the slant range / sin(depression) along the axis of an oblique one (full resolution across the range)
+            down = -float(pose.camera.R_enu_from_cam[2, 2]) if pose.camera is not None else 1.0
+            raw = agl / max(down, 0.1) / math.sqrt(cam.fx * cam.fy)
             gsd = float(f'{raw:.2g}')
             self._raster_agl_m = float(agl)  # checked against the filter's later estimate (_check_raster_agl)
         epsg = utm_epsg(self.origin.lat0_deg, self.origin.lon0_deg)
@@ -816,23 +857,30 @@ class Georeferencer:
         before = [p for p in fixes if p[0] <= stamp_ns]
         fix = before[-1] if before else min(fixes, key=lambda p: abs(p[0] - stamp_ns))
         gap_s = abs(fix[0] - stamp_ns) * 1e-9
+        if gap_s > cfg.telemetry_buffer_s:  # a frame far from any fix (a still without its time): wait for a nearer one
+            self._skip('no_fix_near_frame', f'no GNSS fix within telemetry_buffer_s ({cfg.telemetry_buffer_s:g} s) of '
+                       f'the frame at {stamp_ns} ns: the filter starts at a later frame')
+            return False
         cov = np.zeros((6, 6))
         pose = np.zeros(6)
         pose[:3] = fix[3]
         cov[:3, :3] = fix[4] + (cfg.initial_speed_sigma_m_s * gap_s) ** 2 * np.eye(3)
         imus = [p for p in self._pending if p[2] == 'imu']
+
+        def course_yaw() -> tuple[float, float]:
+            recent = [p for p in fixes if p[0] >= fix[0] - 5_000_000_000 and p[0] <= fix[0]]
+            d = recent[-1][3][:2] - recent[0][3][:2]
+            if np.hypot(*d) > 3.0 * math.sqrt(fix[4][0, 0]):
+                return math.atan2(d[1], d[0]), math.radians(20.0)
+            return 0.0, math.radians(90.0)
+
         if imus:
             imu = min(imus, key=lambda p: abs(p[0] - stamp_ns))
             gap_s = abs(imu[0] - stamp_ns) * 1e-9
             pose[3:] = imu[3]
             cov[3:, 3:] = imu[4] + (math.radians(cfg.initial_rate_sigma_deg_s) * gap_s) ** 2 * np.eye(3)
         else:
-            recent = [p for p in fixes if p[0] >= fix[0] - 5_000_000_000 and p[0] <= fix[0]]
-            d = recent[-1][3][:2] - recent[0][3][:2]
-            if np.hypot(*d) > 3.0 * math.sqrt(fix[4][0, 0]):
-                yaw, yaw_sigma = math.atan2(d[1], d[0]), math.radians(20.0)
-            else:
-                yaw, yaw_sigma = 0.0, math.radians(90.0)
+            yaw, yaw_sigma = course_yaw()
             self._skip('no_attitude', 'no Imu orientation before the first frame: level attitude and yaw from the '
                        'course over ground assumed; the first homographies may be gated')
             pose[3:] = (0.0, 0.0, yaw)

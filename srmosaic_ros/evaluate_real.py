@@ -1,0 +1,437 @@
+"""`srmosaic evaluate DIR` without --truth: figures of a real run that need no ground truth.
+
+A process output (mosaic.png, frames.csv, report.json, and mosaic.tif when georeferenced) is
+judged against its own input, re-read in frame order:
+
+- ``fraction_in_main``: frames in the main mosaic (frames.csv ok=1) over frames.csv rows.
+- Consistency: each frame of the main mosaic is warped into mosaic.png by its mosaic_H_frame,
+  over the frame's bounding box in the mosaic only, and the normalised cross-correlation (NCC) of
+  the grey levels of the warped frame and of the mosaic is taken inside the frame's footprint
+  (the warped frame's valid mask eroded by 2 px, and mosaic alpha > 0). The mosaic is partly made
+  of the frame itself, so a frame alone under itself scores 1.0 by construction: this figure says
+  how well each frame agrees with the composite, and ghosting, misregistration, wedges between
+  frames and blur all lower it. It is not an absolute registration error.
+- Sharpness: per frame, the gradient energy (mean squared 3x3 Sobel gradient of the grey image,
+  intensities in [0, 1]) of the mosaic over that of the warped frame, in the same footprint (its
+  mosaic alpha eroded by 1 px more, so that no gradient reads a transparent pixel). 1.0: the
+  composite is as sharp as the frames; below: it is blurred, by averaging frames that do not
+  line up, or by resampling.
+- Position error, when mosaic.tif exists and frames.csv carries ``meta_latitude,meta_longitude``
+  (WGS84 degrees, where the footage's own metadata puts the frame centre on the ground): each
+  frame's centre pixel ((w - 1) / 2, (h - 1) / 2) through mosaic_H_frame and mosaic.tif's
+  geotransform, against the metadata position in mosaic.tif's CRS (pyproj), in metres.
+
+Convention: frame and mosaic pixels x right, y down, pixel centres at integers (the canvas's, and
+cv2.warpPerspective's); mosaic_H_frame maps pixels of the frame as the pipeline saw it, i.e. after
+lens undistortion (core/undistort.py), which is applied here the same way.
+
+Cost: a frame is compared over its bounding box in the mosaic, at most ``MAX_COMPARE_PX`` pixels:
+larger footprints are compared on every k-th mosaic pixel across and down (k the smallest integer
+that keeps the count under the bound), as point samples of both the mosaic and the frame warped as
+the canvas warps it, so that the comparison stays exact (a frame alone under itself still scores
+1.0), only sparser; gradients are then taken between samples k mosaic pixels apart. mosaic.tif is read window by window; without it,
+mosaic.png is read whole (a mosaic that is not georeferenced).
+"""
+from __future__ import annotations
+
+import csv
+import json
+import math
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+from .core.image_ops import to_gray_float01
+from .core.metrics import apply_homography
+from .core.types import CameraIntrinsics, Frame
+from .core.undistort import Undistorter
+from .errors import InputError
+from .io.mosaic_files import read_frames_csv
+
+if TYPE_CHECKING:
+    from .io.bags import TopicConfig
+
+__all__ = [
+    'MAX_COMPARE_PX',
+    'META_COLUMNS',
+    'FrameAgreement',
+    'evaluate_real',
+    'format_real_figures',
+    'read_meta_positions',
+]
+
+#: Most mosaic pixels one frame is compared over; larger footprints are sampled every k-th pixel.
+MAX_COMPARE_PX = 1_000_000
+#: Optional trailing columns of frames.csv: the frame centre on the ground by the footage's metadata.
+META_COLUMNS = ('meta_latitude', 'meta_longitude')
+#: Fewer footprint pixels than this and a frame's NCC / sharpness are not computed (NaN).
+MIN_COMPARE_PX = 400
+_FRAME_ERODE_PX = 2  # the warped frame's edge pixels mix in the replicated border
+_READ_ROWS = 512  # mosaic.tif rows read at a time (its tile height): memory bounded whatever the footprint
+_GREY = np.array([0.299, 0.587, 0.114], dtype=np.float32)  # Rec. 601, as core.image_ops
+
+
+@dataclass(frozen=True)
+class FrameAgreement:
+    """How one frame of the main mosaic agrees with mosaic.png.
+
+    stamp_ns: the frame's stamp (frames.csv); ncc: normalised cross-correlation in [-1, 1] of the
+    warped frame and the mosaic in its footprint; sharpness_ratio: mosaic over frame gradient
+    energy there; pixels: footprint pixels compared; scale: 1 / k, the comparison's sampling step
+    k in mosaic pixels (1.0, or less for footprints over MAX_COMPARE_PX). ncc and sharpness_ratio are
+    NaN when the footprint is too small or flat; ``note`` then says why ('' otherwise).
+    """
+
+    stamp_ns: int
+    ncc: float
+    sharpness_ratio: float
+    pixels: int
+    scale: float
+    note: str = ''
+
+
+def read_meta_positions(frames_csv: Path) -> dict[int, tuple[float, float]]:
+    """stamp_ns -> (meta_latitude, meta_longitude) in WGS84 degrees, for the rows of ``frames_csv``
+    whose metadata gives both as finite numbers; {} when the file has no such columns. A row with a
+    value that is not a number is left out (as unknown), never an error."""
+    out: dict[int, tuple[float, float]] = {}
+    with open(frames_csv, newline='') as handle:
+        reader = csv.DictReader(handle)
+        if not set(META_COLUMNS) <= set(reader.fieldnames or []):
+            return out
+        for rec in reader:
+            try:
+                stamp = int(rec['stamp_ns'])
+                lat, lon = float(rec['meta_latitude']), float(rec['meta_longitude'])
+            except (TypeError, ValueError):
+                continue
+            if math.isfinite(lat) and math.isfinite(lon):
+                out[stamp] = (lat, lon)
+    return out
+
+
+class _MosaicWindows:
+    """Grey levels (float32 in [0, 1]) and alpha (uint8) of windows of the main mosaic.
+
+    mosaic.tif (tiled, the same pixels as mosaic.png) is read window by window when present;
+    otherwise mosaic.png is read once, whole.
+    """
+
+    def __init__(self, out_dir: Path) -> None:
+        tif, png = out_dir / 'mosaic.tif', out_dir / 'mosaic.png'
+        self._ds: Any = None
+        self._grey: np.ndarray | None = None
+        self._alpha: np.ndarray | None = None
+        if tif.is_file():
+            import rasterio
+            from rasterio.enums import ColorInterp
+
+            try:
+                self._ds = rasterio.open(tif)
+            except rasterio.errors.RasterioError as exc:
+                msg = f'cannot read {tif} ({exc}); re-run `srmosaic process` to write it again.'
+                raise InputError(msg) from None
+            interp = self._ds.colorinterp
+            self._has_alpha = interp[-1] == ColorInterp.alpha
+            self._colour = self._ds.count - int(self._has_alpha)
+            self.width, self.height = self._ds.width, self._ds.height
+            return
+        img = cv2.imread(str(png), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            msg = f'cannot read {png}; re-run `srmosaic process` to write it again.'
+            raise InputError(msg)
+        if img.ndim == 2:
+            self._grey, self._alpha = img.astype(np.float32) / 255.0, np.full(img.shape, 255, np.uint8)
+        else:
+            colour = img[:, :, :3] if img.shape[2] >= 3 else img[:, :, :1]
+            grey = colour[:, :, ::-1] @ _GREY if colour.shape[2] == 3 else colour[:, :, 0].astype(np.float32)
+            self._grey = (grey / 255.0).astype(np.float32)
+            self._alpha = img[:, :, -1] if img.shape[2] in (2, 4) else np.full(img.shape[:2], 255, np.uint8)
+        self.height, self.width = self._grey.shape
+
+    def window(self, x0: int, y0: int, x1: int, y1: int, step: int = 1) -> tuple[np.ndarray, np.ndarray]:
+        """(grey float32, alpha uint8) of mosaic pixels x0, x0 + step, ... < x1 across and y0, y0 +
+        step, ... < y1 down (point samples, no filtering)."""
+        if self._ds is None:
+            return (np.ascontiguousarray(self._grey[y0:y1:step, x0:x1:step]),
+                    np.ascontiguousarray(self._alpha[y0:y1:step, x0:x1:step]))
+        from rasterio.windows import Window
+
+        strips = []
+        rows_per_read = max(step, (_READ_ROWS // step) * step)  # a multiple of step: the sampling stays regular
+        for top in range(y0, y1, rows_per_read):
+            bottom = min(y1, top + rows_per_read)
+            strips.append(self._ds.read(window=Window(x0, top, x1 - x0, bottom - top))[:, ::step, ::step])
+        bands = np.concatenate(strips, axis=1)
+        colour = bands[:self._colour].astype(np.float32) / 255.0
+        grey = np.tensordot(_GREY, colour, axes=1) if self._colour == 3 else colour[0]
+        alpha = bands[-1] if self._has_alpha else np.full(grey.shape, 255, np.uint8)
+        return np.ascontiguousarray(grey, dtype=np.float32), np.ascontiguousarray(alpha)
+
+    def close(self) -> None:
+        if self._ds is not None:
+            self._ds.close()
+
+
+def _agreement(stamp_ns: int, grey: np.ndarray, mosaic_H_frame: np.ndarray,  # noqa: N803
+               mosaic: _MosaicWindows) -> FrameAgreement:
+    """NCC and sharpness ratio of one frame (grey (h, w) float32) against the mosaic under it."""
+    h, w = grey.shape
+    corners = np.array([[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5], [-0.5, h - 0.5]])
+    depth = np.c_[corners, np.ones(4)] @ mosaic_H_frame[2]
+    if not np.all(np.isfinite(mosaic_H_frame)) or np.any(depth <= 0):
+        return FrameAgreement(stamp_ns, math.nan, math.nan, 0, 1.0, 'footprint crosses the horizon')
+    foot = apply_homography(mosaic_H_frame, corners)
+    x0, y0 = max(0, math.floor(foot[:, 0].min())), max(0, math.floor(foot[:, 1].min()))
+    x1, y1 = min(mosaic.width, math.ceil(foot[:, 0].max()) + 1), min(mosaic.height, math.ceil(foot[:, 1].max()) + 1)
+    if x1 - x0 < 2 or y1 - y0 < 2:
+        return FrameAgreement(stamp_ns, math.nan, math.nan, 0, 1.0, 'footprint outside mosaic.png')
+    # footprints over MAX_COMPARE_PX: every k-th mosaic pixel across and down, point samples of
+    # both images (no filtering of either), so the comparison stays exact, only sparser
+    k = max(1, math.ceil(math.sqrt((x1 - x0) * (y1 - y0) / MAX_COMPARE_PX)))
+    m_grey, m_alpha = mosaic.window(x0, y0, x1, y1, k)
+    bh, bw = m_grey.shape
+    scale = 1.0 / k
+    grid_H_mosaic = np.array([[scale, 0.0, -x0 * scale], [0.0, scale, -y0 * scale], [0.0, 0.0, 1.0]])  # noqa: N806
+    grid_H_frame = grid_H_mosaic @ mosaic_H_frame  # noqa: N806
+    # as the canvas paints: INTER_LINEAR, replicated border, and a separate validity mask
+    warped = cv2.warpPerspective(grey, grid_H_frame, (bw, bh), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    valid = cv2.warpPerspective(np.ones(grey.shape, np.uint8), grid_H_frame, (bw, bh), flags=cv2.INTER_NEAREST,
+                                borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    kernel = np.ones((2 * _FRAME_ERODE_PX + 1,) * 2, np.uint8)
+    covered = (m_alpha > 0).astype(np.uint8)
+    mask = (cv2.erode(valid, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0) & (covered > 0)
+    n = int(np.count_nonzero(mask))
+    if n < MIN_COMPARE_PX:
+        return FrameAgreement(stamp_ns, math.nan, math.nan, n, scale, f'footprint of {n} px is too small to compare')
+    a = warped[mask].astype(np.float64)
+    b = m_grey[mask].astype(np.float64)
+    a -= a.mean()
+    b -= b.mean()
+    denom = math.sqrt(float(a @ a) * float(b @ b))
+    ncc = float(a @ b) / denom if denom > 1e-12 else math.nan
+    sharp_mask = mask & (cv2.erode(covered, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_CONSTANT,
+                                   borderValue=0) > 0)
+    e_frame, e_mosaic = _gradient_energy(warped, sharp_mask), _gradient_energy(m_grey, sharp_mask)
+    ratio = e_mosaic / e_frame if e_frame > 1e-12 else math.nan
+    note = '' if math.isfinite(ncc) and math.isfinite(ratio) else 'flat footprint (no contrast)'
+    return FrameAgreement(stamp_ns, ncc, ratio, n, scale, note)
+
+
+def _gradient_energy(grey: np.ndarray, mask: np.ndarray) -> float:
+    """Mean of gx^2 + gy^2 (3x3 Sobel of the grey image in [0, 1]) over ``mask``; 0.0 for an empty mask."""
+    if not mask.any():
+        return 0.0
+    gx = cv2.Sobel(grey, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(grey, cv2.CV_32F, 0, 1, ksize=3)
+    return float(np.mean((gx * gx + gy * gy)[mask], dtype=np.float64))
+
+
+def _position_figures(out_dir: Path, main: list[dict[str, Any]], meta: dict[int, tuple[float, float]],
+                      size: tuple[int, int]) -> tuple[dict[str, Any] | None, dict[int, float], str]:
+    """(position summary or None, stamp_ns -> error_m, why None) of the main frames with metadata.
+
+    ``size``: (w, h) of the frames (a flight's frames share one size: a size change ends a run).
+    """
+    tif = out_dir / 'mosaic.tif'
+    if not tif.is_file():
+        return None, {}, 'no mosaic.tif (the run is not georeferenced)'
+    if not meta:
+        with open(out_dir / 'frames.csv', newline='') as handle:
+            has_columns = set(META_COLUMNS) <= set(next(csv.reader(handle), []))
+        return None, {}, ('no frame has a metadata position: meta_latitude/meta_longitude all NaN' if has_columns
+                          else 'frames.csv has no meta_latitude/meta_longitude')
+    use = [r for r in main if r['stamp_ns'] in meta]
+    if not use:
+        return None, {}, 'no frame of the main mosaic has a metadata position'
+    import rasterio
+    from pyproj import Transformer
+
+    with rasterio.open(tif) as ds:
+        affine, crs = ds.transform, ds.crs
+    if crs is None:
+        return None, {}, f'{tif} has no CRS'
+    w, h = size
+    centre = np.array([[(w - 1) / 2.0, (h - 1) / 2.0]])
+    # rasterio's affine maps pixel corners: the centre of pixel (x, y) is at (x + 0.5, y + 0.5)
+    est = np.array([affine @ tuple(apply_homography(r['mosaic_H_frame'], centre)[0] + 0.5) for r in use])
+    to_map = Transformer.from_crs('EPSG:4326', crs, always_xy=True)
+    lon_lat = np.array([(meta[r['stamp_ns']][1], meta[r['stamp_ns']][0]) for r in use])
+    ref = np.c_[to_map.transform(lon_lat[:, 0], lon_lat[:, 1])]
+    err = np.linalg.norm(est - ref, axis=1)
+    epsg = crs.to_epsg()
+    summary = {'frames': len(use), 'rms_m': float(np.sqrt(np.mean(err ** 2))), 'median_m': float(np.median(err)),
+               'max_m': float(err.max()), 'crs': f'EPSG:{epsg}' if epsg is not None else crs.to_string()}
+    return summary, {r['stamp_ns']: float(e) for r, e in zip(use, err)}, ''
+
+
+def _load_run(out_dir: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """(report.json, frames.csv rows), InputError naming what is missing."""
+    for name in ('frames.csv', 'report.json', 'mosaic.png'):
+        if not (out_dir / name).is_file():
+            msg = f'{out_dir / name} not found; run `srmosaic process INPUT --out {out_dir}` first.'
+            raise InputError(msg)
+    try:
+        report = json.loads((out_dir / 'report.json').read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        msg = f'{out_dir / "report.json"} is not readable JSON ({exc}); re-run `srmosaic process`.'
+        raise InputError(msg) from None
+    try:
+        rows = read_frames_csv(out_dir / 'frames.csv')
+    except (ValueError, KeyError) as exc:
+        msg = f'{out_dir / "frames.csv"} is not a frames.csv of `srmosaic process` ({exc}); re-run process.'
+        raise InputError(msg) from None
+    return report, rows
+
+
+def _pick(n: int, max_frames: int | None) -> np.ndarray:
+    """Indices of at most max_frames of n, spread evenly over the run (first and last included)."""
+    if max_frames is None or max_frames >= n:
+        return np.arange(n)
+    if max_frames < 1:
+        msg = f'max_frames must be at least 1, got {max_frames}.'
+        raise InputError(msg)
+    return np.unique(np.round(np.linspace(0, n - 1, max_frames)).astype(int))
+
+
+def _nan_stat(values: list[float], fn: Any) -> float | None:  # noqa: ANN401
+    v = np.array([x for x in values if math.isfinite(x)])
+    return float(fn(v)) if v.size else None
+
+
+def evaluate_real(out_dir: Path, *, progress: bool = True, max_frames: int | None = None,
+                  input_path: Path | None = None, camera_yaml: Path | None = None,
+                  topics: TopicConfig | None = None, undistort: bool = True) -> dict[str, Any]:
+    """Truth-free figures of the process output ``out_dir`` (see the module docstring).
+
+    Args:
+        out_dir: a `srmosaic process` output directory (frames.csv, report.json, mosaic.png).
+        progress: a tqdm bar on stderr while the input is re-read.
+        max_frames: compare at most this many frames of the main mosaic, spread evenly over the
+            run (None: all). The position figures use every frame with metadata regardless.
+        input_path: the input to re-read instead of report.json's 'input' (moved or relative).
+        camera_yaml, topics: what `process` was given (--camera, topic options), so that the
+            frames are re-read, and undistorted, as that run saw them; undistort=False for a run
+            made with ``undistort: false``.
+
+    Returns a JSON-serialisable dict: input (str), input_kind, frames_rows, frames_in_main,
+    fraction_in_main (0..1), frames_compared (frames with a finite NCC), frames_not_in_input
+    (main frames whose stamp the input no longer has), frames_reduced (compared on every k-th mosaic pixel, k > 1),
+    ncc_median, ncc_p10, sharpness_median (None when no frame could be compared), position (None,
+    or {frames, rms_m, median_m, max_m, crs}), position_note (why it is None, '' otherwise), and
+    per_frame: one entry per main frame compared, {stamp_ns, ncc, sharpness_ratio, pixels, scale,
+    note, position_error_m (metres, or None)} (NaN figures as None).
+
+    Raises InputError when a file of the run is missing or unreadable, the input is gone, no frame
+    is in the main mosaic, or no frame of the input has a stamp of frames.csv.
+    """
+    from .offline import open_source
+
+    out_dir = Path(out_dir)
+    report, rows = _load_run(out_dir)
+    main = [r for r in rows if r['ok']]
+    if not main:
+        msg = (f'{out_dir / "frames.csv"} has no frame in the main mosaic (ok=1 in none of {len(rows)} rows); '
+               'nothing to evaluate: see report.json failure_reasons and re-run process.')
+        raise InputError(msg)
+    if input_path is None:
+        if not report.get('input'):
+            msg = f'{out_dir / "report.json"} does not name its input; pass the input (input_path).'
+            raise InputError(msg)
+        source = Path(report['input'])
+        if not source.exists():
+            msg = (f'the input of {out_dir}, {source} (report.json "input"), no longer exists; '
+                   're-run process or pass the input (input_path).')
+            raise InputError(msg)
+    else:
+        source = Path(input_path)
+        if not source.exists():
+            msg = f'input {source} does not exist; pass the input that {out_dir} was processed from.'
+            raise InputError(msg)
+    kind = report.get('input_kind', '')
+    select = str((report.get('video') or {}).get('select', 'all')) if kind == 'video' else 'all'
+    items, _, kind_now = open_source(source, topics=topics, select=select, camera_yaml=camera_yaml)
+    meta = read_meta_positions(out_dir / 'frames.csv')
+
+    wanted = {main[i]['stamp_ns']: main[i] for i in _pick(len(main), max_frames)}
+    mosaic = _MosaicWindows(out_dir)
+    undistorter, camera = Undistorter(undistort), None
+    results: dict[int, FrameAgreement] = {}
+    size: tuple[int, int] | None = None
+    try:
+        with tqdm(total=len(wanted), unit='frame', desc='evaluate', disable=not progress) as bar:
+            for item in items:
+                if isinstance(item, CameraIntrinsics):
+                    camera = item
+                if not isinstance(item, Frame) or item.stamp_ns not in wanted or item.stamp_ns in results:
+                    continue
+                frame = undistorter.frame(item, camera)  # as the pipeline saw it
+                size = size or (frame.image.shape[1], frame.image.shape[0])
+                results[item.stamp_ns] = _agreement(item.stamp_ns, to_gray_float01(frame.image),
+                                                    wanted[item.stamp_ns]['mosaic_H_frame'], mosaic)
+                bar.update(1)
+                if len(results) == len(wanted):
+                    break  # the rest of the input holds no frame to compare
+    finally:
+        mosaic.close()
+    if not results or size is None:
+        msg = (f'no frame of {source} has a stamp of {out_dir / "frames.csv"}: is it the input of that run '
+               '(and, for video, the same --select)? Re-run process or pass the input (input_path).')
+        raise InputError(msg)
+    position, pos_err, pos_note = _position_figures(out_dir, main, meta, size)
+
+    ordered = [results[s] for s in wanted if s in results]
+    nccs = [a.ncc for a in ordered]
+    sharp = [a.sharpness_ratio for a in ordered]
+    per_frame = []
+    for a in ordered:
+        entry = {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in asdict(a).items()}
+        entry['position_error_m'] = pos_err.get(a.stamp_ns)
+        per_frame.append(entry)
+    return {
+        'input': str(source),
+        'input_kind': kind_now,
+        'frames_rows': len(rows),
+        'frames_in_main': len(main),
+        'fraction_in_main': len(main) / len(rows),
+        'frames_compared': int(sum(math.isfinite(v) for v in nccs)),
+        'frames_not_in_input': len(wanted) - len(results),
+        'frames_reduced': int(sum(a.scale < 1.0 for a in ordered)),
+        'ncc_median': _nan_stat(nccs, np.median),
+        'ncc_p10': _nan_stat(nccs, lambda v: np.percentile(v, 10)),
+        'sharpness_median': _nan_stat(sharp, np.median),
+        'position': position,
+        'position_note': pos_note,
+        'per_frame': per_frame,
+    }
+
+
+def format_real_figures(figures: dict[str, Any]) -> list[str]:
+    """The lines `srmosaic evaluate DIR` prints for :func:`evaluate_real`'s figures."""
+    n_main, n_rows = figures['frames_in_main'], figures['frames_rows']
+    lines = [f'frames in main mosaic: {n_main}/{n_rows} ({100.0 * figures["fraction_in_main"]:.0f}%)']
+    n = figures['frames_compared']
+    if figures['ncc_median'] is None:
+        lines.append('consistency (NCC frame vs mosaic): no frame could be compared')
+    else:
+        lines.append(f'consistency (NCC frame vs mosaic): median {figures["ncc_median"]:.3f}, '
+                     f'p10 {figures["ncc_p10"]:.3f} over {n} frames (1.0: frames agree with the composite)')
+    if figures['sharpness_median'] is not None:
+        lines.append(f'sharpness (mosaic vs frame gradient energy): median {figures["sharpness_median"]:.3f} '
+                     '(1.0: as sharp as the frames)')
+    if figures.get('frames_reduced'):
+        lines.append(f'  {figures["frames_reduced"]} frames cover more than {MAX_COMPARE_PX / 1e6:g} Mpx of the mosaic: '
+                     'compared on every k-th mosaic pixel')
+    if figures.get('frames_not_in_input'):
+        lines.append(f'  {figures["frames_not_in_input"]} frames of frames.csv not found in the input: not compared')
+    pos = figures.get('position')
+    if pos is None:
+        lines.append(f'position vs metadata: not available ({figures.get("position_note") or "no data"})')
+    else:
+        lines.append(f'position vs metadata (frame centres): RMS {pos["rms_m"]:.2f} m, median {pos["median_m"]:.2f} m, '
+                     f'max {pos["max_m"]:.2f} m over {pos["frames"]} frames ({pos["crs"]})')
+    return lines
