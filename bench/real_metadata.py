@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -108,6 +109,7 @@ def main() -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     for name in args.only:
         out = args.out / name
+        shutil.rmtree(out, ignore_errors=True)  # outputs of an earlier run must not pass for this one's
         t0 = time.perf_counter()
         report = process_input(INPUTS[name], out, PipelineConfig(), progress=False)
         wall = time.perf_counter() - t0

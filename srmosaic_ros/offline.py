@@ -33,8 +33,12 @@ _LOG = logging.getLogger(__name__)
 #: Offline re-anchoring fits frame corners unless the height above ground is known worse than this
 #: (relative standard deviation, median over the frames): then the frame centres only.
 ANCHOR_CORNERS_MAX_REL_AGL_SD = 0.02
-#: ... and fits only the offset when the similarity's rotation would be known worse than this (deg).
-ANCHOR_MAX_ROTATION_SD_DEG = 1.0
+#: The fit of a mosaic to its geotags needs them to span this much (m RMS from their mean), four
+#: times a consumer receiver's noise ...
+GEOTAG_MIN_EXTENT_M = 10.0
+#: ... and fits only the offset when the similarity's rotation is known worse than the poses' heading,
+#: and than this (deg).
+ANCHOR_MIN_ROTATION_SD_DEG = 0.5
 
 __all__ = ['StripPreview', 'open_source', 'peak_rss_mb', 'preview_image', 'process_input', 'write_outputs']
 
@@ -402,12 +406,15 @@ def _mosaic_raster(result: PipelineResult, poses: list[Any], origin: tuple[int, 
         # raster pixel by the poses ~ fix @ chained raster pixel
         fix = fit_similarity(src, dst)
         # Points that stay within their own noise of each other (a stare at a site from kilometres)
-        # cannot tell a rotation or a scale: the fit's angle is then uncertain by about residual /
-        # (spread sqrt(n)) rad, and beyond ANCHOR_MAX_ROTATION_SD_DEG only the offset is re-anchored.
+        # cannot tell a rotation or a scale: the fit's angle is uncertain by about residual /
+        # (spread sqrt(n)) rad; when that is worse than the poses' own heading (their yaw std, median),
+        # the fit would add error, and only the offset is re-anchored.
         residual = float(np.sqrt(np.mean(np.sum((apply_homography(fix, src) - dst) ** 2, axis=1))))
         spread = float(np.sqrt(np.mean(np.sum((src - src.mean(axis=0)) ** 2, axis=1))))
         rotation_sd = residual / max(spread * math.sqrt(len(src)), 1e-9)
-        translation_only = rotation_sd > math.radians(ANCHOR_MAX_ROTATION_SD_DEG)
+        yaw_sd = [float(p.std_rpy_rad[2]) for p in poses if p.valid]
+        translation_only = bool(yaw_sd) and rotation_sd > max(float(np.median(yaw_sd)),
+                                                              math.radians(ANCHOR_MIN_ROTATION_SD_DEG))
         if translation_only:
             fix = np.eye(3)
             fix[:2, 2] = (dst - src).mean(axis=0)
@@ -472,9 +479,14 @@ def _geotag_fit(result: PipelineResult, origin: tuple[int, int], config: Pipelin
         if result.imus else None
     try:
         fit = fit_mosaic_to_geotags(centres, tags, offsets)
+        if fit.extent_m < GEOTAG_MIN_EXTENT_M:
+            msg = (f'the geotags of the main mosaic span {fit.extent_m:.1f} m RMS, less than {GEOTAG_MIN_EXTENT_M:g} m: '
+                   'their GNSS noise, not the flight, would set its scale and rotation (a hover, a pan)')
+            raise ValueError(msg)
     except ValueError as exc:
         _LOG.warning('the mosaic is not georeferenced: the filter did not place it (no camera intrinsics, or no fix '
                      'before its first frame) and its geotags cannot: %s', exc)
+        result.georef_note = f'its geotags cannot place it: {exc}'
         return None
     _LOG.info('mosaic not placed by the filter: georeferenced by its %d geotagged frames (residual RMS %.2f m, '
               '%d left out, tilt %s)', int(fit.used.sum()), fit.rms_m, int((~fit.used).sum()),
@@ -628,6 +640,8 @@ def not_georeferenced_reason(result: PipelineResult, config: PipelineConfig) -> 
     if not result.fixes:
         return ('the input carries no GPS positions (no NavSatFix topic, EXIF GPS, KLV, SRT or GPMF track); give a '
                 'flight log with --telemetry (video) or a telemetry_from_exif.csv beside the stills.')
+    if getattr(result, 'georef_note', ''):
+        return f'the filter could not place the mosaic (no camera intrinsics or attitude) and {result.georef_note}.'
     if result.georef is None or result.georef.raster is None:
         return ('the input has GPS positions but no camera intrinsics, and its geotags could not place the mosaic '
                 '(too few distinct positions under the main mosaic); give --camera or --hfov.')

@@ -84,6 +84,7 @@ class PipelineResult:
     imus: list[ImuSample] = field(default_factory=list)
     georef: Georeferencer | None = None
     attitudes: list[CameraAttitude] = field(default_factory=list)
+    georef_note: str = ''  # why the offline fallback (the fit to geotags) did not place the mosaic
 
     @property
     def main_segment(self) -> Segment | None:

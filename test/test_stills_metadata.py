@@ -56,7 +56,8 @@ def test_without_gimbal_angles_stills_fall_back_to_the_geotag_fit(tmp_path: Path
     """Real Canon stills: intrinsics from EXIF, no attitude: placed by the similarity to the geotags."""
     report = process_input(REAL_EXIF, tmp_path, PipelineConfig(), progress=False)
     meta = report['metadata']
-    assert meta['frames'] == 3 and meta['frames_with_position'] == 3 and meta['frames_with_attitude'] == 0
+    # IMG_9371's tag repeats IMG_9370's fix, taken 2 s before it: no position within 1 s for it
+    assert meta['frames'] == 3 and meta['frames_with_position'] == 2 and meta['frames_with_attitude'] == 0
     assert any('no gimbal angles' in n for n in meta['notes'])
     geo = report['georeferenced']
     assert geo is None or geo['method'] == 'geotags'
@@ -78,3 +79,37 @@ def test_a_still_without_gps_is_counted_not_fatal(drone_survey: Path, tmp_path: 
     assert report['metadata']['frames_with_position'] >= 19
     assert report['georeferenced'] is not None
     json.dumps(report)  # the report stays JSON
+
+
+def test_gps_tags_are_stamped_at_their_own_fix_time() -> None:
+    """IMG_9371 repeats IMG_9370's GPS tag (time and position) though taken 2 s later: its fix is
+    stamped at that GPS time (moved onto the capture clock), so the two fixes share a stamp and the
+    repeat is not taken for a position 2 s later."""
+    from srmosaic_ros.core.types import Frame, GeoFix
+    from srmosaic_ros.io.image_folder import ImageFolderReader
+
+    items = list(ImageFolderReader(REAL_EXIF))
+    fixes = {i: it for i, it in enumerate(items) if isinstance(it, GeoFix)}
+    frames = [it for it in items if isinstance(it, Frame)]
+    by_name = {}
+    fix_list = list(fixes.values())
+    for frame, fix in zip(frames, fix_list):
+        by_name[frame.frame_id] = (frame.stamp_ns, fix.stamp_ns)
+    cap_70, fix_70 = by_name['IMG_9370.jpg']
+    cap_71, fix_71 = by_name['IMG_9371.jpg']
+    assert cap_71 - cap_70 == 2_000_000_000
+    assert fix_71 == fix_70  # the same fix; the georeferencer drops the second (not after the first)
+
+
+def test_geotags_of_a_hover_cannot_place_the_mosaic(tmp_path: Path) -> None:
+    """Stills whose GPS tags span a few metres (a hover, a pan: karma.mp4's 3.3 m) would get the
+    mosaic's scale and rotation from GNSS noise: refused, with the reason in the report."""
+    from srmosaic_ros.sim.record import write_stills_folder
+
+    flight = simulate(SimConfig(width=320, height=240, world_gsd_m=0.3, trajectory='line', frames=10, rate_hz=1.0,
+                                speed_m_s=1.0, fix_rate_hz=1.0, seed=4))
+    folder = write_stills_folder(flight, tmp_path / 'hover')
+    report = process_input(folder, tmp_path / 'out', PipelineConfig(), progress=False)
+    assert report['frames_registered'] == 10
+    assert report['georeferenced'] is None
+    assert 'less than 10 m' in report['not_georeferenced_reason'], report['not_georeferenced_reason']

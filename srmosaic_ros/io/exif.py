@@ -93,7 +93,9 @@ class StillMetadata:
     plane resolution and DJI's calibrated values refer to: a resized still keeps its original
     EXIF, so scale those by ``width_px / exif_width_px``. Positions are WGS84 degrees (S and W
     negative) and metres (``altitude_m`` as the EXIF states it: above sea level for ref 0/1);
-    NaN when absent. ``stamp_ns`` is UTC nanoseconds since the Unix epoch. Angles are degrees:
+    NaN when absent. ``stamp_ns`` is UTC nanoseconds since the Unix epoch (the capture);
+    ``gps_stamp_ns`` when the GPS position was fixed, which a camera's GPS tags can trail by seconds
+    (caliterra: 0 to 2 s; one still repeats its predecessor's fix). Angles are degrees:
     ``gimbal_ypr_deg`` = (yaw clockwise from north, pitch with -90 nadir and 0 horizon, roll) of
     the camera; ``flight_ypr_deg`` = (yaw clockwise from north, pitch nose up +, roll right wing
     down +) of the aircraft. ``calibrated_optical_center_px`` is (cx, cy) in this package's
@@ -121,6 +123,7 @@ class StillMetadata:
     flight_ypr_deg: tuple[float, float, float] | None
     exif_orientation: int
     notes: tuple[str, ...]
+    gps_stamp_ns: int | None = None          # GPSDateStamp + GPSTimeStamp (UTC): when the position was fixed
 
     @property
     def has_position(self) -> bool:
@@ -204,6 +207,7 @@ def read_still_metadata(path: str | Path) -> StillMetadata:
     gimbal, flight = _xmp_attitude(xmp, notes)
     return StillMetadata(
         path=path, width_px=width, height_px=height, exif_width_px=exif_width, stamp_ns=stamp_ns,
+        gps_stamp_ns=_gps_stamp(gps),
         latitude_deg=lat, longitude_deg=lon, altitude_m=alt,
         relative_altitude_m=NAN if rel_alt is None else rel_alt,
         make=make, model=model, focal_length_mm=focal, focal_length_35mm_mm=focal35,

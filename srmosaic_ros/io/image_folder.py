@@ -30,6 +30,8 @@ IMAGE_SUFFIXES = {'.jpg', '.jpeg', '.png', '.tif', '.tiff'}
 TELEMETRY_NAME = 'telemetry_from_exif.csv'
 #: Horizontal standard deviation of a still's GPS tag (m): a consumer receiver.
 STILLS_GPS_SIGMA_H_M = 2.5
+#: A still's GPS fix is stamped at its own GPS time when that is within this (s) of the capture.
+GPS_TAG_MAX_LAG_S = 5.0
 #: Vertical standard deviation of a GPS altitude without a height above take-off to vouch for it (m).
 CAMERA_GPS_SIGMA_V_M = 30.0
 
@@ -63,6 +65,7 @@ class ImageFolderReader:
         self.summary = MetadataSummary(source='telemetry CSV' if self.telemetry else 'none', frames=len(self.files))
         self.meta: list = [None] * len(self.files)
         self._exif_stamps: list[int | None] = [None] * len(self.files)
+        self._clock_offset_ns: int | None = None
         if use_exif:
             self._read_exif()
 
@@ -123,6 +126,9 @@ class ImageFolderReader:
                     self._exif_stamps[i] = t + (i - j) * step
                     s.problem('exif_no_time', f'{self.files[i].name}: no capture time in its EXIF; placed at the '
                               'survey\'s median interval from its neighbours')
+        offsets = [m.stamp_ns - m.gps_stamp_ns for m in self.meta
+                   if m is not None and m.stamp_ns is not None and m.gps_stamp_ns is not None]
+        self._clock_offset_ns = int(np.median(offsets)) if offsets else None
         last = None
         for i, m in enumerate(self.meta):
             t = m.stamp_ns if m is not None and m.stamp_ns is not None else self._exif_stamps[i]
@@ -174,7 +180,7 @@ class ImageFolderReader:
             elif meta is not None and math.isfinite(meta.latitude_deg) and math.isfinite(meta.longitude_deg):
                 alt = meta.altitude_m if math.isfinite(meta.altitude_m) else meta.relative_altitude_m
                 if math.isfinite(alt):
-                    yield GeoFix(stamp, meta.latitude_deg, meta.longitude_deg, alt, status=0,
+                    yield GeoFix(self._fix_stamp(index, stamp), meta.latitude_deg, meta.longitude_deg, alt, status=0,
                                  position_covariance_m2=self._fix_covariance(meta), covariance_type=2)
                 latlon = (meta.latitude_deg, meta.longitude_deg)
             camera = None
@@ -191,6 +197,20 @@ class ImageFolderReader:
             if latlon is not None:
                 self.summary.centres[stamp] = latlon
             yield Frame(stamp, cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), camera, file.name)
+
+    def _fix_stamp(self, index: int, stamp: int) -> int:
+        """When a still's GPS position was fixed, on the capture clock: its GPS time tag moved by the
+        median offset between the two clocks over the survey (a camera clock set by hand is seconds
+        off; a camera writes its last fix, which can trail the capture), else the capture time.
+
+        The interpolation between fixes (the filter, the geotag fit) then puts each still where it was
+        when taken; a tag repeating the previous still's fix has its time too, and is dropped.
+        """
+        meta = self.meta[index]
+        if meta is None or meta.gps_stamp_ns is None or self._clock_offset_ns is None:
+            return stamp
+        fixed = int(meta.gps_stamp_ns) + self._clock_offset_ns
+        return fixed if abs(fixed - stamp) <= GPS_TAG_MAX_LAG_S * 1e9 else stamp
 
     @staticmethod
     def _fix_covariance(meta) -> np.ndarray:  # noqa: ANN001
