@@ -161,9 +161,24 @@ def _codec_name(stream: Any) -> str:  # noqa: ANN401
 def _inspect_bag(path: Path) -> dict[str, Any]:
     from .io.bags import bag_summary
 
-    summary = bag_summary(path)
-    out = {'input': str(path), 'kind': 'bag'}
-    out.update(summary.to_dict() if hasattr(summary, 'to_dict') else dict(vars(summary)))
+    b = bag_summary(path)
+    roles = dict(b.flight_topics)
+    out: dict[str, Any] = {'input': str(path), 'kind': 'bag', 'storage': b.storage,
+                           'metadata_version': b.metadata_version, 'files': list(b.files),
+                           'compression': b.compression or None, 'duration_s': round(b.duration_ns * 1e-9, 3),
+                           'messages': f'{b.messages_read} read of {b.message_count} in the metadata'}
+    out['topics'] = [f'{name} ({t.msgtype}, {t.count_read} of {t.count_metadata}{", " + t.note if t.note else ""})'
+                     for name, t in b.topics.items()]
+    if b.warnings:
+        out['warnings'] = list(b.warnings)
+    if b.missing:
+        out['missing_messages'] = dict(b.missing)
+    out['used'] = roles
+    out['missing'] = [f'{role} topic' for role in ('camera_info', 'fix', 'imu') if role not in roles and not b.refusal]
+    if b.refusal:
+        out['plan'] = f'refused: {b.refusal}'
+    else:
+        out['plan'] = _plan('fix' in roles, 'camera_info' in roles, 'imu' in roles, 'the Imu orientation')
     return out
 
 

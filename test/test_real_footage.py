@@ -78,3 +78,31 @@ def test_cli_inspect_and_truth_free_evaluate(aphill_out: Path) -> None:
     assert 'frames in main mosaic: 48/48' in run.stdout and 'position vs metadata' in run.stdout
     run = subprocess.run([*exe, 'inspect', str(REAL / 'nothing_here.ts')], capture_output=True, text=True, timeout=60)
     assert run.returncode == 2 and 'does not exist' in run.stderr and run.stderr.count('\n') == 1
+
+
+def test_klv_packets_failing_their_checksum_are_counted_and_left_out(tmp_path: Path) -> None:
+    """A damaged copy of the ST0601 fixture: one packet's checksum fails; it is left out, counted by
+    inspect and by process's report, and the video is processed."""
+    from srmosaic_ros.io.klv import read_klv
+
+    data = bytearray((REAL / 'klv' / 'h264_klv.ts').read_bytes())
+    key = bytes.fromhex('060E2B34020B01010E01030101000000')
+    at = data.find(key, data.find(key) + 1)  # the second ST0601 packet
+    data[at + 40] ^= 0xFF
+    damaged = tmp_path / 'damaged.ts'
+    damaged.write_bytes(bytes(data))
+    track = read_klv(damaged)
+    assert track.bad_checksum == 1 and len(track.records) == track.packets - 1
+    assert inspect_input(damaged)['klv']['bad_checksum'] == 1
+    report = process_input(damaged, tmp_path / 'out', PipelineConfig(), progress=False)
+    assert report['frames_in'] > 0
+    assert report['metadata']['problems'].get('klv_bad_checksum') == 1
+
+
+def test_inspect_a_bag_lists_topics_and_what_process_uses() -> None:
+    demo = inspect_input(Path(__file__).parents[1] / 'bags' / 'demo')
+    assert demo['kind'] == 'bag' and demo['used']['fix'] == '/fix'
+    assert demo['plan'].startswith('georeferenced through the filter')
+    talker = inspect_input(REAL / 'bags' / 'rosbag2' / 'galactic' / 'rosbag2_py' / 'resources' / 'talker')
+    assert talker['messages'] == '20 read of 20 in the metadata' and talker['warnings']
+    assert talker['plan'].startswith('refused: ') and 'no image topic' in talker['plan']

@@ -113,3 +113,24 @@ def test_geotags_of_a_hover_cannot_place_the_mosaic(tmp_path: Path) -> None:
     assert report['frames_registered'] == 10
     assert report['georeferenced'] is None
     assert 'less than 10 m' in report['not_georeferenced_reason'], report['not_georeferenced_reason']
+
+
+def test_a_gps_tag_that_jumps_is_gated_not_followed(drone_survey: Path, tmp_path: Path) -> None:
+    """One still tagged 300 m away (a glitch of the receiver): the filter refuses that fix, counts it,
+    and the survey stays where the truth is."""
+    from PIL import Image
+
+    folder = tmp_path / 'survey'
+    shutil.copytree(drone_survey / 'survey', folder)
+    still = sorted((folder / 'images').iterdir())[10]
+    with Image.open(still) as im:
+        pixels, xmp, exif = im.copy(), im.info.get('xmp'), im.getexif()
+    gps = exif.get_ifd(0x8825)
+    d, m, sec = gps[2]
+    gps[2] = (d, m, float(sec) + 10.0)  # 10 arc seconds north: about 300 m
+    pixels.save(still, quality=95, exif=exif, xmp=xmp)
+    report = process_input(folder, tmp_path / 'out', PipelineConfig(), progress=False)
+    assert report['georeferenced']['method'] == 'filter'
+    assert report['georeferenced']['skipped_telemetry'].get('fix_gated', 0) >= 1
+    figures = evaluate_dir(tmp_path / 'out', drone_survey / 'truth.json')
+    assert figures['georef_error_rms_m'] < 2.5, figures['georef_error_rms_m']  # 1.30 m without the glitch

@@ -158,8 +158,17 @@ class KlvVideoSource:
         self.track = track
         self.use_fov = use_fov and reader.camera is None
         self.summary = MetadataSummary(source=f'MISB KLV ({", ".join(sorted(track.standards))})')
-        self._pts = [r.pts_ns for r in track.records if r.pts_ns is not None]
         self._recs = [r for r in track.records if r.pts_ns is not None]
+        self._pts = [r.pts_ns for r in self._recs]
+        timed = [r for r in track.records if _finite(r.fields.get('precision_time_us'))]
+        if not self._recs and timed:
+            # an asynchronous stream (no presentation times): the packets' own clock, its first
+            # packet taken at the first frame
+            t0 = timed[0].fields['precision_time_us']
+            self._recs = sorted(timed, key=lambda r: r.fields['precision_time_us'])
+            self._pts = [round((r.fields['precision_time_us'] - t0) * 1000) for r in self._recs]
+            self.summary.note('asynchronous KLV: packets placed by their precision time stamps, the first at the '
+                              'first frame')
         if track.bad_checksum:
             self.summary.problems['klv_bad_checksum'] = int(track.bad_checksum)
             _LOG.warning('%s: %d KLV packets failed their checksum and were left out.', reader.path, track.bad_checksum)
