@@ -17,6 +17,7 @@ from tqdm import tqdm
 from .checkpoint import Checkpoint, checkpoint_path, fingerprint, load_checkpoint, save_checkpoint
 from .config import PipelineConfig
 from .io.bags import TopicConfig, read_flight
+from .io.metadata import merge_by_time
 from .io.mosaic_files import write_frames_csv, write_json, write_png
 from .errors import InputError, SrMosaicError
 from .io.mosaic_video import MosaicVideoRecorder
@@ -249,13 +250,6 @@ def write_outputs(result: PipelineResult, out: Path, config: PipelineConfig, ext
     return report
 
 
-def _merge_by_time(frames: Iterable[Frame], telemetry: list[Any]) -> Iterator[Any]:
-    """Interleave telemetry (sorted by stamp) before the frames that follow it in time."""
-    from .io.metadata import merge_by_time
-
-    return merge_by_time(frames, telemetry)
-
-
 def open_source(path: Path, *, topics: TopicConfig | None = None, select: str = 'all',
                 camera_yaml: Path | None = None, hfov_deg: float | None = None,
                 telemetry_csv: Path | None = None) -> tuple[Iterable[Any], Any, str]:
@@ -285,7 +279,7 @@ def open_source(path: Path, *, topics: TopicConfig | None = None, select: str = 
         if telemetry_csv is not None:
             from .io.telemetry_csv import read_telemetry_csv
 
-            items = _merge_by_time(reader, read_telemetry_csv(telemetry_csv))
+            items = merge_by_time(reader, read_telemetry_csv(telemetry_csv))
             reader.summary = MetadataSummary(source='telemetry CSV', fields=['gps position', 'attitude'])
             return items, reader, 'video'
         return _video_with_metadata(path, reader)
@@ -320,12 +314,12 @@ def _video_with_metadata(path: Path, reader: Any) -> tuple[Iterable[Any], Any, s
             summary.problems['srt_unusable'] += 1
         else:
             reader.summary = summary
-            return _merge_by_time(reader, items), reader, 'video'
+            return merge_by_time(reader, items), reader, 'video'
     gpmf = read_gpmf(path)
     if gpmf.gps:
         items = gpmf_items(gpmf, summary)
         reader.summary = summary
-        return _merge_by_time(reader, items), reader, 'video'
+        return merge_by_time(reader, items), reader, 'video'
     if track.packets:
         summary.note(f'{track.packets} KLV packets, none usable')
     reader.summary = summary
