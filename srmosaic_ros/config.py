@@ -18,6 +18,7 @@ from .core.mosaic.config import MosaicConfig
 from .core.sr.reconstruct import SRConfig
 from .core.sr.scheduler import SRTileConfig
 from .core.registration import RegistrationConfig
+from .core.survey.config import SurveyConfig
 from .errors import ConfigError
 
 __all__ = ['PipelineConfig', 'default_params_path', 'load_params', 'pipeline_config']
@@ -46,6 +47,7 @@ class PipelineConfig:
     georef: GeorefConfig = field(default_factory=GeorefConfig)
     sr: SRConfig = field(default_factory=SRConfig)
     sr_tiles: SRTileConfig = field(default_factory=SRTileConfig)
+    survey: SurveyConfig = field(default_factory=SurveyConfig)
 
 
 def default_params_path() -> Path:
@@ -135,4 +137,5 @@ def pipeline_config(overrides: dict[str, Any] | None = None, *, defaults: dict[s
         georef=_build(GeorefConfig, 'georef.', flat),
         sr=_build(SRConfig, 'sr.', {k: tuple(v) if isinstance(v, list) else v for k, v in flat.items()}),
         sr_tiles=_build(SRTileConfig, 'sr_tiles.', flat),
+        survey=_build(SurveyConfig, 'survey.', flat),
     )

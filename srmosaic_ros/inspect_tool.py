@@ -44,6 +44,25 @@ def _plan(positions: bool, intrinsics: bool, attitude: bool, attitude_what: str 
             '(stills)')
 
 
+def _stills_plan(path: Path, reader: Any) -> str:  # noqa: ANN401
+    """What `process` does with a folder of stills under the default parameters (survey.mode)."""
+    from .config import pipeline_config
+    from .survey import use_global_alignment
+
+    s = reader.summary
+    if use_global_alignment(reader, pipeline_config()):
+        att = ('their gimbal angles (XMP) as priors of each footprint\'s turn, scale and tilt'
+               if s.frames_with_attitude else 'no gimbal angles: the camera is taken as vertical within '
+               'survey.tilt_allowance_deg, the height from GPS baselines over registered displacements')
+        return ('aligned globally (survey.mode auto): pairs by predicted footprint, one robust solve with the GPS '
+                f'positions and {att}; georeferenced: mosaic.tif, mosaic.kml (no poses.csv)')
+    return _plan(s.frames_with_position > 0 or bool(reader.telemetry),
+                 s.frames_with_intrinsics > 0 and s.frames_with_attitude > 0,
+                 s.frames_with_attitude > 0, 'the gimbal angles in the XMP',
+                 why_fit='no gimbal angles in the XMP, so no camera attitude for the filter'
+                 if s.frames_with_intrinsics else 'no camera intrinsics in the EXIF')
+
+
 def _inspect_stills(path: Path) -> dict[str, Any]:
     from .io.exif import intrinsics_from_metadata
     from .io.image_folder import ImageFolderReader
@@ -67,12 +86,7 @@ def _inspect_stills(path: Path) -> dict[str, Any]:
         out['gps_altitude_m'] = {'min': min(alts), 'max': max(alts)}
     out['missing'] = _missing(s.frames, s.frames_with_position, s.frames_with_intrinsics, s.frames_with_attitude,
                               stamps=len(stamps))
-    # stills are placed by the filter only with their camera attitude (the gimbal angles)
-    out['plan'] = _plan(s.frames_with_position > 0 or bool(reader.telemetry),
-                        s.frames_with_intrinsics > 0 and s.frames_with_attitude > 0,
-                        s.frames_with_attitude > 0, 'the gimbal angles in the XMP',
-                        why_fit='no gimbal angles in the XMP, so no camera attitude for the filter'
-                        if s.frames_with_intrinsics else 'no camera intrinsics in the EXIF')
+    out['plan'] = _stills_plan(path, reader)
     return out
 
 

@@ -22,6 +22,7 @@ from .io.mosaic_files import write_frames_csv, write_json, write_png
 from .errors import InputError, SrMosaicError
 from .io.mosaic_video import MosaicVideoRecorder
 from .pipeline import SYNC_HOLD_FRAMES, Pipeline, PipelineResult
+from .core.georef.geotag_fit import GEOTAG_MIN_EXTENT_M
 from .core.image_ops import to_float01
 from .core.types import Frame
 
@@ -34,9 +35,7 @@ _LOG = logging.getLogger(__name__)
 #: Offline re-anchoring fits frame corners unless the height above ground is known worse than this
 #: (relative standard deviation, median over the frames): then the frame centres only.
 ANCHOR_CORNERS_MAX_REL_AGL_SD = 0.02
-#: The fit of a mosaic to its geotags needs them to span this much (m RMS from their mean), four
-#: times a consumer receiver's noise ...
-GEOTAG_MIN_EXTENT_M = 10.0
+#: The fit of a mosaic to its geotags needs them to span GEOTAG_MIN_EXTENT_M (geotag_fit.py) ...
 #: ... and fits only the offset when the similarity's rotation is known worse than the poses' heading,
 #: and than this (deg).
 ANCHOR_MIN_ROTATION_SD_DEG = 0.5
@@ -507,6 +506,15 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
     items, reader, kind = open_source(path, topics=topics, select=select, camera_yaml=camera_yaml,
                                       hfov_deg=hfov_deg, telemetry_csv=telemetry_csv)
     summary = getattr(reader, 'summary', None)
+    if kind == 'images':
+        from .survey import use_global_alignment
+
+        if use_global_alignment(reader, config):
+            if resume or mosaic_video:
+                msg = ('--resume and --mosaic-video apply to the chained pipeline; a survey aligned globally runs in '
+                       'one pass (no checkpoints). Drop them, or set survey.mode: chain.')
+                raise InputError(msg)
+            return _process_survey(path, out, config, reader, t0, sr_factor=sr_factor, progress=progress)
     config = _with_ground_hint(config, summary)
     settings = {'select': select, 'topics': repr(topics), 'config': repr(config), 'mosaic_video': mosaic_video,
                 'camera': str(camera_yaml), 'hfov': hfov_deg, 'telemetry': str(telemetry_csv)}
@@ -588,6 +596,39 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
     if error is not None:
         raise error
     shutil.rmtree(checkpoint_path(out).parent, ignore_errors=True)  # complete: the checkpoint is spent
+    return report
+
+
+def _process_survey(path: Path, out: Path, config: PipelineConfig, reader: Any, t0: float, *,  # noqa: ANN401
+                    sr_factor: int | None, progress: bool) -> dict[str, Any]:
+    """A folder of stills aligned globally (survey.py), with the report and SR as process_input's."""
+    from .survey import process_survey
+
+    report = process_survey(path, out, config, reader, progress=progress)
+    report = {'input': str(path), 'input_kind': 'images', 'skipped_messages': dict(reader.skipped), **report}
+    report['metadata'] = reader.summary.to_dict()
+    if report.get('georeferenced') is None:
+        report.setdefault('not_georeferenced_reason', 'the stills carry no GPS positions (EXIF GPS or '
+                          'telemetry_from_exif.csv): the survey is aligned on the first still\'s plane only.')
+        _LOG.warning('the mosaic is not georeferenced: %s', report['not_georeferenced_reason'])
+    report['config'] = {'device': config.device, 'registration': vars(config.registration),
+                        'mosaic': vars(config.mosaic),
+                        'survey': {k: (None if isinstance(v, float) and math.isnan(v) else v)
+                                   for k, v in vars(config.survey).items()}}
+    wall = time.perf_counter() - t0
+    report['wall_s'] = round(wall, 3)
+    report['frames_per_s'] = round(report['frames_in'] / wall, 2) if wall > 0 else None
+    report['peak_rss_mb'] = round(peak_rss_mb(), 1)
+    if sr_factor is not None:
+        from .sr_offline import super_resolve_mosaic
+
+        t_sr = time.perf_counter()
+        again, _, _ = open_source(path)
+        report['sr'] = super_resolve_mosaic(out, again, config, factor=sr_factor, progress=progress)
+        report['sr']['wall_s'] = round(time.perf_counter() - t_sr, 3)
+        report['wall_s'] = round(time.perf_counter() - t0, 3)
+        report['peak_rss_mb'] = round(peak_rss_mb(), 1)
+    write_json(out / 'report.json', report)
     return report
 
 

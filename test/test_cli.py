@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 import pytest
 
-from srmosaic_ros.io.mosaic_files import FRAMES_CSV_HEADER, FRAMES_CSV_META, read_frames_csv
+from srmosaic_ros.io.mosaic_files import FRAMES_CSV_HEADER, FRAMES_CSV_META, FRAMES_CSV_PLACED_BY, read_frames_csv
 
 ROOT = Path(__file__).resolve().parent.parent
 DEMO = ROOT / 'bags' / 'demo'
@@ -35,8 +35,9 @@ def test_process_writes_the_file_contracts(demo_out):
     with open(demo_out / 'frames.csv', newline='') as handle:
         rows = list(csv.reader(handle))
     assert rows[0][:13] == FRAMES_CSV_HEADER  # the contract's columns first, extras only at the end
-    assert rows[0][13:] == FRAMES_CSV_META
+    assert rows[0][13:] == [*FRAMES_CSV_META, FRAMES_CSV_PLACED_BY]
     assert len(rows) == 61
+    assert {r[-1] for r in rows[1:] if r[1] == '1'} == {'registration'}
     report = json.loads((demo_out / 'report.json').read_text())
     for key in ('frames_in', 'frames_registered', 'wall_s', 'peak_rss_mb'):
         assert key in report

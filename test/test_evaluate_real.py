@@ -26,9 +26,11 @@ CALITERRA = SEQUENCES / 'caliterra'
 
 @pytest.fixture(scope='module')
 def caliterra_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
-    """The 14 real Caliterra stills processed once (georeferenced by their geotags)."""
+    """The 14 real Caliterra stills processed once by the chained pipeline (georeferenced by their
+    geotags): upscaled into its mosaic, they exercise the evaluation's subsampling (the global
+    alignment of the same stills is tested in test_survey_process.py)."""
     out = tmp_path_factory.mktemp('caliterra') / 'out'
-    report = process_input(CALITERRA, out, pipeline_config(), progress=False)
+    report = process_input(CALITERRA, out, pipeline_config({'survey.mode': 'chain'}), progress=False)
     return out, report
 
 

@@ -12,13 +12,14 @@ from pathlib import Path
 
 import pytest
 
-from srmosaic_ros.config import PipelineConfig
+from srmosaic_ros.config import pipeline_config
 from srmosaic_ros.evaluate import evaluate_dir
 from srmosaic_ros.offline import process_input
 from srmosaic_ros.sim import SimConfig, save_truth, simulate
 from srmosaic_ros.sim.record import write_drone_stills
 
 REAL_EXIF = Path(__file__).parent / 'data' / 'real' / 'exif'
+CHAIN = pipeline_config({'survey.mode': 'chain'})
 
 
 @pytest.fixture(scope='module')
@@ -35,7 +36,7 @@ def drone_survey(tmp_path_factory) -> Path:  # noqa: ANN001
 
 def test_exif_xmp_stills_are_georeferenced_through_the_filter(drone_survey: Path, tmp_path: Path) -> None:
     assert not list((drone_survey / 'survey').glob('*.csv'))  # nothing but the images
-    report = process_input(drone_survey / 'survey', tmp_path, PipelineConfig(), progress=False)
+    report = process_input(drone_survey / 'survey', tmp_path, CHAIN, progress=False)
     assert report['frames_registered'] == 20 and len(report['segments']) == 1
     meta = report['metadata']
     assert meta['source'] == 'EXIF/XMP'
@@ -49,12 +50,12 @@ def test_exif_xmp_stills_are_georeferenced_through_the_filter(drone_survey: Path
     assert figures['georef_error_rms_m'] < 2.0, figures  # measured 1.30 m (GNSS sigma 2.5 m)
     # every still's own GPS position is written beside its row for the truth-free figures
     header = (tmp_path / 'frames.csv').read_text().splitlines()[0].split(',')
-    assert header[-2:] == ['meta_latitude', 'meta_longitude']
+    assert header[-3:] == ['meta_latitude', 'meta_longitude', 'placed_by']
 
 
 def test_without_gimbal_angles_stills_fall_back_to_the_geotag_fit(tmp_path: Path) -> None:
     """Real Canon stills: intrinsics from EXIF, no attitude: placed by the similarity to the geotags."""
-    report = process_input(REAL_EXIF, tmp_path, PipelineConfig(), progress=False)
+    report = process_input(REAL_EXIF, tmp_path, CHAIN, progress=False)
     meta = report['metadata']
     # IMG_9371's tag repeats IMG_9370's fix, taken 2 s before it: no position within 1 s for it
     assert meta['frames'] == 3 and meta['frames_with_position'] == 2 and meta['frames_with_attitude'] == 0
@@ -74,7 +75,7 @@ def test_a_still_without_gps_is_counted_not_fatal(drone_survey: Path, tmp_path: 
     with Image.open(first) as im:
         pixels, xmp = im.copy(), im.info.get('xmp')
     pixels.save(first, quality=95, xmp=xmp)  # EXIF (GPS, time, focal length) gone, XMP kept
-    report = process_input(folder, tmp_path / 'out', PipelineConfig(), progress=False)
+    report = process_input(folder, tmp_path / 'out', CHAIN, progress=False)
     assert report['metadata']['problems'].get('exif_no_gps') == 1
     assert report['metadata']['frames_with_position'] >= 19
     assert report['georeferenced'] is not None
@@ -109,7 +110,7 @@ def test_geotags_of_a_hover_cannot_place_the_mosaic(tmp_path: Path) -> None:
     flight = simulate(SimConfig(width=320, height=240, world_gsd_m=0.3, trajectory='line', frames=10, rate_hz=1.0,
                                 speed_m_s=1.0, fix_rate_hz=1.0, seed=4))
     folder = write_stills_folder(flight, tmp_path / 'hover')
-    report = process_input(folder, tmp_path / 'out', PipelineConfig(), progress=False)
+    report = process_input(folder, tmp_path / 'out', CHAIN, progress=False)
     assert report['frames_registered'] == 10
     assert report['georeferenced'] is None
     assert 'less than 10 m' in report['not_georeferenced_reason'], report['not_georeferenced_reason']
@@ -129,7 +130,7 @@ def test_a_gps_tag_that_jumps_is_gated_not_followed(drone_survey: Path, tmp_path
     d, m, sec = gps[2]
     gps[2] = (d, m, float(sec) + 10.0)  # 10 arc seconds north: about 300 m
     pixels.save(still, quality=95, exif=exif, xmp=xmp)
-    report = process_input(folder, tmp_path / 'out', PipelineConfig(), progress=False)
+    report = process_input(folder, tmp_path / 'out', CHAIN, progress=False)
     assert report['georeferenced']['method'] == 'filter'
     assert report['georeferenced']['skipped_telemetry'].get('fix_gated', 0) >= 1
     figures = evaluate_dir(tmp_path / 'out', drone_survey / 'truth.json')

@@ -8,8 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from srmosaic_ros.core.survey.global_align import (SurveyPriors, check_pairs_against_positions, estimate_scale,
-                                                   pair_constraint, solve_survey)
+from srmosaic_ros.core.georef.frames import R_enu_from_cam_aviation
+from srmosaic_ros.core.survey.global_align import (SurveyPriors, attitude_ground_H, check_pairs_against_positions,
+                                                   estimate_scale, pair_constraint, solve_survey)
 from srmosaic_ros.core.survey.pairs import disc_overlap, predicted_pairs
 
 W, H, F = 1000, 750, 800.0
@@ -147,3 +148,28 @@ def test_without_any_position_the_largest_component_is_solved_on_its_own_plane()
     relative = [_corner_error_m(60.0 * np.linalg.inv(sol.ground_H_frame[0]) @ sol.ground_H_frame[k],
                                 60.0 * np.linalg.inv(Gs[0]) @ Gs[k]) for k in range(len(pos))]
     assert max(relative) < 0.2
+
+
+def test_max_per_frame_keeps_each_frames_largest_overlaps():
+    _, pos, _ = _lawnmower()
+    wh = np.tile(_footprint_wh(60.0) * 3, (len(pos), 1))  # seen from high up: everything overlaps
+    every = predicted_pairs(pos, wh, min_overlap=0.2)
+    few = predicted_pairs(pos, wh, min_overlap=0.2, max_per_frame=4)
+    assert len(few) < len(every) / 3
+    for k in range(len(pos)):
+        mine = sorted(((f, (i, j)) for i, j, f in every if k in (i, j)), reverse=True)[:4]
+        kept = {(i, j) for i, j, _ in few}
+        assert all(key in kept for _, key in mine)
+
+
+def test_attitude_ground_H_of_a_nadir_camera_and_of_a_tilted_one():
+    """Nadir, image top to the north: the reflected similarity of scale = height; tilted 10 deg
+    forward, the principal ray still meets the ground at the given centre and the image top
+    stretches away (a projective term)."""
+    G = attitude_ground_H(R_enu_from_cam_aviation(0.0, -90.0, 0.0), np.array([5.0, 7.0]), 60.0)  # noqa: N806
+    assert np.allclose(G, _ground_H(5.0, 7.0, 60.0, 0.0), atol=1e-9)
+    G = attitude_ground_H(R_enu_from_cam_aviation(0.0, -80.0, 0.0), np.array([5.0, 7.0]), 60.0)  # noqa: N806
+    c = G @ [0.0, 0.0, 1.0]
+    assert np.allclose(c[:2] / c[2], [5.0, 7.0])
+    top, bottom = G @ [0.0, -0.4, 1.0], G @ [0.0, 0.4, 1.0]
+    assert top[1] / top[2] - 7.0 > 7.0 - bottom[1] / bottom[2] > 0  # farther ground is wider apart

@@ -20,6 +20,7 @@ import numpy as np
 __all__ = [
     'FRAMES_CSV_HEADER',
     'FRAMES_CSV_META',
+    'FRAMES_CSV_PLACED_BY',
     'atomic_path',
     'read_frames_csv',
     'write_frames_csv',
@@ -31,6 +32,10 @@ FRAMES_CSV_HEADER = ['stamp_ns', 'ok', 'inliers', 'rms_px'] + [f'h{r}{c}' for r 
 #: Trailing columns: where the input's own metadata puts the frame centre on the ground (WGS84 deg;
 #: the GPS position of a nadir still, the KLV frame centre of a video frame), NaN when it does not say.
 FRAMES_CSV_META = ['meta_latitude', 'meta_longitude']
+#: The last column: how the frame was placed in mosaic.png: 'registration' (by its registrations:
+#: the chain, or a survey's global solve), 'pose' (a survey's still in no registered pair, placed by
+#: its GPS position and heading alone) or empty (not in mosaic.png).
+FRAMES_CSV_PLACED_BY = 'placed_by'
 
 
 @contextmanager
@@ -81,17 +86,19 @@ def write_png(path: str | os.PathLike[str], image: np.ndarray, coverage: np.ndar
 
 def write_frames_csv(path: str | os.PathLike[str], rows: Iterable[dict[str, Any]]) -> None:
     """frames.csv: one row per input frame; h = mosaic_H_frame (NaN when the frame is not in mosaic.png);
-    ``meta_latlon`` (lat, lon) of a row fills the FRAMES_CSV_META columns (NaN when absent)."""
+    ``meta_latlon`` (lat, lon) of a row fills the FRAMES_CSV_META columns (NaN when absent);
+    ``placed_by`` the last column (default: 'registration' for a row in mosaic.png, else empty)."""
     with _atomic_text(path) as handle:
         writer = csv.writer(handle)
-        writer.writerow(FRAMES_CSV_HEADER + FRAMES_CSV_META)
+        writer.writerow([*FRAMES_CSV_HEADER, *FRAMES_CSV_META, FRAMES_CSV_PLACED_BY])
         for row in rows:
             H = row.get('mosaic_H_frame')  # noqa: N806
             h = [float('nan')] * 9 if H is None else [float(v) for v in np.asarray(H, dtype=np.float64).ravel()]
             rms = row.get('rms_px', float('nan'))
             meta = row.get('meta_latlon') or (float('nan'), float('nan'))
+            placed = row.get('placed_by', 'registration' if H is not None and row['ok'] else '')
             writer.writerow([int(row['stamp_ns']), int(bool(row['ok'])), int(row.get('inliers', 0)),
-                             f'{rms:.6g}'] + [repr(v) for v in h] + [f'{float(v):.9f}' for v in meta])
+                             f'{rms:.6g}', *[repr(v) for v in h], *[f'{float(v):.9f}' for v in meta], placed])
 
 
 def read_frames_csv(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
@@ -106,7 +113,8 @@ def read_frames_csv(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
         for rec in reader:
             H = np.array([float(rec[f'h{r}{c}']) for r in range(3) for c in range(3)]).reshape(3, 3)  # noqa: N806
             rows.append({'stamp_ns': int(rec['stamp_ns']), 'ok': rec['ok'] == '1', 'inliers': int(rec['inliers']),
-                         'rms_px': float(rec['rms_px']), 'mosaic_H_frame': H})
+                         'rms_px': float(rec['rms_px']), 'mosaic_H_frame': H,
+                         'placed_by': rec.get(FRAMES_CSV_PLACED_BY) or ('registration' if rec['ok'] == '1' else '')})
     return rows
 
 

@@ -34,9 +34,12 @@ import numpy as np
 from .anchoring import fit_similarity
 from .georeferencer import GeoRaster, utm_epsg
 
-__all__ = ['GeotagFit', 'fit_mosaic_to_geotags']
+__all__ = ['GEOTAG_MIN_EXTENT_M', 'GeotagFit', 'fit_mosaic_to_geotags']
 
 MIN_FRAMES = 3
+#: Geotags must span this much (m RMS from their mean), four times a consumer receiver's noise,
+#: to set a mosaic's scale and rotation.
+GEOTAG_MIN_EXTENT_M = 10.0
 MIN_SIGMA_M = 1.0      # residual floor of the outlier test (consumer GNSS is not better)
 REJECT_SIGMAS = 3.0
 

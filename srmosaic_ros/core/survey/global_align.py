@@ -31,6 +31,7 @@ direction plus the camera's median offset from it), and stay fixed (``placed_by`
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -64,12 +65,16 @@ class SurveyPriors:
     """What the metadata says. position_m (N, 2): ground point of each frame's principal ray,
     metres east/north on the survey's plane (NaN: unknown); position_sigma_m (N,); scale_m: the
     frames' nominal scale (height above ground for a nadir camera, metres per normalised unit);
-    track_rad (N,): direction of flight at each frame, counter-clockwise from east (NaN: unknown)."""
+    track_rad (N,): direction of flight at each frame, counter-clockwise from east (NaN: unknown);
+    shape: frame -> (ground_H_frame (3, 3) its attitude and height predict, sd in metres of the
+    predicted corner offsets from the centre): where the camera's attitude is known (gimbal angles),
+    the footprint's turn, scale and tilt are known to about that (see attitude_ground_H)."""
 
     position_m: np.ndarray
     position_sigma_m: np.ndarray
     scale_m: float
     track_rad: np.ndarray | None = None
+    shape: dict[int, tuple[np.ndarray, float]] = field(default_factory=dict)
     shape_sigma: float = 0.05
     perspective_sigma: float = 0.2
     scale_rel_sigma: float = 0.25
@@ -119,6 +124,22 @@ def _scale_jac(h: np.ndarray) -> np.ndarray:
     out = np.zeros((len(h), 8))
     out[:, 0], out[:, 4], out[:, 1], out[:, 3] = g * h[:, 4], g * h[:, 0], -g * h[:, 3], -g * h[:, 1]
     return out
+
+
+_SHAPE_POINTS = np.array([[-0.5, -0.4], [0.5, -0.4], [0.5, 0.4], [-0.5, 0.4]])
+
+
+def attitude_ground_H(R_enu_from_cam: np.ndarray, centre_m: np.ndarray, height_m: float) -> np.ndarray:  # noqa: N802, N803
+    """(3, 3) ground_H_frame of a camera (normalised coordinates -> ground metres) whose optical centre
+    is ``height_m`` above the flat ground and whose principal ray meets it at ``centre_m`` (east,
+    north), looking along R_enu_from_cam's z axis (eqs. 4.23-4.29 for a single pose). A ray
+    d = R (x, y, 1) from C meets the ground at C_xy - C_z d_xy / d_z, i.e. the homography rows
+    (C_xy R_2 - C_z R_01) over R_2, normalised to g22 = 1."""
+    R = np.asarray(R_enu_from_cam, dtype=np.float64)  # noqa: N806
+    axis = R[:, 2]
+    C = np.array([centre_m[0] + height_m * axis[0] / axis[2], centre_m[1] + height_m * axis[1] / axis[2], height_m])  # noqa: N806
+    G = np.vstack([C[0] * R[2] - C[2] * R[0], C[1] * R[2] - C[2] * R[1], R[2]])  # noqa: N806
+    return G / G[2, 2]
 
 
 def _h8(H: np.ndarray) -> np.ndarray:  # noqa: N803
@@ -362,6 +383,21 @@ class _Problem:
         self.scale = scale
         self.pri = pri
         self.anchor = [(self.col[k], _h8(H)) for k, H in anchor.items() if k in self.col]
+        shp = [(self.col[k], G, sd) for k, (G, sd) in pri.shape.items() if k in self.col]  # noqa: N806
+        if shp:
+            m = len(_SHAPE_POINTS)
+            self.shape_col = np.repeat([c for c, _, _ in shp], m)
+            self.shape_pts = np.tile(_SHAPE_POINTS, (len(shp), 1))
+            tgt = []
+            for _, G, _ in shp:  # noqa: N806
+                hp = np.tile(_h8(G), (m, 1))
+                e, nn, _ = _apply(hp, _SHAPE_POINTS)
+                e0, n0, _ = _apply(hp[:1], np.zeros((1, 2)))
+                tgt.append(np.stack([e - e0, nn - n0], axis=1))
+            self.shape_target = np.concatenate(tgt)
+            self.shape_w = np.repeat([1.0 / sd for _, _, sd in shp], m)
+        else:
+            self.shape_col = np.zeros(0, int)
 
     def _transfer(self, h: np.ndarray, *, jacobian: bool = False) -> tuple:
         """Transfer error of every pair point in frame i's normalised coordinates: the ground point
@@ -405,6 +441,11 @@ class _Problem:
         out += [(h[:, 0] + h[:, 4]) / (s0 * pri.shape_sigma), (h[:, 1] - h[:, 3]) / (s0 * pri.shape_sigma),
                 h[:, 6] / pri.perspective_sigma, h[:, 7] / pri.perspective_sigma,
                 (np.sqrt(np.abs(h[:, 0] * h[:, 4] - h[:, 1] * h[:, 3])) - s0) / (s0 * pri.scale_rel_sigma)]
+        if len(self.shape_col):
+            hs = h[self.shape_col]
+            e, nn, _ = _apply(hs, self.shape_pts)
+            e0, n0, _ = _apply(hs, np.zeros_like(self.shape_pts))
+            out += [(e - e0 - self.shape_target[:, 0]) * self.shape_w, (nn - n0 - self.shape_target[:, 1]) * self.shape_w]
         for c, target in self.anchor:  # no positions anywhere: the root holds the gauge
             out.append((h[c] - target) * 1e3)
         return np.concatenate(out)
@@ -454,6 +495,17 @@ class _Problem:
             cols.append(f * 8 + k)
             vals.append(sgn * v)
         r0 += n
+        if len(self.shape_col):
+            hs = h[self.shape_col]
+            je, jn = _point_jac(hs, self.shape_pts)
+            je0, jn0 = _point_jac(hs, np.zeros_like(self.shape_pts))
+            q = len(self.shape_col)
+            for block, (j1, j0) in enumerate(((je, je0), (jn, jn0))):
+                for k in range(8):
+                    rows.append(r0 + block * q + np.arange(q))
+                    cols.append(self.shape_col * 8 + k)
+                    vals.append((j1[:, k] - j0[:, k]) * self.shape_w)
+            r0 += 2 * q
         for c, _ in self.anchor:
             rows.append(r0 + np.arange(8))
             cols.append(c * 8 + np.arange(8))
@@ -534,9 +586,25 @@ def solve_survey(n: int, pairs: list[PairConstraint], priors: SurveyPriors, *, m
     pos = np.asarray(priors.position_m, dtype=np.float64)
     georeferenced = bool(np.isfinite(pos).all(axis=1).any())
     gross = 0
+    rejected_positions: list[int] = []
     if georeferenced and math.isfinite(priors.scale_m):
-        # a wrong match between look-alike places: its baseline disagrees with the GPS baseline
-        use &= check_pairs_against_positions(pairs, pos, np.asarray(priors.position_sigma_m), priors.scale_m)
+        # A wrong match between look-alike places: its baseline disagrees with the GPS baseline.
+        # A wrong position (a receiver's glitch): most of its still's pairs disagree; then the
+        # position goes, not the pairs.
+        sd = np.asarray(priors.position_sigma_m, dtype=np.float64)
+        ok = check_pairs_against_positions(pairs, pos, sd, priors.scale_m)
+        fails, count = np.zeros(n), np.zeros(n)
+        for p, good in zip(pairs, ok):
+            for k in (p.i, p.j):
+                count[k] += 1
+                fails[k] += not good
+        rejected_positions = [k for k in range(n) if fails[k] >= 2 and fails[k] > 0.5 * count[k]]
+        if rejected_positions:
+            pos = pos.copy()
+            pos[rejected_positions] = np.nan
+            priors = dataclasses.replace(priors, position_m=pos)
+            ok = check_pairs_against_positions(pairs, pos, sd, priors.scale_m)
+        use &= ok
         gross = int((~use).sum())
     G, placed_by = _initial(n, pairs, use, priors, min_extent_m)  # noqa: N806
     free = [k for k in range(n) if placed_by[k] == 'registration']
@@ -582,6 +650,7 @@ def solve_survey(n: int, pairs: list[PairConstraint], priors: SurveyPriors, *, m
         if placed_by[k] and np.isfinite(pos[k]).all():
             gps_res.append(float(np.hypot(G[k][0, 2] / G[k][2, 2] - pos[k, 0], G[k][1, 2] / G[k][2, 2] - pos[k, 1])))
     figures = {'pairs': len(pairs), 'pairs_used': int(use.sum()), 'pairs_against_gps': gross, 'pairs_dropped': dropped,
+               'positions_rejected': rejected_positions,
                'frames_by_registration': placed_by.count('registration'), 'frames_by_pose': placed_by.count('pose'),
                'frames_not_placed': placed_by.count(''),
                'median_pair_rms_sigma': float(np.nanmedian(rms)) if np.isfinite(rms).any() else None,

@@ -35,7 +35,7 @@ def disc_overlap(distance_m: np.ndarray | float, radius_m: np.ndarray | float) -
 
 
 def predicted_pairs(centres_m: np.ndarray, footprint_wh_m: np.ndarray, *, min_overlap: float = 0.2,
-                    consecutive: bool = True) -> list[tuple[int, int, float]]:
+                    max_per_frame: int = 0, consecutive: bool = True) -> list[tuple[int, int, float]]:
     """Candidate pairs (i, j, predicted overlap) with i < j, sorted by (j, i).
 
     Args:
@@ -43,6 +43,10 @@ def predicted_pairs(centres_m: np.ndarray, footprint_wh_m: np.ndarray, *, min_ov
             rows with NaN (no position) take part only as consecutive pairs.
         footprint_wh_m: (N, 2) footprint width and height on the ground, metres (NaN: unknown).
         min_overlap: smallest predicted overlap fraction of a pair (0..1).
+        max_per_frame: keep a pair only when it is among the ``max_per_frame`` largest predicted
+            overlaps of one of its frames (0: all). A small survey seen from high up overlaps
+            every frame with dozens; the nearest few hold it together as well, at a fraction of
+            the registrations.
         consecutive: also every (i, i + 1), whatever its predicted overlap (NaN when unknown).
     """
     centres = np.asarray(centres_m, dtype=np.float64).reshape(-1, 2)
@@ -64,6 +68,15 @@ def predicted_pairs(centres_m: np.ndarray, footprint_wh_m: np.ndarray, *, min_ov
             f = float(disc_overlap(d, 0.5 * (radius[i] + radius[j])))
             if f >= min_overlap:
                 pairs[(i, j)] = f
+    if max_per_frame > 0 and pairs:
+        best: dict[int, list[tuple[float, tuple[int, int]]]] = {}
+        for key, f in pairs.items():
+            for k in key:
+                best.setdefault(k, []).append((f, key))
+        keep = set()
+        for cands in best.values():
+            keep.update(key for _, key in sorted(cands, reverse=True)[:max_per_frame])
+        pairs = {key: f for key, f in pairs.items() if key in keep}
     if consecutive:
         for i in range(len(centres) - 1):
             if (i, i + 1) not in pairs:

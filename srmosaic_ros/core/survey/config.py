@@ -1,0 +1,66 @@
+"""Survey settings; the field names are the keys under `survey.` in params/*.yaml."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+__all__ = ['SURVEY_MODES', 'SurveyConfig']
+
+SURVEY_MODES = ('auto', 'global', 'chain')
+
+
+@dataclass(frozen=True)
+class SurveyConfig:
+    """How a folder of stills is mosaicked (see srmosaic_ros/survey.py).
+
+    mode: 'global' aligns every frame at once (pairs by predicted footprint, one robust solve);
+        'chain' runs the stills through the video pipeline (consecutive pairs, segments);
+        'auto': global when at least three stills carry a GPS position, else chain.
+    working_megapixels: stills are decoded reduced (JPEG DCT scaling by 2, 4 or 8) to at most
+        this size for registration.
+    min_overlap: smallest predicted footprint overlap (0..1) of a candidate pair;
+        max_pairs_per_frame: a pair is kept when it is among the largest predicted overlaps of
+        one of its frames (0: all).
+    mosaic_gsd_m: the mosaic's ground sampling distance (NaN: the stills' median at full size);
+        max_mosaic_megapixels caps the mosaic's area (the GSD grows to fit).
+    blend: 'multiband' (each ground point from the frame that sees it closest to its centre,
+        eq. 4.7, blended across seams, Table 2) or 'feather'.
+    feature_cache_frames: described frames kept for the pairs to come (the others are described
+        again when a pair needs them): bounds memory whatever the number of stills.
+    model_px: sd (working-resolution pixels) of what the planar model leaves out (lens
+        distortion, relief), added to each registered point's own.
+    tilt_allowance_deg: without a camera attitude, the optical axis is taken as vertical within
+        this; its offset on the ground (height x tan) widens each GPS position's sd.
+    """
+
+    mode: str = 'auto'
+    working_megapixels: float = 1.0
+    min_overlap: float = 0.2
+    max_pairs_per_frame: int = 10
+    mosaic_gsd_m: float = math.nan
+    max_mosaic_megapixels: float = 150.0
+    blend: str = 'multiband'
+    feature_cache_frames: int = 48
+    model_px: float = 1.0
+    tilt_allowance_deg: float = 5.0
+
+    def __post_init__(self) -> None:
+        checks = {
+            'mode': self.mode in SURVEY_MODES,
+            'working_megapixels': 0.05 <= self.working_megapixels <= 100.0,
+            'min_overlap': 0.0 <= self.min_overlap < 1.0,
+            'max_pairs_per_frame': isinstance(self.max_pairs_per_frame, int) and self.max_pairs_per_frame >= 0,
+            'mosaic_gsd_m': math.isnan(self.mosaic_gsd_m) or self.mosaic_gsd_m > 0.0,
+            'max_mosaic_megapixels': self.max_mosaic_megapixels >= 1.0,
+            'blend': self.blend in ('feather', 'multiband'),
+            'feature_cache_frames': isinstance(self.feature_cache_frames, int) and self.feature_cache_frames >= 2,
+            'model_px': self.model_px > 0.0,
+            'tilt_allowance_deg': 0.0 <= self.tilt_allowance_deg < 45.0,
+        }
+        bad = [name for name, ok in checks.items() if not ok]
+        if bad:
+            values = ', '.join(f'survey.{name}={getattr(self, name)!r}' for name in bad)
+            msg = (f'invalid survey parameters: {values} (mode auto|global|chain, working_megapixels 0.05..100, '
+                   'min_overlap [0, 1), max_pairs_per_frame >= 0, mosaic_gsd_m > 0 or NaN, max_mosaic_megapixels >= 1, blend feather|multiband, '
+                   'feature_cache_frames >= 2, model_px > 0, tilt_allowance_deg [0, 45)).')
+            raise ValueError(msg)

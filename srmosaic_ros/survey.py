@@ -1,0 +1,464 @@
+"""A folder of survey stills in one georeferenced mosaic, by global alignment (`srmosaic process FOLDER`).
+
+Chaining consecutive stills (the video pipeline) breaks where a survey is hardest: line turns,
+wide baselines, textureless fields end a segment and segments are never joined. Here:
+
+1. Metadata: each still's GPS position at its capture time, intrinsics and attitude (EXIF/XMP,
+   io/exif.py via io/image_folder.py).
+2. Working resolution: stills are decoded reduced by JPEG DCT scaling (OpenCV's IMREAD_REDUCED_*)
+   to at most ``survey.working_megapixels`` and described once; a bounded cache keeps the features
+   of the last ``survey.feature_cache_frames`` (a frame evicted and needed again is described again).
+3. Pairs: consecutive stills first, which give the survey's scale (GPS baseline over registered
+   displacement: the height above ground, which the caliterra survey's GPS altitude, climbing
+   114 m, cannot give); then every pair whose predicted footprints overlap (core/survey/pairs.py).
+4. One solve (core/survey/global_align.py): every still's ground homography from all pairs and
+   the GPS positions, wrong matches dropped; stills in no pair placed by their position and
+   heading (frames.csv ``placed_by`` 'pose').
+5. The mosaic: a north-up UTM raster at the stills' ground sampling distance; each still decoded
+   again at the reduction that still resolves that GSD, painted by best view (max-weight masks,
+   eq. 4.7) and blended across the seams (Table 2). Memory: the canvas tiles (spilled beyond
+   mosaic.max_tiles_in_memory) and one still in flight.
+
+Outputs follow the `process` contract: mosaic.png and mosaic.tif (one grid), mosaic.kml,
+preview.png, frames.csv (with ``placed_by``), report.json (``survey``: pairs, solve, timings).
+There is no poses.csv: the solve places footprints on the ground, not camera poses.
+"""
+from __future__ import annotations
+
+import collections
+import logging
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+from .config import PipelineConfig
+from .core.georef.frames import R_enu_from_cam_aviation
+from .core.georef.georeferencer import GeoRaster, utm_epsg
+from .core.georef.geotag_fit import GEOTAG_MIN_EXTENT_M, geotags_at
+from .core.mosaic.canvas import CanvasError, TiledCanvas
+from .core.registration import make_registrar
+from .core.survey.global_align import (PairConstraint, SurveyPriors, attitude_ground_H, estimate_scale,
+                                       pair_constraint, solve_survey)
+from .core.survey.pairs import predicted_pairs
+from .errors import InputError
+from .io.image_folder import ImageFolderReader
+from .io.metadata import RECORDED_ATTITUDE_SIGMA_DEG
+
+__all__ = ['SurveyStill', 'process_survey', 'read_reduced', 'reduction_for', 'use_global_alignment']
+
+_LOG = logging.getLogger(__name__)
+_REDUCED = {1: cv2.IMREAD_COLOR, 2: cv2.IMREAD_REDUCED_COLOR_2, 4: cv2.IMREAD_REDUCED_COLOR_4,
+            8: cv2.IMREAD_REDUCED_COLOR_8}
+#: Unknown focal length: the normalised coordinates use this many pixels per unit of the longer
+#: side (about a 55 deg field of view); the scale the solve finds is then not a height.
+NOMINAL_FOCAL_PER_SIDE = 1.0
+
+
+@dataclass
+class SurveyStill:
+    """One still: file, size (w, h) as decoded at full size, stamp_ns, K (3, 3) full-size intrinsics,
+    position_m (east, north on the survey plane, NaN), latlon (the GPS fix at capture, NaN)."""
+
+    file: Path
+    size: tuple[int, int]
+    stamp_ns: int
+    K: np.ndarray  # noqa: N815
+    focal_known: bool
+    position_m: np.ndarray
+    latlon: tuple[float, float]
+    nadir_view: bool
+    R_enu_from_cam: np.ndarray | None = None  # noqa: N815 - from the gimbal angles (None: unknown)
+    height_m: float = math.nan  # above the ground: the XMP's height above take-off (NaN: unknown)
+
+
+def reduction_for(width: int, height: int, max_megapixels: float) -> int:
+    """The smallest JPEG reduction (1, 2, 4, 8) that brings width x height to at most max_megapixels."""
+    for r in (1, 2, 4, 8):
+        if math.ceil(width / r) * math.ceil(height / r) <= max_megapixels * 1e6:
+            return r
+    return 8
+
+
+def read_reduced(file: Path, reduction: int) -> np.ndarray:
+    """RGB uint8 (H, W, 3) of a still decoded reduced by 1, 2, 4 or 8 (JPEG: in the DCT, without
+    decoding the full image; other formats: decoded, then reduced by OpenCV), as stored (no
+    EXIF rotation: intrinsics and angles refer to the sensor)."""
+    bgr = cv2.imread(str(file), _REDUCED[reduction] | cv2.IMREAD_IGNORE_ORIENTATION)
+    if bgr is None:
+        msg = f'{file}: the image cannot be decoded.'
+        raise InputError(msg)
+    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+
+
+def _full_from_reduced(r: int) -> np.ndarray:
+    """(3, 3) pixel of an image reduced by r -> pixel of the full image (pixel centres at integers)."""
+    return np.array([[r, 0.0, (r - 1) / 2.0], [0.0, r, (r - 1) / 2.0], [0.0, 0.0, 1.0]])
+
+
+def use_global_alignment(reader: ImageFolderReader, config: PipelineConfig) -> bool:
+    """Whether `process` aligns this folder globally (survey.mode, 'auto': >= 3 stills with GPS)."""
+    mode = config.survey.mode
+    if mode != 'auto':
+        return mode == 'global'
+    return sum(1 for m in reader.meta if m is not None and m.has_position) >= 3 or len(reader.telemetry) >= 3
+
+
+def _stills(reader: ImageFolderReader) -> tuple[list[SurveyStill], int, tuple[float, float]]:
+    """Every still of the folder with its metadata; (stills, UTM EPSG, plane origin (e0, n0) in UTM m)."""
+    from pyproj import Transformer
+
+    stills_meta = []
+    fixes = []
+    for i, file in enumerate(reader.files):
+        meta = reader.meta[i]
+        stamp = reader._stamp_ns(i, file.name)  # noqa: SLF001 - the reader's capture clock
+        row = reader.telemetry.get(file.name)
+        lat = lon = math.nan
+        if row:
+            try:
+                lat, lon = float(row['lat']), float(row['lon'])
+                fixes.append((stamp, lon, lat))
+            except (KeyError, ValueError):
+                pass
+        elif meta is not None and meta.has_position:
+            fixes.append((reader._fix_stamp(i, stamp), meta.longitude_deg, meta.latitude_deg))  # noqa: SLF001
+        stills_meta.append((file, meta, stamp))
+    fixes.sort()
+    dedup = [f for k, f in enumerate(fixes) if k == 0 or f[1:] != fixes[k - 1][1:]]  # a tag repeating the last fix
+    stamps = np.array([s for _, _, s in stills_meta], dtype=np.int64)
+    if dedup:
+        lonlat = geotags_at(np.array([f[0] for f in dedup], dtype=np.int64), np.array([f[1:] for f in dedup]),
+                            stamps, max_gap_s=30.0)
+    else:
+        lonlat = np.full((len(stamps), 2), np.nan)
+    ok = np.isfinite(lonlat).all(axis=1)
+    epsg, to_utm = 0, None
+    origin = (0.0, 0.0)
+    if ok.any():
+        lon0, lat0 = np.median(lonlat[ok], axis=0)
+        epsg = utm_epsg(float(lat0), float(lon0))
+        to_utm = Transformer.from_crs(4326, epsg, always_xy=True)
+        e, n = to_utm.transform(lonlat[ok, 0], lonlat[ok, 1])
+        origin = (float(np.round(np.mean(e))), float(np.round(np.mean(n))))
+    stills = []
+    for k, (file, meta, stamp) in enumerate(stills_meta):
+        w, h = (meta.width_px, meta.height_px) if meta is not None else _size_of(file)
+        camera = reader._camera(meta, w, h) if meta is not None else None  # noqa: SLF001
+        if camera is not None:
+            K = np.array([[camera.fx, 0.0, camera.cx], [0.0, camera.fy, camera.cy], [0.0, 0.0, 1.0]])  # noqa: N806
+        else:
+            f = NOMINAL_FOCAL_PER_SIDE * max(w, h)
+            K = np.array([[f, 0.0, (w - 1) / 2.0], [0.0, f, (h - 1) / 2.0], [0.0, 0.0, 1.0]])  # noqa: N806
+        pos = np.array([math.nan, math.nan])
+        if ok[k] and to_utm is not None:
+            e, n = to_utm.transform(lonlat[k, 0], lonlat[k, 1])
+            pos = np.array([e - origin[0], n - origin[1]])
+        nadir = meta is None or meta.gimbal_ypr_deg is None or abs(meta.gimbal_ypr_deg[1] + 90.0) <= 10.0
+        R = None  # noqa: N806
+        if meta is not None and meta.gimbal_ypr_deg is not None:
+            R = R_enu_from_cam_aviation(*meta.gimbal_ypr_deg)  # noqa: N806
+        height = meta.relative_altitude_m if meta is not None else math.nan
+        stills.append(SurveyStill(file, (w, h), int(stamp), K, camera is not None, pos,
+                                  (float(lonlat[k, 1]), float(lonlat[k, 0])), nadir, R, float(height)))
+    return stills, epsg, origin
+
+
+def _size_of(file: Path) -> tuple[int, int]:
+    from PIL import Image
+
+    with Image.open(file) as im:
+        return im.size
+
+
+class _FeatureCache:
+    """Features of the working-resolution stills, the last ``size`` described kept (LRU)."""
+
+    def __init__(self, registrar: Any, stills: list[SurveyStill], reduction: list[int], size: int,  # noqa: ANN401
+                 max_features: int) -> None:
+        self.registrar, self.stills, self.reduction, self.size = registrar, stills, reduction, size
+        self.max_features = max_features
+        self.cache: collections.OrderedDict[int, Any] = collections.OrderedDict()
+        self.described = 0
+        self.unreadable: dict[int, str] = {}
+
+    def get(self, k: int) -> Any:  # noqa: ANN401
+        if k in self.unreadable:
+            return None
+        if k in self.cache:
+            self.cache.move_to_end(k)
+            return self.cache[k]
+        try:
+            image = read_reduced(self.stills[k].file, self.reduction[k])
+        except InputError as exc:
+            self.unreadable[k] = str(exc)
+            return None
+        feats = _compact(self.registrar.describe(image), self.max_features)
+        self.described += 1
+        self.cache[k] = feats
+        while len(self.cache) > self.size:
+            self.cache.popitem(last=False)
+        return feats
+
+
+def _compact(features: Any, max_features: int) -> Any:  # noqa: ANN401
+    """Torch features described up to max_features at once, without the scale-space gradients kept
+    for describing more later (7.5 of 12 MB for a 1000x750 still): a cached still costs its
+    pyramid, templates and descriptors only (about 5 MB)."""
+    import dataclasses
+
+    primary = getattr(features, 'primary', features)
+    if hasattr(primary, 'candidates') and hasattr(primary, 'extend'):
+        primary.extend(max_features)
+        c = primary.candidates
+        # new empty tensors: a slice would keep the whole buffer alive
+        primary.candidates = dataclasses.replace(c, xy=c.xy[:0].clone(), sub_level=c.sub_level[:0].clone(),
+                                                 octave=c.octave[:0].clone(), response=c.response[:0].clone(),
+                                                 tall=c.tall[:, :, :0].clone(), count=None)
+    return features
+
+
+def _working_K(still: SurveyStill, r: int) -> np.ndarray:  # noqa: N802
+    return np.linalg.inv(_full_from_reduced(r)) @ still.K
+
+
+def process_survey(path: Path, out: Path, config: PipelineConfig, reader: ImageFolderReader, *,
+                   progress: bool = True) -> dict[str, Any]:
+    """Align, mosaic and write a folder of stills (module docstring); returns the report (the caller
+    adds timings and writes report.json)."""
+    t0 = time.perf_counter()
+    scfg = config.survey
+    stills, epsg, origin = _stills(reader)
+    n = len(stills)
+    reduction = [reduction_for(s.size[0], s.size[1], scfg.working_megapixels) for s in stills]
+    registrar = make_registrar(config.registration, config.device)
+    cache = _FeatureCache(registrar, stills, reduction, scfg.feature_cache_frames,
+                          config.registration.max_features)
+    pos = np.array([s.position_m for s in stills])
+    registrations: dict[tuple[int, int], Any] = {}
+
+    def register(i: int, j: int) -> PairConstraint | None:
+        fi, fj = cache.get(i), cache.get(j)
+        if fi is None or fj is None:
+            return None
+        reg = registrar.register(fi, fj)
+        registrations[(i, j)] = reg
+        if not reg.ok:
+            return None
+        wi, wj = (math.ceil(stills[i].size[0] / reduction[i]), math.ceil(stills[i].size[1] / reduction[i])), \
+            (math.ceil(stills[j].size[0] / reduction[j]), math.ceil(stills[j].size[1] / reduction[j]))
+        return pair_constraint(i, j, reg.prev_H_cur, reg.covariance, _working_K(stills[i], reduction[i]),
+                               _working_K(stills[j], reduction[j]), wi, wj, inliers=reg.inliers,
+                               model_px=scfg.model_px)
+
+    t_reg = time.perf_counter()
+    pairs: list[PairConstraint] = []
+    bar = tqdm(total=max(n - 1, 0), unit='pair', desc='survey: consecutive pairs', disable=not progress)
+    with bar:
+        for i in range(n - 1):
+            c = register(i, i + 1)
+            if c is not None:
+                pairs.append(c)
+            bar.update(1)
+    sigma_gps = float(config.georef.gps_sigma_h_m)
+    has_gps = bool(np.isfinite(pos).all(axis=1).sum() >= 3)
+    georef_note = '' if has_gps else 'fewer than three stills carry a GPS position'
+    if has_gps:
+        known = pos[np.isfinite(pos).all(axis=1)]
+        extent = float(np.sqrt(np.mean(np.sum((known - known.mean(axis=0)) ** 2, axis=1))))
+        if extent < GEOTAG_MIN_EXTENT_M:
+            # a hover or a pan: GNSS noise, not the flight, would set the mosaic's scale and rotation
+            georef_note = (f'the stills\' GPS positions span {extent:.1f} m RMS, less than {GEOTAG_MIN_EXTENT_M:g} m: '
+                           'their GNSS noise, not the flight, would set the mosaic\'s scale and rotation (a hover, '
+                           'a pan)')
+            has_gps = False
+            pos = np.full_like(pos, np.nan)
+    scale = estimate_scale(pairs, pos, min_baseline_m=3.0 * sigma_gps) if has_gps else math.nan
+    focal_known = all(s.focal_known for s in stills)
+    scale_source = 'GPS baselines over the registered displacements of consecutive stills'
+    if not math.isfinite(scale):
+        scale = float(config.georef.nominal_agl_m)
+        scale_source = f'georef.nominal_agl_m ({scale:g} m): no consecutive pair with a GPS baseline registered'
+    # footprint on the ground at the survey's scale: width / fx x scale
+    wh = np.array([[s.size[0] / s.K[0, 0] * scale, s.size[1] / s.K[1, 1] * scale] for s in stills])
+    candidates = predicted_pairs(pos, wh, min_overlap=scfg.min_overlap,
+                                                    max_per_frame=scfg.max_pairs_per_frame) if has_gps else \
+        [(i, i + 1, math.nan) for i in range(n - 1)]
+    more = [(i, j) for i, j, _ in candidates if j != i + 1]
+    bar = tqdm(total=len(more), unit='pair', desc='survey: pairs by footprint', disable=not progress)
+    with bar:
+        for i, j in more:
+            c = register(i, j)
+            if c is not None:
+                pairs.append(c)
+            bar.update(1)
+    t_reg = time.perf_counter() - t_reg
+    cache.cache.clear()  # the features are spent: the canvas gets the memory
+
+    t_solve = time.perf_counter()
+    # Where each still's principal ray meets the ground: below the camera within the tilt allowance,
+    # or, with gimbal angles, offset along the optical axis by the height (to within their 1 deg).
+    target = pos.copy()
+    sigma = np.full(n, float(np.hypot(sigma_gps, scale * math.tan(math.radians(scfg.tilt_allowance_deg)))))
+    shape = {}
+    att_sd = math.radians(RECORDED_ATTITUDE_SIGMA_DEG)
+    for k, st in enumerate(stills):
+        if st.R_enu_from_cam is None:
+            continue
+        axis = st.R_enu_from_cam[:, 2]
+        if axis[2] >= -0.2:
+            target[k] = np.nan  # looking at the horizon: its GPS position says little about its view
+            continue
+        height = st.height_m if math.isfinite(st.height_m) else scale
+        target[k] = pos[k] - axis[:2] / axis[2] * height
+        sigma[k] = float(np.hypot(sigma_gps, height * math.tan(att_sd)))
+        if np.isfinite(target[k]).all() and st.focal_known:
+            # the footprint's turn, scale and tilt from the attitude and the height: corner offsets of
+            # about half the height, known to the attitude's sd (and the height's, 5 % when estimated)
+            rel_height_sd = 0.01 if math.isfinite(st.height_m) else 0.05
+            sd = 0.6 * height * float(np.hypot(att_sd * 1.5, rel_height_sd))
+            shape[k] = (attitude_ground_H(st.R_enu_from_cam, target[k], height), max(sd, 0.05))
+    track = np.full(n, np.nan)
+    for k in range(n):
+        a, b = pos[max(k - 1, 0)], pos[min(k + 1, n - 1)]
+        if np.isfinite(a).all() and np.isfinite(b).all() and np.hypot(*(b - a)) >= 1.0:
+            track[k] = math.atan2(b[1] - a[1], b[0] - a[0])
+    priors = SurveyPriors(target, sigma, scale, track, shape)
+    sol = solve_survey(n, pairs, priors)
+    t_solve = time.perf_counter() - t_solve
+
+    t_paint = time.perf_counter()
+    report, rows = _paint_and_write(out, config, stills, sol, epsg, origin, progress=progress, has_gps=has_gps)
+    t_paint = time.perf_counter() - t_paint
+    pairs_of = collections.Counter()
+    for p, u in zip(pairs, sol.pair_used):
+        if u:
+            pairs_of[p.i] += 1
+            pairs_of[p.j] += 1
+    failures = collections.Counter(reg.reason.split(' (')[0] for reg in registrations.values() if not reg.ok)
+    if georef_note:
+        report['not_georeferenced_reason'] = f'{georef_note}; the survey is aligned on its first still\'s plane only.'
+    report['survey'] = {
+        'method': 'global alignment' if has_gps else 'global alignment (no GPS: not georeferenced)',
+        'working_reduction': collections.Counter(reduction).most_common(1)[0][0],
+        'working_megapixels': scfg.working_megapixels,
+        'scale_m': scale, 'scale_source': scale_source,
+        'height_above_ground_m': scale if focal_known else None,
+        'position_sigma_m': float(np.median(sigma)),
+        'pairs_tried': len(registrations), 'pairs_registered': len(pairs),
+        'pairs_consecutive_tried': n - 1, 'pairs_by_footprint_tried': len(more),
+        'registration_failures': dict(failures),
+        'frames_described': cache.described, 'feature_cache_frames': scfg.feature_cache_frames,
+        'unreadable': dict(cache.unreadable),
+        'median_pairs_per_frame': float(np.median([pairs_of[k] for k in range(n)])) if n else 0.0,
+        **sol.figures,
+        'pairs_graph': [[[p.i, p.j], bool(u)] for p, u in zip(pairs, sol.pair_used)],  # frame indices, used
+        'time_s': {'register': round(t_reg, 3), 'solve': round(t_solve, 3), 'paint_and_write': round(t_paint, 3),
+                   'total': round(time.perf_counter() - t0, 3)},
+    }
+    report['frames_in'] = n
+    report['registration'] = {
+        'median_inliers': float(np.median([p.inliers for p in pairs])) if pairs else None,
+        'median_rms_px': float(np.median([r.rms_px for r in registrations.values() if r.ok])) if pairs else None,
+        'median_ms': float(np.median([r.time_s for r in registrations.values()]) * 1e3) if registrations else None,
+    }
+    _LOG.info('survey: %d of %d stills placed (%d by registration, %d by pose), %d of %d pairs used, '
+              'position residual %.2f m RMS', sum(r['ok'] for r in rows), n, sol.placed_by.count('registration'),
+              sol.placed_by.count('pose'), int(sol.pair_used.sum()), len(pairs),
+              sol.figures['position_residual_rms_m'] or math.nan)
+    return report
+
+
+def _paint_and_write(out: Path, config: PipelineConfig, stills: list[SurveyStill], sol: Any, epsg: int,  # noqa: ANN401
+                     origin: tuple[float, float], *, progress: bool, has_gps: bool) -> tuple[dict[str, Any], list]:
+    """Paint the placed stills on a north-up raster and write mosaic.png/.tif/.kml, preview.png,
+    frames.csv; returns (the report without the survey entry, the frames.csv rows)."""
+    from .io.kml import write_kml_for_raster
+    from .io.mosaic_files import write_frames_csv, write_png
+    from .offline import StripPreview, _write_canvas
+
+    scfg = config.survey
+    n = len(stills)
+    placed = [k for k in range(n) if sol.placed_by[k] and np.all(np.isfinite(sol.ground_H_frame[k]))]
+    # ground metres per full-size pixel at each still's centre
+    gsd = {k: math.sqrt(abs(np.linalg.det(sol.ground_H_frame[k][:2, :2] / sol.ground_H_frame[k][2, 2])))
+           / float(stills[k].K[0, 0]) for k in placed}
+    corners = {}
+    for k in placed:
+        w, h = stills[k].size
+        c = sol.ground_H_frame[k] @ np.linalg.inv(stills[k].K) @ np.array(
+            [[-0.5, w - 0.5, w - 0.5, -0.5], [-0.5, -0.5, h - 0.5, h - 0.5], [1.0, 1, 1, 1]])
+        corners[k] = (c[:2] / c[2]).T if np.all(c[2] > 0) else None
+    placed = [k for k in placed if corners[k] is not None]
+    if not placed:
+        msg = ('no still could be placed: none registered with another and none carries a GPS position; '
+               'check that the stills overlap, or give their positions (EXIF GPS or telemetry_from_exif.csv).')
+        raise InputError(msg)
+    pts = np.concatenate([corners[k] for k in placed])
+    g = scfg.mosaic_gsd_m if math.isfinite(scfg.mosaic_gsd_m) else float(np.median([gsd[k] for k in placed]))
+    e_min, n_min = pts.min(axis=0)
+    e_max, n_max = pts.max(axis=0)
+    area_px = (e_max - e_min) * (n_max - n_min) / g**2
+    if area_px > scfg.max_mosaic_megapixels * 1e6:
+        g *= math.sqrt(area_px / (scfg.max_mosaic_megapixels * 1e6))
+    raster = GeoRaster(epsg or 32631, g, origin[0] + float(e_min), origin[1] + float(n_max))
+    raster_H_local = raster.raster_H_utm @ np.array([[1.0, 0, origin[0]], [0, 1.0, origin[1]], [0, 0, 1]])  # noqa: N806
+    canvas = TiledCanvas(3, config.mosaic.tile_size, blend=scfg.blend, max_canvas_side_px=config.mosaic.max_canvas_side_px,
+                         max_tiles_in_memory=config.mosaic.max_tiles_in_memory, spill_dir=config.mosaic.spill_dir)
+    canvas_H = {}  # noqa: N806
+    refused: dict[int, str] = {}
+    with canvas:
+        bar = tqdm(total=len(placed), unit='still', desc='survey: paint', disable=not progress)
+        with bar:
+            for k in placed:
+                H = raster_H_local @ sol.ground_H_frame[k] @ np.linalg.inv(stills[k].K)  # noqa: N806
+                r = 1
+                for cand in (8, 4, 2):  # the largest reduction that still resolves the mosaic's GSD
+                    if gsd[k] * cand <= g * 1.0001:
+                        r = cand
+                        break
+                try:
+                    image = read_reduced(stills[k].file, r)
+                    canvas.paint(image.astype(np.float32) / 255.0, H @ _full_from_reduced(r))
+                    canvas_H[k] = H
+                except (InputError, CanvasError) as exc:
+                    refused[k] = str(exc)
+                bar.update(1)
+        x0, y0, x1, y1 = canvas.bounds()
+        mosaic_raster = raster.shifted(x0, y0)
+        preview = StripPreview(y1 - y0, x1 - x0, canvas.channels, config.mosaic.preview_max_side_px)
+        tif = out / 'mosaic.tif' if has_gps else None
+        _write_canvas(canvas, tif, out / 'mosaic.png', mosaic_raster if has_gps else None, preview)
+        write_png(out / 'preview.png', preview.image())
+        canvas_stats = canvas.tile_stats()
+    if has_gps:
+        write_kml_for_raster(out / 'mosaic.kml', 'mosaic.png', mosaic_raster, x1 - x0, y1 - y0)
+    else:
+        for stale in ('mosaic.tif', 'mosaic.kml'):
+            (out / stale).unlink(missing_ok=True)
+    (out / 'poses.csv').unlink(missing_ok=True)  # an earlier run's: a survey writes no poses
+    shift = np.array([[1.0, 0, -x0], [0, 1.0, -y0], [0, 0, 1]])
+    rows = []
+    for k, s in enumerate(stills):
+        H = shift @ canvas_H[k] if k in canvas_H else None  # noqa: N806
+        rows.append({'stamp_ns': s.stamp_ns, 'ok': H is not None, 'inliers': 0, 'rms_px': float('nan'),
+                     'mosaic_H_frame': H, 'meta_latlon': s.latlon if s.nadir_view and math.isfinite(s.latlon[0]) else None,
+                     'placed_by': sol.placed_by[k] if H is not None else ''})
+    write_frames_csv(out / 'frames.csv', rows)
+    report: dict[str, Any] = {
+        'frames_registered': int(sum(r['ok'] for r in rows)),
+        'frames_painted_any_segment': int(sum(r['ok'] for r in rows)),
+        'segments': [{'index': 0, 'frames': len(canvas_H), 'file': 'mosaic.png', 'georeferenced': has_gps,
+                      'size_px': [int(x1 - x0), int(y1 - y0)], 'origin_px': [0, 0]}],
+        'placed_by': dict(collections.Counter(r['placed_by'] for r in rows if r['placed_by'])),
+        'refused_by_canvas': {stills[k].file.name: why for k, why in refused.items()},
+        'georeferenced': ({'method': 'global alignment', 'epsg': mosaic_raster.epsg, 'gsd_m_per_px': mosaic_raster.gsd_m_per_px,
+                           'geotransform': list(mosaic_raster.geotransform)} if has_gps else None),
+        'canvas': canvas_stats,
+    }
+    return report, rows
