@@ -169,8 +169,10 @@ def main() -> int:
     ap.add_argument('--sim', action='store_true', help='also the working-resolution cost on a simulated survey')
     ap.add_argument('--sim-only', action='store_true', help='only that')
     args = ap.parse_args()
-    if args.sim or args.sim_only:
-        args.out.mkdir(parents=True, exist_ok=True)
+    args.out.mkdir(parents=True, exist_ok=True)
+    if not args.sim_only:
+        caliterra(args)
+    if args.sim or args.sim_only:  # in this process, after the runs (a child inherits its parent's peak RSS)
         sim = sim_working_resolution(args.out)
         for r in sim:
             print(f"simulated 2000x1500 survey at {r['working_megapixels']:g} MP (reduction {r['reduction']}): "
@@ -178,9 +180,10 @@ def main() -> int:
                   f"{r['corner_error_mean_px']} px mean / {r['corner_error_max_px']} max (mosaic px of "
                   f"{r['gsd_m']:.3f} m), register {r['register_s']} s, wall {r['wall_s']} s, peak {r['peak_rss_mb']} MB")
         (args.out / 'sim_figures.json').write_text(json.dumps(sim, indent=2))
-        if args.sim_only:
-            return 0
-    args.out.mkdir(parents=True, exist_ok=True)
+    return 0
+
+
+def caliterra(args: argparse.Namespace) -> None:
     results = [run('global', args.out / 'global')]
     if not args.skip_chain:
         results.append(run('chain', args.out / 'chain'))
@@ -200,7 +203,6 @@ def main() -> int:
           f"residual {odm['residual_rms_m']:.2f} m RMS (ODM's PNG at {odm['odm_gsd_m']:.3f} m/px, turned "
           f"{odm['rotation_deg']:.2f} deg from ours)")
     (args.out / 'figures.json').write_text(json.dumps({'runs': results, 'odm': odm}, indent=2))
-    return 0
 
 
 if __name__ == '__main__':

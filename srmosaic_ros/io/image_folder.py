@@ -84,7 +84,8 @@ class ImageFolderReader:
                 s.problem('exif_unreadable', f'{file.name}: {exc}')
                 continue
             self.meta[i] = meta
-            if not (math.isfinite(meta.latitude_deg) and math.isfinite(meta.longitude_deg)):
+            if not (math.isfinite(meta.latitude_deg) and math.isfinite(meta.longitude_deg)) \
+                    and file.name not in self.telemetry:  # the telemetry CSV's position stands for it
                 s.problem('exif_no_gps', f'{file.name}: no GPS position in its EXIF; the frame is placed by '
                           'registration only')
             if meta.gimbal_ypr_deg is not None:
