@@ -286,9 +286,17 @@ def process_survey(path: Path, out: Path, config: PipelineConfig, reader: ImageF
         scale_source = f'georef.nominal_agl_m ({scale:g} m): no consecutive pair with a GPS baseline registered'
     # footprint on the ground at the survey's scale: width / fx x scale
     wh = np.array([[s.size[0] / s.K[0, 0] * scale, s.size[1] / s.K[1, 1] * scale] for s in stills])
-    candidates = predicted_pairs(pos, wh, min_overlap=scfg.min_overlap,
-                                                    max_per_frame=scfg.max_pairs_per_frame) if has_gps else \
-        [(i, i + 1, math.nan) for i in range(n - 1)]
+    centres = pos
+    if not has_gps:
+        # No positions: the chain of consecutive pairs predicts the footprints (on the first
+        # still's plane, in its height's units), so a line that comes back over old ground finds it.
+        chain = solve_survey(n, pairs, SurveyPriors(np.full((n, 2), np.nan), np.full(n, np.nan), 1.0))
+        G = chain.ground_H_frame  # noqa: N806
+        centres = np.array([G[k][:2, 2] / G[k][2, 2] if chain.placed_by[k] else [np.nan, np.nan] for k in range(n)])
+        wh = np.array([[s.size[0] / s.K[0, 0], s.size[1] / s.K[1, 1]] for s in stills]) * np.array(
+            [[math.sqrt(abs(np.linalg.det(G[k][:2, :2] / G[k][2, 2]))) if chain.placed_by[k] else np.nan]
+             for k in range(n)])
+    candidates = predicted_pairs(centres, wh, min_overlap=scfg.min_overlap, max_per_frame=scfg.max_pairs_per_frame)
     more = [(i, j) for i, j, _ in candidates if j != i + 1]
     bar = tqdm(total=len(more), unit='pair', desc='survey: pairs by footprint', disable=not progress)
     with bar:
