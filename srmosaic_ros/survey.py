@@ -28,6 +28,7 @@ from __future__ import annotations
 import collections
 import logging
 import math
+import re
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -348,7 +349,9 @@ def process_survey(path: Path, out: Path, config: PipelineConfig, reader: ImageF
         if u:
             pairs_of[p.i] += 1
             pairs_of[p.j] += 1
-    failures = collections.Counter(reg.reason.split(' (')[0] for reg in registrations.values() if not reg.ok)
+    # counted per kind: 'perspective change # exceeds #', not one key per value
+    failures = collections.Counter(re.sub(r'\d+(\.\d+)?', '#', reg.reason.split(' (')[0])
+                                   for reg in registrations.values() if not reg.ok)
     if georef_note:
         report['not_georeferenced_reason'] = f'{georef_note}; the survey is aligned on its first still\'s plane only.'
     report['survey'] = {
