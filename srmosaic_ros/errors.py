@@ -13,6 +13,7 @@ __all__ = [
     'BagError',
     'InputError',
     'MetadataError',
+    'OutputError',
     'RegistrationError',
     'SimulationError',
 ]
@@ -44,6 +45,11 @@ class MetadataError(InputError):
     A single bad record (a packet failing its checksum, an SRT block without GPS) is not an error:
     readers count and skip it, and say so in the report.
     """
+
+
+class OutputError(SrMosaicError):
+    """The output directory cannot take a run's files (a file in its place, no permission, a name too
+    long, no space): found before any processing."""
 
 
 class RegistrationError(SrMosaicError):

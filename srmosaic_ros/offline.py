@@ -4,6 +4,7 @@ from __future__ import annotations
 import collections
 import logging
 import math
+import os
 import resource
 import shutil
 import time
@@ -19,7 +20,7 @@ from .config import PipelineConfig
 from .io.bags import TopicConfig, read_flight
 from .io.metadata import merge_by_time
 from .io.mosaic_files import write_frames_csv, write_json, write_png
-from .errors import InputError, SrMosaicError
+from .errors import InputError, OutputError, SrMosaicError
 from .io.mosaic_video import MosaicVideoRecorder
 from .pipeline import SYNC_HOLD_FRAMES, Pipeline, PipelineResult
 from .core.georef.geotag_fit import GEOTAG_MIN_EXTENT_M
@@ -487,6 +488,35 @@ def _geotag_fit(result: PipelineResult, origin: tuple[int, int], config: Pipelin
     return fit
 
 
+def check_output_dir(out: Path) -> None:
+    """Make sure ``out`` can take a run's files before any work is done: it is (or is created as) a
+    directory one can write into. Raises OutputError naming the problem and the way out."""
+    import tempfile
+
+    out = Path(out)
+    too_long = [part for part in out.parts if len(os.fsencode(part)) > 255]
+    if too_long:
+        msg = f'--out {out}: the name {too_long[0][:40]}... is longer than 255 bytes; give a shorter directory name.'
+        raise OutputError(msg)
+    if out.exists() and not out.is_dir():
+        msg = f'--out {out} is a file, not a directory; give a directory (it is created if missing).'
+        raise OutputError(msg)
+    parent = out
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        msg = f'--out {out} lies under {parent}, which is a file; give a directory elsewhere.'
+        raise OutputError(msg)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(prefix='.write-test.', dir=out)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        msg = f'--out {out} cannot be written ({exc.strerror or exc}); give a directory you may write to.'
+        raise OutputError(msg) from None
+
+
 def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: TopicConfig | None = None,
                   select: str = 'all', camera_yaml: Path | None = None, hfov_deg: float | None = None,
                   telemetry_csv: Path | None = None, mosaic_video: bool = False,
@@ -506,6 +536,7 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
     items, reader, kind = open_source(path, topics=topics, select=select, camera_yaml=camera_yaml,
                                       hfov_deg=hfov_deg, telemetry_csv=telemetry_csv)
     summary = getattr(reader, 'summary', None)
+    check_output_dir(out)  # before the work, not after it
     if kind == 'images':
         from .survey import use_global_alignment
 

@@ -111,3 +111,19 @@ def test_bad_params_file_refused(tmp_path):
     run = srmosaic('process', str(DEMO), '--out', str(tmp_path / 'out'), '--params', str(params))
     assert run.returncode == 2
     assert 'unknown parameter' in run.stderr
+
+
+@pytest.mark.parametrize('case', ['file', 'under_file', 'unwritable', 'long_name'])
+def test_an_unusable_out_is_refused_before_any_work(tmp_path: Path, case: str) -> None:
+    """--out that is a file, lies under one, cannot be written or has a 256-byte name: one line,
+    exit 2, before the input is processed (it used to end in a traceback after every frame)."""
+    a_file = tmp_path / 'report.txt'
+    a_file.write_text('keep me')
+    out = {'file': a_file, 'under_file': a_file / 'out', 'unwritable': Path('/proc/srmosaic-out'),
+           'long_name': tmp_path / ('x' * 256)}[case]
+    run = srmosaic('process', str(DEMO), '--out', str(out), '--no-progress')
+    assert run.returncode == 2, run.stderr
+    lines = run.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith('srmosaic process: error: --out '), run.stderr
+    assert 'Traceback' not in run.stderr and a_file.read_text() == 'keep me'
+    assert 'frames in mosaic.png' not in run.stdout
