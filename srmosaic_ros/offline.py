@@ -488,6 +488,36 @@ def _geotag_fit(result: PipelineResult, origin: tuple[int, int], config: Pipelin
     return fit
 
 
+#: What `process` writes into --out; an earlier run's copy that this run did not write again is removed.
+RUN_OUTPUTS = ('mosaic.png', 'preview.png', 'mosaic.tif', 'mosaic.kml', 'poses.csv', 'frames.csv', 'mosaic.mp4',
+               'segments', 'sr')
+
+
+def remove_stale_outputs(out: Path, since: float, margin_s: float = 2.0) -> list[str]:
+    """Remove the outputs in ``out`` (RUN_OUTPUTS; inside segments/ and sr/, file by file) last written
+    before ``since`` (time.time() at the run's start, less ``margin_s`` for coarse file-system clocks):
+    a run into the folder of an earlier one leaves one run's files, not a mix (a non-georeferenced
+    run must not leave the earlier mosaic.tif beside its mosaic.png). Returns the names removed."""
+    removed = []
+    limit = since - margin_s
+    for name in RUN_OUTPUTS:
+        path = out / name
+        if path.is_dir():
+            for f in sorted(path.rglob('*')):
+                if f.is_file() and f.stat().st_mtime < limit:
+                    f.unlink()
+                    removed.append(str(f.relative_to(out)))
+            if path.is_dir() and not any(path.iterdir()):
+                path.rmdir()
+        elif path.is_file() and path.stat().st_mtime < limit:
+            path.unlink()
+            removed.append(name)
+    if removed:
+        _LOG.info('removed %d outputs of an earlier run that this one did not write: %s', len(removed),
+                  ', '.join(removed[:8]))
+    return removed
+
+
 def check_output_dir(out: Path) -> None:
     """Make sure ``out`` can take a run's files before any work is done: it is (or is created as) a
     directory one can write into. Raises OutputError naming the problem and the way out."""
@@ -530,6 +560,7 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
     (see checkpoint.py); resume=True continues from the last checkpoint in `out`.
     """
     t0 = time.perf_counter()
+    started = time.time()
     if checkpoint_every < 0:
         msg = f'--checkpoint-every must be >= 0, got {checkpoint_every}.'
         raise InputError(msg)
@@ -545,7 +576,7 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
                 msg = ('--resume and --mosaic-video apply to the chained pipeline; a survey aligned globally runs in '
                        'one pass (no checkpoints). Drop them, or set survey.mode: chain.')
                 raise InputError(msg)
-            return _process_survey(path, out, config, reader, t0, sr_factor=sr_factor, progress=progress)
+            return _process_survey(path, out, config, reader, t0, started, sr_factor=sr_factor, progress=progress)
     config = _with_ground_hint(config, summary)
     settings = {'select': select, 'topics': repr(topics), 'config': repr(config), 'mosaic_video': mosaic_video,
                 'camera': str(camera_yaml), 'hfov': hfov_deg, 'telemetry': str(telemetry_csv)}
@@ -623,6 +654,8 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
         report['sr']['wall_s'] = round(time.perf_counter() - t_sr, 3)
         report['wall_s'] = round(time.perf_counter() - t0, 3)
         report['peak_rss_mb'] = round(peak_rss_mb(), 1)
+    if error is None:  # a failed run leaves what it wrote beside the earlier outputs (issue 21: staging)
+        report['stale_outputs_removed'] = remove_stale_outputs(out, started)
     write_json(out / 'report.json', report)
     if error is not None:
         raise error
@@ -630,7 +663,7 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
     return report
 
 
-def _process_survey(path: Path, out: Path, config: PipelineConfig, reader: Any, t0: float, *,  # noqa: ANN401
+def _process_survey(path: Path, out: Path, config: PipelineConfig, reader: Any, t0: float, started: float, *,  # noqa: ANN401
                     sr_factor: int | None, progress: bool) -> dict[str, Any]:
     """A folder of stills aligned globally (survey.py), with the report and SR as process_input's."""
     from .survey import process_survey
@@ -659,6 +692,7 @@ def _process_survey(path: Path, out: Path, config: PipelineConfig, reader: Any, 
         report['sr']['wall_s'] = round(time.perf_counter() - t_sr, 3)
         report['wall_s'] = round(time.perf_counter() - t0, 3)
         report['peak_rss_mb'] = round(peak_rss_mb(), 1)
+    report['stale_outputs_removed'] = remove_stale_outputs(out, started)
     write_json(out / 'report.json', report)
     return report
 

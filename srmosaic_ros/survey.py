@@ -454,10 +454,6 @@ def _paint_and_write(out: Path, config: PipelineConfig, stills: list[SurveyStill
         canvas_stats = canvas.tile_stats()
     if has_gps:
         write_kml_for_raster(out / 'mosaic.kml', 'mosaic.png', mosaic_raster, x1 - x0, y1 - y0)
-    else:
-        for stale in ('mosaic.tif', 'mosaic.kml'):
-            (out / stale).unlink(missing_ok=True)
-    (out / 'poses.csv').unlink(missing_ok=True)  # an earlier run's: a survey writes no poses
     shift = np.array([[1.0, 0, -x0], [0, 1.0, -y0], [0, 0, 1]])
     rows = []
     for k, s in enumerate(stills):

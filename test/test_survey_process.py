@@ -168,3 +168,24 @@ def test_without_gps_the_chain_predicts_the_pairs_that_join_the_lines(drone_surv
     assert report['survey']['pairs_by_footprint_tried'] > 0
     figures = evaluate_dir(tmp_path / 'out', drone_survey / 'truth.json')
     assert figures['corner_error_mean_px'] < 1.0, figures  # measured 0.13 px mean, 0.42 max (80 pairs predicted)
+
+
+def test_a_run_into_an_earlier_runs_folder_leaves_one_runs_files(tmp_path: Path) -> None:
+    """A georeferenced run, then one without georeferencing into the same --out: the earlier
+    mosaic.tif and mosaic.kml (which would place the new mosaic.png wrongly) are removed, and the
+    report says so; the files of the new run stay."""
+    import os
+    import time
+
+    process_input(CALITERRA, tmp_path, pipeline_config(), progress=False)
+    assert (tmp_path / 'mosaic.tif').is_file() and (tmp_path / 'mosaic.kml').is_file()
+    old = time.time() - 60  # as if that run had ended a minute ago
+    for f in tmp_path.iterdir():
+        os.utime(f, (old, old))
+    report = process_input(CALITERRA, tmp_path, pipeline_config({'georef.enabled': False, 'survey.mode': 'chain'}),
+                           progress=False)
+    assert report['georeferenced'] is None
+    assert sorted(report['stale_outputs_removed']) == ['mosaic.kml', 'mosaic.tif']
+    assert not (tmp_path / 'mosaic.tif').exists() and not (tmp_path / 'mosaic.kml').exists()
+    for name in ('mosaic.png', 'frames.csv', 'report.json', 'preview.png'):
+        assert (tmp_path / name).stat().st_mtime > old + 30
