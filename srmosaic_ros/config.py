@@ -21,7 +21,7 @@ from .core.registration import RegistrationConfig
 from .core.survey.config import SurveyConfig
 from .errors import ConfigError
 
-__all__ = ['PipelineConfig', 'default_params_path', 'load_params', 'pipeline_config']
+__all__ = ['PipelineConfig', 'check_type', 'default_params_path', 'load_params', 'pipeline_config']
 
 DEVICES = ('auto', 'cpu', 'cuda')
 
@@ -107,6 +107,35 @@ def _build(cls: type, prefix: str, flat: dict[str, Any]) -> Any:
         raise ConfigError(str(exc)) from None
 
 
+_KINDS = {bool: 'a boolean (true or false, unquoted)', int: 'an integer', float: 'a number', str: 'a string',
+          list: 'a list'}
+
+
+def check_type(key: str, value: Any, default: Any) -> Any:  # noqa: ANN401
+    """``value`` for parameter ``key`` if it has the type of its default (params/default.yaml): a
+    boolean for a boolean (a quoted "false" is a string, and would read as true), an integer for an
+    integer, a number (integer or float, not a boolean) for a float, a string for a string, a list
+    for a list; ConfigError naming the key, the expected type and what was given otherwise."""
+    if default is None or value is None:
+        return value
+    kind = bool if isinstance(default, bool) else int if isinstance(default, int) else \
+        float if isinstance(default, float) else str if isinstance(default, str) else \
+        list if isinstance(default, (list, tuple)) else None
+    ok = {bool: lambda v: isinstance(v, bool),
+          int: lambda v: isinstance(v, int) and not isinstance(v, bool),
+          float: lambda v: isinstance(v, (int, float)) and not isinstance(v, bool),
+          str: lambda v: isinstance(v, str),
+          list: lambda v: isinstance(v, (list, tuple)),
+          None: lambda v: True}[kind](value)
+    if not ok:
+        given = f'the string {value!r}' if isinstance(value, str) else f'{type(value).__name__} {value!r}'
+        msg = f'parameter {key!r} must be {_KINDS[kind]}, got {given}.'
+        if kind is bool and isinstance(value, str) and value.strip().lower() in ('true', 'false'):
+            msg += f' Write {value.strip().lower()} without quotes.'
+        raise ConfigError(msg)
+    return float(value) if kind is float else value
+
+
 def pipeline_config(overrides: dict[str, Any] | None = None, *, defaults: dict[str, Any] | None = None) -> PipelineConfig:
     """PipelineConfig from the defaults file, overridden by `overrides` (dotted names).
 
@@ -123,7 +152,7 @@ def pipeline_config(overrides: dict[str, Any] | None = None, *, defaults: dict[s
             known = ', '.join(sorted(flat))
             msg = f'unknown parameter {key!r}; known parameters: {known}.'
             raise ConfigError(msg)
-        flat[key] = value
+        flat[key] = check_type(key, value, flat[key])
     device = flat.get('device', 'auto')
     if device not in DEVICES:
         msg = f"device must be one of {', '.join(DEVICES)}, got {device!r}."

@@ -1,6 +1,7 @@
 """Every shipped parameter file loads and validates against the defaults."""
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
@@ -37,3 +38,24 @@ def test_live_keys_have_descriptions_and_ranges():
                 assert key in _RANGES, f'{key} has no range in nodes/parameters.py'
                 lo, hi = _RANGES[key]
                 assert lo <= value <= hi, key
+
+
+@pytest.mark.parametrize(('key', 'value', 'expect'), [
+    ('georef.enabled', 'false', "must be a boolean (true or false, unquoted), got the string 'false'. Write false"),
+    ('registration.opencv_fallback', 'false', 'must be a boolean'),
+    ('registration.max_features', 'lots', "'registration.max_features' must be an integer, got the string 'lots'"),
+    ('registration.max_features', 1000.5, 'must be an integer, got float 1000.5'),
+    ('georef.nominal_agl_m', True, 'must be a number, got bool True'),
+    ('mosaic.blend', 3, 'must be a string'),
+])
+def test_parameters_are_typed_strictly(key, value, expect):
+    """A quoted boolean used to read as true, a word for a number failed far away without the key."""
+    from srmosaic_ros.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=re.escape(expect)):
+        pipeline_config({key: value})
+
+
+def test_an_integer_for_a_float_parameter_is_a_float():
+    assert pipeline_config({'georef.nominal_agl_m': 60}).georef.nominal_agl_m == 60.0
+    assert isinstance(pipeline_config({'georef.nominal_agl_m': 60}).georef.nominal_agl_m, float)
