@@ -518,6 +518,17 @@ def remove_stale_outputs(out: Path, since: float, margin_s: float = 2.0) -> list
     return removed
 
 
+def skipped_kinds(skipped: dict[str, int]) -> dict[str, int]:
+    """The readers' skipped counts per kind: keys 'topic: reason' stay, a folder's 'file: reason'
+    become 'reason' (one line per kind, not one per still)."""
+    out: dict[str, int] = {}
+    for key, count in skipped.items():
+        head, _, reason = key.partition(': ')
+        what = key if head.startswith('/') or not reason else reason
+        out[what] = out.get(what, 0) + count
+    return out
+
+
 def check_output_dir(out: Path) -> None:
     """Make sure ``out`` can take a run's files before any work is done: it is (or is created as) a
     directory one can write into. Raises OutputError naming the problem and the way out."""
@@ -621,6 +632,14 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
             if rec.painted and rec.stamp_ns in recent:
                 recorder.add(rec.segment, to_float01(recent[rec.stamp_ns]), rec.seg_H_frame)
     result = pipeline.finish()
+    kinds = skipped_kinds(dict(getattr(reader, 'skipped', {})))
+    for what, count in kinds.items():
+        _LOG.warning('%d message(s) left out: %s', count, what)
+    if error is None and not result.records:
+        said = '; '.join(f'{count} x {what}' for what, count in kinds.items()) or 'no image messages or files at all'
+        msg = (f'no usable image in {path} ({said}); nothing was written. Check the image topic or files '
+               '(srmosaic inspect INPUT says what the input holds).')
+        raise InputError(msg)
     report_extra: dict[str, Any] = {'input': str(path), 'input_kind': kind,
                                     'skipped_messages': dict(getattr(reader, 'skipped', {}))}
     if summary is not None:

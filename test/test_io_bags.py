@@ -403,3 +403,43 @@ def test_writer_errors(tmp_path: Path) -> None:
     with pytest.raises(BagError, match='not open'):
         writer.write('/fix', ma.fix_to_navsat(fix_at(0), flavor='rosbags'), T0)
     assert inspect_bag(tmp_path / 'b').message_count == 1
+
+
+def test_bad_messages_are_counted_per_kind_not_per_message(tmp_path: Path) -> None:
+    """Imu samples NaN at every stamp: one key with its count (it was one key per message)."""
+    bag = tmp_path / 'flight'
+    with BagWriter(bag, storage='mcap') as writer:
+        for i in range(6):
+            t = T0 + i * DT
+            writer.write('/camera/image_raw', ma.numpy_to_image(np.zeros((12, 16), np.uint8), 'mono8', stamp_ns=t,
+                                                                flavor='rosbags'), t)
+            imu = ma.sample_to_imu(imu_at(i), flavor='rosbags')
+            imu.linear_acceleration.x = float('nan')
+            writer.write('/imu/data', imu, t + 7)
+    reader = read_flight(bag)
+    list(reader)
+    imu_keys = [k for k in reader.skipped if k.startswith('/imu/data')]
+    assert len(imu_keys) == 1 and reader.skipped[imu_keys[0]] == 6, reader.skipped
+
+
+def test_a_bag_of_unusable_images_is_refused_with_the_reason(tmp_path: Path) -> None:
+    """Every image in an unsupported encoding: exit 2 and the reason with its count (it was
+    '0/0 frames in mosaic.png', exit 0, nothing said); no output written."""
+    import subprocess
+    import sys
+
+    bag = tmp_path / 'flight'
+    with BagWriter(bag, storage='mcap') as writer:
+        for i in range(4):
+            t = T0 + i * DT
+            image = ma.numpy_to_image(np.zeros((12, 16), np.uint8), 'mono8', stamp_ns=t, flavor='rosbags')
+            image.encoding = 'yuv422'
+            writer.write('/camera/image_raw', image, t)
+    out = tmp_path / 'out'
+    run = subprocess.run([sys.executable, '-m', 'srmosaic_ros.cli', 'process', str(bag), '--out', str(out),
+                          '--no-progress'], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 2, (run.stdout, run.stderr)
+    last = run.stderr.strip().splitlines()[-1]
+    assert last.startswith('srmosaic process: error: no usable image in ') and "4 x /camera/image_raw: " in last
+    assert 'yuv422' in last and 'Traceback' not in run.stderr
+    assert not (out / 'mosaic.png').exists() and not (out / 'report.json').exists()

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -59,6 +60,7 @@ from .bag_types import (
 from .bag_writer import BagWriter
 
 _LOG = logging.getLogger(__name__)
+_NUMBER = re.compile(r'(?<![\w.])[-+]?\d+(\.\d+)?([eE][-+]?\d+)?(?![\w.])')  # not inside a word (mono16)
 
 __all__ = [
     'iter_raw',
@@ -309,7 +311,9 @@ class FlightReader:
     # -- iteration ----------------------------------------------------------------------------
 
     def _skip(self, topic: str, reason: str) -> None:
-        key = f'{topic}: {reason}'
+        # counted per kind: the values in a reason (a stamp, a size, a NaN's field) go, so that 5 s
+        # of bad Imu make one key with its count, not one key per message
+        key = f'{topic}: {_NUMBER.sub("#", reason)}'
         self.skipped[key] = self.skipped.get(key, 0) + 1
 
     def _guarded(
