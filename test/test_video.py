@@ -191,3 +191,35 @@ def test_video_with_a_flight_log_but_no_camera_model_is_georeferenced_by_its_geo
     figures = json.loads(ev.stdout)
     print('georef error of mosaic points:', figures['georef_error_rms_m'], figures['georef_error_max_m'])
     assert figures['georef_error_rms_m'] < 4.5  # measured 3.1 m (12.7 m without the tilt correction)
+
+
+@pytest.mark.parametrize(('matrix', 'size', 'expect'), [
+    ([0, 0, 0, 0, 0, 0, 0, 0, 1], (64, 48), 'fx and fy'),
+    ([50, 0, 31.5, 0, 50, 23.5, 0, 0, 1], (0, 48), 'must be positive'),
+    ([50, 0, 31.5, 0, 50, 23.5, 0, 0, 1], (64, 64), 'another aspect ratio'),
+])
+def test_bad_camera_files_are_refused(tmp_path: Path, matrix: list, size: tuple, expect: str) -> None:
+    """A zero camera matrix used to end in a ZeroDivisionError traceback after the work; a
+    calibration of another image size is refused (another aspect ratio) or scaled (the same)."""
+    from srmosaic_ros.io.video import load_camera_yaml
+
+    video = tmp_path / 'v.mp4'
+    write_video(video, (np.full((48, 64, 3), 10 * i, np.uint8) for i in range(3)), fps=4.0, gop=2)
+    cam = tmp_path / 'cam.yaml'
+    cam.write_text(json.dumps({'image_width': size[0], 'image_height': size[1],
+                               'camera_matrix': {'rows': 3, 'cols': 3, 'data': matrix}}))
+    with pytest.raises(InputError, match=expect):
+        VideoReader(video, camera=load_camera_yaml(cam))
+
+
+def test_a_calibration_of_the_same_aspect_ratio_is_scaled_to_the_video(tmp_path: Path) -> None:
+    from srmosaic_ros.io.video import load_camera_yaml
+
+    video = tmp_path / 'v.mp4'
+    write_video(video, (np.full((48, 64, 3), 10 * i, np.uint8) for i in range(3)), fps=4.0, gop=2)
+    cam = tmp_path / 'cam.yaml'
+    cam.write_text(json.dumps({'image_width': 128, 'image_height': 96,
+                               'camera_matrix': {'rows': 3, 'cols': 3, 'data': [100, 0, 63.5, 0, 100, 47.5, 0, 0, 1]}}))
+    reader = VideoReader(video, camera=load_camera_yaml(cam))
+    assert (reader.camera.width, reader.camera.height) == (64, 48)
+    assert reader.camera.fx == pytest.approx(50.0) and reader.camera.cx == pytest.approx(31.5)

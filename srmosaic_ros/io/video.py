@@ -14,6 +14,7 @@ Stamps: a frame's stamp_ns is its presentation time in ns from the first frame o
 """
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -31,6 +32,8 @@ __all__ = ['VIDEO_SUFFIXES', 'FrameSelection', 'VideoReader', 'camera_from_hfov'
            'parse_selection', 'write_video']
 
 VIDEO_SUFFIXES = {'.mp4', '.m4v', '.mkv', '.avi', '.ts', '.mts', '.m2ts', '.mpg', '.mpeg', '.mov', '.webm'}
+
+_LOG = logging.getLogger(__name__)
 
 
 class VideoError(InputError):
@@ -83,8 +86,9 @@ def load_camera_yaml(path: Path) -> CameraIntrinsics:
         doc = yaml.safe_load(Path(path).read_text())
         k = [float(v) for v in doc['camera_matrix']['data']]
         dist = tuple(float(v) for v in (doc.get('distortion_coefficients') or {}).get('data', []))
-        return CameraIntrinsics(int(doc['image_width']), int(doc['image_height']), k[0], k[4], k[2], k[5],
-                                str(doc.get('distortion_model', '') or ''), dist)
+        width, height = int(doc['image_width']), int(doc['image_height'])
+        camera = CameraIntrinsics(width, height, k[0], k[4], k[2], k[5],
+                                  str(doc.get('distortion_model', '') or ''), dist)
     except FileNotFoundError:
         msg = f'--camera {path} does not exist.'
         raise InputError(msg) from None
@@ -92,6 +96,16 @@ def load_camera_yaml(path: Path) -> CameraIntrinsics:
         msg = (f'--camera {path} is not a camera calibration YAML (needs image_width, image_height, '
                f'camera_matrix.data): {exc}')
         raise InputError(msg) from None
+    bad = [what for what, ok in (('image_width and image_height must be positive', width > 0 and height > 0),
+                                 ('fx and fy (camera_matrix.data[0], [4]) must be positive and finite',
+                                  all(math.isfinite(v) and v > 0 for v in (camera.fx, camera.fy))),
+                                 ('cx and cy must be finite', math.isfinite(camera.cx) and math.isfinite(camera.cy)),
+                                 ('distortion coefficients must be finite', all(math.isfinite(v) for v in dist)))
+           if not ok]
+    if bad:
+        msg = f'--camera {path}: {"; ".join(bad)} (a zero camera matrix is not a calibration).'
+        raise InputError(msg)
+    return camera
 
 
 class _OverlapSelector:
@@ -160,6 +174,18 @@ class VideoReader:
             msg = (f'cannot open video {str(self.path)!r}: {exc}. The file is corrupt, truncated or uses a codec '
                    'FFmpeg does not decode; re-encode it (e.g. to H.264 MP4) or check the copy.')
             raise VideoError(msg) from None
+        if camera is not None and (camera.width, camera.height) != (self.width, self.height):
+            if abs(camera.width * self.height - camera.height * self.width) > max(camera.width, self.width):
+                msg = (f'--camera is a calibration of {camera.width}x{camera.height} images, the video '
+                       f'{self.path.name} is {self.width}x{self.height} (another aspect ratio); give the '
+                       'calibration of this camera mode.')
+                raise VideoError(msg)
+            sx, sy = self.width / camera.width, self.height / camera.height
+            _LOG.warning('--camera is a calibration of %dx%d images, the video is %dx%d: its intrinsics are '
+                         'scaled to the video.', camera.width, camera.height, self.width, self.height)
+            camera = CameraIntrinsics(self.width, self.height, camera.fx * sx, camera.fy * sy,
+                                      (camera.cx + 0.5) * sx - 0.5, (camera.cy + 0.5) * sy - 0.5,
+                                      camera.distortion_model, camera.distortion)
         if camera is not None:
             self.camera = camera
         elif hfov_deg is not None:
