@@ -46,6 +46,21 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_run_process)
 
 
+def _positive_float(text: str) -> float:
+    """argparse type: a finite number > 0 (nan, inf, 0 and negatives refused)."""
+    import math
+
+    try:
+        value = float(text)
+    except ValueError:
+        msg = f'{text!r} is not a number'
+        raise argparse.ArgumentTypeError(msg) from None
+    if not (math.isfinite(value) and value > 0):
+        msg = f'must be a finite number > 0, got {text!r}'
+        raise argparse.ArgumentTypeError(msg)
+    return value
+
+
 def _run_process(args: argparse.Namespace) -> int:
     from .config import load_params, pipeline_config
     from .io.bags import TopicConfig
@@ -189,7 +204,7 @@ def _run_record_tiles(args: argparse.Namespace) -> int:
 def _add_play(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser('play', help='publish a bag on its topics (the stand-in for ros2 bag play)')
     p.add_argument('bag', type=Path)
-    p.add_argument('--rate', type=float, default=1.0, help='playback speed factor (2 = twice real time)')
+    p.add_argument('--rate', type=_positive_float, default=1.0, help='playback speed factor (2 = twice real time)')
     p.add_argument('--topics', nargs='+', help='only these topics')
     p.add_argument('--loop', action='store_true', help='start again at the end (until Ctrl-C)')
     p.add_argument('--delay', type=float, default=1.0, help='at most this many seconds to wait for a subscriber on every topic before playing')

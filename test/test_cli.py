@@ -127,3 +127,15 @@ def test_an_unusable_out_is_refused_before_any_work(tmp_path: Path, case: str) -
     assert len(lines) == 1 and lines[0].startswith('srmosaic process: error: --out '), run.stderr
     assert 'Traceback' not in run.stderr and a_file.read_text() == 'keep me'
     assert 'frames in mosaic.png' not in run.stdout
+
+
+def test_an_empty_folder_says_what_inputs_are_accepted(tmp_path: Path) -> None:
+    (tmp_path / 'notes.txt').write_text('x')
+    run = srmosaic('process', str(tmp_path), '--out', str(tmp_path / 'out'), '--no-progress')
+    assert run.returncode == 2 and 'nor a folder of stills' in run.stderr and 'notes.txt' in run.stderr
+
+
+@pytest.mark.parametrize('rate', ['nan', 'inf', '0', '-1', 'fast'])
+def test_play_refuses_a_rate_that_is_not_a_positive_number(rate: str) -> None:
+    run = srmosaic('play', str(DEMO), '--rate', rate)
+    assert run.returncode == 2 and 'argument --rate' in run.stderr

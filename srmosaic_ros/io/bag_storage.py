@@ -139,7 +139,10 @@ def _no_metadata_message(path: Path) -> str:
             f'({_listing(inside)}); pass one of them, or if they are one bag regenerate its '
             'metadata.yaml with `ros2 bag reindex`.'
         )
-    return f'{head}; give a rosbag2 folder, a .db3/.mcap file or a ROS 1 .bag file.'
+    listing = sorted(p.name for p in path.iterdir())
+    what = 'it is empty' if not listing else f'it holds no images either ({_listing(listing)})'
+    return (f'{head}, nor a folder of stills: {what}; give a rosbag2 folder, a .db3/.mcap file, a ROS 1 '
+            '.bag file, a video file, or a folder of .jpg/.jpeg/.png/.tif stills.')
 
 
 @dataclass(frozen=True)
