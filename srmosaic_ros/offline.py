@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import collections
+import json
 import logging
 import math
 import os
@@ -488,34 +489,94 @@ def _geotag_fit(result: PipelineResult, origin: tuple[int, int], config: Pipelin
     return fit
 
 
-#: What `process` writes into --out; an earlier run's copy that this run did not write again is removed.
+#: What `process` writes into --out (and report.json); an earlier run's copy that this run did not write is removed.
 RUN_OUTPUTS = ('mosaic.png', 'preview.png', 'mosaic.tif', 'mosaic.kml', 'poses.csv', 'frames.csv', 'mosaic.mp4',
                'segments', 'sr')
 
 
-def remove_stale_outputs(out: Path, since: float, margin_s: float = 2.0) -> list[str]:
-    """Remove the outputs in ``out`` (RUN_OUTPUTS; inside segments/ and sr/, file by file) last written
-    before ``since`` (time.time() at the run's start, less ``margin_s`` for coarse file-system clocks):
-    a run into the folder of an earlier one leaves one run's files, not a mix (a non-georeferenced
-    run must not leave the earlier mosaic.tif beside its mosaic.png). Returns the names removed."""
-    removed = []
-    limit = since - margin_s
-    for name in RUN_OUTPUTS:
-        path = out / name
-        if path.is_dir():
-            for f in sorted(path.rglob('*')):
-                if f.is_file() and f.stat().st_mtime < limit:
-                    f.unlink()
-                    removed.append(str(f.relative_to(out)))
-            if path.is_dir() and not any(path.iterdir()):
-                path.rmdir()
-        elif path.is_file() and path.stat().st_mtime < limit:
-            path.unlink()
-            removed.append(name)
-    if removed:
-        _LOG.info('removed %d outputs of an earlier run that this one did not write: %s', len(removed),
-                  ', '.join(removed[:8]))
-    return removed
+class OutputTransaction:
+    """A run's outputs written into ``out``/.staging-PID and moved into ``out`` when the run ends.
+
+    Entering takes ``out``/.srmosaic.lock (fcntl.flock): a second writer is refused with the other's
+    pid. On a normal exit each of RUN_OUTPUTS and report.json is moved in (os.replace, report.json
+    last); those that this run did not write are removed from ``out`` (``removed``). When the run
+    raises with outputs in the staging folder (a damaged input: what was processed so far), they are
+    moved in the same way unless ``out`` holds an earlier complete run (a report.json without an
+    error): then they go to ``out``/failed_run/ and the earlier run stays. Files of other programs in
+    ``out`` are never touched.
+    """
+
+    def __init__(self, out: Path) -> None:
+        self.out = Path(out)
+        self.stage = self.out / f'.staging-{os.getpid()}'
+        self.removed: list[str] = []
+        self._lock: Any = None
+
+    def __enter__(self) -> OutputTransaction:
+        import fcntl
+
+        self._lock = open(self.out / '.srmosaic.lock', 'a+')  # noqa: SIM115 - held for the run
+        try:
+            fcntl.flock(self._lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            self._lock.seek(0)
+            other = self._lock.read().strip() or 'unknown'
+            self._lock.close()
+            msg = (f'another srmosaic process (pid {other}) is writing {self.out}; wait for it to end or give '
+                   'another --out.')
+            raise OutputError(msg) from None
+        self._lock.seek(0)
+        self._lock.truncate()
+        self._lock.write(str(os.getpid()))
+        self._lock.flush()
+        shutil.rmtree(self.stage, ignore_errors=True)
+        self.stage.mkdir()
+        return self
+
+    def __exit__(self, exc_type: type | None, exc: BaseException | None, tb: Any) -> None:  # noqa: ANN401
+        try:
+            if exc_type is None:
+                self.removed = self._publish(self.out)
+            elif isinstance(exc, SrMosaicError) and (self.stage / 'report.json').is_file():
+                if self._earlier_complete_run():
+                    failed = self.out / 'failed_run'
+                    shutil.rmtree(failed, ignore_errors=True)
+                    failed.mkdir()
+                    self._publish(failed)
+                    _LOG.warning('the earlier complete run in %s is kept; this run\'s partial outputs are in %s',
+                                 self.out, failed)
+                else:
+                    self.removed = self._publish(self.out)
+        finally:
+            shutil.rmtree(self.stage, ignore_errors=True)
+            (self.out / '.srmosaic.lock').unlink(missing_ok=True)  # still held: no other writer is inside
+            self._lock.close()
+
+    def _earlier_complete_run(self) -> bool:
+        try:
+            return 'error' not in json.loads((self.out / 'report.json').read_text())
+        except (OSError, ValueError):
+            return False
+
+    def _publish(self, dst: Path) -> list[str]:
+        """Move the staged outputs into ``dst``; remove there what this run did not write."""
+        removed = []
+        for name in (*RUN_OUTPUTS, 'report.json'):
+            src, target = self.stage / name, dst / name
+            if src.exists():
+                if target.is_dir() and not target.is_symlink():
+                    old = self.stage / f'.old-{name}'
+                    os.replace(target, old)
+                os.replace(src, target)
+            elif target.is_dir() and not target.is_symlink():
+                shutil.rmtree(target)
+                removed.append(name)
+            elif target.exists():
+                target.unlink()
+                removed.append(name)
+        if removed:
+            _LOG.info('removed the outputs of an earlier run that this one did not write: %s', ', '.join(removed))
+        return removed
 
 
 def skipped_kinds(skipped: dict[str, int]) -> dict[str, int]:
@@ -563,22 +624,40 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
                   telemetry_csv: Path | None = None, mosaic_video: bool = False,
                   checkpoint_every: int = 0, resume: bool = False, sr_factor: int | None = None,
                   progress: bool = True) -> dict[str, Any]:
-    """Run the pipeline over a bag or video and write the outputs; returns the report (also in report.json).
+    """Run the pipeline over a bag, a video or a folder of stills and write the outputs into ``out``;
+    returns the report (also in report.json).
 
-    If the input breaks mid-way (a damaged bag or video, a frame size change), everything processed
-    so far is written, the report records the error, and the error is raised again so the command
-    exits non-zero. With checkpoint_every > 0 the state is checkpointed every that many frames
-    (see checkpoint.py); resume=True continues from the last checkpoint in `out`.
+    The run is written into a staging folder inside ``out`` and moved in when it ends
+    (OutputTransaction): ``out`` holds one run's outputs, never a mix, and a second process writing
+    the same ``out`` is refused. If the input breaks mid-way (a damaged bag or video, a frame size
+    change), everything processed so far is written, the report records the error, and the error is
+    raised again so the command exits non-zero; over an earlier complete run, those partial outputs go
+    to ``out``/failed_run/ instead, the earlier run staying in place. With checkpoint_every > 0 the
+    state is checkpointed every that many frames (see checkpoint.py); resume=True continues from the
+    last checkpoint in ``out``.
     """
     t0 = time.perf_counter()
-    started = time.time()
     if checkpoint_every < 0:
         msg = f'--checkpoint-every must be >= 0, got {checkpoint_every}.'
         raise InputError(msg)
     items, reader, kind = open_source(path, topics=topics, select=select, camera_yaml=camera_yaml,
                                       hfov_deg=hfov_deg, telemetry_csv=telemetry_csv)
-    summary = getattr(reader, 'summary', None)
     check_output_dir(out)  # before the work, not after it
+    with OutputTransaction(out) as transaction:
+        report = _process(path, out, transaction.stage, config, items, reader, kind, t0, topics=topics,
+                          select=select, camera_yaml=camera_yaml, hfov_deg=hfov_deg, telemetry_csv=telemetry_csv,
+                          mosaic_video=mosaic_video, checkpoint_every=checkpoint_every, resume=resume,
+                          sr_factor=sr_factor, progress=progress)
+    report['stale_outputs_removed'] = transaction.removed
+    return report
+
+
+def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: Iterable[Any], reader: Any,  # noqa: ANN401, PLR0913
+             kind: str, t0: float, *, topics: TopicConfig | None, select: str, camera_yaml: Path | None,
+             hfov_deg: float | None, telemetry_csv: Path | None, mosaic_video: bool, checkpoint_every: int,
+             resume: bool, sr_factor: int | None, progress: bool) -> dict[str, Any]:
+    """process_input's work: outputs into ``stage``, checkpoints into ``out``."""
+    summary = getattr(reader, 'summary', None)
     if kind == 'images':
         from .survey import use_global_alignment
 
@@ -587,7 +666,7 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
                 msg = ('--resume and --mosaic-video apply to the chained pipeline; a survey aligned globally runs in '
                        'one pass (no checkpoints). Drop them, or set survey.mode: chain.')
                 raise InputError(msg)
-            return _process_survey(path, out, config, reader, t0, started, sr_factor=sr_factor, progress=progress)
+            return _process_survey(path, stage, config, reader, t0, sr_factor=sr_factor, progress=progress)
     config = _with_ground_hint(config, summary)
     settings = {'select': select, 'topics': repr(topics), 'config': repr(config), 'mosaic_video': mosaic_video,
                 'camera': str(camera_yaml), 'hfov': hfov_deg, 'telemetry': str(telemetry_csv)}
@@ -649,14 +728,14 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
                                  'frames_selected': reader.selected, 'select': select}
     if error is not None:
         report_extra['error'] = str(error)
-    report = write_outputs(result, out, config, report_extra,
+    report = write_outputs(result, stage, config, report_extra,
                            meta_centres=summary.centres if summary is not None else None)
     if report.get('georeferenced') is None:
         report['not_georeferenced_reason'] = not_georeferenced_reason(result, config)
         _LOG.warning('the mosaic is not georeferenced: %s', report['not_georeferenced_reason'])
     if recorder is not None and result.main_segment is not None:
         main = result.main_segment
-        report['mosaic_video_frames'] = recorder.write(out / 'mosaic.mp4', main.index, main.canvas.bounds())
+        report['mosaic_video_frames'] = recorder.write(stage / 'mosaic.mp4', main.index, main.canvas.bounds())
     wall = time.perf_counter() - t0
     report['wall_s'] = round(wall, 3)
     report['frames_per_s'] = round(len(result.records) / wall, 2) if wall > 0 else None
@@ -669,20 +748,18 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
         t_sr = time.perf_counter()
         again, _, _ = open_source(path, topics=topics, select=select, camera_yaml=camera_yaml, hfov_deg=hfov_deg,
                                   telemetry_csv=telemetry_csv)
-        report['sr'] = super_resolve_mosaic(out, again, config, factor=sr_factor, progress=progress)
+        report['sr'] = super_resolve_mosaic(stage, again, config, factor=sr_factor, progress=progress)
         report['sr']['wall_s'] = round(time.perf_counter() - t_sr, 3)
         report['wall_s'] = round(time.perf_counter() - t0, 3)
         report['peak_rss_mb'] = round(peak_rss_mb(), 1)
-    if error is None:  # a failed run leaves what it wrote beside the earlier outputs (issue 21: staging)
-        report['stale_outputs_removed'] = remove_stale_outputs(out, started)
-    write_json(out / 'report.json', report)
+    write_json(stage / 'report.json', report)
     if error is not None:
         raise error
     shutil.rmtree(checkpoint_path(out).parent, ignore_errors=True)  # complete: the checkpoint is spent
     return report
 
 
-def _process_survey(path: Path, out: Path, config: PipelineConfig, reader: Any, t0: float, started: float, *,  # noqa: ANN401
+def _process_survey(path: Path, out: Path, config: PipelineConfig, reader: Any, t0: float, *,  # noqa: ANN401
                     sr_factor: int | None, progress: bool) -> dict[str, Any]:
     """A folder of stills aligned globally (survey.py), with the report and SR as process_input's."""
     from .survey import process_survey
@@ -711,7 +788,6 @@ def _process_survey(path: Path, out: Path, config: PipelineConfig, reader: Any, 
         report['sr']['wall_s'] = round(time.perf_counter() - t_sr, 3)
         report['wall_s'] = round(time.perf_counter() - t0, 3)
         report['peak_rss_mb'] = round(peak_rss_mb(), 1)
-    report['stale_outputs_removed'] = remove_stale_outputs(out, started)
     write_json(out / 'report.json', report)
     return report
 

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -29,6 +30,9 @@ def flight_video(tmp_path_factory):
     _write_video_and_sidecar(flight, video, GOP)
     save_truth(flight.truth, root / 'ground_truth.json')
     return flight, video, root / 'ground_truth.json'
+
+
+ROOT = Path(__file__).resolve().parent.parent
 
 
 def srmosaic(*args: str) -> subprocess.CompletedProcess:
@@ -223,3 +227,35 @@ def test_a_calibration_of_the_same_aspect_ratio_is_scaled_to_the_video(tmp_path:
     reader = VideoReader(video, camera=load_camera_yaml(cam))
     assert (reader.camera.width, reader.camera.height) == (64, 48)
     assert reader.camera.fx == pytest.approx(50.0) and reader.camera.cx == pytest.approx(31.5)
+
+
+def test_a_failed_run_keeps_the_earlier_complete_run(flight_video, tmp_path):
+    """A good run, then a run that breaks mid-way into the same --out: the good run's files stay as
+    they were (the partial run goes to failed_run/), not a mix of both runs."""
+    flight = flight_video[0]
+    a, b = tmp_path / 'a.ts', tmp_path / 'b.ts'
+    write_video(a, (f.image for f in flight.frames[:12]), fps=4.0, gop=GOP)
+    write_video(b, (f.image[::2, ::2] for f in flight.frames[12:24]), fps=4.0, gop=GOP)
+    joined = tmp_path / 'joined.ts'
+    joined.write_bytes(a.read_bytes() + b.read_bytes())
+    out = tmp_path / 'out'
+    assert srmosaic('process', str(flight_video[1]), '--out', str(out), '--no-progress').returncode == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
+    run = srmosaic('process', str(joined), '--out', str(out), '--no-progress')
+    assert run.returncode == 2 and 'failed_run' in run.stderr, run.stderr
+    assert {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()} == before
+    assert 'error' in json.loads((out / 'failed_run' / 'report.json').read_text())
+    assert len(read_frames_csv(out / 'failed_run' / 'frames.csv')) == 12
+    assert not [p.name for p in out.iterdir() if p.name.startswith('.')]
+
+
+def test_a_second_writer_of_the_same_out_is_refused(tmp_path):
+    from srmosaic_ros.offline import OutputTransaction
+
+    out = tmp_path / 'out'
+    out.mkdir()
+    with OutputTransaction(out):
+        run = srmosaic('process', str(ROOT / 'bags' / 'demo'), '--out', str(out), '--no-progress')
+    assert run.returncode == 2, run.stderr
+    assert f'another srmosaic process (pid {os.getpid()}) is writing' in run.stderr
+    assert sorted(p.name for p in out.iterdir()) == []
