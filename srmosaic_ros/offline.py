@@ -590,7 +590,7 @@ def skipped_kinds(skipped: dict[str, int]) -> dict[str, int]:
     return out
 
 
-def check_output_dir(out: Path) -> None:
+def check_output_dir(out: Path, what: str = '--out') -> None:
     """Make sure ``out`` can take a run's files before any work is done: it is (or is created as) a
     directory one can write into. Raises OutputError naming the problem and the way out."""
     import tempfile
@@ -598,16 +598,16 @@ def check_output_dir(out: Path) -> None:
     out = Path(out)
     too_long = [part for part in out.parts if len(os.fsencode(part)) > 255]
     if too_long:
-        msg = f'--out {out}: the name {too_long[0][:40]}... is longer than 255 bytes; give a shorter directory name.'
+        msg = f'{what} {out}: the name {too_long[0][:40]}... is longer than 255 bytes; give a shorter directory name.'
         raise OutputError(msg)
     if out.exists() and not out.is_dir():
-        msg = f'--out {out} is a file, not a directory; give a directory (it is created if missing).'
+        msg = f'{what} {out} is a file, not a directory; give a directory (it is created if missing).'
         raise OutputError(msg)
     parent = out
     while not parent.exists():
         parent = parent.parent
     if not parent.is_dir():
-        msg = f'--out {out} lies under {parent}, which is a file; give a directory elsewhere.'
+        msg = f'{what} {out} lies under {parent}, which is a file; give a directory elsewhere.'
         raise OutputError(msg)
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -615,7 +615,7 @@ def check_output_dir(out: Path) -> None:
         os.close(fd)
         os.unlink(probe)
     except OSError as exc:
-        msg = f'--out {out} cannot be written ({exc.strerror or exc}); give a directory you may write to.'
+        msg = f'{what} {out} cannot be written ({exc.strerror or exc}); give a directory you may write to.'
         raise OutputError(msg) from None
 
 

@@ -556,7 +556,9 @@ def test_node_survives_bad_input(ros_env, tmp_path):
 @pytest.mark.parametrize(('override', 'name'), [('registration.ratio:=3.0', 'ratio'),
                                                  ('live.sr_frames_kept:=0', 'sr_frames_kept'),
                                                  ('live.sr_worker:=fork', 'sr_worker'),
-                                                 ('live.sr_refresh_growth:=0.5', 'sr_refresh_growth')])
+                                                 ('live.sr_refresh_growth:=0.5', 'sr_refresh_growth'),
+                                                 # an output folder that cannot be written: at start, not at shutdown
+                                                 ('live.output_dir:=/proc/srmosaic-out', 'live.output_dir /proc')])
 def test_invalid_parameter_refused_at_start(ros_env, override, name):
     graph = srmosaic('launch', '--ros-args', '-p', override, env=ros_env)
     out, _ = graph.communicate(timeout=60)

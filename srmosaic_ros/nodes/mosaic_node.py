@@ -90,6 +90,10 @@ class MosaicNode(Node):
             config = dataclasses.replace(config, georef_enabled=False)
         self.config = config
         self.output_dir = str(self.get_parameter('live.output_dir').value)
+        if self.output_dir:
+            from ..offline import check_output_dir
+
+            check_output_dir(Path(self.output_dir), 'live.output_dir')  # at start, not at shutdown with the mosaic in hand
         self.pipeline = Pipeline(config)
         self._lock = threading.Lock()  # guards the pipeline (worker vs preview/diagnostics timer)
         self._queue: collections.deque[Frame] = collections.deque(maxlen=queue_size)
