@@ -558,7 +558,10 @@ def test_node_survives_bad_input(ros_env, tmp_path):
                                                  ('live.sr_worker:=fork', 'sr_worker'),
                                                  ('live.sr_refresh_growth:=0.5', 'sr_refresh_growth'),
                                                  # an output folder that cannot be written: at start, not at shutdown
-                                                 ('live.output_dir:=/proc/srmosaic-out', 'live.output_dir /proc')])
+                                                 ('live.output_dir:=/proc/srmosaic-out', 'live.output_dir /proc'),
+                                                 # a params file beat -p: these were silently ignored
+                                                 ('registration.max_features:=lots', "'registration.max_features' to 'lots'"),
+                                                 ('georef.enabled:="false"', "'georef.enabled' to 'false' of type 'STRING'")])
 def test_invalid_parameter_refused_at_start(ros_env, override, name):
     graph = srmosaic('launch', '--ros-args', '-p', override, env=ros_env)
     out, _ = graph.communicate(timeout=60)
@@ -634,3 +637,23 @@ def test_sr_worker_process_gives_the_in_process_tile():
     assert place_there == place_here and isinstance(stop, str) and stop
     assert there.shape == here.shape == (64, 64)
     assert np.abs(there.astype(int) - here.astype(int)).max() <= 1
+
+
+def test_command_line_overrides_beat_the_parameter_files(tmp_path):
+    """rcl lets a --params-file beat a -p override; the launcher moves -p into a file given last."""
+    import rclpy
+    from rclpy.node import Node
+
+    from srmosaic_ros.nodes.launcher import overrides_last, ros_args
+
+    args = ['srmosaic', *ros_args([]), *overrides_last(['--ros-args', '-p', 'registration.max_features:=500',
+                                                        '-r', '/fix:=/gps'], tmp_path)]
+    assert args[-2] == '--params-file' and '-r' in args and '-p' not in args[4:]
+    context = rclpy.Context()
+    rclpy.init(args=args, context=context)
+    try:
+        node = Node('srmosaic_mosaic', context=context)
+        assert node.declare_parameter('registration.max_features', 1000).value == 500
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=context)

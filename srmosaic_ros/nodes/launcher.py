@@ -93,11 +93,46 @@ def ros_args(params: list[str], parameters: dict[str, Any] | None = None,
     return args
 
 
-def node_command(proc: dict[str, Any], extra_ros_args: list[str] | None = None) -> list[str]:
+def overrides_last(ros_arguments: list[str], folder: Path) -> list[str]:
+    """The same --ros-args with every ``-p name:=value`` (``--param``) moved into a parameter file
+    written into ``folder`` and given last. rcl lets a --params-file beat a -p override whatever
+    their order, so `srmosaic launch --ros-args -p registration.max_features:=lots` kept the file's
+    1000 without a word; as the last file the override wins, and a value of the wrong type ('lots',
+    a quoted "false") is refused by the node at start. Values are read as YAML, as rcl reads -p."""
+    import yaml
+
+    rest, tree = [], {}
+    args = [a for a in ros_arguments if a != '--ros-args']
+    i = 0
+    while i < len(args):
+        if args[i] in ('-p', '--param') and i + 1 < len(args) and ':=' in args[i + 1]:
+            name, _, text = args[i + 1].partition(':=')
+            node = tree
+            *parents, leaf = name.split('.')
+            for part in parents:
+                node = node.setdefault(part, {})
+            node[leaf] = yaml.safe_load(text) if text else ''
+            i += 2
+            continue
+        rest.append(args[i])
+        i += 1
+    if not tree:
+        return rest
+    path = folder / 'command_line_overrides.yaml'
+    path.write_text(yaml.safe_dump({'/**': {'ros__parameters': tree}}, sort_keys=False))
+    return [*rest, '--params-file', str(path)]
+
+
+def node_command(proc: dict[str, Any], extra_ros_args: list[str] | None = None, folder: Path | None = None) -> list[str]:
     """The child command of one process: the launcher's --ros-args (for every process) come before
-    the process's own overrides and remappings, so the process's win."""
+    the process's own overrides and remappings, so the process's win. With ``folder``, the
+    overrides travel as parameter files given last (see overrides_last: rcl lets any file beat -p)."""
     extra = [a for a in (extra_ros_args or []) if a != '--ros-args']
     own = ros_args([], proc.get('parameters'), proc.get('remappings'))[3:]  # without the defaults file
+    if folder is not None:
+        sub = folder / f"process_{proc.get('name', '+'.join(proc['nodes']))}"
+        sub.mkdir(parents=True, exist_ok=True)
+        own = overrides_last(own, sub)
     return [sys.executable, '-m', 'srmosaic_ros.cli', 'node', *proc['nodes'],
             *ros_args(proc.get('params') or []), *extra, *own]
 
@@ -114,13 +149,20 @@ def run_named_nodes(names: list[str], args: list[str] | None) -> int:
 
 
 def launch(description: Path | None, extra_params: list[str], extra_ros_args: list[str]) -> int:
-    if description is None:
-        args = ['srmosaic', *ros_args(extra_params)] + [a for a in extra_ros_args if a != '--ros-args']
-        return run_named_nodes(list(NODES), args)
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix='srmosaic-launch-') as tmp:
+        extra_ros_args = overrides_last(extra_ros_args, Path(tmp))
+        if description is None:
+            return run_named_nodes(list(NODES), ['srmosaic', *ros_args(extra_params), *extra_ros_args])
+        return _launch_processes(description, extra_params, extra_ros_args, Path(tmp))
+
+
+def _launch_processes(description: Path, extra_params: list[str], extra_ros_args: list[str], folder: Path) -> int:
     procs = load_description(description)
     children = []
     for proc in procs:
-        cmd = node_command({**proc, 'params': [*extra_params, *(proc.get('params') or [])]}, extra_ros_args)
+        cmd = node_command({**proc, 'params': [*extra_params, *(proc.get('params') or [])]}, extra_ros_args, folder)
         print(f"srmosaic launch: starting {proc.get('name', '+'.join(proc['nodes']))}: {' '.join(cmd[3:])}",
               file=sys.stderr)
         children.append(subprocess.Popen(cmd))
