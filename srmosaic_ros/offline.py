@@ -529,7 +529,8 @@ class OutputTransaction:
         self._lock.truncate()
         self._lock.write(str(os.getpid()))
         self._lock.flush()
-        shutil.rmtree(self.stage, ignore_errors=True)
+        for left in self.out.glob('.staging-*'):  # of a run killed (kill -9): the lock says none is writing
+            shutil.rmtree(left, ignore_errors=True)
         self.stage.mkdir()
         return self
 

@@ -253,7 +253,7 @@ def test_a_second_writer_of_the_same_out_is_refused(tmp_path):
     from srmosaic_ros.offline import OutputTransaction
 
     out = tmp_path / 'out'
-    out.mkdir()
+    (out / '.staging-99999999').mkdir(parents=True)  # what a run killed with kill -9 leaves
     with OutputTransaction(out):
         run = srmosaic('process', str(ROOT / 'bags' / 'demo'), '--out', str(out), '--no-progress')
     assert run.returncode == 2, run.stderr
