@@ -98,7 +98,7 @@ def pairs_picture(out: Path, dst: Path, max_side: int = 1600) -> None:
     from srmosaic_ros.evaluate_real import read_meta_positions
     from srmosaic_ros.io.mosaic_files import read_frames_csv
     from srmosaic_ros.offline import open_source
-    from srmosaic_ros.survey import _stills
+    from srmosaic_ros.survey import survey_stills
 
     rgba = cv2.imread(str(out / 'mosaic.png'), cv2.IMREAD_UNCHANGED)
     scale = min(1.0, max_side / max(rgba.shape[:2]))
@@ -111,7 +111,7 @@ def pairs_picture(out: Path, dst: Path, max_side: int = 1600) -> None:
         inv, epsg = ~ds.transform, ds.crs.to_epsg()
     to_map = Transformer.from_crs(4326, epsg, always_xy=True)
     _, reader, _ = open_source(SURVEY / 'images')
-    stills, _, _ = _stills(reader)
+    stills, _, _ = survey_stills(reader)
     centres = []
     for r, st in zip(rows, stills):
         c = r['mosaic_H_frame'] @ [st.K[0, 2], st.K[1, 2], 1.0]

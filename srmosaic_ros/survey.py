@@ -51,7 +51,8 @@ from .errors import InputError
 from .io.image_folder import ImageFolderReader
 from .io.metadata import RECORDED_ATTITUDE_SIGMA_DEG
 
-__all__ = ['SurveyStill', 'process_survey', 'read_reduced', 'reduction_for', 'use_global_alignment']
+__all__ = ['SurveyStill', 'process_survey', 'read_reduced', 'reduction_for', 'survey_stills',
+           'use_global_alignment']
 
 _LOG = logging.getLogger(__name__)
 _REDUCED = {1: cv2.IMREAD_COLOR, 2: cv2.IMREAD_REDUCED_COLOR_2, 4: cv2.IMREAD_REDUCED_COLOR_4,
@@ -110,7 +111,7 @@ def use_global_alignment(reader: ImageFolderReader, config: PipelineConfig) -> b
     return sum(1 for m in reader.meta if m is not None and m.has_position) >= 3 or len(reader.telemetry) >= 3
 
 
-def _stills(reader: ImageFolderReader) -> tuple[list[SurveyStill], int, tuple[float, float]]:
+def survey_stills(reader: ImageFolderReader) -> tuple[list[SurveyStill], int, tuple[float, float]]:
     """Every still of the folder with its metadata; (stills, UTM EPSG, plane origin (e0, n0) in UTM m)."""
     from pyproj import Transformer
 
@@ -118,7 +119,7 @@ def _stills(reader: ImageFolderReader) -> tuple[list[SurveyStill], int, tuple[fl
     fixes = []
     for i, file in enumerate(reader.files):
         meta = reader.meta[i]
-        stamp = reader._stamp_ns(i, file.name)  # noqa: SLF001 - the reader's capture clock
+        stamp = reader.stamp_ns(i, file.name)
         row = reader.telemetry.get(file.name)
         lat = lon = math.nan
         if row:
@@ -128,7 +129,7 @@ def _stills(reader: ImageFolderReader) -> tuple[list[SurveyStill], int, tuple[fl
             except (KeyError, ValueError):
                 pass
         elif meta is not None and meta.has_position:
-            fixes.append((reader._fix_stamp(i, stamp), meta.longitude_deg, meta.latitude_deg))  # noqa: SLF001
+            fixes.append((reader.fix_stamp_ns(i, stamp), meta.longitude_deg, meta.latitude_deg))
         stills_meta.append((file, meta, stamp))
     fixes.sort()
     dedup = [f for k, f in enumerate(fixes) if k == 0 or f[1:] != fixes[k - 1][1:]]  # a tag repeating the last fix
@@ -150,7 +151,7 @@ def _stills(reader: ImageFolderReader) -> tuple[list[SurveyStill], int, tuple[fl
     stills = []
     for k, (file, meta, stamp) in enumerate(stills_meta):
         w, h = (meta.width_px, meta.height_px) if meta is not None else _size_of(file)
-        camera = reader._camera(meta, w, h) if meta is not None else None  # noqa: SLF001
+        camera = reader.camera(meta, w, h) if meta is not None else None
         if camera is not None:
             K = np.array([[camera.fx, 0.0, camera.cx], [0.0, camera.fy, camera.cy], [0.0, 0.0, 1.0]])  # noqa: N806
         else:
@@ -234,7 +235,7 @@ def process_survey(path: Path, out: Path, config: PipelineConfig, reader: ImageF
     adds timings and writes report.json)."""
     t0 = time.perf_counter()
     scfg = config.survey
-    stills, epsg, origin = _stills(reader)
+    stills, epsg, origin = survey_stills(reader)
     n = len(stills)
     reduction = [reduction_for(s.size[0], s.size[1], scfg.working_megapixels) for s in stills]
     registrar = make_registrar(config.registration, config.device)

@@ -123,13 +123,19 @@ def test_truncated_video_keeps_what_was_processed(flight_video, tmp_path):
         assert 'damaged' in run.stderr or 'truncated' in run.stderr
 
 
-def test_size_change_mid_stream_stops_with_message_and_keeps_frames(flight_video, tmp_path):
-    flight = flight_video[0]
+def _size_change_video(flight, tmp_path: Path) -> Path:
+    """12 frames of the flight, then 12 at half size, as one MPEG-TS."""
     a, b = tmp_path / 'a.ts', tmp_path / 'b.ts'
     write_video(a, (f.image for f in flight.frames[:12]), fps=4.0, gop=GOP)
     write_video(b, (f.image[::2, ::2] for f in flight.frames[12:24]), fps=4.0, gop=GOP)
     joined = tmp_path / 'joined.ts'
     joined.write_bytes(a.read_bytes() + b.read_bytes())
+    return joined
+
+
+def test_size_change_mid_stream_stops_with_message_and_keeps_frames(flight_video, tmp_path):
+    flight = flight_video[0]
+    joined = _size_change_video(flight, tmp_path)
     out = tmp_path / 'out'
     run = srmosaic('process', str(joined), '--out', str(out), '--no-progress')
     assert run.returncode == 2, run.stdout + run.stderr
@@ -233,11 +239,7 @@ def test_a_failed_run_keeps_the_earlier_complete_run(flight_video, tmp_path):
     """A good run, then a run that breaks mid-way into the same --out: the good run's files stay as
     they were (the partial run goes to failed_run/), not a mix of both runs."""
     flight = flight_video[0]
-    a, b = tmp_path / 'a.ts', tmp_path / 'b.ts'
-    write_video(a, (f.image for f in flight.frames[:12]), fps=4.0, gop=GOP)
-    write_video(b, (f.image[::2, ::2] for f in flight.frames[12:24]), fps=4.0, gop=GOP)
-    joined = tmp_path / 'joined.ts'
-    joined.write_bytes(a.read_bytes() + b.read_bytes())
+    joined = _size_change_video(flight, tmp_path)
     out = tmp_path / 'out'
     assert srmosaic('process', str(flight_video[1]), '--out', str(out), '--no-progress').returncode == 0
     before = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}

@@ -148,7 +148,8 @@ class ImageFolderReader:
     def frame_count(self) -> int:
         return len(self.files)
 
-    def _stamp_ns(self, index: int, name: str) -> int:
+    def stamp_ns(self, index: int, name: str) -> int:
+        """Capture time of still ``index`` (named ``name``) on the survey's clock, ns."""
         if not self.telemetry.get(name) and self._exif_stamps[index] is not None:
             return self._exif_stamps[index]
         row = self.telemetry.get(name)
@@ -167,7 +168,7 @@ class ImageFolderReader:
             if bgr is None:
                 self.skipped[f'{file.name}: unreadable image'] = 1
                 continue
-            stamp = self._stamp_ns(index, file.name)
+            stamp = self.stamp_ns(index, file.name)
             row = self.telemetry.get(file.name)
             meta = self.meta[index]
             latlon = None
@@ -181,7 +182,7 @@ class ImageFolderReader:
             elif meta is not None and math.isfinite(meta.latitude_deg) and math.isfinite(meta.longitude_deg):
                 alt = meta.altitude_m if math.isfinite(meta.altitude_m) else meta.relative_altitude_m
                 if math.isfinite(alt):
-                    yield GeoFix(self._fix_stamp(index, stamp), meta.latitude_deg, meta.longitude_deg, alt, status=0,
+                    yield GeoFix(self.fix_stamp_ns(index, stamp), meta.latitude_deg, meta.longitude_deg, alt, status=0,
                                  position_covariance_m2=self._fix_covariance(meta), covariance_type=2)
                 latlon = (meta.latitude_deg, meta.longitude_deg)
             camera = None
@@ -194,12 +195,12 @@ class ImageFolderReader:
                         latlon = None  # an oblique still's GPS position is not its frame centre
                     # the filter places stills whose camera attitude is known; without it (no gimbal
                     # angles) the mosaic is fitted to the geotags (core/georef/geotag_fit.py)
-                    camera = self._camera(meta, bgr.shape[1], bgr.shape[0])
+                    camera = self.camera(meta, bgr.shape[1], bgr.shape[0])
             if latlon is not None:
                 self.summary.centres[stamp] = latlon
             yield Frame(stamp, cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), camera, file.name)
 
-    def _fix_stamp(self, index: int, stamp: int) -> int:
+    def fix_stamp_ns(self, index: int, stamp: int) -> int:
         """When a still's GPS position was fixed, on the capture clock: its GPS time tag moved by the
         median offset between the two clocks over the survey (a camera clock set by hand is seconds
         off; a camera writes its last fix, which can trail the capture), else the capture time.
@@ -222,7 +223,7 @@ class ImageFolderReader:
         sigma_v = STILLS_GPS_SIGMA_H_M * 2.0 if math.isfinite(meta.relative_altitude_m) else CAMERA_GPS_SIGMA_V_M
         return np.diag([STILLS_GPS_SIGMA_H_M**2, STILLS_GPS_SIGMA_H_M**2, sigma_v**2])
 
-    def _camera(self, meta, width: int, height: int) -> CameraIntrinsics | None:  # noqa: ANN001
+    def camera(self, meta, width: int, height: int) -> CameraIntrinsics | None:  # noqa: ANN001
         """The still's intrinsics from its EXIF, for the image as decoded (None when unknown)."""
         from .exif import intrinsics_from_metadata
 

@@ -440,7 +440,7 @@ class _Problem:
         s0, pri = self.scale, self.pri
         out += [(h[:, 0] + h[:, 4]) / (s0 * pri.shape_sigma), (h[:, 1] - h[:, 3]) / (s0 * pri.shape_sigma),
                 h[:, 6] / pri.perspective_sigma, h[:, 7] / pri.perspective_sigma,
-                (np.sqrt(np.abs(h[:, 0] * h[:, 4] - h[:, 1] * h[:, 3])) - s0) / (s0 * pri.scale_rel_sigma)]
+                (_scale(h) - s0) / (s0 * pri.scale_rel_sigma)]
         if len(self.shape_col):
             hs = h[self.shape_col]
             e, nn, _ = _apply(hs, self.shape_pts)
@@ -487,13 +487,11 @@ class _Problem:
             cols.append(f * 8 + k)
             vals.append(np.full(n, 1.0 / pri.perspective_sigma))
         r0 += 2 * n
-        det = h[:, 0] * h[:, 4] - h[:, 1] * h[:, 3]
-        q = np.sqrt(np.maximum(np.abs(det), 1e-12))
-        sgn = np.sign(det) / (2.0 * q * s0 * pri.scale_rel_sigma)
-        for k, v in ((0, h[:, 4]), (4, h[:, 0]), (1, -h[:, 3]), (3, -h[:, 1])):
+        ds = _scale_jac(h) / (s0 * pri.scale_rel_sigma)
+        for k in (0, 1, 3, 4):
             rows.append(r0 + f)
             cols.append(f * 8 + k)
-            vals.append(sgn * v)
+            vals.append(ds[:, k])
         r0 += n
         if len(self.shape_col):
             hs = h[self.shape_col]
