@@ -26,7 +26,7 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
     p.add_argument('--camera-info-topic', default='/camera/camera_info')
     p.add_argument('--fix-topic', default='/fix')
     p.add_argument('--imu-topic', default='/imu/data')
-    p.add_argument('--blend', choices=['feather', 'multiband'], help='override mosaic.blend')
+    p.add_argument('--blend', choices=['feather', 'multiband', 'bestview'], help='override mosaic.blend')
     p.add_argument('--device', choices=['auto', 'cpu', 'cuda'], help='override device')
     p.add_argument('--select', default='all', help='video frame selection: all, every:N, iframes (the '
                    "reference's MPEG I-frame mosaics) or overlap:F (next frame when overlap drops below F)")

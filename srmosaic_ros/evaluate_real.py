@@ -46,6 +46,8 @@ import numpy as np
 from tqdm import tqdm
 
 from .core.image_ops import to_gray_float01
+from .core.mosaic.best_view import clip_depth, clipped_polygon, depth_map
+from .core.mosaic.minify import minify_level, reduce_frame
 from .core.metrics import apply_homography
 from .core.types import CameraIntrinsics, Frame
 from .core.undistort import Undistorter
@@ -178,14 +180,33 @@ class _MosaicWindows:
 
 
 def _agreement(stamp_ns: int, grey: np.ndarray, mosaic_H_frame: np.ndarray,  # noqa: N803
-               mosaic: _MosaicWindows) -> FrameAgreement:
-    """NCC and sharpness ratio of one frame (grey (h, w) float32) against the mosaic under it."""
+               mosaic: _MosaicWindows, max_stretch: float = 0.0) -> FrameAgreement:
+    """NCC and sharpness ratio of one frame (grey (h, w) float32) against the mosaic under it.
+
+    max_stretch: the run's mosaic.max_stretch: only the part of the frame the canvas painted (its
+    far field and sky cut off, core/mosaic/best_view.py) is compared.
+    """
     h, w = grey.shape
     corners = np.array([[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5], [-0.5, h - 0.5]])
-    depth = np.c_[corners, np.ones(4)] @ mosaic_H_frame[2]
-    if not np.all(np.isfinite(mosaic_H_frame)) or np.any(depth <= 0):
+    if not np.all(np.isfinite(mosaic_H_frame)):
+        return FrameAgreement(stamp_ns, math.nan, math.nan, 0, 1.0, 'mosaic_H_frame is not finite')
+    m = mosaic_H_frame if (np.c_[corners, np.ones(4)] @ mosaic_H_frame[2]).max() > 0 else -mosaic_H_frame
+    d_min = clip_depth(m, w, h, max_stretch)
+    corners = clipped_polygon(m, corners, d_min if d_min is not None else (0.0 if max_stretch > 0 else None))
+    depth = np.c_[corners, np.ones(len(corners))] @ m[2]
+    if len(corners) < 3 or np.any(depth <= 0):
         return FrameAgreement(stamp_ns, math.nan, math.nan, 0, 1.0, 'footprint crosses the horizon')
-    foot = apply_homography(mosaic_H_frame, corners)
+    kept = None if d_min is None else depth_map(m, h, w) >= np.float32(d_min)  # what the canvas painted
+    level = minify_level(m, w, h, d_min)
+    if level:  # reduced as the canvas reduces frames that shrink on the mosaic
+        fill = grey if kept is None else np.where(kept, grey, np.float32(grey[kept].mean() if kept.any() else 0.0))
+        reduced, kept, m_red = reduce_frame(np.ascontiguousarray(fill[:, :, None], np.float32), kept, m, level)
+        grey = reduced[:, :, 0]
+    else:
+        m_red = m
+    if kept is not None:
+        grey = np.where(kept, grey, np.float32(np.nan))
+    foot = apply_homography(m, corners)
     x0, y0 = max(0, math.floor(foot[:, 0].min())), max(0, math.floor(foot[:, 1].min()))
     x1, y1 = min(mosaic.width, math.ceil(foot[:, 0].max()) + 1), min(mosaic.height, math.ceil(foot[:, 1].max()) + 1)
     if x1 - x0 < 2 or y1 - y0 < 2:
@@ -197,10 +218,12 @@ def _agreement(stamp_ns: int, grey: np.ndarray, mosaic_H_frame: np.ndarray,  # n
     bh, bw = m_grey.shape
     scale = 1.0 / k
     grid_H_mosaic = np.array([[scale, 0.0, -x0 * scale], [0.0, scale, -y0 * scale], [0.0, 0.0, 1.0]])  # noqa: N806
-    grid_H_frame = grid_H_mosaic @ mosaic_H_frame  # noqa: N806
+    grid_H_frame = grid_H_mosaic @ m_red  # noqa: N806
     # as the canvas paints: INTER_LINEAR, replicated border, and a separate validity mask
-    warped = cv2.warpPerspective(grey, grid_H_frame, (bw, bh), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    valid = cv2.warpPerspective(np.ones(grey.shape, np.uint8), grid_H_frame, (bw, bh), flags=cv2.INTER_NEAREST,
+    kept = np.isfinite(grey)
+    warped = cv2.warpPerspective(np.where(kept, grey, np.float32(0.0)), grid_H_frame, (bw, bh), flags=cv2.INTER_LINEAR,
+                                 borderMode=cv2.BORDER_REPLICATE)
+    valid = cv2.warpPerspective(kept.astype(np.uint8), grid_H_frame, (bw, bh), flags=cv2.INTER_NEAREST,
                                 borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     kernel = np.ones((2 * _FRAME_ERODE_PX + 1,) * 2, np.uint8)
     covered = (m_alpha > 0).astype(np.uint8)
@@ -356,6 +379,7 @@ def evaluate_real(out_dir: Path, *, progress: bool = True, max_frames: int | Non
     select = str((report.get('video') or {}).get('select', 'all')) if kind == 'video' else 'all'
     items, _, kind_now = open_source(source, topics=topics, select=select, camera_yaml=camera_yaml)
     meta = read_meta_positions(out_dir / 'frames.csv')
+    max_stretch = float(((report.get('config') or {}).get('mosaic') or {}).get('max_stretch', 0.0))
 
     wanted = {main[i]['stamp_ns']: main[i] for i in _pick(len(main), max_frames)}
     mosaic = _MosaicWindows(out_dir)
@@ -372,7 +396,7 @@ def evaluate_real(out_dir: Path, *, progress: bool = True, max_frames: int | Non
                 frame = undistorter.frame(item, camera)  # as the pipeline saw it
                 size = size or (frame.image.shape[1], frame.image.shape[0])
                 results[item.stamp_ns] = _agreement(item.stamp_ns, to_gray_float01(frame.image),
-                                                    wanted[item.stamp_ns]['mosaic_H_frame'], mosaic)
+                                                    wanted[item.stamp_ns]['mosaic_H_frame'], mosaic, max_stretch)
                 bar.update(1)
                 if len(results) == len(wanted):
                     break  # the rest of the input holds no frame to compare

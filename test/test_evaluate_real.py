@@ -28,9 +28,11 @@ CALITERRA = SEQUENCES / 'caliterra'
 def caliterra_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
     """The 14 real Caliterra stills processed once by the chained pipeline (georeferenced by their
     geotags): upscaled into its mosaic, they exercise the evaluation's subsampling (the global
-    alignment of the same stills is tested in test_survey_process.py)."""
+    alignment of the same stills is tested in test_survey_process.py). Feather compositing: the
+    figures below were measured on it (best view is judged in test_best_view_real.py)."""
     out = tmp_path_factory.mktemp('caliterra') / 'out'
-    report = process_input(CALITERRA, out, pipeline_config({'survey.mode': 'chain'}), progress=False)
+    report = process_input(CALITERRA, out, pipeline_config({'survey.mode': 'chain', 'mosaic.blend': 'feather'}),
+                           progress=False)
     return out, report
 
 

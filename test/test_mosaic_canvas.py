@@ -9,7 +9,7 @@ from srmosaic_ros.core.mosaic import CanvasError, TiledCanvas, feather_weight
 from srmosaic_ros.core.mosaic import canvas as canvas_mod
 from srmosaic_ros.errors import SrMosaicError
 
-BLENDS = ('feather', 'multiband')
+BLENDS = ('feather', 'multiband', 'bestview')
 
 
 def texture(h: int, w: int, c: int = 3, *, sigma: float = 2.0, seed: int = 0) -> np.ndarray:
@@ -71,7 +71,8 @@ def test_identity_reproduces_frame(blend: str, channels: int) -> None:
     assert out.shape == ((70, 90) if channels == 1 else (70, 90, channels))
     np.testing.assert_allclose(out.reshape(frame.shape), frame, atol=1e-6)
     assert set(c.tile_keys()) == expected_tiles((0, 0, 90, 70), 32) == set(res.touched_tiles)
-    assert c.memory_bytes == len(c.tile_keys()) * 32 * 32 * 4 * ((channels + 1) if blend == 'feather' else (2 * channels + 3))
+    per_px = {'feather': channels + 1, 'multiband': 2 * channels + 3, 'bestview': 3 * channels + 4}[blend]
+    assert c.memory_bytes == len(c.tile_keys()) * 32 * 32 * 4 * per_px
 
 
 def test_refuses_bad_images_and_settings() -> None:

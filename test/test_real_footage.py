@@ -42,7 +42,10 @@ def test_klv_video_is_georeferenced_where_its_klv_says(aphill_out: Path) -> None
     assert 0.025 < geo['gsd_m_per_px'] < 0.045
     figures = evaluate_real(aphill_out, progress=False)
     assert figures['fraction_in_main'] == 1.0
-    assert figures['ncc_median'] > 0.95, figures['ncc_median']        # measured 0.983
+    # best view (the default): each frame agrees with the mosaic up to the frames' own noise and
+    # compression (two frames of the same ground correlate at about 0.92), as sharp as the frames
+    assert figures['ncc_median'] > 0.9, figures['ncc_median']         # measured 0.920 (feather: 0.983)
+    assert figures['sharpness_median'] > 0.95, figures                # measured 1.04 (feather: 0.795)
     assert figures['position']['rms_m'] < 20.0, figures['position']    # measured 14.9 m
 
 

@@ -107,12 +107,14 @@ def test_real_stills_super_resolved_against_their_originals(tmp_path) -> None:
     (survey.mode: chain, whose registrations leave frames inconsistent on some tiles): SR beats
     bicubic on the tiles the gate keeps; on the tiles it refuses, SR would have lost to bicubic; and
     without the gate the kept tiles lose too (their inconsistent frames are averaged in). Aligned
-    globally (the default for stills), the frames agree and SR gains far more."""
+    globally (the default for stills), the frames agree and SR gains far more. The chained mosaic is
+    feathered here, as these figures were measured: its best-view mosaic is itself 0.85 dB closer to
+    the originals (22.98 dB against 22.13), and the chained SR tiles (22.74 dB) then lose to it by 0.25."""
     hr = halve_stills(SEQUENCES / 'brighton_beach', tmp_path / 'lr')
     runs = {}
     for label, overrides in (('gate', {}), ('no gate', {'sr.consistency': 0.0}), ('global', {})):
         if label != 'global':
-            overrides = {**overrides, 'survey.mode': 'chain'}
+            overrides = {**overrides, 'survey.mode': 'chain', 'mosaic.blend': 'feather'}
         out = tmp_path / label.replace(' ', '_')
         report = process_input(tmp_path / 'lr', out, pipeline_config({'sr_tiles.tile_size': 64, **overrides}),
                                sr_factor=2, progress=False)

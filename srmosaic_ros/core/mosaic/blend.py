@@ -164,13 +164,18 @@ def multiband_blend(
     seam_image: np.ndarray,
     labels: np.ndarray,
     bands: int,
+    *,
+    coarsest_by_seams: bool = False,
 ) -> np.ndarray:
     """Multi-band blend of the max-weight composite over the feather composite (Table 2).
 
     ``feather`` F and ``seam_image`` S: float32 (h, w, C), equal to each other (or both 0) where
     a single frame or none covers; ``labels``: int32 (h, w), winning frame per pixel (eq. 4.7),
     -1 where uncovered; ``bands``: pyramid levels N >= 1. Returns float32 (h, w, C):
-    ``F + collapse(GR_l * L_l(S - F) for l < N)``, see the module docstring.
+    ``F + collapse(GR_l * L_l(S - F) for l < N)``, see the module docstring. ``coarsest_by_seams``:
+    the coarsest Gaussian level too is taken from S by its region weight GR_N (Table 2 blends
+    every level), so a region without seams renders as S exactly (the best-view compositor, whose F
+    is a two-frame composite, not a smooth average of every frame).
     """
     diff = (seam_image - feather).astype(np.float32, copy=False)
     if not diff.any():
@@ -185,17 +190,19 @@ def multiband_blend(
     levels = len(gauss) - 1
     if levels == 0:
         return feather.copy()
-    acc: np.ndarray | None = None  # collapsed blend of levels > l; coarsest band dropped (comes from F)
+    def region_weight(lev: int, shape: tuple[int, ...]) -> np.ndarray:
+        if np.isinf(dist).all():
+            return np.ones(shape[:2], np.float32)
+        d = dist if lev == 0 else cv2.resize(dist, (shape[1], shape[0]), interpolation=cv2.INTER_AREA)
+        return np.clip((d / float(2**lev) - SEAM_NEAR) / SEAM_RAMP, 0.0, 1.0).astype(np.float32)
+
+    # collapsed blend of levels > l; the coarsest band comes from F unless coarsest_by_seams
+    top = gauss[levels]
+    acc: np.ndarray | None = top * region_weight(levels, top.shape)[..., None] if coarsest_by_seams else None
     for lev in range(levels - 1, -1, -1):
         g = gauss[lev]
         lap = g - _pyr_up(gauss[lev + 1], g.shape)
-        scale = float(2**lev)
-        if np.isinf(dist).all():
-            region = np.ones(g.shape[:2], np.float32)
-        else:
-            d = dist if lev == 0 else cv2.resize(dist, (g.shape[1], g.shape[0]), interpolation=cv2.INTER_AREA)
-            region = np.clip((d / scale - SEAM_NEAR) / SEAM_RAMP, 0.0, 1.0).astype(np.float32)
-        band = lap * region[..., None]
+        band = lap * region_weight(lev, g.shape)[..., None]
         acc = band if acc is None else band + _pyr_up(acc, g.shape)
     assert acc is not None
     return feather + acc

@@ -51,6 +51,8 @@ import numpy as np
 
 from srmosaic_ros.errors import SrMosaicError
 
+from .best_view import clip_depth, clipped_polygon, depth_map, resolution_factor, transition_image, update_best
+from .minify import minify_level, reduce_frame
 from .blend import FEATHER_PROFILES, auto_bands, feather_weight, multiband_blend
 from .config import BLEND_MODES
 from .tile_store import TileKey, TileLayout, TileStore, TileStoreError
@@ -112,8 +114,10 @@ class TiledCanvas:
     Args:
         channels: C, colour channels of every painted image (1 mono, 3 RGB, any C >= 1).
         tile_size: tile side T in mosaic pixels (16 .. 4096).
-        blend: ``'feather'`` (weighted average, eq. W(x, y) of section 4.2.5) or ``'multiband'``
-            (max-weight masks, eq. 4.7, and Laplacian-pyramid blending, Table 2 / eqs 4.8 to 4.10).
+        blend: ``'feather'`` (weighted average, eq. W(x, y) of section 4.2.5), ``'multiband'``
+            (max-weight masks, eq. 4.7, and Laplacian-pyramid blending, Table 2 / eqs 4.8 to 4.10)
+            or ``'bestview'`` (each pixel from the frame that sees it best, blended across seams
+            only: :mod:`.best_view`).
         feather_profile: ``'separable'`` (w(x) w(y), the dissertation's form, the default) or
             ``'distance'`` (distance to the frame border); see :func:`.blend.feather_weight`.
             The separable form blends frames that share an edge without a jump along it (with
@@ -127,10 +131,16 @@ class TiledCanvas:
         bands: pyramid levels of multiband rendering; 0 chooses them from the region size
             (:func:`.blend.auto_bands`).
         background: value of uncovered pixels in ``render``.
+        max_stretch: frame pixels more than this many times (linearly) coarser on the mosaic than
+            the frame's finest pixel are not painted (far field and sky of oblique views, see
+            :mod:`.best_view`); such frames may then cross the horizon. 0: no cut, and a frame
+            crossing the horizon is refused.
+        recency_frames: best view only: a frame this many frames newer wins over an e-fold better
+            view (0: no preference for newer frames).
         max_tiles_in_memory: at most this many tiles are kept in memory, the least recently
             painted ones are spilled to disk (0: no bound, nothing is ever written). One tile
-            holds ``4 T^2 (C + 1)`` bytes (feather) or ``4 T^2 (2 C + 3)`` (multiband): 1 MiB and
-            2.25 MiB for T = 256, C = 3.
+            holds ``4 T^2 (C + 1)`` bytes (feather), ``4 T^2 (2 C + 3)`` (multiband) or
+            ``4 T^2 (3 C + 4)`` (best view): 1 MiB, 2.25 MiB and 3.25 MiB for T = 256, C = 3.
         spill_dir: directory under which the spill directory of this canvas is created ('':
             $TMPDIR, else /var/tmp, see :func:`.tile_store.default_spill_root`); created on the
             first spill, removed by ``close()``.
@@ -152,6 +162,8 @@ class TiledCanvas:
         background: float = 0.0,
         max_tiles_in_memory: int = 0,
         spill_dir: str | os.PathLike[str] = '',
+        max_stretch: float = 0.0,
+        recency_frames: int = 90,
     ) -> None:
         if int(channels) != channels or channels < 1:
             msg = f'channels must be a positive integer, got {channels!r}.'
@@ -180,6 +192,14 @@ class TiledCanvas:
         if int(max_tiles_in_memory) != max_tiles_in_memory or max_tiles_in_memory < 0:
             msg = f'max_tiles_in_memory must be an integer >= 0 (0: no bound), got {max_tiles_in_memory!r}.'
             raise CanvasError(msg)
+        if not (math.isfinite(max_stretch) and max_stretch >= 0) or 0 < max_stretch <= 1:
+            msg = f'max_stretch must be 0 (no cut) or a number > 1, got {max_stretch!r}.'
+            raise CanvasError(msg)
+        if isinstance(recency_frames, bool) or int(recency_frames) != recency_frames or recency_frames < 0:
+            msg = f'recency_frames must be an integer >= 0 (0: no preference for newer frames), got {recency_frames!r}.'
+            raise CanvasError(msg)
+        self._max_stretch = float(max_stretch)
+        self._recency_frames = int(recency_frames)
         self._channels = int(channels)
         self._tile_size = int(tile_size)
         self._blend = blend
@@ -189,7 +209,7 @@ class TiledCanvas:
         self._max_area_ratio = float(max_area_ratio)
         self._bands = int(bands)
         self._background = np.float32(background)
-        self._store = TileStore(TileLayout(self._tile_size, self._channels, blend == 'multiband'),
+        self._store = TileStore(TileLayout(self._tile_size, self._channels, blend == 'multiband', blend == 'bestview'),
                                 max_in_memory=int(max_tiles_in_memory), spill_dir=spill_dir)
         self._tile_frames: dict[TileKey, int] = {}  # every tile: how many frames wrote into it
         self._touched: set[TileKey] = set()
@@ -201,6 +221,12 @@ class TiledCanvas:
         self.last_preview_region = (0, 0, 0, 0)
         self._frames = 0
         self._bounds: tuple[int, int, int, int] | None = None
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        """Canvases of checkpoints written before best view get its settings' old behaviour."""
+        self.__dict__.update(state)
+        for name, default in (('_max_stretch', 0.0), ('_recency_frames', 90)):
+            self.__dict__.setdefault(name, default)
 
     # ------------------------------------------------------------------ properties
     @property
@@ -367,13 +393,18 @@ class TiledCanvas:
             raise CanvasError(msg)
         corners = np.array([[-1.0, -1.0], [w, -1.0], [w, h], [-1.0, h]])
         _, depth = _project(m, corners)
-        if (depth < 0).all():
+        if (depth <= 0).all():
             m = -m
             depth = -depth
         tol = 1e-9 * np.abs(depth).max()
-        if not (depth > tol).all():
+        if not (depth > tol).all() and not self._max_stretch > 0:
             msg = ('mosaic_H_frame maps part of the frame beyond the horizon (the projective depth '
-                   f'changes sign over the frame: {depth.tolist()}); the homography is absurd, skip this frame.')
+                   f'changes sign over the frame: {depth.tolist()}); the homography is absurd, skip this frame '
+                   '(or set mosaic.max_stretch to paint the part of the frame below the horizon).')
+            raise CanvasError(msg)
+        corners = clipped_polygon(m, corners, clip_depth(m, w, h, self._max_stretch))
+        if len(corners) < 3:
+            msg = 'mosaic_H_frame maps the whole frame beyond the horizon; the homography is absurd, skip this frame.'
             raise CanvasError(msg)
         pts, _ = _project(m, corners)
         x, y = pts[:, 0], pts[:, 1]
@@ -391,8 +422,12 @@ class TiledCanvas:
     def _placement(self, m: np.ndarray, w: int, h: int) -> tuple[int, int, int, int]:
         """Bounding box (x0, y0, x1, y1) of the mosaic pixels a w x h frame at m touches; CanvasError
         when it is absurd or would make the canvas exceed max_canvas_side_px."""
-        # Bilinear sampling gives non-zero weight to mosaic pixels mapping inside (-1, W) x (-1, H).
-        support, _ = _project(m, np.array([[-1.0, -1.0], [w, -1.0], [w, h], [-1.0, h]]))
+        # Bilinear sampling gives non-zero weight to mosaic pixels mapping inside (-1, W) x (-1, H)
+        # (one pixel beyond the cut of max_stretch: the depth changes by |m20| + |m21| per pixel).
+        d_min = clip_depth(m, w, h, self._max_stretch)
+        if d_min is not None:
+            d_min = max(d_min - abs(m[2, 0]) - abs(m[2, 1]), 0.5 * d_min)
+        support, _ = _project(m, clipped_polygon(m, np.array([[-1.0, -1.0], [w, -1.0], [w, h], [-1.0, h]]), d_min))
         lo = support.min(axis=0)
         hi = support.max(axis=0)
         bw_f, bh_f = hi[0] - lo[0], hi[1] - lo[1]
@@ -443,8 +478,22 @@ class TiledCanvas:
         valid = self._as_mask(mask, img)
         footprint, _ = _project(m, np.array([[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5], [-0.5, h - 0.5]]))
         x0, y0, x1, y1 = self._placement(m, w, h)
+        level = minify_level(m, w, h, clip_depth(m, w, h, self._max_stretch))
+        if level:  # a frame shrinking on the mosaic is reduced first, not point-sampled (minify.py)
+            if valid is not None:
+                img = _fill_invalid(img, valid)
+            img, valid, m = reduce_frame(img, valid, m, level)
+            h, w = img.shape[:2]
+        best_view = self._blend == 'bestview'
+        d_min = clip_depth(m, w, h, self._max_stretch)
+        depth = depth_map(m, h, w) if (best_view or d_min is not None) else None
+        if d_min is not None and depth is not None:  # the far field and sky of an oblique view stay out
+            kept = depth >= np.float32(d_min)
+            valid = kept if valid is None else valid & kept
 
         weight = feather_weight(h, w, profile=self._profile, power=self._power, mask=valid)
+        if best_view and depth is not None:  # view quality: closeness to the centre x resolution
+            weight = weight * resolution_factor(m, depth)
         if valid is not None:
             img = _fill_invalid(img, valid)
         bw, bh = x1 - x0, y1 - y0
@@ -463,7 +512,7 @@ class TiledCanvas:
         # Tight box of non-zero weight, in box coordinates.
         c0, c1, r0, r1 = int(cols[0]), int(cols[-1]) + 1, int(rows[0]), int(rows[-1]) + 1
         multiband = self._blend == 'multiband'
-        wimg = img_w * w_w[..., None] if multiband else np.multiply(img_w, w_w[..., None], out=img_w)
+        wimg = img_w * w_w[..., None] if (multiband or best_view) else np.multiply(img_w, w_w[..., None], out=img_w)
 
         t = self._tile_size
         jobs: list[tuple[TileKey, tuple[slice, slice], tuple[slice, slice]]] = []
@@ -485,6 +534,8 @@ class TiledCanvas:
             sub_w = w_w[box]
             tile.acc[loc] += wimg[box]
             tile.wsum[loc] += sub_w
+            if best_view:
+                update_best(tile, loc, img_w[box], sub_w, index, self._recency_frames)
             if multiband:
                 assert tile.best is not None and tile.best_w is not None and tile.best_id is not None
                 best_w = tile.best_w[loc]
@@ -546,10 +597,12 @@ class TiledCanvas:
         """Tile arrays ``names`` assembled over ``region``; zeros (best_id: -1) where no tile."""
         x0, y0, x1, y1 = region
         h, w = y1 - y0, x1 - x0
-        shapes = {'acc': (h, w, self._channels), 'best': (h, w, self._channels),
-                  'wsum': (h, w), 'best_w': (h, w), 'best_id': (h, w)}
-        outs = [np.full(shapes[n], -1, np.int32) if n == 'best_id' else np.zeros(shapes[n], np.float32)
-                for n in names]
+        c = self._channels
+        shapes = {'acc': (h, w, c), 'best': (h, w, c), 'second': (h, w, c),
+                  'wsum': (h, w), 'best_w': (h, w), 'best_id': (h, w), 'second_w': (h, w)}
+        fill = {'best_id': -1, 'best_w': -np.inf, 'second_w': -np.inf} if self._blend == 'bestview' else {'best_id': -1}
+        outs = [np.full(shapes[n], fill[n], np.int32 if n == 'best_id' else np.float32) if n in fill
+                else np.zeros(shapes[n], np.float32) for n in names]
         for key in self._keys_in(x0, y0, x1, y1):
             tile = self._store.peek(key)
             if tile is None:  # only after a failed paint created no tile for its key
@@ -591,6 +644,14 @@ class TiledCanvas:
             out = out[:, :, 0]
         return out, covered
 
+    def render_reference(self, region: tuple[int, int, int, int]) -> tuple[np.ndarray, np.ndarray]:
+        """The feather composite of ``region`` whatever the blend (``render``'s return convention):
+        what keyframes register to. Under a revisit it still holds the first pass, which best view
+        hands to the newest frames."""
+        self._check_open()
+        out, covered = self._render_feather(self._region(region))
+        return (out[:, :, 0] if self._channels == 1 else out), covered
+
     def render_preview(self, max_side: int) -> tuple[np.ndarray, np.ndarray]:
         """A small feather render of the whole canvas for live previews, in time independent of the
         canvas's size: only tiles painted since the previous call are read.
@@ -628,8 +689,13 @@ class TiledCanvas:
             tile = self._store.peek(key)
             if tile is None:
                 continue
-            self._preview_sums[key] = (tile.acc.reshape(n, f, n, f, c).sum(axis=(1, 3), dtype=np.float32),
-                                       tile.wsum.reshape(n, f, n, f).sum(axis=(1, 3), dtype=np.float32))
+            if tile.best_view_tile:  # best view: the block means of the winners' pixels
+                seen = (tile.best_id >= 0).astype(np.float32)
+                acc, wts = tile.best * seen[..., None], seen
+            else:
+                acc, wts = tile.acc, tile.wsum
+            self._preview_sums[key] = (acc.reshape(n, f, n, f, c).sum(axis=(1, 3), dtype=np.float32),
+                                       wts.reshape(n, f, n, f).sum(axis=(1, 3), dtype=np.float32))
         self._preview_dirty = set()
         gx0, gy0, gx1, gy1 = x0 // f, y0 // f, -(-x1 // f), -(-y1 // f)
         self.last_preview_region = (gx0 * f, gy0 * f, (gx1 - gx0) * f, (gy1 - gy0) * f)
@@ -745,10 +811,15 @@ class TiledCanvas:
         margin = MULTIBAND_MARGIN * step
         ex0, ey0 = (x0 - margin) // step * step, (y0 - margin) // step * step
         ex1, ey1 = -((-(x1 + margin)) // step) * step, -((-(y1 + margin)) // step) * step
-        acc, wsum, best, best_id = self._gather((ex0, ey0, ex1, ey1), ('acc', 'wsum', 'best', 'best_id'))
-        covered = wsum > 0
-        feather = np.zeros(acc.shape, np.float32)
-        np.divide(acc, wsum[..., None], out=feather, where=covered[..., None])
-        out = multiband_blend(feather, best, best_id, bands)
+        if self._blend == 'bestview':
+            best, best_id, second, second_w = self._gather((ex0, ey0, ex1, ey1), ('best', 'best_id', 'second', 'second_w'))
+            covered = best_id >= 0
+            out = multiband_blend(transition_image(best, second, second_w), best, best_id, bands, coarsest_by_seams=True)
+        else:
+            acc, wsum, best, best_id = self._gather((ex0, ey0, ex1, ey1), ('acc', 'wsum', 'best', 'best_id'))
+            covered = wsum > 0
+            feather = np.zeros(acc.shape, np.float32)
+            np.divide(acc, wsum[..., None], out=feather, where=covered[..., None])
+            out = multiband_blend(feather, best, best_id, bands)
         crop = (slice(y0 - ey0, y1 - ey0), slice(x0 - ex0, x1 - ex0))
         return out[crop], covered[crop]

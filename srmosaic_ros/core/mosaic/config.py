@@ -1,17 +1,20 @@
 """Mosaic settings; the field names are the keys under `mosaic.` in params/*.yaml."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 __all__ = ['MosaicConfig', 'BLEND_MODES']
 
-BLEND_MODES = ('feather', 'multiband')
+BLEND_MODES = ('feather', 'multiband', 'bestview')
 
 
 @dataclass(frozen=True)
 class MosaicConfig:
     tile_size: int = 256
-    blend: str = 'feather'
+    blend: str = 'bestview'
+    max_stretch: float = 4.0  # frame pixels this many times coarser than the frame's finest are not painted (0: all)
+    recency_frames: int = 90  # bestview: a frame this many frames newer wins over an e-fold better view (0: none)
     max_canvas_side_px: int = 100000
     preview_max_side_px: int = 1024
     max_tiles_in_memory: int = 256  # per canvas; 0: no bound (see canvas.TiledCanvas)
@@ -29,6 +32,14 @@ class MosaicConfig:
             raise ValueError(msg)
         if self.blend not in BLEND_MODES:
             msg = f"mosaic.blend must be one of {', '.join(BLEND_MODES)}, got {self.blend!r}."
+            raise ValueError(msg)
+        if not (isinstance(self.max_stretch, (int, float)) and math.isfinite(self.max_stretch)
+                and (self.max_stretch == 0 or self.max_stretch > 1)):
+            msg = (f'mosaic.max_stretch must be 0 (paint every frame pixel) or a number > 1, got {self.max_stretch!r}; '
+                   '4 leaves out the far field and sky of oblique views.')
+            raise ValueError(msg)
+        if isinstance(self.recency_frames, bool) or not isinstance(self.recency_frames, int) or self.recency_frames < 0:
+            msg = f'mosaic.recency_frames must be an integer >= 0 (0: no preference for newer frames), got {self.recency_frames!r}.'
             raise ValueError(msg)
         if self.max_canvas_side_px < 256:
             msg = f'mosaic.max_canvas_side_px must be >= 256, got {self.max_canvas_side_px}.'

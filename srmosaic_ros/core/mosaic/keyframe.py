@@ -56,7 +56,8 @@ def corner_shift_px(a: np.ndarray, b: np.ndarray, width: int, height: int) -> fl
 
 def render_view(canvas: TiledCanvas, seg_H_frame: np.ndarray, width: int, height: int, *,  # noqa: N803
                 gray: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """The mosaic as the frame would see it under seg_H_frame.
+    """The mosaic's feather composite (TiledCanvas.render_reference, whatever the blend) as the frame
+    would see it under seg_H_frame.
 
     Returns (view, covered): view float32 (height, width, C) in [0, 1] (C = 1 with ``gray``: the
     Rec. 601 luminance, all that registration uses, a third of the warping), uncovered pixels
@@ -72,7 +73,7 @@ def render_view(canvas: TiledCanvas, seg_H_frame: np.ndarray, width: int, height
     channels = 1 if gray else canvas.channels
     if x1 - x0 < 2 or y1 - y0 < 2:
         return np.zeros((height, width, channels), np.float32), np.zeros((height, width), bool)
-    image, covered = canvas.render((x0, y0, x1, y1))
+    image, covered = canvas.render_reference((x0, y0, x1, y1))
     if gray and image.ndim == 3 and image.shape[2] == 3:
         image = cv2.cvtColor(np.ascontiguousarray(image, np.float32), cv2.COLOR_RGB2GRAY)
     if image.ndim == 2:

@@ -58,17 +58,26 @@ class TileStoreError(SrMosaicError, OSError):
 class TileLayout:
     """Arrays of one tile of side ``size`` with ``channels`` colour channels.
 
-    Always ``acc`` float32 (T, T, C) and ``wsum`` float32 (T, T); with ``multiband`` also ``best``
+    Feather: ``acc`` float32 (T, T, C) and ``wsum`` float32 (T, T); ``multiband`` adds ``best``
     float32 (T, T, C), ``best_w`` float32 (T, T) and ``best_id`` int32 (T, T) (-1: no frame).
+    ``best_view`` (the best-view compositor, :mod:`.best_view`): ``acc``, ``wsum`` (the feather
+    composite, which keyframes register to: it holds the first pass under a revisit), ``best``,
+    ``best_w`` (the winner's log score, -inf: none), ``best_id``, ``second`` float32 (T, T, C) and
+    ``second_w`` (the runner-up's colour and log score).
     """
 
     size: int
     channels: int
     multiband: bool
+    best_view: bool = False
 
     @property
     def fields(self) -> tuple[tuple[str, tuple[int, ...], type], ...]:
         t, c = self.size, self.channels
+        if self.best_view:
+            return (('acc', (t, t, c), np.float32), ('wsum', (t, t), np.float32), ('best', (t, t, c), np.float32),
+                    ('best_w', (t, t), np.float32), ('best_id', (t, t), np.int32), ('second', (t, t, c), np.float32),
+                    ('second_w', (t, t), np.float32))
         out: list[tuple[str, tuple[int, ...], type]] = [('acc', (t, t, c), np.float32), ('wsum', (t, t), np.float32)]
         if self.multiband:
             out += [('best', (t, t, c), np.float32), ('best_w', (t, t), np.float32), ('best_id', (t, t), np.int32)]
@@ -83,14 +92,17 @@ class TileLayout:
 class Tile:
     """One tile: the arrays of its :class:`TileLayout` as views into one ``uint8`` buffer ``buf``."""
 
-    __slots__ = ('acc', 'best', 'best_id', 'best_w', 'buf', 'wsum')
+    __slots__ = ('acc', 'best', 'best_id', 'best_w', 'buf', 'second', 'second_w', 'wsum')
 
     def __init__(self, layout: TileLayout, buf: np.ndarray | None = None) -> None:
         fresh = buf is None
         self.buf = np.zeros(layout.nbytes, np.uint8) if buf is None else buf
+        self.acc: np.ndarray | None = None
         self.best: np.ndarray | None = None
         self.best_w: np.ndarray | None = None
         self.best_id: np.ndarray | None = None
+        self.second: np.ndarray | None = None
+        self.second_w: np.ndarray | None = None
         off = 0
         for name, shape, dtype in layout.fields:
             n = 4 * math.prod(shape)
@@ -98,10 +110,18 @@ class Tile:
             off += n
         if fresh and self.best_id is not None:
             self.best_id.fill(-1)
+        if fresh and self.second_w is not None:  # best view: log scores, -inf where no frame
+            self.best_w.fill(-np.inf)
+            self.second_w.fill(-np.inf)
 
     @property
     def nbytes(self) -> int:
         return int(self.buf.nbytes)
+
+    @property
+    def best_view_tile(self) -> bool:
+        """Whether the tile has the best-view layout (a runner-up)."""
+        return self.second is not None
 
 
 def default_spill_root() -> str:
@@ -323,7 +343,7 @@ class TileStore:
         bound as the tiles arrive (into a new spill directory of its own).
         """
         self._check_open()
-        args = ((self.layout.size, self.layout.channels, self.layout.multiband), self.max_in_memory,
+        args = ((self.layout.size, self.layout.channels, self.layout.multiband, self.layout.best_view), self.max_in_memory,
                 self.spill_root, self.loads, self.writes)
         return (_restore_store, args, None, self._pickle_items())
 
@@ -372,7 +392,7 @@ class TileStore:
 _PICKLE_CHUNK = 1 << 16
 
 
-def _restore_store(layout: tuple[int, int, bool], max_in_memory: int, spill_root: str, loads: int,
+def _restore_store(layout: tuple[int, ...], max_in_memory: int, spill_root: str, loads: int,
                    writes: int) -> TileStore:
     store = TileStore(TileLayout(*layout), max_in_memory=max_in_memory, spill_dir=spill_root)
     store.loads, store.writes = loads, writes

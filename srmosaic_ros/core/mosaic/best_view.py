@@ -1,0 +1,124 @@
+"""Best-view compositing: each mosaic pixel from the frame that sees it best, blended across seams only.
+
+The reference's max-weight masks (eq. 4.7) give each mosaic pixel to the frame of largest feather
+weight. Here the weight is a view quality with three factors, and the composite keeps, per mosaic
+pixel, the winning frame's colour and the runner-up's:
+
+    q_i(p) = f_i(p) * r_i(p)             f: the feather profile (closeness to the frame centre, 4.2.5)
+    r_i(p) = min(1, 1 / s_i(p))          s: linear stretch of frame pixels on the mosaic, sqrt(det J)
+    score_i(p) = log q_i(p) + i / n      i: the frame's paint count, n: ``recency_frames``
+
+``r`` prefers frames that see the ground at a finer resolution (an oblique frame's far field, a
+zoomed-out frame lose to closer views); the recency term makes a frame ``n`` frames newer win over
+an e-fold better older one, so that where views are about as good the newer shows the ground. It
+counts frames, not seconds: the overlap of consecutive frames is what a frame's rate sets (90
+frames: 3 s of 30 fps video, where the newest frame keeps its own neighbourhood; for stills
+seconds apart, 1/90 per still, the view quality alone decides). Scores are log-domain so that old
+scores never need decaying. (Keyframes register to the canvas's feather composite, which under a
+revisit still shows the first pass.)
+
+Seams lie where the winner changes. Rendering (Table 2, as in :func:`.blend.multiband_blend`)
+replaces the reference's feather composite by the two-frame composite ``T = (best + second) / 2``
+(``best`` where no second frame covers the pixel): the output is the winner's pixel away from
+seams, and across a seam every band switches from one frame to the other over about 2**l pixels.
+Only the two frames that meet at a seam are mixed, never the average of every frame that saw the
+ground, so a misregistered or moving-camera frame cannot blur the rest of the mosaic.
+
+Far field and sky (``max_stretch``): a frame whose view reaches the horizon maps the pixels near it
+onto huge mosaic areas (the stretch grows as depth**-1.5, depth being the homography's third row
+over the frame, linear in u, v), so frame pixels more than ``max_stretch`` times (linearly) coarser
+than the frame's finest are left out: the kept part is the frame cut by a straight line, depth >=
+depth_max * max_stretch**(-2/3).
+
+All arrays are numpy float32 unless said; frame pixel centres at integer (u, v).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ['clip_depth', 'clipped_polygon', 'depth_map', 'resolution_factor', 'transition_image', 'update_best']
+
+
+def depth_map(m: np.ndarray, h: int, w: int) -> np.ndarray:
+    """(h, w) float32: the projective depth ``m[2] @ (u, v, 1)`` of every frame pixel."""
+    u = np.arange(w, dtype=np.float32) * np.float32(m[2, 0])
+    v = np.arange(h, dtype=np.float32) * np.float32(m[2, 1]) + np.float32(m[2, 2])
+    return np.add.outer(v, u)
+
+
+def clip_depth(m: np.ndarray, w: int, h: int, max_stretch: float) -> float | None:
+    """The least depth of the frame pixels kept under ``max_stretch`` (module docstring), or None when
+    every pixel of the (w, h) frame is kept (or ``max_stretch`` is 0: no clipping).
+
+    ``m``: (3, 3) mosaic_H_frame whose depth is positive somewhere over the frame.
+    """
+    if not max_stretch > 0:
+        return None
+    corners = np.array([[-0.5, -0.5, 1.0], [w - 0.5, -0.5, 1.0], [w - 0.5, h - 0.5, 1.0], [-0.5, h - 0.5, 1.0]])
+    depth = corners @ m[2]
+    d_min = float(depth.max()) * max_stretch ** (-2.0 / 3.0)
+    return None if depth.min() >= d_min else d_min
+
+
+def clipped_polygon(m: np.ndarray, corners: np.ndarray, d_min: float | None) -> np.ndarray:
+    """(K, 2) frame points: the polygon ``corners`` (4, 2) cut to depth >= ``d_min`` (Sutherland-Hodgman
+    against one half-plane); ``corners`` unchanged when ``d_min`` is None. K is 0 when nothing is left."""
+    if d_min is None:
+        return corners
+    depth = corners @ m[2, :2] + m[2, 2]
+    out: list[np.ndarray] = []
+    n = len(corners)
+    for i in range(n):
+        a, b = corners[i], corners[(i + 1) % n]
+        da, db = depth[i] - d_min, depth[(i + 1) % n] - d_min
+        if da >= 0:
+            out.append(a)
+        if (da >= 0) != (db >= 0):
+            out.append(a + (b - a) * (da / (da - db)))
+    return np.array(out, dtype=np.float64).reshape(-1, 2)
+
+
+def resolution_factor(m: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    """(h, w) float32 ``r = min(1, 1 / s)``, s = sqrt(|det m| / depth**3) the linear stretch of each frame
+    pixel on the mosaic (det J of the homography); 0 where depth <= 0. ``depth``: :func:`depth_map`."""
+    det = abs(float(np.linalg.det(m)))
+    d = np.maximum(depth, np.float32(0.0))
+    r = np.sqrt(d * d * d / np.float32(det)) if det > 0 else np.ones_like(depth)
+    return np.minimum(r, np.float32(1.0), out=r)
+
+
+def update_best(tile: object, loc: tuple[slice, slice], colour: np.ndarray, q: np.ndarray, index: int,
+                recency_frames: int) -> None:
+    """Offer a frame's warped pixels to a best-view tile.
+
+    tile: a :class:`.tile_store.Tile` of the best-view layout; loc: the tile slices written;
+    colour (h, w, C) and q (h, w) the frame's warped colour and quality there (q 0: not seen);
+    index: the frame's label and paint count; recency_frames: n of the score (0: no recency term).
+    The frame wins where its score beats the winner's (the old winner becomes the runner-up) and
+    becomes the runner-up where it beats only the runner-up.
+    """
+    seen = q > 0
+    score = np.full(q.shape, -np.inf, np.float32)
+    score[seen] = np.log(q[seen]) + np.float32(index / recency_frames if recency_frames > 0 else 0.0)
+    best, best_w, best_id = tile.best[loc], tile.best_w[loc], tile.best_id[loc]  # type: ignore[attr-defined]
+    second, second_w = tile.second[loc], tile.second_w[loc]  # type: ignore[attr-defined]
+    take = score > best_w
+    runner = ~take & (score > second_w)
+    if take.any():
+        np.copyto(second, best, where=take[..., None])
+        np.copyto(second_w, best_w, where=take)
+        np.copyto(best, colour, where=take[..., None])
+        np.copyto(best_w, score, where=take)
+        best_id[take] = index
+    if runner.any():
+        np.copyto(second, colour, where=runner[..., None])
+        np.copyto(second_w, score, where=runner)
+
+
+def transition_image(best: np.ndarray, second: np.ndarray, second_w: np.ndarray) -> np.ndarray:
+    """(h, w, C) the two-frame composite ``T``: the mean of winner and runner-up, the winner alone where
+    no second frame saw the pixel (``second_w`` -inf)."""
+    two = np.isfinite(second_w)[..., None]
+    out = np.add(best, second, dtype=np.float32)
+    out *= np.float32(0.5)
+    return np.where(two, out, best)

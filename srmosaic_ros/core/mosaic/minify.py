@@ -1,0 +1,59 @@
+"""Anti-aliased painting of frames that shrink on the mosaic (a zoom out, a forward flight seen from
+its first frame's plane): the frame is reduced by pyramid levels before it is warped.
+
+``cv2.warpPerspective`` with INTER_LINEAR samples the frame at the mosaic pixels' preimages, so a
+frame whose pixels land 0.1 mosaic px apart is point-sampled one pixel in ten: aliased, and
+disagreeing with every other view of that ground. Mip-mapping fixes it: with s the linear stretch
+of frame pixels on the mosaic (sqrt(det J) of the homography; an oblique frame's varies over it: the
+geometric mean of its least and largest over the part of the frame that is painted), the frame goes ``L = floor(log2(1 / s))`` levels
+down ``cv2.pyrDown`` (the Burt kernel, eq. 4.8), which keeps s >= 1/2 after reduction, and the
+homography follows: level-L pixel (u', v') is frame pixel (2**L u', 2**L v') (pyrDown keeps the
+even rows and columns).
+"""
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+__all__ = ['MAX_LEVELS', 'minify_level', 'reduce_frame']
+
+#: Most pyramid levels a frame is reduced by (1/64 linear).
+MAX_LEVELS = 6
+
+
+def minify_level(m: np.ndarray, w: int, h: int, d_min: float | None = None) -> int:
+    """Pyramid levels to reduce a (w, h) frame by before warping it through mosaic_H_frame ``m`` (3, 3)
+    (positive depth over the part painted: depth >= ``d_min``, the cut of best_view.clip_depth, or the
+    whole frame for None); 0 when that part does not shrink by 2 or more."""
+    corners = np.array([[-0.5, -0.5, 1.0], [w - 0.5, -0.5, 1.0], [w - 0.5, h - 0.5, 1.0], [-0.5, h - 0.5, 1.0]])
+    depth = corners @ m[2]
+    det = abs(float(np.linalg.det(m)))
+    lo = float(depth.min()) if d_min is None else max(float(depth.min()), d_min)
+    if not (det > 0 and lo > 0):
+        return 0
+    s = math.sqrt(det / (lo * float(depth.max())) ** 1.5)  # geometric mean of the extreme stretches
+    if not s < 0.5:
+        return 0
+    level = min(int(math.floor(math.log2(1.0 / s))), MAX_LEVELS)
+    while level > 0 and min(w, h) >> level < 8:  # a frame is kept at least 8 px on its smaller side
+        level -= 1
+    return level
+
+
+def reduce_frame(img: np.ndarray, valid: np.ndarray | None, m: np.ndarray, level: int,
+                 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
+    """(image (h', w', C), valid (h', w') bool or None, mosaic_H_reduced (3, 3)) of a frame reduced by
+    ``level`` pyramid levels. img: float32 (h, w, C) with its invalid pixels already filled (invalid
+    colour would bleed through the kernel); valid: bool (h, w) or None (all valid); a reduced pixel
+    stays valid only where its whole kernel was."""
+    c = img.shape[2]
+    mask = None if valid is None else valid.astype(np.float32)
+    for _ in range(level):
+        img = cv2.pyrDown(img).reshape((img.shape[0] + 1) // 2, (img.shape[1] + 1) // 2, c)
+        if mask is not None:
+            mask = cv2.pyrDown(mask)
+    scale = float(2**level)
+    m_red = m @ np.diag([scale, scale, 1.0])
+    return img, (None if mask is None else mask > 0.999), m_red
