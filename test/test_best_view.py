@@ -169,5 +169,27 @@ def test_best_view_tiles_spill_pickle_and_preview(bound: int, tmp_path) -> None:
     assert pcov.all() and preview.shape[1] <= 64 * 2
     small = cv2.resize(image, (preview.shape[1], preview.shape[0]), interpolation=cv2.INTER_AREA)
     assert float(np.abs(small - preview).mean()) < 0.03
-    assert canvas.memory_bytes <= max(bound, len(canvas.tile_keys())) * 64 * 64 * 4 * (3 * 3 + 4)
+    assert canvas.memory_bytes <= max(bound, len(canvas.tile_keys())) * 64 * 64 * 4 * (3 * 3 + 5)
     world_rgb()  # the imagery module's cache is warm for the other tests
+
+
+def test_consensus_averages_aligned_frames() -> None:
+    """mosaic.agree: nine aligned noisy frames are averaged where they agree with the winner, so the
+    noise goes down as in a feather blend (off by default: on this low-contrast texture a frame 6 px
+    off agrees too often, and the sweep's sharpness falls from 1.005 to 0.914, feather's 0.917)."""
+    # measured: aligned, PSNR 42.1 dB one frame per pixel, 46.2 with agree 0.02 (feather 46.2)
+    def run(agree: float, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        canvas = TiledCanvas(3, tile_size=64, blend='bestview', agree=agree)
+        for k in range(9):
+            canvas.paint(frame_at(100.0 + 20 * k, 200.0, seed=k), translation(20.0 * k + offsets[k][0], offsets[k][1]))
+        image, _ = canvas.render((8, 8, 392, 172))
+        return image, view(translation(108.0, 208.0), 384, 164).astype(np.float32) / 255.0
+
+    def psnr(a: np.ndarray, b: np.ndarray) -> float:
+        return float(10 * np.log10(1.0 / np.mean((a - b) ** 2)))
+
+    single, truth = run(0.0, np.zeros((9, 2)))
+    averaged, _ = run(0.02, np.zeros((9, 2)))
+    assert psnr(averaged, truth) > psnr(single, truth) + 3.0
+    with pytest.raises(CanvasError, match='agree'):
+        TiledCanvas(3, blend='bestview', agree=-0.1)

@@ -71,7 +71,7 @@ def test_identity_reproduces_frame(blend: str, channels: int) -> None:
     assert out.shape == ((70, 90) if channels == 1 else (70, 90, channels))
     np.testing.assert_allclose(out.reshape(frame.shape), frame, atol=1e-6)
     assert set(c.tile_keys()) == expected_tiles((0, 0, 90, 70), 32) == set(res.touched_tiles)
-    per_px = {'feather': channels + 1, 'multiband': 2 * channels + 3, 'bestview': 3 * channels + 4}[blend]
+    per_px = {'feather': channels + 1, 'multiband': 2 * channels + 3, 'bestview': 3 * channels + 5}[blend]
     assert c.memory_bytes == len(c.tile_keys()) * 32 * 32 * 4 * per_px
 
 

@@ -17,6 +17,13 @@ seconds apart, 1/90 per still, the view quality alone decides). Scores are log-d
 scores never need decaying. (Keyframes register to the canvas's feather composite, which under a
 revisit still shows the first pass.)
 
+Consensus (``agree``): frames that agree with the winner around a pixel (the signed difference
+averaged over 5 x 5 pixels, so that noise averages out and a misregistration's does not, within
+``agree`` on every channel, intensity) are averaged into it, weighted by their quality, whether they lead or not;
+only a frame that disagrees (misregistration, parallax, something that moved) replaces it. Frames
+of one scene that line up (a turret staring at a point) are thus averaged and their noise and
+compression go down as in a feather blend, while the frames that disagree stay out of each other.
+
 Seams lie where the winner changes. Rendering (Table 2, as in :func:`.blend.multiband_blend`)
 replaces the reference's feather composite by the two-frame composite ``T = (best + second) / 2``
 (``best`` where no second frame covers the pixel): the output is the winner's pixel away from
@@ -34,6 +41,7 @@ All arrays are numpy float32 unless said; frame pixel centres at integer (u, v).
 """
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 __all__ = ['clip_depth', 'clipped_polygon', 'depth_map', 'resolution_factor', 'transition_image', 'update_best']
@@ -44,6 +52,10 @@ def depth_map(m: np.ndarray, h: int, w: int) -> np.ndarray:
     u = np.arange(w, dtype=np.float32) * np.float32(m[2, 0])
     v = np.arange(h, dtype=np.float32) * np.float32(m[2, 1]) + np.float32(m[2, 2])
     return np.add.outer(v, u)
+
+
+#: Side (mosaic px) of the box over which a frame's agreement with the winner is judged.
+AGREE_BOX = 5
 
 
 def clip_depth(m: np.ndarray, w: int, h: int, max_stretch: float) -> float | None:
@@ -88,28 +100,48 @@ def resolution_factor(m: np.ndarray, depth: np.ndarray) -> np.ndarray:
 
 
 def update_best(tile: object, loc: tuple[slice, slice], colour: np.ndarray, q: np.ndarray, index: int,
-                recency_frames: int) -> None:
+                recency_frames: int, agree: float) -> None:
     """Offer a frame's warped pixels to a best-view tile.
 
     tile: a :class:`.tile_store.Tile` of the best-view layout; loc: the tile slices written;
     colour (h, w, C) and q (h, w) the frame's warped colour and quality there (q 0: not seen);
-    index: the frame's label and paint count; recency_frames: n of the score (0: no recency term).
-    The frame wins where its score beats the winner's (the old winner becomes the runner-up) and
-    becomes the runner-up where it beats only the runner-up.
+    index: the frame's label and paint count; recency_frames: n of the score (0: no recency term);
+    agree: the consensus threshold (intensity; 0: none). Where the frame's pixels are within ``agree``
+    of the winner's (the largest channel of the difference averaged over AGREE_BOX^2 pixels), it joins the winner's consensus (its quality-weighted mean) and
+    takes the lead label if its score is higher; where it disagrees and scores higher, it replaces
+    the winner (which becomes the runner-up); where it disagrees and scores lower, it becomes the
+    runner-up if it beats that one.
     """
     seen = q > 0
     score = np.full(q.shape, -np.inf, np.float32)
     score[seen] = np.log(q[seen]) + np.float32(index / recency_frames if recency_frames > 0 else 0.0)
-    best, best_w, best_id = tile.best[loc], tile.best_w[loc], tile.best_id[loc]  # type: ignore[attr-defined]
+    best, best_w, best_id, best_q = tile.best[loc], tile.best_w[loc], tile.best_id[loc], tile.best_q[loc]  # type: ignore[attr-defined]
     second, second_w = tile.second[loc], tile.second_w[loc]  # type: ignore[attr-defined]
-    take = score > best_w
-    runner = ~take & (score > second_w)
+    fresh = best_id < 0
+    lead = score > best_w
+    if agree > 0:  # the 5 x 5 mean of the signed difference: noise averages out, a misregistration's does not
+        delta = np.where(fresh[..., None], np.float32(0.0), colour - best).astype(np.float32, copy=False)
+        mean = cv2.boxFilter(delta, -1, (AGREE_BOX, AGREE_BOX), borderType=cv2.BORDER_REPLICATE)
+        diff = np.abs(mean.reshape(delta.shape)).max(axis=-1)
+        joins = seen & ~fresh & (diff <= np.float32(agree))
+    else:
+        joins = np.zeros(q.shape, bool)
+    take = lead & ~joins
+    runner = seen & ~lead & ~joins & (score > second_w)
+    if joins.any():
+        total = best_q + np.where(joins, q, np.float32(0.0))
+        frac = np.where(joins, q / np.maximum(total, np.float32(1e-30)), np.float32(0.0))
+        best += (colour - best) * frac[..., None]
+        np.copyto(best_q, total, where=joins)
     if take.any():
-        np.copyto(second, best, where=take[..., None])
-        np.copyto(second_w, best_w, where=take)
+        replaced = take & ~fresh
+        np.copyto(second, best, where=replaced[..., None])
+        np.copyto(second_w, best_w, where=replaced)
         np.copyto(best, colour, where=take[..., None])
-        np.copyto(best_w, score, where=take)
-        best_id[take] = index
+        np.copyto(best_q, q, where=take)
+    if lead.any():
+        np.copyto(best_w, score, where=lead)
+        best_id[lead] = index
     if runner.any():
         np.copyto(second, colour, where=runner[..., None])
         np.copyto(second_w, score, where=runner)

@@ -137,10 +137,12 @@ class TiledCanvas:
             crossing the horizon is refused.
         recency_frames: best view only: a frame this many frames newer wins over an e-fold better
             view (0: no preference for newer frames).
+        agree: best view only: frames whose pixel is within this of the winner's (intensity, every
+            channel) are averaged into it (0: one frame per pixel).
         max_tiles_in_memory: at most this many tiles are kept in memory, the least recently
             painted ones are spilled to disk (0: no bound, nothing is ever written). One tile
             holds ``4 T^2 (C + 1)`` bytes (feather), ``4 T^2 (2 C + 3)`` (multiband) or
-            ``4 T^2 (3 C + 4)`` (best view): 1 MiB, 2.25 MiB and 3.25 MiB for T = 256, C = 3.
+            ``4 T^2 (3 C + 5)`` (best view): 1 MiB, 2.25 MiB and 3.5 MiB for T = 256, C = 3.
         spill_dir: directory under which the spill directory of this canvas is created ('':
             $TMPDIR, else /var/tmp, see :func:`.tile_store.default_spill_root`); created on the
             first spill, removed by ``close()``.
@@ -164,6 +166,7 @@ class TiledCanvas:
         spill_dir: str | os.PathLike[str] = '',
         max_stretch: float = 0.0,
         recency_frames: int = 90,
+        agree: float = 0.0,
     ) -> None:
         if int(channels) != channels or channels < 1:
             msg = f'channels must be a positive integer, got {channels!r}.'
@@ -200,6 +203,10 @@ class TiledCanvas:
             raise CanvasError(msg)
         self._max_stretch = float(max_stretch)
         self._recency_frames = int(recency_frames)
+        if not (math.isfinite(agree) and 0.0 <= agree < 1.0):
+            msg = f'agree must be in [0, 1) (intensity; 0: no consensus), got {agree!r}.'
+            raise CanvasError(msg)
+        self._agree = float(agree)
         self._channels = int(channels)
         self._tile_size = int(tile_size)
         self._blend = blend
@@ -225,7 +232,7 @@ class TiledCanvas:
     def __setstate__(self, state: dict[str, Any]) -> None:
         """Canvases of checkpoints written before best view get its settings' old behaviour."""
         self.__dict__.update(state)
-        for name, default in (('_max_stretch', 0.0), ('_recency_frames', 90)):
+        for name, default in (('_max_stretch', 0.0), ('_recency_frames', 90), ('_agree', 0.0)):
             self.__dict__.setdefault(name, default)
 
     # ------------------------------------------------------------------ properties
@@ -535,7 +542,7 @@ class TiledCanvas:
             tile.acc[loc] += wimg[box]
             tile.wsum[loc] += sub_w
             if best_view:
-                update_best(tile, loc, img_w[box], sub_w, index, self._recency_frames)
+                update_best(tile, loc, img_w[box], sub_w, index, self._recency_frames, self._agree)
             if multiband:
                 assert tile.best is not None and tile.best_w is not None and tile.best_id is not None
                 best_w = tile.best_w[loc]

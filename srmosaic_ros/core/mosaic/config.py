@@ -15,6 +15,7 @@ class MosaicConfig:
     blend: str = 'bestview'
     max_stretch: float = 4.0  # frame pixels this many times coarser than the frame's finest are not painted (0: all)
     recency_frames: int = 90  # bestview: a frame this many frames newer wins over an e-fold better view (0: none)
+    agree: float = 0.0  # bestview: frames within this of the winner (intensity) are averaged into it (0: none)
     max_canvas_side_px: int = 100000
     preview_max_side_px: int = 1024
     max_tiles_in_memory: int = 256  # per canvas; 0: no bound (see canvas.TiledCanvas)
@@ -40,6 +41,9 @@ class MosaicConfig:
             raise ValueError(msg)
         if isinstance(self.recency_frames, bool) or not isinstance(self.recency_frames, int) or self.recency_frames < 0:
             msg = f'mosaic.recency_frames must be an integer >= 0 (0: no preference for newer frames), got {self.recency_frames!r}.'
+            raise ValueError(msg)
+        if not (isinstance(self.agree, (int, float)) and 0.0 <= self.agree < 1.0):
+            msg = f'mosaic.agree must be in [0, 1) (intensity; 0: one frame per pixel), got {self.agree!r}.'
             raise ValueError(msg)
         if self.max_canvas_side_px < 256:
             msg = f'mosaic.max_canvas_side_px must be >= 256, got {self.max_canvas_side_px}.'

@@ -61,8 +61,9 @@ class TileLayout:
     Feather: ``acc`` float32 (T, T, C) and ``wsum`` float32 (T, T); ``multiband`` adds ``best``
     float32 (T, T, C), ``best_w`` float32 (T, T) and ``best_id`` int32 (T, T) (-1: no frame).
     ``best_view`` (the best-view compositor, :mod:`.best_view`): ``acc``, ``wsum`` (the feather
-    composite, which keyframes register to: it holds the first pass under a revisit), ``best``,
-    ``best_w`` (the winner's log score, -inf: none), ``best_id``, ``second`` float32 (T, T, C) and
+    composite, which keyframes register to: it holds the first pass under a revisit), ``best``
+    (the mean of the winner's consensus), ``best_w`` (the winner's log score, -inf: none),
+    ``best_id``, ``best_q`` (the consensus's quality sum), ``second`` float32 (T, T, C) and
     ``second_w`` (the runner-up's colour and log score).
     """
 
@@ -76,8 +77,8 @@ class TileLayout:
         t, c = self.size, self.channels
         if self.best_view:
             return (('acc', (t, t, c), np.float32), ('wsum', (t, t), np.float32), ('best', (t, t, c), np.float32),
-                    ('best_w', (t, t), np.float32), ('best_id', (t, t), np.int32), ('second', (t, t, c), np.float32),
-                    ('second_w', (t, t), np.float32))
+                    ('best_w', (t, t), np.float32), ('best_id', (t, t), np.int32), ('best_q', (t, t), np.float32),
+                    ('second', (t, t, c), np.float32), ('second_w', (t, t), np.float32))
         out: list[tuple[str, tuple[int, ...], type]] = [('acc', (t, t, c), np.float32), ('wsum', (t, t), np.float32)]
         if self.multiband:
             out += [('best', (t, t, c), np.float32), ('best_w', (t, t), np.float32), ('best_id', (t, t), np.int32)]
@@ -92,7 +93,7 @@ class TileLayout:
 class Tile:
     """One tile: the arrays of its :class:`TileLayout` as views into one ``uint8`` buffer ``buf``."""
 
-    __slots__ = ('acc', 'best', 'best_id', 'best_w', 'buf', 'second', 'second_w', 'wsum')
+    __slots__ = ('acc', 'best', 'best_id', 'best_q', 'best_w', 'buf', 'second', 'second_w', 'wsum')
 
     def __init__(self, layout: TileLayout, buf: np.ndarray | None = None) -> None:
         fresh = buf is None
@@ -101,6 +102,7 @@ class Tile:
         self.best: np.ndarray | None = None
         self.best_w: np.ndarray | None = None
         self.best_id: np.ndarray | None = None
+        self.best_q: np.ndarray | None = None
         self.second: np.ndarray | None = None
         self.second_w: np.ndarray | None = None
         off = 0
