@@ -48,6 +48,8 @@ _OPTIONS: list[tuple[str, str, Any, str]] = [
     ('--gps-sigma-h', 'gps_sigma_h_m', float, 'GNSS horizontal noise sigma (m)'),
     ('--gps-sigma-v', 'gps_sigma_v_m', float, 'GNSS vertical noise sigma (m)'),
     ('--imu-sigma-deg', 'imu_sigma_deg', float, 'IMU orientation noise sigma per axis (deg)'),
+    ('--vehicles', 'vehicles', int, 'cars driving straight over the ground (their true masks in ground_truth.json)'),
+    ('--vehicle-speed', 'vehicle_speed_m_s', float, 'speed of the cars (m/s)'),
     ('--seed', 'seed', int, 'random seed: the same seed gives the same bytes'),
 ]
 _CHOICES = {'trajectory': TRAJECTORIES, 'mode': MODES}

@@ -71,6 +71,9 @@ class SimConfig:
     noise_sigma: float = 2.0  # Gaussian sensor noise, 0..255 units
     mode: str = 'eo'
     max_supersample: int = 4
+    # traffic (sim/traffic.py)
+    vehicles: int = 0  # cars driving straight over the ground, painted into every frame
+    vehicle_speed_m_s: float = 8.0
     # telemetry
     fix_rate_hz: float = 5.0
     imu_rate_hz: float = 50.0
@@ -121,6 +124,9 @@ class SimConfig:
         need((self.start_east_m is None) == (self.start_north_m is None),
              'start_east_m and start_north_m go together')
         need(len(self.lever_arm_m) == 3, 'lever_arm_m needs 3 values')
+        need(isinstance(self.vehicles, int) and 0 <= self.vehicles <= 1000, f'vehicles {self.vehicles} must be in 0..1000')
+        need(math.isfinite(self.vehicle_speed_m_s) and self.vehicle_speed_m_s >= 0,
+             f'vehicle_speed_m_s {self.vehicle_speed_m_s} must be >= 0')
 
     def to_dict(self) -> dict[str, Any]:
         """All options as JSON-ready values."""

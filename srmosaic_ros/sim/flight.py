@@ -18,6 +18,7 @@ from ..errors import SimulationError
 from .config import DEFAULT_LINE_FRAMES, SimConfig
 from .render import hr_H_lr, quantize, render_frame
 from .telemetry import sample_stamps, simulate_fixes, simulate_imu
+from .traffic import make_traffic, paint_vehicles, restore_world
 from .trajectory import Path2D, Trajectory, lawnmower_path, line_path
 from .truth import FrameTruth, Truth
 from .world import World, load_world, relative_to_repo
@@ -25,7 +26,7 @@ from .world import World, load_world, relative_to_repo
 __all__ = ['SimulatedFlight', 'simulate', 'sensor_intrinsics', 'frame_intrinsics', 'build_trajectory',
            'frame_count']
 
-_STREAM_TRAJECTORY, _STREAM_IMAGE, _STREAM_GPS, _STREAM_IMU = 1, 2, 3, 4
+_STREAM_TRAJECTORY, _STREAM_IMAGE, _STREAM_GPS, _STREAM_IMU, _STREAM_TRAFFIC = 1, 2, 3, 4, 5
 
 
 @dataclass
@@ -181,6 +182,11 @@ def simulate(config: SimConfig, *, progress: bool = False) -> SimulatedFlight:
             R_enu_from_cam=pose.R_enu_from_cam.copy(), world_px_H_frame=world_px_H_frame, prev_H_cur=prev_H_cur))
         hr_homographies.append(world_px_H_hr)
     _check_inside(config, world, corners_all)
+    pts = np.concatenate(corners_all)
+    bbox = (float(pts[:, 0].min()), float(pts[:, 1].min()), float(pts[:, 0].max()), float(pts[:, 1].max()))
+    vehicles = make_traffic(config.vehicles, config.vehicle_speed_m_s, world.gsd_m, bbox, (stamps[-1] - t0) * 1e-9,
+                            np.random.default_rng([config.seed, _STREAM_TRAFFIC])) if config.vehicles else []
+    scene = world.image.copy() if vehicles else world.image  # painted frame by frame, restored after each
 
     frames: list[Frame] = []
     iterator = range(n_frames)
@@ -189,9 +195,11 @@ def simulate(config: SimConfig, *, progress: bool = False) -> SimulatedFlight:
 
         iterator = tqdm(iterator, desc='rendering', unit='frame')
     for k in iterator:
-        clean = render_frame(world.image, hr_homographies[k], (config.width, config.height),
+        saved = paint_vehicles(scene, vehicles, (stamps[k] - t0) * 1e-9) if vehicles else []
+        clean = render_frame(scene, hr_homographies[k], (config.width, config.height),
                              decimate=config.decimate, psf_sigma_px=config.psf_sigma_px,
                              max_supersample=config.max_supersample)
+        restore_world(scene, saved)
         rng = np.random.default_rng([config.seed, _STREAM_IMAGE, k])
         frames.append(Frame(stamp_ns=stamps[k], image=quantize(clean, config.noise_sigma, rng), camera=cam,
                             frame_id=config.frame_id))
@@ -205,7 +213,6 @@ def simulate(config: SimConfig, *, progress: bool = False) -> SimulatedFlight:
                         accel_sigma_m_s2=config.accel_sigma_m_s2,
                         rng=np.random.default_rng([config.seed, _STREAM_IMU]))
 
-    pts = np.concatenate(corners_all)
     truth = Truth(
         config=config.to_dict(),
         world_path=relative_to_repo(world.path),
@@ -217,5 +224,6 @@ def simulate(config: SimConfig, *, progress: bool = False) -> SimulatedFlight:
         covered_bbox_world_px=(float(pts[:, 0].min()), float(pts[:, 1].min()), float(pts[:, 0].max()),
                                float(pts[:, 1].max())),
         frames=truths,
+        vehicles=vehicles,
     )
     return SimulatedFlight(config=config, frames=frames, fixes=fixes, imus=imus, camera=cam, truth=truth, world=world)

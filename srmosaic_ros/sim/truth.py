@@ -11,6 +11,8 @@ File layout (format_version 1), all numbers in SI units except angles in degrees
                           distortion_model, distortion} (no distortion: plumb_bob, zeros)
     camera_gsd_m:         nominal ground sampling of the published frames at the nominal altitude
     covered_bbox_world_px [x_min, y_min, x_max, y_max] of all frame footprints
+    vehicles:             [{start_px [2], velocity_px_s [2], length_px, width_px, colour [3]}] in world
+                          pixels, t in seconds from the first frame (sim/traffic.py; [] without traffic)
     frames: [{index, stamp_ns, position_enu_m [3], camera_enu_m [3], latitude_deg, longitude_deg,
               altitude_m, roll_deg, pitch_deg, yaw_deg (body in ENU, REP 103),
               R_enu_from_cam (3x3), world_px_H_frame (3x3), prev_H_cur (3x3 or null)}]
@@ -33,6 +35,7 @@ import numpy as np
 
 from ..core.types import CameraIntrinsics
 from ..errors import InputError
+from .traffic import Vehicle, vehicle_mask
 
 __all__ = ['TRUTH_FORMAT_VERSION', 'FrameTruth', 'Truth', 'save_truth', 'load_truth']
 
@@ -107,6 +110,13 @@ class Truth:
     covered_bbox_world_px: tuple[float, float, float, float]
     frames: list[FrameTruth] = field(default_factory=list)
     format_version: int = TRUTH_FORMAT_VERSION
+    vehicles: list[Vehicle] = field(default_factory=list)
+
+    def vehicle_mask(self, index: int) -> np.ndarray:
+        """bool (height, width) of frame ``index``: its pixels on a vehicle (all False without traffic)."""
+        f = self.frames[index]
+        t_s = (f.stamp_ns - self.frames[0].stamp_ns) * 1e-9
+        return vehicle_mask(self.vehicles, t_s, f.world_px_H_frame, (self.camera.width, self.camera.height))
 
     @property
     def enu_H_world_px(self) -> np.ndarray:  # noqa: N802
@@ -140,6 +150,7 @@ class Truth:
             'camera_gsd_m': self.camera_gsd_m,
             'covered_bbox_world_px': [float(v) for v in self.covered_bbox_world_px],
             'frames': [f.to_dict() for f in self.frames],
+            'vehicles': [v.to_dict() for v in self.vehicles],
         }
 
     @classmethod
@@ -164,6 +175,7 @@ class Truth:
             covered_bbox_world_px=tuple(float(v) for v in d['covered_bbox_world_px']),  # type: ignore[arg-type]
             frames=[FrameTruth.from_dict(f) for f in d['frames']],
             format_version=int(version),
+            vehicles=[Vehicle.from_dict(v) for v in d.get('vehicles', [])],  # absent in files before traffic
         )
 
 
