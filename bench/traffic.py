@@ -28,8 +28,14 @@ from srmosaic_ros.sim import SimConfig, simulate  # noqa: E402
 from srmosaic_ros.sim.traffic import vehicle_mask  # noqa: E402
 
 
-def canvas_of(flight, blend: str):  # noqa: ANN001, ANN201
-    pipe = Pipeline(pipeline_config({'georef.enabled': False, 'mosaic.blend': blend}))
+RUNS = {'feather': {'mosaic.blend': 'feather'}, 'multiband': {'mosaic.blend': 'multiband'},
+        'bestview': {'mosaic.blend': 'bestview'}, 'bestview, moving 0.1': {'mosaic.blend': 'bestview', 'mosaic.moving': 0.1},
+        'bestview, moving 0.05': {'mosaic.blend': 'bestview', 'mosaic.moving': 0.05},
+        'bestview, moving 0.03': {'mosaic.blend': 'bestview', 'mosaic.moving': 0.03}}
+
+
+def canvas_of(flight, overrides: dict):  # noqa: ANN001, ANN201
+    pipe = Pipeline(pipeline_config({'georef.enabled': False, **overrides}))
     for frame in flight.frames:
         pipe.feed_frame(frame)
     seg = pipe.finish().main_segment
@@ -49,11 +55,11 @@ def main() -> None:
     print(f'{args.frames} frames, {args.vehicles} vehicles at {args.speed} m/s\n')
     print('| blend | trail area (px) | trail pixels showing traffic | PSNR vs traffic-free mosaic (dB) |')
     print('|---|---|---|---|')
-    for blend in ('feather', 'multiband', 'bestview'):
-        canvas = canvas_of(cars, blend)
+    for blend, overrides in RUNS.items():
+        canvas = canvas_of(cars, overrides)
         x0, y0, x1, y1 = canvas.bounds()
         image, covered = canvas.render((x0, y0, x1, y1))
-        clean, clean_covered = canvas_of(empty, blend).render((x0, y0, x1, y1))
+        clean, clean_covered = canvas_of(empty, overrides).render((x0, y0, x1, y1))
         covered &= clean_covered
         # trail: mosaic pixels some vehicle covered in some frame (frame 0's plane = the mosaic's)
         h0 = truth.frames[0].world_px_H_frame @ np.array([[1.0, 0, x0], [0, 1.0, y0], [0, 0, 1.0]])
@@ -67,7 +73,7 @@ def main() -> None:
         mse = float(np.mean((image[covered] - clean[covered]) ** 2))
         print(f'| {blend} | {int(trail.sum())} | {shows.mean():.1%} | {10 * np.log10(1 / max(mse, 1e-12)):.2f} |',
               flush=True)
-        out = ROOT / 'bench' / 'out' / f'traffic_{blend}.png'
+        out = ROOT / 'bench' / 'out' / f'traffic_{blend.replace(", ", "_").replace(" ", "_")}.png'
         out.parent.mkdir(parents=True, exist_ok=True)
         cv2.imwrite(str(out), cv2.cvtColor((np.clip(image, 0, 1) * 255).astype(np.uint8), cv2.COLOR_RGB2BGR))
 

@@ -193,3 +193,29 @@ def test_consensus_averages_aligned_frames() -> None:
     assert psnr(averaged, truth) > psnr(single, truth) + 3.0
     with pytest.raises(CanvasError, match='agree'):
         TiledCanvas(3, blend='bestview', agree=-0.1)
+
+
+def test_the_moving_vote_keeps_a_passing_car_out() -> None:
+    """mosaic.moving: a car (a bright 12 x 12 px square) seen only by the newest of nine aligned
+    frames over one spot wins that spot in plain best view (the newest frame scores highest); the
+    three-view vote (frame, winner, feather mean) sees the newest frame disagree with the other
+    frames there and keeps it out, while the static ground stays the newest frame's."""
+    def run(moving: float) -> tuple[np.ndarray, np.ndarray]:
+        canvas = TiledCanvas(3, tile_size=64, blend='bestview', moving=moving)
+        for k in range(9):
+            img = frame_at(100.0 + 4 * k, 200.0, seed=k)
+            if k == 8:
+                img[84:96, 114:126] = 1.0  # the car, at the centre of the newest frame, where it sees best
+            canvas.paint(img, translation(4.0 * k, 0.0))
+        image, _ = canvas.render((120, 70, 160, 110))
+        return image, view(translation(220.0, 270.0), 40, 40).astype(np.float32) / 255.0
+
+    def car_px(image: np.ndarray, truth: np.ndarray) -> int:
+        return int((np.abs(image - truth).max(axis=-1) > 0.25).sum())
+
+    plain, truth = run(0.0)
+    voted, _ = run(0.1)
+    assert car_px(plain, truth) > 100  # the car is in the plain mosaic
+    assert car_px(voted, truth) < 5
+    with pytest.raises(CanvasError, match='moving'):
+        TiledCanvas(3, blend='bestview', moving=1.5)

@@ -99,8 +99,15 @@ def resolution_factor(m: np.ndarray, depth: np.ndarray) -> np.ndarray:
     return np.minimum(r, np.float32(1.0), out=r)
 
 
+def _disagreement(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(h, w) the largest channel of |the AGREE_BOX^2 mean of a - b|, a, b (h, w, C)."""
+    delta = np.ascontiguousarray(a - b, dtype=np.float32)
+    mean = cv2.boxFilter(delta, -1, (AGREE_BOX, AGREE_BOX), borderType=cv2.BORDER_REPLICATE)
+    return np.abs(mean.reshape(delta.shape)).max(axis=-1)
+
+
 def update_best(tile: object, loc: tuple[slice, slice], colour: np.ndarray, q: np.ndarray, index: int,
-                recency_frames: int, agree: float) -> None:
+                recency_frames: int, agree: float, moving: float = 0.0) -> None:
     """Offer a frame's warped pixels to a best-view tile.
 
     tile: a :class:`.tile_store.Tile` of the best-view layout; loc: the tile slices written;
@@ -110,7 +117,13 @@ def update_best(tile: object, loc: tuple[slice, slice], colour: np.ndarray, q: n
     of the winner's (the largest channel of the difference averaged over AGREE_BOX^2 pixels), it joins the winner's consensus (its quality-weighted mean) and
     takes the lead label if its score is higher; where it disagrees and scores higher, it replaces
     the winner (which becomes the runner-up); where it disagrees and scores lower, it becomes the
-    runner-up if it beats that one.
+    runner-up if it beats that one. moving: the vote of three views (0: none), the frame, the winner
+    and the feather mean of every frame that saw the pixel (the tile's ``acc / wsum``, to which a
+    car seen in a few of the many frames over a pixel contributes little): where the frame agrees
+    with the mean (within ``moving``, judged as for ``agree``) and the winner disagrees with both,
+    the winner saw something that moved and the frame replaces it whatever the scores; where the
+    winner agrees with the mean and the frame disagrees with both, the frame saw something that
+    moved and is kept out of the pixel.
     """
     seen = q > 0
     score = np.full(q.shape, -np.inf, np.float32)
@@ -118,23 +131,38 @@ def update_best(tile: object, loc: tuple[slice, slice], colour: np.ndarray, q: n
     best, best_w, best_id, best_q = tile.best[loc], tile.best_w[loc], tile.best_id[loc], tile.best_q[loc]  # type: ignore[attr-defined]
     second, second_w = tile.second[loc], tile.second_w[loc]  # type: ignore[attr-defined]
     fresh = best_id < 0
-    lead = score > best_w
-    if agree > 0:  # the 5 x 5 mean of the signed difference: noise averages out, a misregistration's does not
-        delta = np.where(fresh[..., None], np.float32(0.0), colour - best).astype(np.float32, copy=False)
-        mean = cv2.boxFilter(delta, -1, (AGREE_BOX, AGREE_BOX), borderType=cv2.BORDER_REPLICATE)
-        diff = np.abs(mean.reshape(delta.shape)).max(axis=-1)
-        joins = seen & ~fresh & (diff <= np.float32(agree))
-    else:
-        joins = np.zeros(q.shape, bool)
+    none = np.zeros(q.shape, bool)
+    d_cb = _disagreement(colour, best) if (agree > 0 or moving > 0) else None
+    best_moved, frame_moved = none, none
+    if moving > 0 and d_cb is not None:
+        old = seen & ~fresh
+        if old.any():  # the third view: the feather mean of every frame that saw the pixel (this one included)
+            mean = tile.acc[loc] / np.maximum(tile.wsum[loc], np.float32(1e-30))[..., None]  # type: ignore[attr-defined]
+            d_cm, d_bm = _disagreement(colour, mean), _disagreement(best, mean)
+            thr = np.float32(moving)
+            best_moved = old & (d_cb > thr) & (d_bm > thr) & (d_cm <= thr)
+            frame_moved = old & (d_cb > thr) & (d_cm > thr) & (d_bm <= thr)
+            two = old & np.isfinite(second_w)
+            if two.any():  # and the runner-up's
+                d_cs, d_bs = _disagreement(colour, second), _disagreement(best, second)
+                best_moved |= two & (d_cb > thr) & (d_bs > thr) & (d_cs <= thr)
+                frame_moved &= ~(two & (d_cs <= thr))
+            # the box mean halves a car's difference at its outline: grow both masks by the box
+            kernel = np.ones((AGREE_BOX, AGREE_BOX), np.uint8)
+            best_moved = old & cv2.dilate(best_moved.view(np.uint8), kernel).astype(bool)
+            frame_moved = old & ~best_moved & cv2.dilate(frame_moved.view(np.uint8), kernel).astype(bool)
+    lead = ((score > best_w) & ~frame_moved) | best_moved
+    # consensus: the 5 x 5 mean of the signed difference, where noise averages out and a misregistration's does not
+    joins = seen & ~fresh & (d_cb <= np.float32(agree)) & ~best_moved if (agree > 0 and d_cb is not None) else none
     take = lead & ~joins
-    runner = seen & ~lead & ~joins & (score > second_w)
+    runner = seen & ~lead & ~joins & ~frame_moved & (score > second_w)
     if joins.any():
         total = best_q + np.where(joins, q, np.float32(0.0))
         frac = np.where(joins, q / np.maximum(total, np.float32(1e-30)), np.float32(0.0))
         best += (colour - best) * frac[..., None]
         np.copyto(best_q, total, where=joins)
     if take.any():
-        replaced = take & ~fresh
+        replaced = take & ~fresh & ~best_moved  # a winner that saw something move is not kept as runner-up
         np.copyto(second, best, where=replaced[..., None])
         np.copyto(second_w, best_w, where=replaced)
         np.copyto(best, colour, where=take[..., None])

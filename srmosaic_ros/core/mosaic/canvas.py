@@ -139,6 +139,8 @@ class TiledCanvas:
             view (0: no preference for newer frames).
         agree: best view only: frames whose pixel is within this of the winner's (intensity, every
             channel) are averaged into it (0: one frame per pixel).
+        moving: best view only: the three-view vote on moving objects (intensity threshold; 0: off),
+            see :func:`.best_view.update_best`.
         max_tiles_in_memory: at most this many tiles are kept in memory, the least recently
             painted ones are spilled to disk (0: no bound, nothing is ever written). One tile
             holds ``4 T^2 (C + 1)`` bytes (feather), ``4 T^2 (2 C + 3)`` (multiband) or
@@ -167,6 +169,7 @@ class TiledCanvas:
         max_stretch: float = 0.0,
         recency_frames: int = 90,
         agree: float = 0.0,
+        moving: float = 0.0,
     ) -> None:
         if int(channels) != channels or channels < 1:
             msg = f'channels must be a positive integer, got {channels!r}.'
@@ -207,6 +210,10 @@ class TiledCanvas:
             msg = f'agree must be in [0, 1) (intensity; 0: no consensus), got {agree!r}.'
             raise CanvasError(msg)
         self._agree = float(agree)
+        if not (math.isfinite(moving) and 0.0 <= moving < 1.0):
+            msg = f'moving must be in [0, 1) (intensity; 0: no vote), got {moving!r}.'
+            raise CanvasError(msg)
+        self._moving = float(moving)
         self._channels = int(channels)
         self._tile_size = int(tile_size)
         self._blend = blend
@@ -232,7 +239,7 @@ class TiledCanvas:
     def __setstate__(self, state: dict[str, Any]) -> None:
         """Canvases of checkpoints written before best view get its settings' old behaviour."""
         self.__dict__.update(state)
-        for name, default in (('_max_stretch', 0.0), ('_recency_frames', 90), ('_agree', 0.0)):
+        for name, default in (('_max_stretch', 0.0), ('_recency_frames', 90), ('_agree', 0.0), ('_moving', 0.0)):
             self.__dict__.setdefault(name, default)
 
     # ------------------------------------------------------------------ properties
@@ -542,7 +549,7 @@ class TiledCanvas:
             tile.acc[loc] += wimg[box]
             tile.wsum[loc] += sub_w
             if best_view:
-                update_best(tile, loc, img_w[box], sub_w, index, self._recency_frames, self._agree)
+                update_best(tile, loc, img_w[box], sub_w, index, self._recency_frames, self._agree, self._moving)
             if multiband:
                 assert tile.best is not None and tile.best_w is not None and tile.best_id is not None
                 best_w = tile.best_w[loc]

@@ -16,6 +16,7 @@ class MosaicConfig:
     max_stretch: float = 4.0  # frame pixels this many times coarser than the frame's finest are not painted (0: all)
     recency_frames: int = 90  # bestview: a frame this many frames newer wins over an e-fold better view (0: none)
     agree: float = 0.0  # bestview: frames within this of the winner (intensity) are averaged into it (0: none)
+    moving: float = 0.0  # bestview: three-view vote threshold (intensity) keeping moving objects out (0: off)
     max_canvas_side_px: int = 100000
     preview_max_side_px: int = 1024
     max_tiles_in_memory: int = 256  # per canvas; 0: no bound (see canvas.TiledCanvas)
@@ -44,6 +45,9 @@ class MosaicConfig:
             raise ValueError(msg)
         if not (isinstance(self.agree, (int, float)) and 0.0 <= self.agree < 1.0):
             msg = f'mosaic.agree must be in [0, 1) (intensity; 0: one frame per pixel), got {self.agree!r}.'
+            raise ValueError(msg)
+        if not (isinstance(self.moving, (int, float)) and 0.0 <= self.moving < 1.0):
+            msg = f'mosaic.moving must be in [0, 1) (intensity; 0: no vote), got {self.moving!r}.'
             raise ValueError(msg)
         if self.max_canvas_side_px < 256:
             msg = f'mosaic.max_canvas_side_px must be >= 256, got {self.max_canvas_side_px}.'
