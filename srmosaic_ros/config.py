@@ -41,6 +41,7 @@ class PipelineConfig:
 
     device: str = 'auto'
     undistort: bool = True
+    stamp_tolerance_s: float = 10.0  # see core/stamp_gate.py
     registration: RegistrationConfig = RegistrationConfig()
     mosaic: MosaicConfig = MosaicConfig()
     georef_enabled: bool = True
@@ -136,6 +137,13 @@ def check_type(key: str, value: Any, default: Any) -> Any:  # noqa: ANN401
     return float(value) if kind is float else value
 
 
+def _stamp_tolerance(value: float) -> float:
+    if not (value >= 0):  # NaN too
+        msg = f'parameter \'stamp_tolerance_s\' must be >= 0 seconds (0: off), got {value!r}.'
+        raise ConfigError(msg)
+    return float(value)
+
+
 def pipeline_config(overrides: dict[str, Any] | None = None, *, defaults: dict[str, Any] | None = None) -> PipelineConfig:
     """PipelineConfig from the defaults file, overridden by `overrides` (dotted names).
 
@@ -160,6 +168,7 @@ def pipeline_config(overrides: dict[str, Any] | None = None, *, defaults: dict[s
     return PipelineConfig(
         device=device,
         undistort=bool(flat.get('undistort', True)),
+        stamp_tolerance_s=_stamp_tolerance(flat.get('stamp_tolerance_s', 10.0)),
         registration=_build(RegistrationConfig, 'registration.', flat),
         mosaic=_build(MosaicConfig, 'mosaic.', flat),
         georef_enabled=bool(flat.get('georef.enabled', True)),

@@ -253,13 +253,14 @@ def write_outputs(result: PipelineResult, out: Path, config: PipelineConfig, ext
 
 def open_source(path: Path, *, topics: TopicConfig | None = None, select: str = 'all',
                 camera_yaml: Path | None = None, hfov_deg: float | None = None,
-                telemetry_csv: Path | None = None) -> tuple[Iterable[Any], Any, str]:
+                telemetry_csv: Path | None = None, stamp_tolerance_s: float = 10.0) -> tuple[Iterable[Any], Any, str]:
     """(items in time order, the reader (frame_count, skipped, summary), 'bag', 'video' or 'images')
     for a bag, a video file or a folder of stills.
 
     The metadata the input carries is read and merged (io/metadata.py): a folder's EXIF/XMP; a
     video's MISB KLV stream, a DJI .SRT beside it or a GoPro GPMF track, in that order, unless
-    ``telemetry_csv`` is given (it overrides them). ``reader.summary`` says what was found.
+    ``telemetry_csv`` is given (it overrides them). ``reader.summary`` says what was found. A bag's
+    messages stamped more than ``stamp_tolerance_s`` off their topic's clock are skipped and counted.
     """
     from .io.image_folder import ImageFolderReader, is_image_folder
     from .io.metadata import MetadataSummary
@@ -288,7 +289,7 @@ def open_source(path: Path, *, topics: TopicConfig | None = None, select: str = 
         msg = ('--select, --camera, --hfov and --telemetry apply to video input; a bag carries its own camera '
                'info and telemetry topics.')
         raise InputError(msg)
-    reader = read_flight(path, topics=topics or TopicConfig())
+    reader = read_flight(path, topics=topics or TopicConfig(), stamp_tolerance_s=stamp_tolerance_s)
     reader.summary = MetadataSummary(source='bag topics')
     return reader, reader, 'bag'
 
@@ -642,7 +643,8 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
         msg = f'--checkpoint-every must be >= 0, got {checkpoint_every}.'
         raise InputError(msg)
     items, reader, kind = open_source(path, topics=topics, select=select, camera_yaml=camera_yaml,
-                                      hfov_deg=hfov_deg, telemetry_csv=telemetry_csv)
+                                      hfov_deg=hfov_deg, telemetry_csv=telemetry_csv,
+                                      stamp_tolerance_s=config.stamp_tolerance_s)
     check_output_dir(out)  # before the work, not after it
     with OutputTransaction(out) as transaction:
         report = _process(path, out, transaction.stage, config, items, reader, kind, t0, topics=topics,
@@ -748,7 +750,7 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
 
         t_sr = time.perf_counter()
         again, _, _ = open_source(path, topics=topics, select=select, camera_yaml=camera_yaml, hfov_deg=hfov_deg,
-                                  telemetry_csv=telemetry_csv)
+                                  telemetry_csv=telemetry_csv, stamp_tolerance_s=config.stamp_tolerance_s)
         report['sr'] = super_resolve_mosaic(stage, again, config, factor=sr_factor, progress=progress)
         report['sr']['wall_s'] = round(time.perf_counter() - t_sr, 3)
         report['wall_s'] = round(time.perf_counter() - t0, 3)

@@ -515,7 +515,7 @@ def test_node_survives_bad_input(ros_env, tmp_path):
         nan_stamp = Float64MultiArray(data=[math.nan] * 89)
         eye = np.eye(3)
         newer = encode_registration(200 * 10**9, True, 50, 0.3, 0, eye, eye, True, None)
-        older = encode_registration(150 * 10**9, True, 50, 0.3, 0, eye, eye, True, None)
+        older = encode_registration(195 * 10**9, True, 50, 0.3, 0, eye, eye, True, None)
         for msg in (short, nan_stamp, newer, older):
             registrations.publish(msg)
         bad = Image(height=4, width=4, encoding='yuv422', step=8, data=bytes(32))
@@ -529,7 +529,7 @@ def test_node_survives_bad_input(ros_env, tmp_path):
         later, earlier = Image(height=32, width=32, encoding='mono8', step=32, data=bytes(1024)), None
         later.header.stamp.sec = 100
         earlier = Image(height=32, width=32, encoding='mono8', step=32, data=bytes(1024))
-        earlier.header.stamp.sec = 50
+        earlier.header.stamp.sec = 95  # within stamp_tolerance_s of the stream's clock: older, not off the clock
         images.publish(later)
         time.sleep(0.2)
         images.publish(earlier)
@@ -551,6 +551,70 @@ def test_node_survives_bad_input(ros_env, tmp_path):
     assert log.count('not supported') == 1, log
     assert log.count("image with encoding 'yuv422'") == 1, log
     assert log.count('registration skipped') == 2, log  # SR node and georef node, once each
+
+
+def tampered_demo(dst: Path, *, image: int, fix: int, shift_s: int = 10**6) -> Path:
+    """The demo bag rewritten (rosbags) with the header stamp of its ``image``-th image and
+    ``fix``-th fix moved ``shift_s`` seconds into the future (a driver's glitch)."""
+    from rosbags.rosbag2 import Reader
+
+    from msg_adapters._flavor import rosbags_typestore
+    from srmosaic_ros.io.bags import BagWriter
+
+    store = rosbags_typestore()
+    seen: collections.Counter[str] = collections.Counter()
+    with Reader(DEMO) as reader, BagWriter(dst, storage='mcap') as writer:
+        for connection, log_ns, raw in reader.messages():
+            msg = store.deserialize_cdr(raw, connection.msgtype)
+            kind = 'image' if 'image' in connection.topic else 'fix' if connection.topic == '/fix' else ''
+            if kind and seen[kind] == {'image': image, 'fix': fix}[kind]:
+                msg.header.stamp.sec += shift_s
+            seen[kind] += 1
+            writer.write(connection.topic, msg, log_ns)
+    return dst
+
+
+def test_one_future_stamp_costs_one_message_offline_and_live(ros_env, tmp_path):
+    """One image and one fix stamped 10^6 s in the future. Offline they used to cost the flight (a
+    mosaic.tif of 10^6 m pixels, then a traceback; 63 fixes out of order, 14.6 m RMS); live, the
+    frozen mosaic node said 'registering' at level OK. Now each costs its message: counted, said,
+    and diagnostics WARN while it happens; the rest of the flight as without it."""
+    from diagnostic_msgs.msg import DiagnosticStatus
+
+    bag = tampered_demo(tmp_path / 'glitch', image=10, fix=10)
+    out = tmp_path / 'offline'
+    run = subprocess.run([sys.executable, '-m', 'srmosaic_ros.cli', 'process', str(bag), '--out', str(out),
+                          '--no-progress'], capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr
+    assert 'Traceback' not in run.stderr and 'stamp_tolerance_s' in run.stderr, run.stderr
+    report = json.loads((out / 'report.json').read_text())
+    assert report['frames_in'] == 59 and report['frames_registered'] == 59, report
+    assert sorted(report['skipped_messages'].values()) == [1, 1], report['skipped_messages']
+    assert not report['georeferenced']['skipped_telemetry'], report['georeferenced']
+    gt = report['georeferenced']['geotransform']
+    assert 0.15 < gt[1] < 0.21, gt  # the demo's 0.18 m pixels (they were 10^6 m)
+
+    graph = srmosaic('node', 'mosaic', '--ros-args', '-p', 'live.reliable_inputs:=true', '-p', 'live.queue_size:=100',
+                     '-p', 'live.preview_period_s:=0.3', env=ros_env)
+    with supervised(graph=graph) as sup:
+        listener = sup.listener
+        assert listener.wait_for(lambda: listener.diagnostics, 30), 'no diagnostics'
+        player = srmosaic('play', str(bag), '--rate', '2.0', '--delay', '5', env=ros_env)
+        played, _ = player.communicate(timeout=120)
+        assert player.returncode == 0, played
+        assert listener.wait_for(lambda: listener.diag_value('frames_processed') == '59', 240), \
+            (listener.diag_value('frames_received'), listener.diag_value('frames_processed'))
+        time.sleep(1.0)
+        assert listener.diag_value('rejected: image stamp off the clock') == '1'
+        assert listener.diag_value('rejected: fix stamp off the clock') == '1'
+        warned = [st for msg in list(listener.diagnostics) for st in msg.status
+                  if st.name == MOSAIC and st.level == DiagnosticStatus.WARN and 'stamp off the clock' in st.message]
+        assert warned, 'diagnostics never said the stamps were refused'
+        assert listener.diagnostics[-1].status[0].level == DiagnosticStatus.OK  # not WARN for ever after
+        assert len(listener.poses) >= 30
+        assert all(math.isfinite(p.pose.pose.position.x) and abs(p.pose.pose.position.z - 100.0) < 10.0
+                   for p in listener.poses)
+    assert sup.logs['graph'].count('stamp_tolerance_s') == 2, sup.logs['graph']  # once per stream
 
 
 @pytest.mark.parametrize(('override', 'name'), [('registration.ratio:=3.0', 'ratio'),

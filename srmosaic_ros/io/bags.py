@@ -33,6 +33,7 @@ from msg_adapters import (
     navsat_to_fix,
 )
 from srmosaic_ros.core.types import CameraIntrinsics, Frame, GeoFix, ImuSample
+from srmosaic_ros.core.stamp_gate import StampGate
 from srmosaic_ros.errors import BagError, MessageError
 
 if TYPE_CHECKING:
@@ -277,7 +278,10 @@ class FlightReader:
         missing: per topic, messages that metadata.yaml counts but the storage files do not hold
             (so no iteration can yield them); empty for a complete bag.
         skipped: messages skipped by the current (or last) iteration, counted per reason
-            ('<topic>: <what was wrong>'); reset when a new iteration starts.
+            ('<topic>: <what was wrong>'); reset when a new iteration starts. A message whose
+            header stamp is more than ``stamp_tolerance_s`` from its topic's log-time offset is
+            one of them (core/stamp_gate.py); a topic whose header clock jumped for good is
+            followed after three messages and counted as '<topic>: header clock jumped'.
         messages_read: image, fix and imu messages taken from the bag by that iteration.
 
     Each Frame's ``camera`` is the latest CameraInfo logged at or before it, or the first one of
@@ -291,9 +295,12 @@ class FlightReader:
         *,
         topics: TopicConfig = TopicConfig(),  # noqa: B008 - frozen, hence safe
         require_image: bool = True,
+        stamp_tolerance_s: float = 10.0,
     ) -> None:
         self.path = Path(path)
         self.topics = topics
+        self.stamp_tolerance_s = stamp_tolerance_s
+        StampGate(stamp_tolerance_s)  # a bad tolerance is refused now, not when iterating
         self.skipped: dict[str, int] = {}
         self.messages_read = 0
         with _open_bag(self.path) as bag:
@@ -378,6 +385,7 @@ class FlightReader:
     def _read(self, bag: _Bag) -> Generator[Frame | GeoFix | ImuSample, None, None]:
         infos = self._camera_infos(bag)
         next_info = 0
+        gate = StampGate(self.stamp_tolerance_s)
         camera: CameraIntrinsics | None = infos[0][1] if infos else None
         connections = [
             c for c in bag.connections if self._roles.get(c.topic) in {'image', 'fix', 'imu'}
@@ -409,6 +417,13 @@ class FlightReader:
                 continue
             if not isinstance(item, Frame) and item.stamp_ns == 0:
                 item = dataclasses.replace(item, stamp_ns=log_ns)
+            jumps = gate.rebased.get(connection.topic, 0)
+            off_s = gate.check(connection.topic, item.stamp_ns, log_ns)
+            if gate.rebased.get(connection.topic, 0) > jumps:
+                self._skip(connection.topic, 'header clock jumped for good: followed after three messages')
+            if off_s is not None:
+                self._skip(connection.topic, f'{gate.REASON} (its log times)')
+                continue
             yield item
 
 
@@ -417,11 +432,13 @@ def read_flight(
     *,
     topics: TopicConfig = TopicConfig(),  # noqa: B008 - frozen, hence safe
     require_image: bool = True,
+    stamp_tolerance_s: float = 10.0,
 ) -> FlightReader:
     """Frames, fixes and IMU samples of a bag in log-time order (see :class:`FlightReader`).
 
     The bag is opened and its topics checked now; messages are read when iterating. A message
-    that cannot be converted is skipped and counted in ``.skipped``; messages metadata.yaml counts
+    that cannot be converted, or whose header stamp is more than ``stamp_tolerance_s`` seconds off
+    its topic's clock (core/stamp_gate.py; 0: no check), is skipped and counted in ``.skipped``; messages metadata.yaml counts
     but the storage files lack are counted in ``.missing`` and said in ``.warnings``. Topics other
     than the flight's are never deserialised, so their definitions and formats do not matter.
 
@@ -431,7 +448,7 @@ def read_flight(
             that is not CDR or whose type cannot be built.
 
     """
-    return FlightReader(path, topics=topics, require_image=require_image)
+    return FlightReader(path, topics=topics, require_image=require_image, stamp_tolerance_s=stamp_tolerance_s)
 
 
 def iter_raw(

@@ -126,6 +126,7 @@ class WarnOnce:
         self._warned: set[str] = set()
         self._lock = threading.Lock()
         self.stats: collections.Counter[str] = collections.Counter()
+        self._reported = 0  # rejections said by the last status()
 
     def __call__(self, kind: str, text: str) -> None:
         with self._lock:
@@ -138,6 +139,18 @@ class WarnOnce:
     def count(self, key: str, n: int = 1) -> None:
         with self._lock:
             self.stats[key] += n
+
+    def status(self, message: str) -> tuple[bytes, str]:
+        """(diagnostic level, message): WARN, naming the kinds, when inputs were rejected since the
+        last call (so diagnostics are true while messages are being refused), else OK."""
+        with self._lock:
+            rejected = {k: v for k, v in self.stats.items() if k.startswith('rejected')}
+            fresh = sum(rejected.values()) - self._reported
+            self._reported = sum(rejected.values())
+        if fresh <= 0:
+            return DiagnosticStatus.OK, message
+        kinds = ', '.join(k.removeprefix('rejected: ') for k in rejected)
+        return DiagnosticStatus.WARN, f'{message}; {fresh} messages rejected since the last report ({kinds})'
 
 
 def input_qos(reliable: bool, depth: int) -> QoSProfile:

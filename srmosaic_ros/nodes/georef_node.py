@@ -43,6 +43,7 @@ from msg_adapters import camera_info_to_intrinsics, imu_to_sample, navsat_to_fix
 
 from ..core.georef.georeferencer import Georeferencer
 from ..core.undistort import Undistorter
+from ..core.stamp_gate import StampGate
 from ..errors import SrMosaicError
 from ..pipeline import SYNC_HOLD_FRAMES
 from .common import (TELEMETRY_QOS_DEPTH, RegistrationMsg, WarnOnce, decode_registration, diagnostic_array, input_qos,
@@ -70,6 +71,7 @@ class GeorefNode(Node):
         self._pending: list[tuple[float, RegistrationMsg]] = []  # (arrival monotonic s, registration)
         self._latest_telemetry_ns: int | None = None
         self._last_stamp: dict[str, int] = {}
+        self._stamps = StampGate(self.config.stamp_tolerance_s)
         self._ref_stamp: int | None = None  # the last painted frame fed: what prev_H_cur maps into
         self._last_pose = None
         self.pub_diag = self.create_publisher(DiagnosticArray, '/srmosaic/diagnostics', 10)
@@ -97,6 +99,11 @@ class GeorefNode(Node):
 
     # -- inputs ---------------------------------------------------------------------------------
     def _in_order(self, stream: str, stamp_ns: int) -> bool:
+        off_s = self._stamps.check(stream, stamp_ns, self.get_clock().now().nanoseconds)
+        if off_s is not None:  # before the order check: one future stamp must not make every later one 'older'
+            self.warn(f'{stream} stamp off the clock', f'{stream} stamp {stamp_ns} is {off_s:+.3g} s off the receive '
+                      f'times of the stream (stamp_tolerance_s {self.config.stamp_tolerance_s:g}); message skipped')
+            return False
         last = self._last_stamp.get(stream)
         if last is not None and stamp_ns < last:
             self.warn(f'{stream} time going backwards', f'{stream} stamp {stamp_ns} is older than the previous '
@@ -194,8 +201,8 @@ class GeorefNode(Node):
         if self.georef is not None:
             values.update({f'filter skipped: {k}': v for k, v in self.georef.skipped.items()})
         values.update({k: v for k, v in stats.items() if k.startswith('rejected')})
-        self.pub_diag.publish(diagnostic_array(self, 'srmosaic: georeferencing', f"{values['poses_published']} poses",
-                                               values))
+        level, message = self.warn.status(f"{values['poses_published']} poses")
+        self.pub_diag.publish(diagnostic_array(self, 'srmosaic: georeferencing', message, values, level=level))
 
     def finish(self) -> None:
         """Fuse the registrations still waiting for telemetry."""

@@ -56,6 +56,7 @@ from msg_adapters import (
 from ..errors import SrMosaicError
 from ..live_raster import ImagePlacement, LiveRaster
 from ..core.types import Frame
+from ..core.stamp_gate import StampGate
 from ..io.mosaic_files import write_json
 from ..offline import peak_rss_mb, preview_image, write_outputs
 from ..pipeline import FrameRecord, Pipeline
@@ -103,6 +104,8 @@ class MosaicNode(Node):
         self._camera = None
         self._warned: set[str] = set()
         self._last_stamp: dict[str, int] = {}
+        self._stamps = StampGate(config.stamp_tolerance_s)  # a stamp far off its stream's receive times
+        self._rejected_reported = 0  # rejections said by the last diagnostics
         self.stats = collections.Counter()
         self._stats_lock = threading.Lock()
         self._latency_ms: collections.deque[float] = collections.deque(maxlen=500)
@@ -163,6 +166,12 @@ class MosaicNode(Node):
             return self._monotonic_locked(stream, stamp_ns)
 
     def _monotonic_locked(self, stream: str, stamp_ns: int) -> bool:
+        off_s = self._stamps.check(stream, stamp_ns, self.get_clock().now().nanoseconds)
+        if off_s is not None:  # before the order check: one future stamp must not make every later one 'older'
+            self._warn_once(f'{stream} stamp off the clock',
+                            f'{stream} stamp {stamp_ns} is {off_s:+.3g} s off the receive times of the stream '
+                            f'(stamp_tolerance_s {self.config.stamp_tolerance_s:g}); message skipped')
+            return False
         last = self._last_stamp.get(stream)
         if last is not None and stamp_ns < last:
             self._warn_once(f'{stream} time going backwards',
@@ -345,6 +354,12 @@ class MosaicNode(Node):
             level, message = DiagnosticStatus.WARN, f'last frame not registered: {rec.reason}'
         if stats.get('dropped_frames', 0):
             message += f"; {stats['dropped_frames']} frames dropped (falling behind)"
+        rejected = sum(v for k, v in stats.items() if k.startswith('rejected'))
+        if rejected > self._rejected_reported:  # WARN while messages are being rejected, not for ever after
+            kinds = ', '.join(k.removeprefix('rejected: ') for k, v in stats.items() if k.startswith('rejected') and v)
+            level = max(level, DiagnosticStatus.WARN)
+            message += f'; {rejected - self._rejected_reported} messages rejected since the last report ({kinds})'
+            self._rejected_reported = rejected
         return diagnostic_array(self, 'srmosaic: registration and mosaic', message, values, level=level)
 
     # -- shutdown -------------------------------------------------------------------------------

@@ -64,6 +64,7 @@ from msg_adapters import (SUPPORTED_ENCODINGS, camera_info_to_intrinsics, header
 from ..core.sr.reconstruct import SRFramesDisagree
 from ..core.types import CameraIntrinsics
 from ..core.undistort import Undistorter
+from ..core.stamp_gate import StampGate
 from ..errors import SrMosaicError
 from ..sr_live import (
     LiveFrame,
@@ -88,6 +89,7 @@ class SRNode(Node):
         super().__init__('srmosaic_sr', **kwargs)
         defaults = declare_pipeline_parameters(self)
         self.config = read_pipeline_config(self, defaults)  # ConfigError refuses bad sr / sr_tiles values
+        self._stamps = StampGate(self.config.stamp_tolerance_s)
         self.period_s = float(check_range(self, 'live.sr_period_s', 0.1, 3600.0))
         self.tiles_per_round = int(check_range(self, 'live.sr_tiles_per_round', 1, 100))
         self.refresh_growth = float(check_range(self, 'live.sr_refresh_growth', 0.0, 100.0))
@@ -165,6 +167,11 @@ class SRNode(Node):
             self.warn('image: empty', 'empty compressed image skipped')
             return
         with self._store_lock:
+            off_s = self._stamps.check('image', stamp_ns, self.get_clock().now().nanoseconds)
+            if off_s is not None:  # before the order check: one future stamp must not make every later one 'older'
+                self.warn('image stamp off the clock', f'image stamp {stamp_ns} is {off_s:+.3g} s off the receive '
+                          f'times of the stream (stamp_tolerance_s {self.config.stamp_tolerance_s:g}); skipped')
+                return
             if self._last_stamp is not None and stamp_ns < self._last_stamp:
                 self.warn('image time going backwards',
                           f'image stamp {stamp_ns} is older than the previous {self._last_stamp}; skipped')
@@ -348,8 +355,8 @@ class SRNode(Node):
             'worker': self.worker_kind,
         }
         values.update({k: v for k, v in stats.items() if k.startswith('rejected')})
-        return diagnostic_array(self, 'srmosaic: super-resolution', f"{values['tiles_published']} tiles published",
-                                values)
+        level, message = self.warn.status(f"{values['tiles_published']} tiles published")
+        return diagnostic_array(self, 'srmosaic: super-resolution', message, values, level=level)
 
     def finish(self) -> None:
         """Stop the worker (a tile in progress completes first, up to 60 s), then its process."""
