@@ -724,6 +724,8 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
         raise InputError(msg)
     report_extra: dict[str, Any] = {'input': str(path), 'input_kind': kind,
                                     'skipped_messages': dict(getattr(reader, 'skipped', {}))}
+    if getattr(reader, 'adjusted', None):  # CameraInfo scaled to images of another size (io/bags.py)
+        report_extra['adjusted_messages'] = dict(reader.adjusted)
     if summary is not None:
         report_extra['metadata'] = _metadata_report(summary, result)
     if kind == 'video':

@@ -443,3 +443,25 @@ def test_a_bag_of_unusable_images_is_refused_with_the_reason(tmp_path: Path) -> 
     assert last.startswith('srmosaic process: error: no usable image in ') and "4 x /camera/image_raw: " in last
     assert 'yuv422' in last and 'Traceback' not in run.stderr
     assert not (out / 'mosaic.png').exists() and not (out / 'report.json').exists()
+
+
+def test_camera_info_of_another_image_size(tmp_path: Path) -> None:
+    """Images that change size mid-bag under one CameraInfo: those of the same aspect ratio get it
+    scaled (said once, counted in ``adjusted``), those of another aspect ratio are skipped with the
+    reason (they were used with the wrong intrinsics, the second half placed ~40 m off)."""
+    camera = CameraIntrinsics(32, 24, 40.0, 40.0, 15.5, 11.5)
+    bag = tmp_path / 'flight'
+    with BagWriter(bag, storage='mcap') as writer:
+        writer.write('/camera/camera_info', ma.intrinsics_to_camera_info(camera, stamp_ns=T0, flavor='rosbags'), T0)
+        for i, (h, w) in enumerate([(24, 32), (24, 32), (48, 64), (48, 64), (24, 40)]):
+            t = T0 + (i + 1) * DT
+            writer.write('/camera/image_raw', ma.numpy_to_image(np.zeros((h, w), np.uint8), 'mono8', stamp_ns=t,
+                                                                flavor='rosbags'), t)
+    reader = read_flight(bag)
+    frames = list(reader)
+    assert [f.image.shape[1] for f in frames] == [32, 32, 64, 64]
+    assert frames[0].camera == camera
+    big = frames[2].camera
+    assert (big.width, big.height, big.fx, big.cx, big.cy) == (64, 48, 80.0, 31.5, 23.5)
+    assert list(reader.adjusted.values()) == [2]
+    assert len(reader.skipped) == 1 and 'another aspect ratio' in next(iter(reader.skipped)), reader.skipped

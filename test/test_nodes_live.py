@@ -526,6 +526,16 @@ def test_node_survives_bad_input(ros_env, tmp_path):
             images.publish(empty)
             fixes.publish(nan_fix)
             time.sleep(0.1)
+        from sensor_msgs.msg import CameraInfo
+
+        infos = listener.publisher(CameraInfo, '/camera/camera_info')
+        assert listener.wait_for(lambda: infos.get_subscription_count() >= 1, 20)
+        infos.publish(CameraInfo(width=16, height=16, k=[20.0, 0.0, 7.5, 0.0, 20.0, 7.5, 0.0, 0.0, 1.0]))
+        time.sleep(0.3)
+        crop = Image(height=20, width=32, encoding='mono8', step=32, data=bytes(640))  # another aspect ratio
+        crop.header.stamp.sec = 99
+        images.publish(crop)
+        time.sleep(0.1)
         later, earlier = Image(height=32, width=32, encoding='mono8', step=32, data=bytes(1024)), None
         later.header.stamp.sec = 100
         earlier = Image(height=32, width=32, encoding='mono8', step=32, data=bytes(1024))
@@ -535,7 +545,8 @@ def test_node_survives_bad_input(ros_env, tmp_path):
         images.publish(earlier)
 
         expected = {
-            MOSAIC: ('rejected: image: MessageError', 'rejected: fix', 'rejected: image time going backwards'),
+            MOSAIC: ('rejected: image: MessageError', 'rejected: fix', 'rejected: image time going backwards',
+                     'rejected: image: size unlike the camera info', 'camera_info_scaled'),
             SR: ('rejected: image: MessageError', 'rejected: image: empty', 'rejected: image time going backwards',
                  'rejected: registration'),
             GEOREF: ('rejected: fix', 'rejected: registration', 'rejected: registration time going backwards'),

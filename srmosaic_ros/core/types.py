@@ -41,6 +41,18 @@ class CameraIntrinsics:
     def has_distortion(self) -> bool:
         return any(abs(c) > 0.0 for c in self.distortion)
 
+    def scaled_to(self, width: int, height: int) -> CameraIntrinsics | None:
+        """These intrinsics for ``width`` x ``height`` px images of the same camera mode (the field
+        of view kept, pixel centres scaled about the image corner), or None when the aspect ratio
+        differs by more than a pixel (another mode: a crop, which no scaling describes)."""
+        if (width, height) == (self.width, self.height) or self.width <= 0 or self.height <= 0:
+            return self
+        if abs(self.width * height - self.height * width) > max(self.width, width):
+            return None
+        sx, sy = width / self.width, height / self.height
+        return CameraIntrinsics(int(width), int(height), self.fx * sx, self.fy * sy, (self.cx + 0.5) * sx - 0.5,
+                                (self.cy + 0.5) * sy - 0.5, self.distortion_model, self.distortion)
+
 
 @dataclass(frozen=True)
 class GeoFix:

@@ -283,6 +283,9 @@ class FlightReader:
             one of them (core/stamp_gate.py); a topic whose header clock jumped for good is
             followed after three messages and counted as '<topic>: header clock jumped'.
         messages_read: image, fix and imu messages taken from the bag by that iteration.
+        adjusted: images whose CameraInfo was of another size of the same aspect ratio, and was
+            scaled to them, counted per pair of sizes (logged once each); an image of another aspect
+            ratio than its CameraInfo is skipped (counted in ``skipped``).
 
     Each Frame's ``camera`` is the latest CameraInfo logged at or before it, or the first one of
     the bag if all came later, or None if the bag has none. ``stamp_ns`` of every item is its
@@ -302,6 +305,7 @@ class FlightReader:
         self.stamp_tolerance_s = stamp_tolerance_s
         StampGate(stamp_tolerance_s)  # a bad tolerance is refused now, not when iterating
         self.skipped: dict[str, int] = {}
+        self.adjusted: dict[str, int] = {}
         self.messages_read = 0
         with _open_bag(self.path) as bag:
             self.info = _bag_info(self.path, bag)
@@ -356,6 +360,24 @@ class FlightReader:
             self._skip(connection.topic, reason)
             return None
 
+    def _camera_for(self, topic: str, camera: CameraIntrinsics | None, image: Any) -> CameraIntrinsics | None:  # noqa: ANN401
+        """``camera`` for ``image`` (H, W[, C]): scaled when the CameraInfo is of another size of the
+        same aspect ratio (said once per pair of sizes); MessageError when the aspect differs."""
+        if camera is None or image.size == 0:
+            return camera
+        h, w = image.shape[:2]
+        scaled = camera.scaled_to(w, h)
+        if scaled is None:
+            msg = (f'image of {w}x{h} px but the CameraInfo before it is of {camera.width}x{camera.height} '
+                   '(another aspect ratio): record the CameraInfo of this camera mode')
+            raise MessageError(msg)
+        if scaled is not camera:
+            key = f'{topic}: CameraInfo of {camera.width}x{camera.height} px scaled to the images of {w}x{h}'
+            if key not in self.adjusted:
+                _LOG.warning('%s (the aspect ratio holds)', key)
+            self.adjusted[key] = self.adjusted.get(key, 0) + 1
+        return scaled
+
     def _camera_infos(self, bag: _Bag) -> list[tuple[int, CameraIntrinsics]]:
         connections = [c for c in bag.connections if self._roles.get(c.topic) == 'camera_info']
         infos: list[tuple[int, CameraIntrinsics]] = []
@@ -374,6 +396,7 @@ class FlightReader:
 
     def _items(self) -> Generator[Frame | GeoFix | ImuSample, None, None]:
         self.skipped = {}
+        self.adjusted = {}
         self.messages_read = 0
         with _open_bag(self.path) as bag:
             refusal = _types_refusal(
@@ -402,10 +425,11 @@ class FlightReader:
                         camera = infos[next_info][1]
                         next_info += 1
                     stamp_ns, frame_id = header_to_ns_frame(msg)
+                    image = image_to_rgb_or_mono(msg)
                     item: Frame | GeoFix | ImuSample = Frame(
                         stamp_ns=stamp_ns or log_ns,
-                        image=image_to_rgb_or_mono(msg),
-                        camera=camera,
+                        image=image,
+                        camera=self._camera_for(connection.topic, camera, image),
                         frame_id=frame_id,
                     )
                 elif role == 'fix':

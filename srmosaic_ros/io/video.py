@@ -175,17 +175,15 @@ class VideoReader:
                    'FFmpeg does not decode; re-encode it (e.g. to H.264 MP4) or check the copy.')
             raise VideoError(msg) from None
         if camera is not None and (camera.width, camera.height) != (self.width, self.height):
-            if abs(camera.width * self.height - camera.height * self.width) > max(camera.width, self.width):
+            scaled = camera.scaled_to(self.width, self.height)
+            if scaled is None:
                 msg = (f'--camera is a calibration of {camera.width}x{camera.height} images, the video '
                        f'{self.path.name} is {self.width}x{self.height} (another aspect ratio); give the '
                        'calibration of this camera mode.')
                 raise VideoError(msg)
-            sx, sy = self.width / camera.width, self.height / camera.height
             _LOG.warning('--camera is a calibration of %dx%d images, the video is %dx%d: its intrinsics are '
                          'scaled to the video.', camera.width, camera.height, self.width, self.height)
-            camera = CameraIntrinsics(self.width, self.height, camera.fx * sx, camera.fy * sy,
-                                      (camera.cx + 0.5) * sx - 0.5, (camera.cy + 0.5) * sy - 0.5,
-                                      camera.distortion_model, camera.distortion)
+            camera = scaled
         if camera is not None:
             self.camera = camera
         elif hfov_deg is not None:

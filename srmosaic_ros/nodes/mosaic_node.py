@@ -192,13 +192,31 @@ class MosaicNode(Node):
         if image.size == 0:
             self._warn_once('image: empty', 'empty image skipped')
             return
+        camera = self._camera
+        if camera is not None:  # CameraInfo of another size: scaled when the aspect ratio holds (io/bags.py alike)
+            h, w = image.shape[:2]
+            scaled = camera.scaled_to(w, h)
+            if scaled is None:
+                self._warn_once('image: size unlike the camera info',
+                                f'image of {w}x{h} px but the camera info is of {camera.width}x{camera.height} '
+                                '(another aspect ratio); publish the camera info of this camera mode; image skipped')
+                return
+            if scaled is not camera:
+                with self._stats_lock:
+                    self.stats['camera_info_scaled'] += 1
+                    first = 'camera_info_scaled' not in self._warned
+                    self._warned.add('camera_info_scaled')
+                if first:
+                    self.get_logger().warning(f'camera info of {camera.width}x{camera.height} px scaled to the '
+                                              f'images of {w}x{h} (the aspect ratio holds; logged once)')
+                camera = scaled
         if not self._monotonic('image', stamp_ns):
             return
         with self._wake:
             if len(self._queue) == self._queue.maxlen:
                 with self._stats_lock:
                     self.stats['dropped_frames'] += 1
-            self._queue.append(Frame(stamp_ns, image, self._camera, frame_id))
+            self._queue.append(Frame(stamp_ns, image, camera, frame_id))
             self._wake.notify()
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
@@ -347,7 +365,7 @@ class MosaicNode(Node):
             'processing_ms_median': f'{np.median(lat):.1f}',
             'processing_ms_p95': f'{np.percentile(lat, 95):.1f}',
         }
-        values.update({k: v for k, v in stats.items() if k.startswith(('rejected', 'preview_'))})
+        values.update({k: v for k, v in stats.items() if k.startswith(('rejected', 'preview_', 'camera_info_scaled'))})
         level = DiagnosticStatus.OK
         message = 'registering'
         if rec is not None and not rec.painted:
