@@ -265,6 +265,17 @@ def supervised(**procs: subprocess.Popen) -> Iterator[_Supervision]:
         assert proc.returncode == 0, sup.logs[name]
 
 
+def play_into(listener: Listener, bag: Path, frames: int, *, delay_s: int, env: dict[str, str]) -> None:
+    """`srmosaic play` the bag at rate 2, then wait until the mosaic node says it processed ``frames``."""
+    player = srmosaic('play', str(bag), '--rate', '2.0', '--delay', str(delay_s), env=env)
+    out, _ = player.communicate(timeout=120)
+    assert player.returncode == 0, out
+    assert listener.wait_for(lambda: listener.diag_value('frames_processed') == str(frames), 240), \
+        (f'graph did not process the {frames} frames: received {listener.diag_value("frames_received")}, '
+         f'processed {listener.diag_value("frames_processed")}')
+    time.sleep(1.0)
+
+
 def test_live_graph_matches_offline_process(ros_env, tmp_path):
     live_dir = tmp_path / 'live'
     # Reliable inputs: the comparison with the offline run needs every frame (best effort may drop
@@ -275,13 +286,7 @@ def test_live_graph_matches_offline_process(ros_env, tmp_path):
     with supervised(graph=graph, recorder=recorder) as sup:
         listener = sup.listener
         assert listener.wait_for(lambda: listener.diagnostics, 30), 'graph published no diagnostics'
-        player = srmosaic('play', str(DEMO), '--rate', '2.0', '--delay', '15', env=ros_env)
-        out, _ = player.communicate(timeout=120)
-        assert player.returncode == 0, out
-        assert listener.wait_for(lambda: listener.diag_value('frames_processed') == '60', 240), \
-            (f'graph did not process the 60 frames: received {listener.diag_value("frames_received")}, '
-             f'processed {listener.diag_value("frames_processed")}')
-        time.sleep(1.0)
+        play_into(listener, DEMO, 60, delay_s=15, env=ros_env)
         assert listener.previews and listener.compressed
         assert len(listener.registrations) == 60
         preview = listener.previews[-1]
@@ -610,12 +615,7 @@ def test_one_future_stamp_costs_one_message_offline_and_live(ros_env, tmp_path):
     with supervised(graph=graph) as sup:
         listener = sup.listener
         assert listener.wait_for(lambda: listener.diagnostics, 30), 'no diagnostics'
-        player = srmosaic('play', str(bag), '--rate', '2.0', '--delay', '5', env=ros_env)
-        played, _ = player.communicate(timeout=120)
-        assert player.returncode == 0, played
-        assert listener.wait_for(lambda: listener.diag_value('frames_processed') == '59', 240), \
-            (listener.diag_value('frames_received'), listener.diag_value('frames_processed'))
-        time.sleep(1.0)
+        play_into(listener, bag, 59, delay_s=5, env=ros_env)
         assert listener.diag_value('rejected: image stamp off the clock') == '1'
         assert listener.diag_value('rejected: fix stamp off the clock') == '1'
         warned = [st for msg in list(listener.diagnostics) for st in msg.status

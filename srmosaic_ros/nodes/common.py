@@ -144,13 +144,19 @@ class WarnOnce:
         """(diagnostic level, message): WARN, naming the kinds, when inputs were rejected since the
         last call (so diagnostics are true while messages are being refused), else OK."""
         with self._lock:
-            rejected = {k: v for k, v in self.stats.items() if k.startswith('rejected')}
-            fresh = sum(rejected.values()) - self._reported
-            self._reported = sum(rejected.values())
-        if fresh <= 0:
-            return DiagnosticStatus.OK, message
-        kinds = ', '.join(k.removeprefix('rejected: ') for k in rejected)
-        return DiagnosticStatus.WARN, f'{message}; {fresh} messages rejected since the last report ({kinds})'
+            level, message, self._reported = rejection_status(self.stats, self._reported, message)
+        return level, message
+
+
+def rejection_status(stats: dict[str, int], reported: int, message: str) -> tuple[bytes, str, int]:
+    """(level, message, rejections now) of a node's diagnostics: WARN, naming the kinds, when the
+    'rejected: <kind>' counts of ``stats`` grew past ``reported`` (those said last time), else OK."""
+    rejected = {k: v for k, v in stats.items() if k.startswith('rejected') and v}
+    total = sum(rejected.values())
+    if total <= reported:
+        return DiagnosticStatus.OK, message, total
+    kinds = ', '.join(k.removeprefix('rejected: ') for k in rejected)
+    return DiagnosticStatus.WARN, f'{message}; {total - reported} messages rejected since the last report ({kinds})', total
 
 
 def input_qos(reliable: bool, depth: int) -> QoSProfile:

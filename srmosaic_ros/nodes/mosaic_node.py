@@ -61,7 +61,7 @@ from ..io.mosaic_files import write_json
 from ..offline import peak_rss_mb, preview_image, write_outputs
 from ..pipeline import FrameRecord, Pipeline
 from .common import (IMAGE_QOS_DEPTH, REGISTRATION_LAYOUT, TELEMETRY_QOS_DEPTH, diagnostic_array,
-                     encode_registration, pose_messages)
+                     encode_registration, pose_messages, rejection_status)
 from .parameters import declare_pipeline_parameters, read_pipeline_config
 
 __all__ = ['MosaicNode', 'REGISTRATION_LAYOUT', 'main']
@@ -372,12 +372,8 @@ class MosaicNode(Node):
             level, message = DiagnosticStatus.WARN, f'last frame not registered: {rec.reason}'
         if stats.get('dropped_frames', 0):
             message += f"; {stats['dropped_frames']} frames dropped (falling behind)"
-        rejected = sum(v for k, v in stats.items() if k.startswith('rejected'))
-        if rejected > self._rejected_reported:  # WARN while messages are being rejected, not for ever after
-            kinds = ', '.join(k.removeprefix('rejected: ') for k, v in stats.items() if k.startswith('rejected') and v)
-            level = max(level, DiagnosticStatus.WARN)
-            message += f'; {rejected - self._rejected_reported} messages rejected since the last report ({kinds})'
-            self._rejected_reported = rejected
+        rejecting, message, self._rejected_reported = rejection_status(stats, self._rejected_reported, message)
+        level = max(level, rejecting)  # WARN while messages are being rejected, not for ever after
         return diagnostic_array(self, 'srmosaic: registration and mosaic', message, values, level=level)
 
     # -- shutdown -------------------------------------------------------------------------------
