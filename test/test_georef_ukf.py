@@ -283,6 +283,24 @@ def test_without_imu_the_attitude_comes_from_the_course(flight) -> None:  # noqa
 # --- pieces ------------------------------------------------------------------------------------
 
 
+def test_an_unknown_heading_keeps_its_sigma_points_within_a_turn() -> None:
+    """A yaw sd of 90 deg (no attitude, no course yet) is reduced so that no sigma point is more
+    than pi from the mean: beyond it a heading aliases onto another (tested end to end on a DJI
+    video without Imu in test_video_srt)."""
+    ukf = PoseUkf()
+    cov = np.diag([4.0, 4.0, 9.0, math.radians(5.0) ** 2, math.radians(5.0) ** 2, math.radians(90.0) ** 2])
+    cov[5, 0] = cov[0, 5] = 0.5 * math.sqrt(cov[0, 0] * cov[5, 5])
+    ukf.initialize(0, np.zeros(6), cov)
+    limit = ukf.angle_sd_limit_rad
+    assert math.radians(30.0) < limit < math.radians(90.0)
+    assert math.sqrt(ukf.P[11, 11]) == pytest.approx(limit)
+    assert ukf.P[9, 9] == pytest.approx(cov[3, 3]) and ukf.P[6, 6] == pytest.approx(cov[0, 0] + 1e-10)
+    # the correlation is kept, only the yaw is rescaled
+    assert ukf.P[11, 6] / math.sqrt(ukf.P[11, 11] * ukf.P[6, 6]) == pytest.approx(0.5, rel=1e-6)
+    sigmas = ukf.ukf.points_fn.sigma_points(ukf.x, ukf.P)
+    assert np.abs(sigmas[:, 11] - ukf.x[11]).max() <= math.pi + 1e-9
+
+
 def test_sequential_updates_equal_a_joint_linear_update() -> None:
     """Sigma points are regenerated between updates: two position updates == one stacked update."""
     rng = np.random.default_rng(1)

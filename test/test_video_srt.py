@@ -58,11 +58,13 @@ def test_srt_beside_a_video_georeferences_it(dji_video: Path, tmp_path: Path) ->
     figures = evaluate_dir(tmp_path / 'hfov', dji_video / 'truth.json')
     assert figures['frames_registered'] == 24
     gnss = float((dji_video / 'gnss_rms_m').read_text())
-    # the fused positions beat the fixes themselves (measured 2.9 m against 3.2 m); the frame corners
-    # carry the scale error of a height known only from the GNSS altitude (sigma 5 m at 100 m:
-    # corners 57 m from the centre move 3 m; measured 7.3 m RMS with the corners)
-    assert figures['pose_rmse_horizontal_m'] < gnss, (figures['pose_rmse_horizontal_m'], gnss)
-    assert figures['georef_error_rms_m'] < 10.0, figures['georef_error_rms_m']
+    # No Imu: the heading is learnt from the fixes against the registrations. The fused positions
+    # beat the fixes themselves (measured 1.1 m against 3.2 m; seeds 1-8: 0.9-1.6 m against 2.7-3.8 m);
+    # the frame corners carry the scale error of a height known only from the GNSS altitude (sigma
+    # 5 m at 100 m: corners 57 m from the centre move 3 m; measured 1.7 m RMS, seeds 1-8 1.3-4.1 m;
+    # 3.5-15 m while an unknown heading's sigma points wrapped, see PoseUkf.angle_sd_limit_rad)
+    assert figures['pose_rmse_horizontal_m'] < 0.75 * gnss, (figures['pose_rmse_horizontal_m'], gnss)
+    assert figures['georef_error_rms_m'] < 6.0, figures['georef_error_rms_m']
     # without intrinsics the same telemetry places the mosaic by its geotags
     report = process_input(dji_video / 'DJI_0001.MP4', tmp_path / 'plain', PipelineConfig(), progress=False)
     assert report['georeferenced']['method'] == 'geotags'
