@@ -196,6 +196,9 @@ def _run_record_tiles(args: argparse.Namespace) -> int:
 
     from .nodes.runner import run_nodes
     from .nodes.tile_recorder import TileRecorderNode
+    from .offline import check_output_dir
+
+    check_output_dir(args.dir, 'record-tiles DIR')  # before joining the graph, not at the first tile
 
     node = functools.partial(TileRecorderNode, args.dir, previews=args.preview)
     return run_nodes([node], ['srmosaic', *args.ros_args])

@@ -21,7 +21,7 @@ from .core.registration import RegistrationConfig
 from .core.survey.config import SurveyConfig
 from .errors import ConfigError
 
-__all__ = ['PipelineConfig', 'check_type', 'default_params_path', 'load_params', 'pipeline_config']
+__all__ = ['PipelineConfig', 'check_type', 'default_params_path', 'load_params', 'pipeline_config', 'yaml_problem']
 
 DEVICES = ('auto', 'cpu', 'cuda')
 
@@ -77,6 +77,16 @@ def _flatten(tree: dict[str, Any], prefix: str = '') -> dict[str, Any]:
     return flat
 
 
+def yaml_problem(exc: yaml.YAMLError) -> str:
+    """PyYAML's several-line message as one line: what is wrong, and where (line, column)."""
+    problem = getattr(exc, 'problem', None)
+    mark = getattr(exc, 'problem_mark', None)
+    if problem is None:
+        return ' '.join(str(exc).split())
+    where = f' at line {mark.line + 1}, column {mark.column + 1}' if mark is not None else ''
+    return f'{problem}{where}'
+
+
 def load_params(path: str | os.PathLike[str]) -> dict[str, Any]:
     """Read a ROS 2 parameter file; return dotted names -> values, merged over all node sections."""
     path = Path(path)
@@ -86,7 +96,7 @@ def load_params(path: str | os.PathLike[str]) -> dict[str, Any]:
         msg = f'parameter file {path} does not exist.'
         raise ConfigError(msg) from None
     except yaml.YAMLError as exc:
-        msg = f'parameter file {path} is not valid YAML: {exc}'
+        msg = f'parameter file {path} is not valid YAML: {yaml_problem(exc)}'
         raise ConfigError(msg) from None
     if not isinstance(doc, dict):
         msg = f'parameter file {path} must map node names to {{ros__parameters: ...}}.'

@@ -386,9 +386,10 @@ def _mosaic_raster(result: PipelineResult, poses: list[Any], origin: tuple[int, 
     rel_sd = [math.sqrt(max(float(p.ground_covariance[-1]), 0.0)) / max(p.camera.center_enu_m[2] - p.ground_z_m, 1.0)
               for p in poses if p.valid and p.ground_covariance is not None and p.camera is not None]
     centres_only = bool(rel_sd) and float(np.median(rel_sd)) > ANCHOR_CORNERS_MAX_REL_AGL_SD
-    for rec, pose in zip(result.records, poses):
-        seg = seg_of.get(rec.segment)
-        if seg is None or seg.canvas is not main_canvas or not pose.valid or rec.seg_H_frame is None:
+    by_stamp = {p.stamp_ns: p for p in poses}  # records and poses need not align one to one
+    for rec in result.records:
+        seg, pose = seg_of.get(rec.segment), by_stamp.get(rec.stamp_ns)
+        if seg is None or seg.canvas is not main_canvas or pose is None or not pose.valid or rec.seg_H_frame is None:
             continue
         w_f, h_f = rec.size
         corners = np.array([[0, 0], [w_f - 1, 0], [w_f - 1, h_f - 1], [0, h_f - 1]], dtype=float)
@@ -731,12 +732,15 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
     if kind == 'video':
         report_extra['video'] = {'codec': reader.codec, 'fps': reader.fps, 'frames_decoded': reader.decoded,
                                  'frames_selected': reader.selected, 'select': select}
+        if getattr(reader, 'ended_early', ''):
+            report_extra['video']['ended_early'] = reader.ended_early
     if error is not None:
         report_extra['error'] = str(error)
     report = write_outputs(result, stage, config, report_extra,
                            meta_centres=summary.centres if summary is not None else None)
     if report.get('georeferenced') is None:
-        report['not_georeferenced_reason'] = not_georeferenced_reason(result, config)
+        report['not_georeferenced_reason'] = not_georeferenced_reason(result, config,
+                                                                      dict(getattr(reader, 'skipped', {})))
         _LOG.warning('the mosaic is not georeferenced: %s', report['not_georeferenced_reason'])
     if recorder is not None and result.main_segment is not None:
         main = result.main_segment
@@ -833,10 +837,17 @@ def _metadata_report(summary: Any, result: PipelineResult) -> dict[str, Any]:  #
     return out
 
 
-def not_georeferenced_reason(result: PipelineResult, config: PipelineConfig) -> str:
-    """One sentence: why the mosaic has no place on the map."""
+def not_georeferenced_reason(result: PipelineResult, config: PipelineConfig,
+                             skipped: dict[str, int] | None = None) -> str:
+    """One sentence: why the mosaic has no place on the map (``skipped``: the reader's messages
+    left out, per kind, which say when every fix was unusable)."""
     if not config.georef_enabled:
         return 'georeferencing is off (georef.enabled: false).'
+    bad_fixes = {k: n for k, n in (skipped or {}).items() if 'NavSatFix' in k}
+    if not result.fixes and bad_fixes:
+        worst = max(bad_fixes, key=bad_fixes.__getitem__)
+        return (f'every GNSS fix was unusable ({sum(bad_fixes.values())} left out, most as "{worst}"); record '
+                'valid fixes, or give a flight log with --telemetry.')
     if not result.fixes:
         return ('the input carries no GPS positions (no NavSatFix topic, EXIF GPS, KLV, SRT or GPMF track); give a '
                 'flight log with --telemetry (video) or a telemetry_from_exif.csv beside the stills.')

@@ -49,6 +49,10 @@ __all__ = ['FrameRecord', 'Pipeline', 'PipelineResult', 'SYNC_HOLD_FRAMES']
 
 #: Frames kept waiting for telemetry when none has been seen after them (then they go on alone).
 SYNC_HOLD_FRAMES = 3
+#: Before the first GNSS fix, frames wait for one (at most this many, and at most
+#: georef.telemetry_buffer_s of them), so that a flight whose first fixes are late or unusable
+#: still starts its mosaic on the map (the filter starts from the nearest fix, see Georeferencer).
+FIRST_FIX_HOLD_FRAMES = 32
 
 
 @dataclass
@@ -124,6 +128,7 @@ class Pipeline:
         self._orphan: _Held | None = None
         self._channels: int | None = None
         self._waiting: list[Frame] = []
+        self._first_fix_wait_over = False
         self.camera: CameraIntrinsics | None = None
         self.undistorter = Undistorter(self.config.undistort)
         self._latest_telemetry_ns: int | None = None
@@ -150,6 +155,14 @@ class Pipeline:
             self.fixes.append(item)
             if self.georef is None and self.config.georef_enabled:
                 self.georef = Georeferencer(self.config.georef)
+                # the attitudes seen before the first fix (the filter starts from the nearest one)
+                since = item.stamp_ns - int(self.config.georef.telemetry_buffer_s * 1e9)
+                for earlier in sorted((t for t in (*self.imus, *self.attitudes) if t.stamp_ns >= since),
+                                      key=lambda t: t.stamp_ns):
+                    if isinstance(earlier, ImuSample):
+                        self.georef.feed_imu(earlier)
+                    else:
+                        self.georef.feed_camera_attitude(earlier)
             if self.georef is not None:
                 self.georef.feed_fix(item)
         elif isinstance(item, ImuSample):
@@ -166,6 +179,19 @@ class Pipeline:
         self._latest_telemetry_ns = max(self._latest_telemetry_ns or item.stamp_ns, item.stamp_ns)
         return self._drain()
 
+    def _awaiting_first_fix(self) -> bool:
+        """True while the frames waiting should go on waiting for the flight's first fix."""
+        if self._first_fix_wait_over:
+            return False
+        if self.georef is not None or not self.config.georef_enabled or not self._waiting:
+            self._first_fix_wait_over = self.georef is not None or not self.config.georef_enabled
+            return False
+        span_ns = self._waiting[-1].stamp_ns - self._waiting[0].stamp_ns
+        if len(self._waiting) > FIRST_FIX_HOLD_FRAMES or span_ns > self.config.georef.telemetry_buffer_s * 1e9:
+            self._first_fix_wait_over = True  # no fix in time: the flight goes on without (a later one still joins)
+            return False
+        return True
+
     def feed_frame(self, frame: Frame) -> list[FrameRecord]:
         """Process a frame now, without waiting for telemetry (e.g. inputs without any)."""
         return self._process(frame)
@@ -173,6 +199,8 @@ class Pipeline:
     def _drain(self, *, all_frames: bool = False) -> list[FrameRecord]:
         """Process the waiting frames whose telemetry has arrived (approximate-time association)."""
         decided: list[FrameRecord] = []
+        if not all_frames and self._awaiting_first_fix():
+            return decided
         while self._waiting:
             frame = self._waiting[0]
             seen = self._latest_telemetry_ns is not None and self._latest_telemetry_ns > frame.stamp_ns
@@ -391,7 +419,8 @@ class Pipeline:
     def max_decision_lag_frames(self) -> int:
         """How many frames later than its own a frame's record may be returned, at most."""
         cfg = self.config.mosaic
-        return SYNC_HOLD_FRAMES + 3 + (cfg.settle_max_frames if cfg.settle_s > 0 else 0)
+        first_fix = FIRST_FIX_HOLD_FRAMES if self.config.georef_enabled else 0
+        return max(SYNC_HOLD_FRAMES, first_fix) + 3 + (cfg.settle_max_frames if cfg.settle_s > 0 else 0)
 
     def take_fused(self) -> list[FrameRecord]:
         """Records whose fused pose (record.pose) was computed since the last call, in order; a frame

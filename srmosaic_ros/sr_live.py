@@ -278,13 +278,26 @@ def reconstruct_live_tile_image(plan: TilePlan, images: Sequence[np.ndarray], se
     return image, placement, str(res.stop_reason)
 
 
-def init_sr_worker_process(torch_threads: int, niceness: int = 10) -> None:
+def init_sr_worker_process(torch_threads: int, niceness: int = 10, parent_pid: int | None = None) -> None:
     """Initializer of the SR worker process: lowest priority (niceness, and SCHED_IDLE where Linux
     allows it: SR is background work and must not take the CPU from registration), torch threads, SIGINT left to the parent (which shuts the worker
-    down), and the SR modules imported now rather than at the first tile."""
+    down), and the SR modules imported now rather than at the first tile. The worker ends itself
+    when ``parent_pid`` (default: its parent at start) is no longer its parent."""
     import signal  # noqa: PLC0415
+    import threading  # noqa: PLC0415
+    import time  # noqa: PLC0415
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # A node killed outright (SIGKILL, OOM) cannot shut its pool down: the worker would finish its
+    # tile and idle on for minutes, holding its memory. It leaves as soon as it is orphaned.
+    parent = os.getppid() if parent_pid is None else parent_pid  # the node may have died while we started
+
+    def watch_parent() -> None:
+        while os.getppid() == parent:
+            time.sleep(0.5)
+        os._exit(0)
+
+    threading.Thread(target=watch_parent, name='sr-worker-parent-watch', daemon=True).start()
     try:
         os.nice(niceness)
     except (AttributeError, OSError):

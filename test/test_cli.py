@@ -139,3 +139,37 @@ def test_an_empty_folder_says_what_inputs_are_accepted(tmp_path: Path) -> None:
 def test_play_refuses_a_rate_that_is_not_a_positive_number(rate: str) -> None:
     run = srmosaic('play', str(DEMO), '--rate', rate)
     assert run.returncode == 2 and 'argument --rate' in run.stderr
+
+
+@pytest.mark.parametrize('case', ['launch_params_yaml', 'launch_params_not_ros', 'launch_description_yaml',
+                                  'launch_params_rcl', 'record_tiles_file', 'evaluate_cut_frames_csv'])
+def test_bad_files_are_refused_in_one_line(tmp_path: Path, demo_out: Path, case: str) -> None:
+    """Each of these ended in a traceback (rcl's for the parameter files, NotADirectoryError for
+    record-tiles, TypeError for a frames.csv cut mid-row); now one line naming the file, exit 2."""
+    garbage = tmp_path / 'garbage.yaml'
+    garbage.write_text('garbage: [unclosed\n')
+    not_ros = tmp_path / 'plain.yaml'
+    not_ros.write_text('a: 1\n')
+    mixed = tmp_path / 'mixed.yaml'  # valid YAML, refused by rcl: a list of mixed types
+    mixed.write_text('/**:\n  ros__parameters:\n    live:\n      output_dir: [1, "x"]\n')
+    a_file = tmp_path / 'afile'
+    a_file.write_text('keep me')
+    cut = tmp_path / 'cut'
+    shutil.copytree(demo_out, cut)
+    text = (cut / 'frames.csv').read_text()
+    (cut / 'frames.csv').write_text(text[: len(text) * 6 // 10])
+    args, expect = {
+        'launch_params_yaml': (['launch', '--params', str(garbage)], 'is not valid YAML: expected'),
+        'launch_params_not_ros': (['launch', '--params', str(not_ros)], "section 'a' has no ros__parameters"),
+        'launch_description_yaml': (['launch', str(garbage)], 'launch description'),
+        'launch_params_rcl': (['launch', '--params', str(mixed)], 'ROS arguments refused'),
+        'record_tiles_file': (['record-tiles', str(a_file)], 'is a file, not a directory'),
+        'evaluate_cut_frames_csv': (['evaluate', str(cut)], 'is cut short or damaged'),
+    }[case]
+    run = srmosaic(*args)
+    assert run.returncode == 2, run.stderr
+    assert 'Traceback' not in run.stderr, run.stderr
+    # rcl logs its own "[ERROR] ... Failed to parse global arguments" before ours
+    lines = [ln for ln in run.stderr.strip().splitlines() if '[rcl]' not in ln]
+    assert len(lines) == 1 and expect in lines[0], run.stderr
+    assert a_file.read_text() == 'keep me'

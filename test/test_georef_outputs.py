@@ -194,3 +194,30 @@ def test_poses_csv_header_units_and_missing_poses(georeferenced, tmp_path) -> No
     truth = flight.truth.frames[-1]
     assert last['yaw'] == pytest.approx(truth.yaw_deg, abs=1.0)  # body yaw in ENU: ~30 deg (the heading)
     assert abs(last['latitude'] - truth.latitude_deg) * 111_000 < 3.0
+
+
+def test_a_flight_whose_first_fixes_are_unusable_starts_on_the_map(tmp_path):
+    """The demo with its first 20 fixes NaN (the receiver without a fix for 4 s): the first frames
+    used to be processed before any fix, so the mosaic began off the map and the whole flight fell
+    back to the geotag fit (7.8 m RMS, no poses.csv). Frames now wait for the first fix
+    (pipeline.FIRST_FIX_HOLD_FRAMES) and the filter starts from it: measured 0.81 m RMS (the
+    unchanged demo: 1.14 m)."""
+    import json
+
+    from demo_bags import DEMO, rewrite_demo
+    from srmosaic_ros.config import PipelineConfig
+    from srmosaic_ros.evaluate import evaluate_dir
+    from srmosaic_ros.offline import process_input
+
+    def no_fix(kind: str, index: int, msg) -> None:  # noqa: ANN001
+        if kind == 'fix' and index < 20:
+            msg.latitude = float('nan')
+
+    bag = rewrite_demo(tmp_path / 'late_fix', no_fix)
+    report = process_input(bag, tmp_path / 'out', PipelineConfig(), progress=False)
+    assert sum(n for k, n in report['skipped_messages'].items() if 'NaN' in k) == 20
+    assert report['georeferenced']['method'] == 'filter' and report['georeferenced']['poses'] == 60
+    figures = evaluate_dir(tmp_path / 'out', DEMO / 'ground_truth.json')
+    assert figures['georef_error_rms_m'] < 2.0, figures['georef_error_rms_m']
+    assert figures['corner_error_mean_px'] < 0.2, figures['corner_error_mean_px']
+    assert json.loads((tmp_path / 'out' / 'report.json').read_text())['georeferenced']['method'] == 'filter'

@@ -338,6 +338,23 @@ def test_damage_found_while_iterating(tmp_path: Path) -> None:
         list(reader)
 
 
+def test_damage_in_the_tail_keeps_the_frames_before_it(tmp_path: Path) -> None:
+    """The demo flight as a chunked mcap, damaged at 85 %: the CameraInfo pre-read meets the damage
+    first, and used to end the run before any frame (the frames before it are now read)."""
+    from demo_bags import rewrite_demo
+
+    bag = rewrite_demo(tmp_path / 'flight')
+    path = _storage_file(bag)
+    data = bytearray(path.read_bytes())
+    at = len(data) * 85 // 100
+    data[at:at + 4000] = b'\xff' * 4000
+    path.write_bytes(bytes(data))
+    frames = []
+    with pytest.raises(BagError, match=r'is damaged: reading the flight stopped after \d+ messages'):
+        frames.extend(item for item in read_flight(bag) if isinstance(item, Frame))
+    assert 20 <= len(frames) < 60 and all(f.camera is not None for f in frames)
+
+
 def test_missing_path(tmp_path: Path) -> None:
     with pytest.raises(BagError, match=r"Bag '.*nowhere' does not exist"):
         read_flight(tmp_path / 'nowhere')

@@ -17,6 +17,7 @@ import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -385,6 +386,61 @@ def test_split_graph_in_separate_processes(ros_env, tmp_path):
         assert fit['mae'] < 6.0, fit
 
 
+def _children(pid: int) -> list[int]:
+    out: list[int] = []
+    for task in os.listdir(f'/proc/{pid}/task'):
+        with contextlib.suppress(OSError), open(f'/proc/{pid}/task/{task}/children') as handle:
+            out += [int(c) for c in handle.read().split()]
+    return out
+
+
+def _cmdline(pid: int) -> str:
+    try:
+        with open(f'/proc/{pid}/cmdline') as handle:
+            return handle.read().replace('\0', ' ')
+    except OSError:
+        return ''
+
+
+def _running(pid: int) -> bool:
+    """The process exists and has not exited (a zombie not reaped by a container's PID 1 has)."""
+    try:
+        with open(f'/proc/{pid}/stat') as handle:
+            return handle.read().rsplit(') ', 1)[1][0] != 'Z'
+    except OSError:
+        return False
+
+
+@pytest.mark.skipif(not Path('/proc/self/task').is_dir(), reason='reads child processes from /proc (Linux)')
+def test_a_launch_child_killed_is_named_and_leaves_no_sr_worker(ros_env, tmp_path):
+    """kill -9 of the process running the SR node: the launcher names it and stops the other one,
+    and the SR worker process (spawned by the node) ends with it; it used to idle on for minutes."""
+    description = tmp_path / 'two.yaml'
+    description.write_text('processes:\n  - {name: onboard, nodes: [mosaic]}\n  - {name: ground, nodes: [sr]}\n')
+    graph = srmosaic('launch', str(description), env=ros_env)
+    try:
+        deadline, sr_child, workers = time.monotonic() + 90, None, []
+        while time.monotonic() < deadline and not workers:
+            sr_child = next((c for c in _children(graph.pid) if ' node sr ' in _cmdline(c) + ' '), None)
+            if sr_child is not None:
+                workers = [w for w in _children(sr_child) if 'spawn_main' in _cmdline(w)]
+            time.sleep(0.5)
+        assert sr_child is not None and workers, 'no SR node with its worker process'
+        time.sleep(2.0)  # the worker past its start
+        os.kill(sr_child, signal.SIGKILL)
+        out, _ = graph.communicate(timeout=90)
+    finally:
+        if graph.poll() is None:
+            graph.kill()
+            graph.communicate()
+    assert graph.returncode != 0
+    assert 'srmosaic launch: ground was killed by SIGKILL; stopping the others' in out, out
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline and any(_running(w) for w in workers):
+        time.sleep(0.2)
+    assert not any(_running(w) for w in workers), 'the SR worker outlived its node'
+
+
 def test_sr_node_refreshes_a_tile_when_more_frames_cover_it(ros_env):
     """The SR node alone, fed frames and registrations over DDS by this test: an aircraft hovering
     over one spot. Each tile is published once 3 frames cover it, then again (same placement) once
@@ -572,22 +628,13 @@ def test_node_survives_bad_input(ros_env, tmp_path):
 def tampered_demo(dst: Path, *, image: int, fix: int, shift_s: int = 10**6) -> Path:
     """The demo bag rewritten (rosbags) with the header stamp of its ``image``-th image and
     ``fix``-th fix moved ``shift_s`` seconds into the future (a driver's glitch)."""
-    from rosbags.rosbag2 import Reader
+    from demo_bags import rewrite_demo
 
-    from msg_adapters._flavor import rosbags_typestore
-    from srmosaic_ros.io.bags import BagWriter
+    def tamper(kind: str, index: int, msg: Any) -> None:  # noqa: ANN401
+        if index == {'image': image, 'fix': fix}.get(kind):
+            msg.header.stamp.sec += shift_s
 
-    store = rosbags_typestore()
-    seen: collections.Counter[str] = collections.Counter()
-    with Reader(DEMO) as reader, BagWriter(dst, storage='mcap') as writer:
-        for connection, log_ns, raw in reader.messages():
-            msg = store.deserialize_cdr(raw, connection.msgtype)
-            kind = 'image' if 'image' in connection.topic else 'fix' if connection.topic == '/fix' else ''
-            if kind and seen[kind] == {'image': image, 'fix': fix}[kind]:
-                msg.header.stamp.sec += shift_s
-            seen[kind] += 1
-            writer.write(connection.topic, msg, log_ns)
-    return dst
+    return rewrite_demo(dst, tamper)
 
 
 def test_one_future_stamp_costs_one_message_offline_and_live(ros_env, tmp_path):

@@ -10,18 +10,16 @@ import sys
 import time
 from pathlib import Path
 
+from srmosaic_ros.checkpoint import read_header
+
 ROOT = Path(__file__).resolve().parent.parent
 DEMO = ROOT / 'bags' / 'demo'
 CLI = [sys.executable, '-m', 'srmosaic_ros.cli']
 
 
 def _checkpointed_frames(out: Path) -> int:
-    path = out / '.checkpoint' / 'state.pkl'
-    try:
-        with open(path, 'rb') as handle:
-            return pickle.load(handle).frames_consumed
-    except (OSError, EOFError, pickle.UnpicklingError):
-        return 0
+    header = read_header(out / '.checkpoint' / 'state.pkl')
+    return int(header['frames_consumed']) if header else 0
 
 
 def test_kill_9_then_resume_gives_the_same_mosaic(tmp_path):
@@ -55,3 +53,44 @@ def test_resume_refuses_other_input_or_missing_checkpoint(tmp_path):
     run = subprocess.run([*CLI, 'process', str(DEMO), '--out', str(tmp_path / 'none'), '--resume'],
                          capture_output=True, text=True, timeout=120)
     assert run.returncode == 2 and 'no checkpoint' in run.stderr
+
+
+class _Crafted:
+    """A hand-made 'checkpoint' whose unpickling runs a command."""
+
+    def __init__(self, target: Path) -> None:
+        self.target = target
+
+    def __reduce__(self):  # noqa: ANN204
+        return (os.system, (f'touch {self.target}',))
+
+
+def test_resume_verifies_a_checkpoint_before_it_loads_code(tmp_path):
+    """--resume used to unpickle state.pkl first: a crafted one ran code. The header (format,
+    fingerprint, checksum) is checked first, and the payload's globals are allow-listed."""
+    import hashlib
+
+    out = tmp_path / 'run'
+    proc = subprocess.Popen([*CLI, 'process', str(DEMO), '--out', str(out), '--checkpoint-every', '5',
+                             '--no-progress'], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 300
+    while _checkpointed_frames(out) < 5 and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.05)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    path = out / '.checkpoint' / 'state.pkl'
+    header = read_header(path)
+    assert header is not None and header['frames_consumed'] >= 5
+    pwned = tmp_path / 'PWNED'
+    payload = pickle.dumps(_Crafted(pwned))
+    magic = path.read_bytes().split(b'{', 1)[0]
+    cases = {
+        'checksum': (header, 'does not match its own checksum'),  # the payload replaced, the header kept
+        'code': ({**header, 'sha256': hashlib.sha256(payload).hexdigest()}, 'which a checkpoint never holds'),
+    }
+    for name, (head, expect) in cases.items():
+        path.write_bytes(magic + json.dumps(head).encode() + b'\n' + payload)
+        run = subprocess.run([*CLI, 'process', str(DEMO), '--out', str(out), '--resume', '--no-progress'],
+                             capture_output=True, text=True, timeout=300)
+        assert run.returncode == 2 and expect in run.stderr, (name, run.stderr)
+        assert 'Traceback' not in run.stderr and not pwned.exists(), name

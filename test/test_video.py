@@ -123,6 +123,24 @@ def test_truncated_video_keeps_what_was_processed(flight_video, tmp_path):
         assert 'damaged' in run.stderr or 'truncated' in run.stderr
 
 
+def test_a_video_cut_short_says_so(flight_video, tmp_path):
+    """An MKV cut at 60 % decodes cleanly up to the cut and used to pass for a whole file: the run
+    now says where it ended against the duration the header declares (stderr and report.json)."""
+    whole = tmp_path / 'whole.mkv'
+    write_video(whole, (f.image for f in flight_video[0].frames), fps=4.0, gop=GOP)
+    cut = tmp_path / 'cut.mkv'
+    data = whole.read_bytes()
+    cut.write_bytes(data[: int(len(data) * 0.6)])
+    run = srmosaic('process', str(cut), '--out', str(tmp_path / 'out'), '--no-progress')
+    assert run.returncode == 0 and 'Traceback' not in run.stderr, run.stderr
+    assert 'cut.mkv ended after' in run.stderr and 'cut short' in run.stderr, run.stderr
+    video = json.loads((tmp_path / 'out' / 'report.json').read_text())['video']
+    assert 'cut short' in video['ended_early'] and video['frames_decoded'] < N
+    run = srmosaic('process', str(whole), '--out', str(tmp_path / 'whole_out'), '--no-progress')
+    assert run.returncode == 0 and 'cut short' not in run.stderr, run.stderr
+    assert 'ended_early' not in json.loads((tmp_path / 'whole_out' / 'report.json').read_text())['video']
+
+
 def _size_change_video(flight, tmp_path: Path) -> Path:
     """12 frames of the flight, then 12 at half size, as one MPEG-TS."""
     a, b = tmp_path / 'a.ts', tmp_path / 'b.ts'

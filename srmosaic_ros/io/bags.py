@@ -381,14 +381,19 @@ class FlightReader:
     def _camera_infos(self, bag: _Bag) -> list[tuple[int, CameraIntrinsics]]:
         connections = [c for c in bag.connections if self._roles.get(c.topic) == 'camera_info']
         infos: list[tuple[int, CameraIntrinsics]] = []
-        for connection, log_ns, raw in self._guarded(bag, connections, 'camera infos'):
-            msg = self._deserialize(bag, connection, raw)
-            if msg is None:
-                continue
-            try:
-                infos.append((log_ns, camera_info_to_intrinsics(msg)))
-            except MessageError as exc:
-                self._skip(connection.topic, str(exc))
+        try:
+            for connection, log_ns, raw in self._guarded(bag, connections, 'camera infos'):
+                msg = self._deserialize(bag, connection, raw)
+                if msg is None:
+                    continue
+                try:
+                    infos.append((log_ns, camera_info_to_intrinsics(msg)))
+                except MessageError as exc:
+                    self._skip(connection.topic, str(exc))
+        except BagError as exc:
+            # damage in the tail must not cost the flight before it: the images up to the damage are
+            # read with the camera infos before it, and the main pass stops there with its own error
+            _LOG.warning('%s The images before the damage are processed.', exc)
         return infos
 
     def __iter__(self) -> Iterator[Frame | GeoFix | ImuSample]:

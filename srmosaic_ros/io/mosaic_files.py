@@ -17,6 +17,8 @@ from typing import IO, Any
 import cv2
 import numpy as np
 
+from ..errors import InputError
+
 __all__ = [
     'FRAMES_CSV_HEADER',
     'FRAMES_CSV_META',
@@ -109,12 +111,18 @@ def read_frames_csv(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
         missing = set(FRAMES_CSV_HEADER) - set(reader.fieldnames or [])
         if missing:
             msg = f'{path} is not a frames.csv: missing columns {sorted(missing)}'
-            raise ValueError(msg)
+            raise InputError(msg)
         for rec in reader:
-            H = np.array([float(rec[f'h{r}{c}']) for r in range(3) for c in range(3)]).reshape(3, 3)  # noqa: N806
-            rows.append({'stamp_ns': int(rec['stamp_ns']), 'ok': rec['ok'] == '1', 'inliers': int(rec['inliers']),
-                         'rms_px': float(rec['rms_px']), 'mosaic_H_frame': H,
-                         'placed_by': rec.get(FRAMES_CSV_PLACED_BY) or ('registration' if rec['ok'] == '1' else '')})
+            try:  # a row cut short has None (missing fields) or a cut number
+                H = np.array([float(rec[f'h{r}{c}']) for r in range(3) for c in range(3)]).reshape(3, 3)  # noqa: N806
+                rows.append({'stamp_ns': int(rec['stamp_ns']), 'ok': rec['ok'] == '1', 'inliers': int(rec['inliers']),
+                             'rms_px': float(rec['rms_px']), 'mosaic_H_frame': H,
+                             'placed_by': rec.get(FRAMES_CSV_PLACED_BY) or ('registration' if rec['ok'] == '1'
+                                                                            else '')})
+            except (TypeError, ValueError):
+                msg = (f'{path} line {reader.line_num} is cut short or damaged; the folder is not a complete run: '
+                       'run `srmosaic process` into it again.')
+                raise InputError(msg) from None
     return rows
 
 

@@ -168,6 +168,13 @@ class VideoReader:
                 self.frames_declared = int(stream.frames or 0)
                 rate = stream.average_rate or stream.guessed_rate
                 self.fps = float(rate) if rate else float('nan')
+                # what the header says the stream lasts (s; NaN: not said; MPEG-TS estimates it from the data)
+                if stream.duration is not None and stream.time_base is not None:
+                    self.duration_declared_s = float(stream.duration * stream.time_base)
+                elif container.duration is not None:
+                    self.duration_declared_s = container.duration / 1e6
+                else:
+                    self.duration_declared_s = float('nan')
         except VideoError:
             raise
         except Exception as exc:  # av.error.* : unsupported container or codec, corrupt header
@@ -193,6 +200,7 @@ class VideoReader:
         self.decoded = 0
         self.selected = 0
         self.error: str = ''
+        self.ended_early: str = ''  # the stream ended before what its header declares (a cut file)
 
     @property
     def frame_count(self) -> int | None:
@@ -205,7 +213,8 @@ class VideoReader:
         sel = self.selection
         overlap = _OverlapSelector(sel.overlap) if sel.mode == 'overlap' else None
         self.decoded = self.selected = 0
-        self.error = ''
+        self.error = self.ended_early = ''
+        last_pts = None
         with av.open(str(self.path)) as container:
             stream = container.streams.video[0]
             if sel.mode == 'iframes':
@@ -228,6 +237,7 @@ class VideoReader:
                     pts = vframe.pts if vframe.pts is not None else index
                     if first_pts is None:
                         first_pts = pts
+                    last_pts = pts
                     image = vframe.to_ndarray(format='rgb24')
                     if overlap is not None and not overlap(image):
                         continue
@@ -243,6 +253,22 @@ class VideoReader:
         if self.decoded == 0:
             msg = f'{str(self.path)!r} holds no decodable video frame (codec {self.codec}); the file is truncated.'
             raise VideoError(msg)
+        self._check_complete(None if last_pts is None or first_pts is None else
+                             float((last_pts - first_pts) * time_base))
+
+    def _check_complete(self, last_s: float | None) -> None:
+        """Say (log, ``ended_early``) when decoding ended well before the frames or the duration the
+        header declares: a file cut short decodes cleanly up to the cut, and would pass for whole."""
+        period = 1.0 / self.fps if math.isfinite(self.fps) and self.fps > 0 else 0.04
+        declared, said = self.duration_declared_s, ''
+        if self.frames_declared and self.decoded < self.frames_declared - 1:
+            said = f'{self.decoded} of the {self.frames_declared} frames its header declares'
+        elif last_s is not None and math.isfinite(declared) and last_s + period < declared - max(1.0, 2 * period):
+            said = f'{last_s + period:.1f} s of the {declared:.1f} s its header declares'
+        if said:
+            self.ended_early = (f'{self.path.name} ended after {said}: the file is cut short (a copy or a recording '
+                                'that stopped); the frames up to there were processed')
+            _LOG.warning('%s.', self.ended_early)
 
 
 def write_video(path: str | Path, frames: Iterator[np.ndarray], *, fps: float, gop: int = 12,

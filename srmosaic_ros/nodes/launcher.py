@@ -29,7 +29,7 @@ from typing import Any
 
 import yaml
 
-from ..config import default_params_path
+from ..config import default_params_path, load_params, yaml_problem
 from ..errors import ConfigError
 
 __all__ = ['NODES', 'load_description', 'node_command', 'launch']
@@ -56,7 +56,7 @@ def load_description(path: Path) -> list[dict[str, Any]]:
         msg = f'launch description {path} does not exist.'
         raise ConfigError(msg) from None
     except yaml.YAMLError as exc:
-        msg = f'launch description {path} is not valid YAML: {exc}'
+        msg = f'launch description {path} is not valid YAML: {yaml_problem(exc)}'
         raise ConfigError(msg) from None
     if not isinstance(doc, dict) or not isinstance(doc.get('processes'), list) or not doc['processes']:
         msg = f'launch description {path} needs a non-empty list `processes:` (see `srmosaic launch --help`).'
@@ -77,6 +77,7 @@ def load_description(path: Path) -> list[dict[str, Any]]:
             if not Path(f).is_file():
                 msg = f'{path}: process {i} parameter file {f} does not exist.'
                 raise ConfigError(msg)
+            load_params(f)  # its YAML checked here, not by rcl in a child after the others started
     return doc['processes']
 
 
@@ -151,6 +152,8 @@ def run_named_nodes(names: list[str], args: list[str] | None) -> int:
 def launch(description: Path | None, extra_params: list[str], extra_ros_args: list[str]) -> int:
     import tempfile
 
+    for f in extra_params:  # rcl would end on a bad file with a traceback of its own
+        load_params(f)
     with tempfile.TemporaryDirectory(prefix='srmosaic-launch-') as tmp:
         extra_ros_args = overrides_last(extra_ros_args, Path(tmp))
         if description is None:
@@ -177,7 +180,12 @@ def _launch_processes(description: Path, extra_params: list[str], extra_ros_args
     status = 0
     try:
         while any(c.poll() is None for c in children):
-            if any(c.poll() not in (None, 0) for c in children):  # one failed: stop the others
+            failed = [(proc, c.returncode) for proc, c in zip(procs, children) if c.poll() not in (None, 0)]
+            if failed:  # one failed: say which, stop the others
+                proc, code = failed[0]
+                how = f'was killed by {signal.Signals(-code).name}' if code < 0 else f'exited with status {code}'
+                print(f"srmosaic launch: {proc.get('name', '+'.join(proc['nodes']))} {how}; stopping the others",
+                      file=sys.stderr)
                 forward(signal.SIGINT, None)
                 break
             time.sleep(0.2)

@@ -16,6 +16,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, HistoryPolicy, DurabilityPo
 
 from ..errors import BagError
 from ..io.bags import inspect_bag, iter_raw
+from .runner import init_rclpy
 
 __all__ = ['play_bag']
 
@@ -55,7 +56,7 @@ def play_bag(path: Path, *, rate: float = 1.0, topics: list[str] | None = None, 
         msg = f"topics {missing} are not in {path}; it has: {', '.join(sorted(info.topics))}."
         raise BagError(msg)
     remap = remap or {}
-    rclpy.init(args=args)
+    init_rclpy(args)
     node = Node('srmosaic_player')
     qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.VOLATILE)

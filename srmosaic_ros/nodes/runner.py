@@ -10,9 +10,22 @@ import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
 
-from ..errors import SrMosaicError
+from ..errors import ConfigError, SrMosaicError
 
-__all__ = ['run_nodes']
+__all__ = ['init_rclpy', 'run_nodes']
+
+
+def init_rclpy(args: list[str] | None, **kwargs: Any) -> None:  # noqa: ANN401
+    """rclpy.init, with rcl's refusal of the command line (a parameter file it cannot parse, a
+    malformed remapping) as a ConfigError of one line rather than an RCLError traceback."""
+    from rclpy.impl.implementation_singleton import rclpy_implementation
+
+    try:
+        rclpy.init(args=args, **kwargs)
+    except rclpy_implementation.RCLError as exc:
+        first = str(exc).splitlines()[0].removeprefix('failed to initialize rcl: ')
+        msg = f'ROS arguments refused: {first}'
+        raise ConfigError(msg) from None
 
 
 class _Stop(Exception):
@@ -31,7 +44,7 @@ def run_nodes(node_classes: Sequence[type], args: list[str] | None = None) -> in
     """
     # Our own handlers: SIGINT and SIGTERM stop spinning; rclpy's would shut the context down
     # before the nodes could finish.
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    init_rclpy(args, signal_handler_options=SignalHandlerOptions.NO)
     signal.signal(signal.SIGINT, _raise_stop)
     signal.signal(signal.SIGTERM, _raise_stop)
     nodes = []

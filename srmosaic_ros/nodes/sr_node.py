@@ -207,7 +207,7 @@ class SRNode(Node):
     def _start_pool(self) -> ProcessPoolExecutor:
         # spawn, not fork: this process runs DDS threads, which a fork would copy half-alive.
         pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context('spawn'),
-                                   initializer=init_sr_worker_process, initargs=(self._torch_threads,))
+                                   initializer=init_sr_worker_process, initargs=(self._torch_threads, 10, os.getpid()))
         pool.submit(sr_worker_ready)  # start it now, not at the first tile
         return pool
 
