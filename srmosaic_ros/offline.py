@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import collections
+import errno
 import json
 import logging
 import math
@@ -648,10 +649,17 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
                                       stamp_tolerance_s=config.stamp_tolerance_s)
     check_output_dir(out)  # before the work, not after it
     with OutputTransaction(out) as transaction:
-        report = _process(path, out, transaction.stage, config, items, reader, kind, t0, topics=topics,
-                          select=select, camera_yaml=camera_yaml, hfov_deg=hfov_deg, telemetry_csv=telemetry_csv,
-                          mosaic_video=mosaic_video, checkpoint_every=checkpoint_every, resume=resume,
-                          sr_factor=sr_factor, progress=progress)
+        try:
+            report = _process(path, out, transaction.stage, config, items, reader, kind, t0, topics=topics,
+                              select=select, camera_yaml=camera_yaml, hfov_deg=hfov_deg, telemetry_csv=telemetry_csv,
+                              mosaic_video=mosaic_video, checkpoint_every=checkpoint_every, resume=resume,
+                              sr_factor=sr_factor, progress=progress)
+        except OSError as exc:
+            if exc.errno not in (errno.ENOSPC, errno.EFBIG, errno.EDQUOT):
+                raise
+            msg = (f'{out}: an output could not be written ({exc.strerror}); free space, or give --out elsewhere '
+                   '(the earlier run there is untouched).')
+            raise OutputError(msg) from None
     report['stale_outputs_removed'] = transaction.removed
     return report
 

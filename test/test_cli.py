@@ -173,3 +173,62 @@ def test_bad_files_are_refused_in_one_line(tmp_path: Path, demo_out: Path, case:
     lines = [ln for ln in run.stderr.strip().splitlines() if '[rcl]' not in ln]
     assert len(lines) == 1 and expect in lines[0], run.stderr
     assert a_file.read_text() == 'keep me'
+
+
+def _limited(limit_bytes: int):  # noqa: ANN202
+    """preexec_fn: a file size limit of ``limit_bytes`` (RLIMIT_FSIZE), its signal ignored so that
+    writes past it fail with EFBIG as on a full disk (ENOSPC), without needing a small filesystem."""
+    import resource
+    import signal
+
+    def pre() -> None:
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit_bytes, limit_bytes))
+
+    return pre
+
+
+@pytest.mark.parametrize(('limit', 'expect'), [(300_000, 'could not be written'), (1_300_000, 'with its overviews')])
+def test_a_full_disk_keeps_the_earlier_run(tmp_path: Path, demo_out: Path, limit: int, expect: str) -> None:
+    """Writes failing mid-file (the GeoTIFF's blocks, or its overviews) used to crash GDAL (SIGSEGV:
+    no message, the staging folder and the lock left behind). Now one line, exit 2, and the earlier
+    complete run in --out byte for byte as it was."""
+    import hashlib
+
+    out = tmp_path / 'out'
+    shutil.copytree(demo_out, out)
+
+    def digest() -> dict[str, str]:
+        return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(out.iterdir()) if p.is_file()}
+
+    before = digest()
+    run = subprocess.run([sys.executable, '-m', 'srmosaic_ros.cli', 'process', str(DEMO), '--out', str(out),
+                          '--no-progress'], capture_output=True, text=True, timeout=600, preexec_fn=_limited(limit))
+    assert run.returncode == 2, (run.returncode, run.stderr[-2000:])
+    last = run.stderr.strip().splitlines()[-1]
+    assert last.startswith('srmosaic process: error: mosaic.tif') and expect in last and 'free space' in last, last
+    assert 'Traceback' not in run.stderr and 'Fatal Python error' not in run.stderr
+    assert digest() == before
+    assert not list(out.glob('.staging-*')) and not (out / '.srmosaic.lock').exists()
+
+
+def test_a_png_that_cannot_be_written_is_an_output_error(tmp_path: Path) -> None:
+    """GDAL's PNG copy failing (libpng 'Write Error') is an OutputError, not a rasterio traceback."""
+    script = f'''
+import numpy as np, resource, signal
+from srmosaic_ros.core.georef import GeoRaster
+from srmosaic_ros.errors import OutputError
+from srmosaic_ros.io.geotiff import png_from_geotiff, write_geotiff
+img = (np.random.default_rng(0).random((600, 800, 3)) * 255).astype(np.uint8)
+write_geotiff({str(tmp_path / 'a.tif')!r}, img, GeoRaster(32614, 0.2, 500000.0, 3000000.0, 0.0))
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+resource.setrlimit(resource.RLIMIT_FSIZE, (100000, 100000))
+try:
+    png_from_geotiff({str(tmp_path / 'a.tif')!r}, {str(tmp_path / 'a.png')!r})
+except OutputError as exc:
+    print('OutputError:', exc)
+'''
+    run = subprocess.run([sys.executable, '-c', script], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    assert 'OutputError: a.png could not be written' in run.stdout, run.stdout + run.stderr
+    assert not (tmp_path / 'a.png').exists()

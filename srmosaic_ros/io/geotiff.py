@@ -20,6 +20,7 @@ GeoTIFF geotransform is that of the pixel *corners*, GeoRaster.geotransform.
 """
 from __future__ import annotations
 
+import logging
 import os
 import warnings
 from collections.abc import Iterable, Iterator
@@ -29,6 +30,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
+from ..errors import OutputError
 from .mosaic_files import atomic_path
 
 if TYPE_CHECKING:
@@ -143,6 +145,72 @@ def _gdal_env() -> Iterator[None]:
         yield
 
 
+class _GdalErrors(logging.Handler):
+    """The errors GDAL signals while a file is written. A failed block write (a full disk, a file
+    size limit) is only logged by rasterio, not raised, and GDAL building overviews on the damaged
+    file then crashes the process; so the writer checks this after each step."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.DEBUG)
+        self.messages: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        text = record.getMessage()
+        if 'GDAL signalled an error' in text:
+            self.messages.append(text.split('msg=', 1)[-1].strip("'\""))
+
+    def check(self, path: str | os.PathLike[str]) -> None:
+        if self.messages:
+            msg = (f'{Path(path).name} could not be written ({self.messages[0]}): the disk is full or a file size '
+                   'limit was reached; free space, or give --out elsewhere.')
+            raise OutputError(msg)
+
+
+#: Room the internal overviews need, as a fraction of the file without them (factors 2, 4, ...
+#: add at most 1/4 + 1/16 + ... = 1/3 of the base; with a margin for the directory).
+OVERVIEW_ROOM = 0.4
+
+
+def _check_room(tmp: str | os.PathLike[str], path: str | os.PathLike[str], fraction: float) -> None:
+    """OutputError unless the file ``tmp`` can grow by ``fraction`` of its size: free space on its
+    disk and the process's file size limit (RLIMIT_FSIZE). GDAL crashes when an overview block
+    cannot be written, so this is checked before, not found after."""
+    import resource
+    import shutil
+
+    size = os.path.getsize(tmp)
+    need = int(size * (1.0 + fraction))
+    free = shutil.disk_usage(os.path.dirname(os.path.abspath(tmp))).free
+    limit = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
+    if free < need - size or (limit != resource.RLIM_INFINITY and limit < need):
+        where = 'the disk is full' if free < need - size else f'the file size limit is {limit} bytes'
+        msg = (f'{Path(path).name} needs about {need // 2**20 + 1} MiB with its overviews and {where}; free space, '
+               'or give --out elsewhere.')
+        raise OutputError(msg)
+
+
+@contextmanager
+def _gdal_errors(path: str | os.PathLike[str]) -> Iterator[_GdalErrors]:
+    """Collects GDAL's errors while ``path`` is written; a GDAL failure raised meanwhile (libpng's
+    'Write Error' on a full disk) becomes the OutputError of :meth:`_GdalErrors.check`."""
+    from rasterio._err import CPLE_BaseError  # the base of GDAL errors raised by rasterio
+
+    handler = _GdalErrors()
+    logger = logging.getLogger('rasterio._env')
+    level = logger.level
+    logger.addHandler(handler)
+    if logger.getEffectiveLevel() > logging.INFO:
+        logger.setLevel(logging.INFO)  # rasterio logs GDAL's errors at INFO
+    try:
+        yield handler
+    except CPLE_BaseError as exc:
+        handler.messages.insert(0, str(exc))
+        handler.check(path)
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(level)
+
+
 def _write_strips(dst: Any, first: tuple[int, np.ndarray], strips: Iterator[Strip],  # noqa: ANN401
                   height: int, width: int, coverage_given: bool) -> None:
     """Write band strips (count, rows, W) in order; check that they tile rows 0 .. height exactly."""
@@ -221,7 +289,7 @@ def write_geotiff_blocks(path: str | os.PathLike[str], strips: Iterable[Strip], 
     interp = [ColorInterp.red, ColorInterp.green, ColorInterp.blue] if colour == 3 else [ColorInterp.gray] * colour
     if has_alpha:
         interp.append(ColorInterp.alpha)
-    with atomic_path(path) as tmp, _gdal_env():
+    with atomic_path(path) as tmp, _gdal_env(), _gdal_errors(path) as errors:
         os.unlink(tmp)  # GDAL creates the file itself
         with rasterio.open(tmp, 'w', **profile) as dst:
             _write_strips(dst, (head[0], bands), it, height, width, head[2] is not None)
@@ -231,10 +299,14 @@ def write_geotiff_blocks(path: str | os.PathLike[str], strips: Iterable[Strip], 
             if raster is not None:
                 tags['GSD_M_PER_PX'] = f'{raster.gsd_m_per_px:.6g}'
             dst.update_tags(**tags)
-            factors = overview_factors(height, width, block_px) if overviews else []
-            if factors:
+        errors.check(path)  # the cached blocks and the directory are written on close
+        factors = overview_factors(height, width, block_px) if overviews else []
+        if factors:
+            _check_room(tmp, path, OVERVIEW_ROOM)
+            with rasterio.open(tmp, 'r+') as dst:
                 dst.build_overviews(factors, Resampling.average)
                 dst.update_tags(ns='rio_overview', resampling='average')
+            errors.check(path)
 
 
 def write_geotiff(path: str | os.PathLike[str], image: np.ndarray, raster: GeoRaster | GeoGrid, *,
@@ -298,7 +370,7 @@ def png_from_geotiff(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -
                 raise ValueError(msg)
             grey_alpha = ds.count == 2 and ds.colorinterp[1] == ColorInterp.alpha
             width, height = ds.width, ds.height
-        with atomic_path(dst) as tmp:
+        with atomic_path(dst) as tmp, _gdal_errors(dst) as errors:
             os.unlink(tmp)  # GDAL creates the file itself
             if grey_alpha:
                 with MemoryFile(_grey_alpha_as_rgba_vrt(src, width, height).encode(), ext='vrt') as mem, \
@@ -306,6 +378,7 @@ def png_from_geotiff(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -
                     rasterio.shutil.copy(vrt, tmp, driver='PNG', ZLEVEL=PNG_ZLEVEL)
             else:
                 rasterio.shutil.copy(src, tmp, driver='PNG', ZLEVEL=PNG_ZLEVEL)
+            errors.check(dst)
 
 
 def read_raster(path: str | os.PathLike[str]) -> GeoRaster:
