@@ -175,6 +175,8 @@ def pipeline_config(overrides: dict[str, Any] | None = None, *, defaults: dict[s
     if device not in DEVICES:
         msg = f"device must be one of {', '.join(DEVICES)}, got {device!r}."
         raise ConfigError(msg)
+    if flat.get('sr.device', 'auto') == 'auto':  # one device for all tensor work unless SR is given its own
+        flat['sr.device'] = device
     return PipelineConfig(
         device=device,
         undistort=bool(flat.get('undistort', True)),

@@ -37,6 +37,7 @@ import numpy as np
 from .config import PipelineConfig
 from .malloc_tuning import HeapTrimmer
 from .core.image_ops import to_float01
+from .core.mosaic.canvas import CanvasError
 from .core.mosaic.segments import Segment
 from .core.mosaic.keyframe import KeyframeResult, corner_shift_px, render_view
 from .core.registration import Features, Registration, make_registrar
@@ -321,7 +322,7 @@ class Pipeline:
         image = held.image if held.image is not None else self._as_canvas_image(held.raw)
         try:
             seg.add(held.record.index, image, seg_H_frame)
-        except ValueError as exc:  # absurd footprint: refuse, never allocate a giant canvas
+        except CanvasError as exc:  # absurd footprint: refuse, never allocate a giant canvas
             held.record.reason = f'not painted: {exc}'
             return False
         held.record.segment = seg.index
@@ -441,7 +442,7 @@ class Pipeline:
             return self._paint(seg, held, seg_H_frame)
         try:  # refused now, as painting it would be: an absurd placement must not become the chain's base
             seg.canvas.check_placement(seg_H_frame, *held.record.size)
-        except ValueError as exc:
+        except CanvasError as exc:
             held.record.reason = f'not painted: {exc}'
             return False
         held.record.seg_H_frame = seg_H_frame  # provisional: drift control chains the next frame from it

@@ -516,7 +516,7 @@ def test_sr_node_removes_lens_distortion_like_the_mosaic_node(ros_env):
            + margin).astype(np.float32)
     origin = np.array([300.0, 200.0])
 
-    def run(undistort: bool) -> float:
+    def run(undistort: bool, info: CameraIntrinsics = lens) -> float:
         node = srmosaic('node', 'sr', '--ros-args', '-p', 'live.sr_period_s:=0.2', '-p', 'live.sr_worker:=thread',
                         '-p', 'sr_tiles.tile_size:=64', '-p', 'sr_tiles.max_frames:=8', '-p', 'sr.iterations:=5',
                         '-p', 'live.sr_refresh_growth:=0.0', '-p', f'undistort:={str(undistort).lower()}', env=ros_env)
@@ -533,7 +533,7 @@ def test_sr_node_removes_lens_distortion_like_the_mosaic_node(ros_env):
                            seed=k)
                 frame = cv2.remap(big, src[..., 0], src[..., 1], cv2.INTER_CUBIC)   # what the lens shows
                 stamp = 1_000_000_000 * (k + 1)
-                infos.publish(intrinsics_to_camera_info(lens, stamp_ns=stamp, frame_id='camera'))
+                infos.publish(intrinsics_to_camera_info(info, stamp_ns=stamp, frame_id='camera'))
                 time.sleep(0.05)
                 images.publish(numpy_to_image(frame, 'rgb8', stamp_ns=stamp, frame_id='camera'))
                 time.sleep(0.05)
@@ -546,11 +546,17 @@ def test_sr_node_removes_lens_distortion_like_the_mosaic_node(ros_env):
                 place = SRTilePlacement.parse(tile.header.frame_id)
                 truth = view(_translation(*origin) @ place.plane_H_tile(), 128, 128)
                 maes.append(np.abs(image_to_numpy(tile).astype(float) - truth)[8:-8, 8:-8].mean())
+            if info is not lens:
+                assert listener.diag_value('camera_info_scaled', SR), 'the scaled camera info is not counted'
         return float(np.mean(maes))
 
     fixed, raw = run(True), run(False)
-    print(f"tile MAE against the truth: undistorted {fixed:.2f}, raw {raw:.2f} grey levels")
+    # the CameraInfo of the same lens at twice the size (a camera mode the images are not in): scaled
+    # to the images as the mosaic node does (the images used to be refused, and no tile came)
+    scaled = run(True, lens.scaled_to(400, 280))
+    print(f"tile MAE against the truth: undistorted {fixed:.2f}, raw {raw:.2f}, info scaled {scaled:.2f} grey levels")
     assert fixed < 2.5 and raw > 1.5 * fixed, (fixed, raw)
+    assert scaled < 1.1 * fixed + 0.1, (scaled, fixed)
 
 
 def test_node_survives_bad_input(ros_env, tmp_path):

@@ -59,3 +59,12 @@ def test_parameters_are_typed_strictly(key, value, expect):
 def test_an_integer_for_a_float_parameter_is_a_float():
     assert pipeline_config({'georef.nominal_agl_m': 60}).georef.nominal_agl_m == 60.0
     assert isinstance(pipeline_config({'georef.nominal_agl_m': 60}).georef.nominal_agl_m, float)
+
+
+def test_the_device_reaches_sr_unless_sr_has_its_own():
+    """`--device cpu` set `device` only, and SR (sr.device: auto) still chose for itself."""
+    from srmosaic_ros.config import pipeline_config
+
+    assert pipeline_config({'device': 'cpu'}).sr.device == 'cpu'
+    assert pipeline_config({}).sr.device == 'auto'
+    assert pipeline_config({'device': 'cpu', 'sr.device': 'cuda'}).sr.device == 'cuda'

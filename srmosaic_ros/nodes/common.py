@@ -140,6 +140,14 @@ class WarnOnce:
         with self._lock:
             self.stats[key] += n
 
+    def note(self, key: str, text: str) -> None:
+        """Count ``key`` (an input adjusted, not rejected) and log ``text`` the first time."""
+        with self._lock:
+            self.stats[key] += 1
+            first = self.stats[key] == 1
+        if first:
+            self._node.get_logger().warning(f'{text} (logged once; counted in diagnostics as {key})')
+
     def status(self, message: str) -> tuple[bytes, str]:
         """(diagnostic level, message): WARN, naming the kinds, when inputs were rejected since the
         last call (so diagnostics are true while messages are being refused), else OK."""

@@ -239,8 +239,20 @@ class SRNode(Node):
         if image.size == 0:
             self.warn('image: empty', 'empty image skipped')
             return None
+        camera = self._camera
+        if camera is not None:  # CameraInfo of another size: scaled as the mosaic node does, or the image refused
+            h, w = image.shape[:2]
+            camera = camera.scaled_to(w, h)
+            if camera is None:
+                self.warn('image: size unlike the camera info',
+                          f'image of {w}x{h} px but the camera info is of {self._camera.width}x{self._camera.height} '
+                          '(another aspect ratio); publish the camera info of this camera mode; image skipped')
+                return None
+            if camera is not self._camera:
+                self.warn.note('camera_info_scaled', f'camera info of {self._camera.width}x{self._camera.height} px '
+                               f'scaled to the images of {w}x{h} (the aspect ratio holds)')
         try:
-            image = self._undistorter.image(image, self._camera)
+            image = self._undistorter.image(image, camera)
         except SrMosaicError as exc:
             self.warn(f'image: {type(exc).__name__}', f'image skipped: {exc}')
             return None
@@ -354,7 +366,7 @@ class SRNode(Node):
             'factor': self.factor,
             'worker': self.worker_kind,
         }
-        values.update({k: v for k, v in stats.items() if k.startswith('rejected')})
+        values.update({k: v for k, v in stats.items() if k.startswith(('rejected', 'camera_info_scaled'))})
         level, message = self.warn.status(f"{values['tiles_published']} tiles published")
         return diagnostic_array(self, 'srmosaic: super-resolution', message, values, level=level)
 

@@ -42,10 +42,12 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.special import ndtr
 
+from ...errors import SrMosaicError
+
 __all__ = ['EdgeFit', 'PsfEstimate', 'PsfEstimationError', 'estimate_psf_sigma', 'fit_edge_profile']
 
 
-class PsfEstimationError(ValueError):
+class PsfEstimationError(SrMosaicError):
     """The frames hold too few clean straight edges to measure the PSF."""
 
 

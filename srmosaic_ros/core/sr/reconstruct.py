@@ -38,6 +38,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F  # noqa: N812
 
+from ...errors import SrMosaicError
 from ..device import resolve_device
 from .consistency import consistent_frames, noise_sigma
 from .observation import FrameStack, build_frame_stack
@@ -63,7 +64,7 @@ LUMA = (0.299, 0.587, 0.114)
 COLOR_MODES = ('luma', 'rgb')
 
 
-class SRError(ValueError):
+class SRError(SrMosaicError):
     """A super-resolution request cannot be served (no frame covers the tile, bad shapes...)."""
 
 
