@@ -6,15 +6,10 @@ from collections.abc import Sequence
 import cv2
 import numpy as np
 
+from .homography import apply_homography
 from .registration.validity import frame_corners
 
 __all__ = ['apply_homography', 'corner_error_px', 'mosaic_corner_errors']
-
-
-def apply_homography(H: np.ndarray, pts: np.ndarray) -> np.ndarray:  # noqa: N803
-    """Map (N, 2) points by a (3, 3) homography; returns (N, 2)."""
-    ph = np.c_[pts, np.ones(len(pts))] @ np.asarray(H, dtype=np.float64).T
-    return ph[:, :2] / ph[:, 2:3]
 
 
 def corner_error_px(H_est: np.ndarray, H_true: np.ndarray, width: int, height: int) -> float:  # noqa: N803

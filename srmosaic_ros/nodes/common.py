@@ -140,6 +140,11 @@ class WarnOnce:
         with self._lock:
             self.stats[key] += n
 
+    def snapshot(self) -> dict[str, int]:
+        """A copy of the counters, taken under the lock (callbacks and workers count concurrently)."""
+        with self._lock:
+            return dict(self.stats)
+
     def note(self, key: str, text: str) -> None:
         """Count ``key`` (an input adjusted, not rejected) and log ``text`` the first time."""
         with self._lock:

@@ -189,7 +189,7 @@ class GeorefNode(Node):
             self._last_pose = pose
 
     def _publish_diagnostics(self) -> None:
-        stats = dict(self.warn.stats)
+        stats = self.warn.snapshot()
         pose = self._last_pose
         values = {
             'frames_fused': stats.get('frames_fused', 0),

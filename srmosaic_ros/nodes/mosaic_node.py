@@ -60,8 +60,8 @@ from ..core.stamp_gate import StampGate
 from ..io.mosaic_files import write_json
 from ..offline import peak_rss_mb, preview_image, write_outputs
 from ..pipeline import FrameRecord, Pipeline
-from .common import (IMAGE_QOS_DEPTH, REGISTRATION_LAYOUT, TELEMETRY_QOS_DEPTH, diagnostic_array,
-                     encode_registration, pose_messages, rejection_status)
+from .common import (IMAGE_QOS_DEPTH, REGISTRATION_LAYOUT, TELEMETRY_QOS_DEPTH, WarnOnce, diagnostic_array,
+                     encode_registration, input_qos, pose_messages)
 from .parameters import declare_pipeline_parameters, read_pipeline_config
 
 __all__ = ['MosaicNode', 'REGISTRATION_LAYOUT', 'main']
@@ -102,12 +102,9 @@ class MosaicNode(Node):
         self._wake = threading.Condition()
         self._stop = False
         self._camera = None
-        self._warned: set[str] = set()
         self._last_stamp: dict[str, int] = {}
         self._stamps = StampGate(config.stamp_tolerance_s)  # a stamp far off its stream's receive times
-        self._rejected_reported = 0  # rejections said by the last diagnostics
-        self.stats = collections.Counter()
-        self._stats_lock = threading.Lock()
+        self.warn = WarnOnce(self)  # the counters of the diagnostics; rejected inputs logged once per kind
         self._latency_ms: collections.deque[float] = collections.deque(maxlen=500)
         self._last_record: FrameRecord | None = None
 
@@ -119,10 +116,9 @@ class MosaicNode(Node):
         # Reliable inputs (bag playback) keep a deeper DDS history: every frame matters there, and
         # the node's executor shares the interpreter with the worker (still bounded).
         depth = IMAGE_QOS_DEPTH * 5 if reliability == ReliabilityPolicy.RELIABLE else IMAGE_QOS_DEPTH
-        images_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
-                                reliability=reliability, durability=DurabilityPolicy.VOLATILE)
-        telemetry_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=TELEMETRY_QOS_DEPTH,
-                                   reliability=reliability, durability=DurabilityPolicy.VOLATILE)
+        reliable = reliability == ReliabilityPolicy.RELIABLE
+        images_qos = input_qos(reliable, depth)
+        telemetry_qos = input_qos(reliable, TELEMETRY_QOS_DEPTH)
         # Input callbacks only convert and enqueue; they get their own callback groups so that the
         # periodic preview (which waits for the pipeline lock) never blocks them. Each group is
         # mutually exclusive, so every stream stays in order.
@@ -153,14 +149,6 @@ class MosaicNode(Node):
         self._worker.start()
 
     # -- input callbacks: convert, check, enqueue; never raise ------------------------------
-    def _warn_once(self, kind: str, text: str) -> None:
-        with self._stats_lock:
-            self.stats[f'rejected: {kind}'] += 1
-            first = kind not in self._warned
-            self._warned.add(kind)
-        if first:
-            self.get_logger().warning(f'{text} (logged once; further cases are counted in diagnostics)')
-
     def _monotonic(self, stream: str, stamp_ns: int) -> bool:
         with self._input_lock:
             return self._monotonic_locked(stream, stamp_ns)
@@ -168,54 +156,47 @@ class MosaicNode(Node):
     def _monotonic_locked(self, stream: str, stamp_ns: int) -> bool:
         off_s = self._stamps.check(stream, stamp_ns, self.get_clock().now().nanoseconds)
         if off_s is not None:  # before the order check: one future stamp must not make every later one 'older'
-            self._warn_once(f'{stream} stamp off the clock',
+            self.warn(f'{stream} stamp off the clock',
                             f'{stream} stamp {stamp_ns} is {off_s:+.3g} s off the receive times of the stream '
                             f'(stamp_tolerance_s {self.config.stamp_tolerance_s:g}); message skipped')
             return False
         last = self._last_stamp.get(stream)
         if last is not None and stamp_ns < last:
-            self._warn_once(f'{stream} time going backwards',
+            self.warn(f'{stream} time going backwards',
                             f'{stream} stamp {stamp_ns} is older than the previous {last}; message skipped')
             return False
         self._last_stamp[stream] = stamp_ns
         return True
 
     def _on_image(self, msg: Image | CompressedImage) -> None:
-        with self._stats_lock:
-            self.stats['frames_received'] += 1
+        self.warn.count('frames_received')
         try:
             stamp_ns, frame_id = header_to_ns_frame(msg)
             image = image_to_rgb_or_mono(msg)
         except SrMosaicError as exc:
-            self._warn_once(f'image: {type(exc).__name__}', f'image skipped: {exc}')
+            self.warn(f'image: {type(exc).__name__}', f'image skipped: {exc}')
             return
         if image.size == 0:
-            self._warn_once('image: empty', 'empty image skipped')
+            self.warn('image: empty', 'empty image skipped')
             return
         camera = self._camera
         if camera is not None:  # CameraInfo of another size: scaled when the aspect ratio holds (io/bags.py alike)
             h, w = image.shape[:2]
             scaled = camera.scaled_to(w, h)
             if scaled is None:
-                self._warn_once('image: size unlike the camera info',
+                self.warn('image: size unlike the camera info',
                                 f'image of {w}x{h} px but the camera info is of {camera.width}x{camera.height} '
                                 '(another aspect ratio); publish the camera info of this camera mode; image skipped')
                 return
             if scaled is not camera:
-                with self._stats_lock:
-                    self.stats['camera_info_scaled'] += 1
-                    first = 'camera_info_scaled' not in self._warned
-                    self._warned.add('camera_info_scaled')
-                if first:
-                    self.get_logger().warning(f'camera info of {camera.width}x{camera.height} px scaled to the '
-                                              f'images of {w}x{h} (the aspect ratio holds; logged once)')
+                self.warn.note('camera_info_scaled', f'camera info of {camera.width}x{camera.height} px scaled to '
+                               f'the images of {w}x{h} (the aspect ratio holds)')
                 camera = scaled
         if not self._monotonic('image', stamp_ns):
             return
         with self._wake:
             if len(self._queue) == self._queue.maxlen:
-                with self._stats_lock:
-                    self.stats['dropped_frames'] += 1
+                self.warn.count('dropped_frames')
             self._queue.append(Frame(stamp_ns, image, camera, frame_id))
             self._wake.notify()
 
@@ -226,14 +207,14 @@ class MosaicNode(Node):
                 self._camera = camera
                 self._telemetry.append(camera)  # in order with the telemetry: frames without one get it
         except SrMosaicError as exc:
-            self._warn_once('camera_info', f'camera info skipped: {exc}')
+            self.warn('camera_info', f'camera info skipped: {exc}')
 
     def _on_telemetry(self, kind: str, convert: Any, msg: Any) -> None:  # noqa: ANN401
         """Convert a fix or IMU message, check its time order, queue it for the worker."""
         try:
             item = convert(msg)
         except SrMosaicError as exc:
-            self._warn_once(kind, f'{kind} skipped: {exc}')
+            self.warn(kind, f'{kind} skipped: {exc}')
             return
         if self._monotonic(kind, item.stamp_ns):
             self._telemetry.append(item)
@@ -267,17 +248,17 @@ class MosaicNode(Node):
                     elif idle and self.pipeline.held_back:
                         records += self.pipeline.flush()  # input paused: do not hold frames forever
                 except SrMosaicError as exc:
-                    self._warn_once(f'pipeline: {type(exc).__name__}', f'frame skipped: {exc}')
+                    self.warn(f'pipeline: {type(exc).__name__}', f'frame skipped: {exc}')
                     continue
                 except Exception as exc:  # noqa: BLE001 - the worker must outlive any one frame
-                    self._warn_once(f'pipeline bug: {type(exc).__name__}',
+                    self.warn(f'pipeline bug: {type(exc).__name__}',
                                     f'frame skipped after an internal error (please report): {exc!r}')
                     self.get_logger().error(traceback.format_exc())
                     continue
                 fused = self.pipeline.take_fused()
             if records:
                 self._latency_ms.append((time.perf_counter() - t0) * 1e3)
-            self.stats['frames_processed'] += len(records)
+            self.warn.count('frames_processed', len(records))
             for record in fused:  # poses at once, also of frames held while their segment settles
                 self._publish_pose(record)
             for record in records:
@@ -303,7 +284,7 @@ class MosaicNode(Node):
         threaded, and rendering a large mosaic takes longer than an image callback may wait); a
         round still rendering when the next is due is skipped (diagnostics still go out)."""
         if self._preview_thread is not None and self._preview_thread.is_alive():
-            self.stats['preview_rounds_skipped'] = self.stats.get('preview_rounds_skipped', 0) + 1
+            self.warn.count('preview_rounds_skipped')
             self.pub_diag.publish(self._diagnostics())
             return
         self._preview_thread = threading.Thread(target=self._render_and_publish, name='srmosaic-preview', daemon=True)
@@ -348,7 +329,7 @@ class MosaicNode(Node):
         return new
 
     def _diagnostics(self) -> DiagnosticArray:
-        stats = dict(self.stats)
+        stats = self.warn.snapshot()
         rec = self._last_record
         reg = rec.registration if rec is not None else None
         lat = np.array(self._latency_ms) if self._latency_ms else np.array([np.nan])
@@ -372,7 +353,7 @@ class MosaicNode(Node):
             level, message = DiagnosticStatus.WARN, f'last frame not registered: {rec.reason}'
         if stats.get('dropped_frames', 0):
             message += f"; {stats['dropped_frames']} frames dropped (falling behind)"
-        rejecting, message, self._rejected_reported = rejection_status(stats, self._rejected_reported, message)
+        rejecting, message = self.warn.status(message)
         level = max(level, rejecting)  # WARN while messages are being rejected, not for ever after
         return diagnostic_array(self, 'srmosaic: registration and mosaic', message, values, level=level)
 
@@ -389,7 +370,7 @@ class MosaicNode(Node):
             with self._lock:
                 result = self.pipeline.finish()
                 report = write_outputs(result, Path(self.output_dir), self.config,
-                                       {'input': 'live', 'node_stats': dict(self.stats)})
+                                       {'input': 'live', 'node_stats': self.warn.snapshot()})
             report['wall_s'] = round(sum(r.time_s for r in result.records), 3)  # processing time
             report['peak_rss_mb'] = round(peak_rss_mb(), 1)
             write_json(Path(self.output_dir) / 'report.json', report)

@@ -349,7 +349,7 @@ class SRNode(Node):
 
     # -- diagnostics, shutdown ------------------------------------------------------------------
     def _diagnostics(self) -> DiagnosticArray:
-        stats = dict(self.warn.stats)
+        stats = self.warn.snapshot()
         times = np.array(self._times_s) if self._times_s else np.array([np.nan])
         with self._store_lock:
             kept, pending, missed = len(self._store.registered()), self._store.pending, self._store.missed

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..homography import apply_homography as apply_H  # noqa: N812 - the georef modules' name
+
 __all__ = [
     'image_H_ground',
     'ground_H_image',
@@ -23,13 +25,6 @@ def normalize_H(H: np.ndarray) -> np.ndarray:  # noqa: N802, N803
     """H / h33 (4.29)."""
     H = np.asarray(H, dtype=np.float64)  # noqa: N806
     return H / H[2, 2]
-
-
-def apply_H(H: np.ndarray, pts: np.ndarray) -> np.ndarray:  # noqa: N802, N803
-    """Map points (..., 2) through a homography (3, 3); returns (..., 2) float64."""
-    pts = np.asarray(pts, dtype=np.float64)
-    hom = pts @ H[:, :2].T + H[:, 2]
-    return hom[..., :2] / hom[..., 2:3]
 
 
 def image_H_ground(K: np.ndarray, R_enu_from_cam: np.ndarray, C_enu: np.ndarray, *,  # noqa: N802, N803

@@ -263,8 +263,7 @@ class PoseUkf:
         deviations above :attr:`angle_sd_limit_rad` (an unknown heading) are reduced to it."""
         pose6 = np.asarray(pose6, dtype=np.float64)
         cov6 = _sym(np.asarray(cov6, dtype=np.float64))
-        # an unknown yaw (sd 90 deg) put sigma points +-325 deg apart: the filter converged to a
-        # heading 21 deg off on a 55 m line (simulated DJI video), 0.2 deg at the limit (50 deg)
+        # an unknown yaw (sd 90 deg) would put sigma points +-325 deg apart, onto other headings
         sd = np.sqrt(np.maximum(np.diag(cov6)[3:], 0.0))
         shrink = np.ones(POSE_DIM)
         shrink[3:] = np.minimum(1.0, self.angle_sd_limit_rad / np.maximum(sd, 1e-300))

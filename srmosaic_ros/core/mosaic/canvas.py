@@ -51,6 +51,7 @@ import numpy as np
 
 from srmosaic_ros.errors import SrMosaicError
 
+from ..homography import project_points
 from .best_view import clip_depth, clipped_polygon, depth_map, resolution_factor, transition_image, update_best
 from .minify import minify_level, reduce_frame
 from .blend import FEATHER_PROFILES, auto_bands, feather_weight, multiband_blend
@@ -85,12 +86,6 @@ class PaintResult:
     touched_tiles: tuple[TileKey, ...]
     footprint_xy: np.ndarray = field(repr=False)
     bbox: tuple[int, int, int, int]
-
-
-def _project(h_mat: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Points (N, 2) through a homography: ((N, 2) projected, (N,) homogeneous w)."""
-    ph = np.hstack([pts, np.ones((len(pts), 1))]) @ h_mat.T
-    return ph[:, :2] / ph[:, 2:3], ph[:, 2]
 
 
 def _fill_invalid(img: np.ndarray, valid: np.ndarray) -> np.ndarray:
@@ -406,7 +401,7 @@ class TiledCanvas:
             msg = 'mosaic_H_frame is the zero matrix; skip this frame.'
             raise CanvasError(msg)
         corners = np.array([[-1.0, -1.0], [w, -1.0], [w, h], [-1.0, h]])
-        _, depth = _project(m, corners)
+        _, depth = project_points(m, corners)
         if (depth <= 0).all():
             m = -m
             depth = -depth
@@ -420,7 +415,7 @@ class TiledCanvas:
         if len(corners) < 3:
             msg = 'mosaic_H_frame maps the whole frame beyond the horizon; the homography is absurd, skip this frame.'
             raise CanvasError(msg)
-        pts, _ = _project(m, corners)
+        pts, _ = project_points(m, corners)
         x, y = pts[:, 0], pts[:, 1]
         area = 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
         if not area > 1e-6 * (w + 1) * (h + 1):
@@ -441,7 +436,7 @@ class TiledCanvas:
         d_min = clip_depth(m, w, h, self._max_stretch)
         if d_min is not None:
             d_min = max(d_min - abs(m[2, 0]) - abs(m[2, 1]), 0.5 * d_min)
-        support, _ = _project(m, clipped_polygon(m, np.array([[-1.0, -1.0], [w, -1.0], [w, h], [-1.0, h]]), d_min))
+        support, _ = project_points(m, clipped_polygon(m, np.array([[-1.0, -1.0], [w, -1.0], [w, h], [-1.0, h]]), d_min))
         lo = support.min(axis=0)
         hi = support.max(axis=0)
         bw_f, bh_f = hi[0] - lo[0], hi[1] - lo[1]
@@ -490,7 +485,7 @@ class TiledCanvas:
         h, w = img.shape[:2]
         m = self._as_homography(mosaic_H_frame, w, h)
         valid = self._as_mask(mask, img)
-        footprint, _ = _project(m, np.array([[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5], [-0.5, h - 0.5]]))
+        footprint, _ = project_points(m, np.array([[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5], [-0.5, h - 0.5]]))
         x0, y0, x1, y1 = self._placement(m, w, h)
         level = minify_level(m, w, h, clip_depth(m, w, h, self._max_stretch))
         if level:  # a frame shrinking on the mosaic is reduced first, not point-sampled (minify.py)

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from ..homography import corner_shift_px
 from .canvas import TiledCanvas
 
 __all__ = ['KeyframeResult', 'corner_shift_px', 'render_view']
@@ -45,13 +46,6 @@ class KeyframeResult:
     coverage: float
     shift_px: float
     reason: str = ''
-
-
-def corner_shift_px(a: np.ndarray, b: np.ndarray, width: int, height: int) -> float:
-    """Largest distance (px, in the plane both map into) between the frame corners under a and b."""
-    c = np.array([[0.0, 0.0, 1.0], [width - 1.0, 0.0, 1.0], [width - 1.0, height - 1.0, 1.0], [0.0, height - 1.0, 1.0]])
-    pa, pb = c @ a.T, c @ b.T
-    return float(np.linalg.norm(pa[:, :2] / pa[:, 2:3] - pb[:, :2] / pb[:, 2:3], axis=1).max())
 
 
 def render_view(canvas: TiledCanvas, seg_H_frame: np.ndarray, width: int, height: int, *,  # noqa: N803

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field, fields
 import cv2
 import numpy as np
 
+from ..homography import apply_homography
 from ..image_ops import to_gray_u8
 from .validity import check_homography
 
@@ -114,11 +115,6 @@ class Registration:
     extras: dict[str, float] = field(default_factory=dict)
 
 
-def _transfer(H: np.ndarray, pts: np.ndarray) -> np.ndarray:  # noqa: N803
-    ph = np.c_[pts, np.ones(len(pts))] @ H.T
-    return ph[:, :2] / ph[:, 2:3]
-
-
 class Registrar:
     """Detects features and registers frame pairs. Stateless between calls: callers cache Features."""
 
@@ -170,7 +166,7 @@ class Registrar:
         from scipy.spatial import cKDTree
 
         radius = self.config.guided_radius_px
-        pred = _transfer(prev_H_cur, cur.keypoints_px.astype(np.float64))
+        pred = apply_homography(prev_H_cur, cur.keypoints_px.astype(np.float64))
         tree = cKDTree(prev.keypoints_px.astype(np.float64))
         # Candidate pairs (cur i, prev j) whose transferred positions are within the radius.
         pairs = tree.query_ball_point(pred, r=radius)
@@ -220,14 +216,14 @@ class Registrar:
                 break
             gsrc = cur.keypoints_px[gci].astype(np.float64)
             gdst = prev.keypoints_px[gpi].astype(np.float64)
-            err = np.linalg.norm(_transfer(H, gsrc) - gdst, axis=1)
+            err = np.linalg.norm(apply_homography(H, gsrc) - gdst, axis=1)
             ginl = err <= cfg.ransac_threshold_px
             if ginl.sum() <= inl.sum():
                 break
             src, dst, inl = gsrc, gdst, ginl
             n_matches = max(n_matches, len(gpi))
         H = H / H[2, 2]  # noqa: N806
-        err = np.linalg.norm(_transfer(H, src[inl]) - dst[inl], axis=1)
+        err = np.linalg.norm(apply_homography(H, src[inl]) - dst[inl], axis=1)
         n_inl = int(inl.sum())
         rms = float(np.sqrt(np.mean(err ** 2))) if n_inl else float('nan')
         reason = ''

@@ -46,6 +46,7 @@ import numpy as np
 import torch
 
 from ..device import resolve_device
+from ..homography import corner_shift_px
 from .covariance import homography_covariance_ut
 from .registrar import Features, Registration, RegistrationConfig
 from .static_describe import StaticDescriber
@@ -68,7 +69,7 @@ from .torch_refine import (
     make_template,
     refine_photometric,
 )
-from .validity import check_homography, frame_corners
+from .validity import check_homography
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
@@ -171,13 +172,6 @@ def _fail(reason: str, t0: float, matches: int = 0, inliers: int = 0, H: np.ndar
           extras: Mapping[str, float] | None = None) -> Registration:
     return Registration(False, H, matches, inliers, reason=reason, time_s=time.perf_counter() - t0,
                         extras=dict(extras or {}))
-
-
-def _max_corner_shift(A: np.ndarray, B: np.ndarray, width: int, height: int) -> float:  # noqa: N803
-    c = np.c_[frame_corners(width, height), np.ones(4)]
-    a = c @ A.T
-    b = c @ B.T
-    return float(np.linalg.norm(a[:, :2] / a[:, 2:3] - b[:, :2] / b[:, 2:3], axis=1).max())
 
 
 class TorchRegistrar:
@@ -343,7 +337,7 @@ class TorchRegistrar:
                 res = refine_photometric(prev.pyramid, cur.templates, H_feat, ph)
                 H_ref = res.image_H_template  # noqa: N806
             H_ref = H_ref / H_ref[2, 2]  # noqa: N806
-            shift = _max_corner_shift(H_ref, H_feat, w, h) if np.all(np.isfinite(H_ref)) else float('inf')
+            shift = corner_shift_px(H_ref, H_feat, w, h) if np.all(np.isfinite(H_ref)) else float('inf')
             extras.update(photometric_iterations=float(res.iterations), photometric_rms=res.rms,
                           photometric_valid=res.valid_fraction, refine_shift_px=shift,
                           photometric_template_prev=float(scale > 1.0))

@@ -10,6 +10,8 @@ import math
 
 import numpy as np
 
+from ..homography import apply_homography
+
 __all__ = ['check_homography', 'frame_corners']
 
 
@@ -18,11 +20,6 @@ def frame_corners(width: int, height: int) -> np.ndarray:
     return np.array(
         [[0.0, 0.0], [width - 1.0, 0.0], [width - 1.0, height - 1.0], [0.0, height - 1.0]],
     )
-
-
-def _apply(H: np.ndarray, pts: np.ndarray) -> np.ndarray:  # noqa: N803
-    ph = np.c_[pts, np.ones(len(pts))] @ H.T
-    return ph[:, :2] / ph[:, 2:3]
 
 
 def check_homography(
