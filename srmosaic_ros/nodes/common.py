@@ -172,6 +172,35 @@ def rejection_status(stats: dict[str, int], reported: int, message: str) -> tupl
     return DiagnosticStatus.WARN, f'{message}; {total - reported} messages rejected since the last report ({kinds})', total
 
 
+class StreamOrder:
+    """The live nodes' check of each input stream's header stamps: first against the stream's
+    receive times (core/stamp_gate.py: a stamp far off them is refused, ``'<stream> stamp off the
+    clock'``), then against the stream's previous stamp (``'<stream> time going backwards'``); a
+    refusal is counted in ``warn`` and logged once per kind. Not thread-safe: callers hold the
+    lock of their stream's state."""
+
+    def __init__(self, node: Node, warn: WarnOnce, tolerance_s: float) -> None:
+        from ..core.stamp_gate import StampGate
+
+        self._node, self._warn, self._tolerance_s = node, warn, tolerance_s
+        self._gate = StampGate(tolerance_s)
+        self._last: dict[str, int] = {}
+
+    def accept(self, stream: str, stamp_ns: int) -> bool:
+        off_s = self._gate.check(stream, stamp_ns, self._node.get_clock().now().nanoseconds)
+        if off_s is not None:  # before the order check: one future stamp must not make every later one 'older'
+            self._warn(f'{stream} stamp off the clock', f'{stream} stamp {stamp_ns} is {off_s:+.3g} s off the receive '
+                       f'times of the stream (stamp_tolerance_s {self._tolerance_s:g}); message skipped')
+            return False
+        last = self._last.get(stream)
+        if last is not None and stamp_ns < last:
+            self._warn(f'{stream} time going backwards', f'{stream} stamp {stamp_ns} is older than the previous '
+                       f'{last}; message skipped')
+            return False
+        self._last[stream] = stamp_ns
+        return True
+
+
 def input_qos(reliable: bool, depth: int) -> QoSProfile:
     """Sensor-data QoS (best effort, volatile) as drivers publish, or reliable (bag playback, tests)."""
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,

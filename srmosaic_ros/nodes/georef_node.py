@@ -43,11 +43,10 @@ from msg_adapters import camera_info_to_intrinsics, imu_to_sample, navsat_to_fix
 
 from ..core.georef.georeferencer import Georeferencer
 from ..core.undistort import Undistorter
-from ..core.stamp_gate import StampGate
 from ..errors import SrMosaicError
 from ..pipeline import SYNC_HOLD_FRAMES
-from .common import (TELEMETRY_QOS_DEPTH, RegistrationMsg, WarnOnce, decode_registration, diagnostic_array, input_qos,
-                     pose_messages)
+from .common import (TELEMETRY_QOS_DEPTH, RegistrationMsg, StreamOrder, WarnOnce, decode_registration,
+                     diagnostic_array, input_qos, pose_messages)
 from .parameters import declare_pipeline_parameters, read_pipeline_config
 
 __all__ = ['GeorefNode', 'main']
@@ -70,8 +69,7 @@ class GeorefNode(Node):
         self._camera = None
         self._pending: list[tuple[float, RegistrationMsg]] = []  # (arrival monotonic s, registration)
         self._latest_telemetry_ns: int | None = None
-        self._last_stamp: dict[str, int] = {}
-        self._stamps = StampGate(self.config.stamp_tolerance_s)
+        self._order = StreamOrder(self, self.warn, self.config.stamp_tolerance_s)  # stamps off the clock or backwards
         self._ref_stamp: int | None = None  # the last painted frame fed: what prev_H_cur maps into
         self._last_pose = None
         self.pub_diag = self.create_publisher(DiagnosticArray, '/srmosaic/diagnostics', 10)
@@ -99,18 +97,7 @@ class GeorefNode(Node):
 
     # -- inputs ---------------------------------------------------------------------------------
     def _in_order(self, stream: str, stamp_ns: int) -> bool:
-        off_s = self._stamps.check(stream, stamp_ns, self.get_clock().now().nanoseconds)
-        if off_s is not None:  # before the order check: one future stamp must not make every later one 'older'
-            self.warn(f'{stream} stamp off the clock', f'{stream} stamp {stamp_ns} is {off_s:+.3g} s off the receive '
-                      f'times of the stream (stamp_tolerance_s {self.config.stamp_tolerance_s:g}); message skipped')
-            return False
-        last = self._last_stamp.get(stream)
-        if last is not None and stamp_ns < last:
-            self.warn(f'{stream} time going backwards', f'{stream} stamp {stamp_ns} is older than the previous '
-                      f'{last}; message skipped')
-            return False
-        self._last_stamp[stream] = stamp_ns
-        return True
+        return self._order.accept(stream, stamp_ns)
 
     def _telemetry(self, kind: str, convert: Any, msg: Any) -> None:  # noqa: ANN401
         try:

@@ -56,12 +56,11 @@ from msg_adapters import (
 from ..errors import SrMosaicError
 from ..live_raster import ImagePlacement, LiveRaster
 from ..core.types import Frame
-from ..core.stamp_gate import StampGate
 from ..io.mosaic_files import write_json
 from ..offline import peak_rss_mb, preview_image, write_outputs
 from ..pipeline import FrameRecord, Pipeline
-from .common import (IMAGE_QOS_DEPTH, REGISTRATION_LAYOUT, TELEMETRY_QOS_DEPTH, WarnOnce, diagnostic_array,
-                     encode_registration, input_qos, pose_messages)
+from .common import (IMAGE_QOS_DEPTH, REGISTRATION_LAYOUT, TELEMETRY_QOS_DEPTH, StreamOrder, WarnOnce,
+                     diagnostic_array, encode_registration, input_qos, pose_messages)
 from .parameters import declare_pipeline_parameters, read_pipeline_config
 
 __all__ = ['MosaicNode', 'REGISTRATION_LAYOUT', 'main']
@@ -102,9 +101,8 @@ class MosaicNode(Node):
         self._wake = threading.Condition()
         self._stop = False
         self._camera = None
-        self._last_stamp: dict[str, int] = {}
-        self._stamps = StampGate(config.stamp_tolerance_s)  # a stamp far off its stream's receive times
         self.warn = WarnOnce(self)  # the counters of the diagnostics; rejected inputs logged once per kind
+        self._order = StreamOrder(self, self.warn, config.stamp_tolerance_s)  # stamps off the clock or backwards
         self._latency_ms: collections.deque[float] = collections.deque(maxlen=500)
         self._last_record: FrameRecord | None = None
 
@@ -154,19 +152,7 @@ class MosaicNode(Node):
             return self._monotonic_locked(stream, stamp_ns)
 
     def _monotonic_locked(self, stream: str, stamp_ns: int) -> bool:
-        off_s = self._stamps.check(stream, stamp_ns, self.get_clock().now().nanoseconds)
-        if off_s is not None:  # before the order check: one future stamp must not make every later one 'older'
-            self.warn(f'{stream} stamp off the clock',
-                            f'{stream} stamp {stamp_ns} is {off_s:+.3g} s off the receive times of the stream '
-                            f'(stamp_tolerance_s {self.config.stamp_tolerance_s:g}); message skipped')
-            return False
-        last = self._last_stamp.get(stream)
-        if last is not None and stamp_ns < last:
-            self.warn(f'{stream} time going backwards',
-                            f'{stream} stamp {stamp_ns} is older than the previous {last}; message skipped')
-            return False
-        self._last_stamp[stream] = stamp_ns
-        return True
+        return self._order.accept(stream, stamp_ns)
 
     def _on_image(self, msg: Image | CompressedImage) -> None:
         self.warn.count('frames_received')

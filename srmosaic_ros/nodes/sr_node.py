@@ -64,7 +64,6 @@ from msg_adapters import (SUPPORTED_ENCODINGS, camera_info_to_intrinsics, header
 from ..core.sr.reconstruct import SRFramesDisagree
 from ..core.types import CameraIntrinsics
 from ..core.undistort import Undistorter
-from ..core.stamp_gate import StampGate
 from ..errors import SrMosaicError
 from ..sr_live import (
     LiveFrame,
@@ -76,7 +75,7 @@ from ..sr_live import (
     reconstruct_live_tile_image,
     sr_worker_ready,
 )
-from .common import IMAGE_QOS_DEPTH, WarnOnce, check_range, decode_registration, diagnostic_array, input_qos
+from .common import IMAGE_QOS_DEPTH, StreamOrder, WarnOnce, check_range, decode_registration, diagnostic_array, input_qos
 from .parameters import declare_pipeline_parameters, read_pipeline_config
 
 __all__ = ['SRNode', 'main']
@@ -89,7 +88,6 @@ class SRNode(Node):
         super().__init__('srmosaic_sr', **kwargs)
         defaults = declare_pipeline_parameters(self)
         self.config = read_pipeline_config(self, defaults)  # ConfigError refuses bad sr / sr_tiles values
-        self._stamps = StampGate(self.config.stamp_tolerance_s)
         self.period_s = float(check_range(self, 'live.sr_period_s', 0.1, 3600.0))
         self.tiles_per_round = int(check_range(self, 'live.sr_tiles_per_round', 1, 100))
         self.refresh_growth = float(check_range(self, 'live.sr_refresh_growth', 0.0, 100.0))
@@ -118,7 +116,7 @@ class SRNode(Node):
         self._sizes: dict[int, tuple[int, int]] = {}
         # (segment, x0, y0) of each published tile -> frames its last publication was made from
         self._done: dict[tuple[int, int, int], int] = {}
-        self._last_stamp: int | None = None
+        self._order = StreamOrder(self, self.warn, self.config.stamp_tolerance_s)  # stamps off the clock or backwards
         self._planned_at = -1  # store.added at the last round that found nothing to do
         self._times_s: collections.deque[float] = collections.deque(maxlen=200)
         self._wake = threading.Condition()
@@ -167,16 +165,8 @@ class SRNode(Node):
             self.warn('image: empty', 'empty compressed image skipped')
             return
         with self._store_lock:
-            off_s = self._stamps.check('image', stamp_ns, self.get_clock().now().nanoseconds)
-            if off_s is not None:  # before the order check: one future stamp must not make every later one 'older'
-                self.warn('image stamp off the clock', f'image stamp {stamp_ns} is {off_s:+.3g} s off the receive '
-                          f'times of the stream (stamp_tolerance_s {self.config.stamp_tolerance_s:g}); skipped')
+            if not self._order.accept('image', stamp_ns):
                 return
-            if self._last_stamp is not None and stamp_ns < self._last_stamp:
-                self.warn('image time going backwards',
-                          f'image stamp {stamp_ns} is older than the previous {self._last_stamp}; skipped')
-                return
-            self._last_stamp = stamp_ns
             self._store.add_image(stamp_ns, msg)
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
