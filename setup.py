@@ -33,10 +33,13 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
         ('share/' + PACKAGE, ['package.xml']),
         ('share/' + PACKAGE + '/params', glob('params/*.yaml') + glob('params/*.xml')),
+        ('share/' + PACKAGE + '/launch', glob('launch/*.launch.xml') + glob('launch/*.launch.py')),
     ],
     install_requires=INSTALL_REQUIRES,
     extras_require={
-        'test': ['pytest==9.2.0', 'pytest-timeout==2.4.0'],
+        # colcon and ament_package: a test builds the package as a ROS workspace does (colcon build)
+        'test': ['pytest==9.2.0', 'pytest-timeout==2.4.0', 'colcon-common-extensions==0.3.0',
+                 'ros-jazzy-ament-package==0.16.4'],
         'bench': ['matplotlib==3.11.2'],
     },
     python_requires='>=3.11',
@@ -47,6 +50,12 @@ setup(
     entry_points={
         'console_scripts': [
             'srmosaic = srmosaic_ros.cli:main',
+            # the node executables (`ros2 run srmosaic_ros <name>`), as nodes/executables.EXECUTABLES
+            'mosaic_node = srmosaic_ros.nodes.mosaic_node:main',
+            'georef_node = srmosaic_ros.nodes.georef_node:main',
+            'sr_node = srmosaic_ros.nodes.sr_node:main',
+            'tile_recorder = srmosaic_ros.nodes.tile_recorder:main',
+            'player = srmosaic_ros.nodes.player:main',
         ],
     },
 )

@@ -46,21 +46,6 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_run_process)
 
 
-def _positive_float(text: str) -> float:
-    """argparse type: a finite number > 0 (nan, inf, 0 and negatives refused)."""
-    import math
-
-    try:
-        value = float(text)
-    except ValueError:
-        msg = f'{text!r} is not a number'
-        raise argparse.ArgumentTypeError(msg) from None
-    if not (math.isfinite(value) and value > 0):
-        msg = f'must be a finite number > 0, got {text!r}'
-        raise argparse.ArgumentTypeError(msg)
-    return value
-
-
 def _run_process(args: argparse.Namespace) -> int:
     from .config import load_params, pipeline_config
     from .io.bags import TopicConfig
@@ -147,14 +132,6 @@ def _add_simulate(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=sim_cli.run)
 
 
-def _split_ros_args(argv: list[str]) -> tuple[list[str], list[str]]:
-    """Split `... --ros-args ...` off the command line: rclpy takes what follows it."""
-    if '--ros-args' in argv:
-        i = argv.index('--ros-args')
-        return argv[:i], argv[i:]
-    return argv, []
-
-
 def _add_node(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser('node', help='run named nodes in this process (then --ros-args ...)')
     p.add_argument('nodes', nargs='+', help='node names: mosaic, georef, sr (see srmosaic_ros/nodes/launcher.py)')
@@ -170,9 +147,11 @@ def _run_node(args: argparse.Namespace) -> int:
 def _add_launch(sub: argparse._SubParsersAction) -> None:
     from .nodes import launcher
 
-    p = sub.add_parser('launch', help='start the graph (all nodes in one process, or a YAML description)',
+    p = sub.add_parser('launch', help='start the graph (all nodes in one process, a launch file, or a YAML description)',
                        description=launcher.__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument('description', nargs='?', type=Path, help='YAML launch description (default: all nodes here)')
+    p.add_argument('description', nargs='?', type=Path,
+                   help='a ROS 2 launch file (launch/srmosaic.launch.xml) or a YAML description (default: all nodes here)')
+    p.add_argument('arguments', nargs='*', metavar='name:=value', help="the launch file's arguments (namespace:=uav1)")
     p.add_argument('--params', action='append', default=[], help='extra parameter file (repeatable)')
     p.set_defaults(func=_run_launch)
 
@@ -180,47 +159,24 @@ def _add_launch(sub: argparse._SubParsersAction) -> None:
 def _run_launch(args: argparse.Namespace) -> int:
     from .nodes.launcher import launch
 
-    return launch(args.description, args.params, args.ros_args)
+    return launch(args.description, args.params, args.ros_args, args.arguments)
 
 
 def _add_record_tiles(sub: argparse._SubParsersAction) -> None:
+    from .nodes.executables import record_tiles_arguments, run_record_tiles
+
     p = sub.add_parser('record-tiles', help='write the live SR tiles (and the preview) into a folder as GeoTIFFs '
                        '(a ground station; then --ros-args ...)')
-    p.add_argument('dir', type=Path, help='output folder (created): sr_tiles/*.tif, preview.tif')
-    p.add_argument('--preview', action='store_true', help='also keep the newest /srmosaic/mosaic_preview')
-    p.set_defaults(func=_run_record_tiles)
-
-
-def _run_record_tiles(args: argparse.Namespace) -> int:
-    import functools
-
-    from .nodes.runner import run_nodes
-    from .nodes.tile_recorder import TileRecorderNode
-    from .offline import check_output_dir
-
-    check_output_dir(args.dir, 'record-tiles DIR')  # before joining the graph, not at the first tile
-
-    node = functools.partial(TileRecorderNode, args.dir, previews=args.preview)
-    return run_nodes([node], ['srmosaic', *args.ros_args])
+    record_tiles_arguments(p)
+    p.set_defaults(func=run_record_tiles)
 
 
 def _add_play(sub: argparse._SubParsersAction) -> None:
+    from .nodes.executables import play_arguments, run_play
+
     p = sub.add_parser('play', help='publish a bag on its topics (the stand-in for ros2 bag play)')
-    p.add_argument('bag', type=Path)
-    p.add_argument('--rate', type=_positive_float, default=1.0, help='playback speed factor (2 = twice real time)')
-    p.add_argument('--topics', nargs='+', help='only these topics')
-    p.add_argument('--loop', action='store_true', help='start again at the end (until Ctrl-C)')
-    p.add_argument('--delay', type=float, default=1.0, help='at most this many seconds to wait for a subscriber on every topic before playing')
-    p.set_defaults(func=_run_play)
-
-
-def _run_play(args: argparse.Namespace) -> int:
-    from .nodes.player import play_bag
-
-    n = play_bag(args.bag, rate=args.rate, topics=args.topics, start_delay_s=args.delay, loop=args.loop,
-                 args=['srmosaic', *args.ros_args])
-    print(f'published {n} messages from {args.bag}')
-    return 0
+    play_arguments(p)
+    p.set_defaults(func=run_play)
 
 
 def _add_psf(sub: argparse._SubParsersAction) -> None:
@@ -284,7 +240,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    own, ros_args = _split_ros_args(list(sys.argv[1:] if argv is None else argv))
+    from .nodes.executables import split_ros_args
+
+    own, ros_args = split_ros_args(list(sys.argv[1:] if argv is None else argv))
     args = parser.parse_args(own)
     args.ros_args = ros_args
     try:

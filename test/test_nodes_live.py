@@ -13,7 +13,6 @@ import os
 import signal
 import subprocess
 import sys
-import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -22,6 +21,7 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
+from ros_graph import GraphListener
 
 from srmosaic_ros.core.metrics import corner_error_px
 from srmosaic_ros.io.mosaic_files import read_frames_csv
@@ -50,53 +50,27 @@ def srmosaic(*args: str, env: dict[str, str]) -> subprocess.Popen:
                             stderr=subprocess.STDOUT, text=True)
 
 
-class Listener:
+class Listener(GraphListener):
     """An rclpy node in this process that records what the graph publishes."""
 
     def __init__(self) -> None:
-        import rclpy
         from diagnostic_msgs.msg import DiagnosticArray
-        from rclpy.executors import SingleThreadedExecutor
-        from sensor_msgs.msg import CompressedImage, Image
-        from std_msgs.msg import Float64MultiArray
-
-        self.rclpy = rclpy
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context)
-        self.node = rclpy.create_node('srmosaic_test_listener', context=self.context)
-        self.previews: list = []
-        self.compressed: list = []
-        self.diagnostics: list = []
-        self.registrations: list = []
-        self.poses: list = []
-        self.fixes: list = []
-        self.tiles: list = []
-        self.node.create_subscription(Image, '/srmosaic/sr_tile', self.tiles.append, 50)
-        self.node.create_subscription(Image, '/srmosaic/mosaic_preview', self.previews.append, 10)
-        self.node.create_subscription(CompressedImage, '/srmosaic/mosaic_preview/compressed',
-                                      self.compressed.append, 10)
-        self.node.create_subscription(DiagnosticArray, '/srmosaic/diagnostics', self.diagnostics.append, 10)
-        self.node.create_subscription(Float64MultiArray, '/srmosaic/registration', self.registrations.append, 100)
         from geometry_msgs.msg import PoseWithCovarianceStamped
-        from sensor_msgs.msg import NavSatFix
-
-        self.node.create_subscription(PoseWithCovarianceStamped, '/srmosaic/pose', self.poses.append, 100)
-        self.node.create_subscription(NavSatFix, '/srmosaic/fix', self.fixes.append, 100)
         from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-        from std_msgs.msg import String
+        from sensor_msgs.msg import CompressedImage, Image, NavSatFix
+        from std_msgs.msg import Float64MultiArray, String
 
-        self.rasters: list = []
-        self.node.create_subscription(String, '/srmosaic/raster', self.rasters.append, QoSProfile(
+        super().__init__('srmosaic_test_listener')
+        self.tiles = self.subscribe(Image, '/srmosaic/sr_tile', 50)
+        self.previews = self.subscribe(Image, '/srmosaic/mosaic_preview', 10)
+        self.compressed = self.subscribe(CompressedImage, '/srmosaic/mosaic_preview/compressed', 10)
+        self.diagnostics = self.subscribe(DiagnosticArray, '/srmosaic/diagnostics', 10)
+        self.registrations = self.subscribe(Float64MultiArray, '/srmosaic/registration', 100)
+        self.poses = self.subscribe(PoseWithCovarianceStamped, '/srmosaic/pose', 100)
+        self.fixes = self.subscribe(NavSatFix, '/srmosaic/fix', 100)
+        self.rasters = self.subscribe(String, '/srmosaic/raster', QoSProfile(
             depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL))
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self._thread = threading.Thread(target=self._spin, daemon=True)
-        self._stop = False
-        self._thread.start()
-
-    def _spin(self) -> None:
-        while not self._stop:
-            self.executor.spin_once(timeout_sec=0.1)
+        self.start()
 
     def diag_value(self, key: str, name: str = MOSAIC) -> str | None:
         """`key` in the newest diagnostics of the node whose status is called `name`."""
@@ -106,22 +80,8 @@ class Listener:
                     return {kv.key: kv.value for kv in status.values}.get(key)
         return None
 
-    def wait_for(self, predicate, timeout: float) -> bool:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if predicate():
-                return True
-            time.sleep(0.2)
-        return False
-
     def publisher(self, msg_type, topic: str):
         return self.node.create_publisher(msg_type, topic, 10)
-
-    def close(self) -> None:
-        self._stop = True
-        self._thread.join(timeout=5)
-        self.node.destroy_node()
-        self.rclpy.try_shutdown(context=self.context)
 
 
 def _translation(dx: float, dy: float) -> np.ndarray:

@@ -1,4 +1,5 @@
-"""What the nodes share: the /srmosaic/registration layout, pose messages, once-per-kind warnings, QoS."""
+"""What the nodes share: topic names, the /srmosaic/registration layout, pose messages, diagnostics,
+once-per-kind warnings, QoS."""
 from __future__ import annotations
 
 import collections
@@ -16,11 +17,33 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from ..errors import SrMosaicError
 
-__all__ = ['REGISTRATION_LAYOUT', 'diagnostic_array', 'RegistrationMsg', 'decode_registration', 'encode_registration',
-           'pose_messages', 'WarnOnce', 'input_qos', 'IMAGE_QOS_DEPTH', 'TELEMETRY_QOS_DEPTH', 'check_range']
+__all__ = ['TOPICS', 'DIAGNOSTICS_TOPICS', 'REGISTRATION_LAYOUT', 'DiagnosticsPublisher', 'diagnostic_array', 'RegistrationMsg', 'decode_registration', 'encode_registration',
+           'pose_messages', 'frame_ids', 'WarnOnce', 'input_qos', 'IMAGE_QOS_DEPTH', 'TELEMETRY_QOS_DEPTH', 'check_range']
 
 IMAGE_QOS_DEPTH = 20
 TELEMETRY_QOS_DEPTH = 500
+
+#: Topic names of the graph, relative: they resolve under the node's namespace (`-r __ns:=/uav1`
+#: gives /uav1/camera/image_raw, /uav1/srmosaic/mosaic_preview, ...), and in the root namespace to
+#: the names of the topic contract (/camera/image_raw, /srmosaic/...). Remap them as usual.
+TOPICS = {
+    'image': 'camera/image_raw',
+    'image_compressed': 'camera/image_raw/compressed',
+    'camera_info': 'camera/camera_info',
+    'fix': 'fix',
+    'imu': 'imu/data',
+    'preview': 'srmosaic/mosaic_preview',
+    'preview_compressed': 'srmosaic/mosaic_preview/compressed',
+    'registration': 'srmosaic/registration',
+    'raster': 'srmosaic/raster',
+    'pose': 'srmosaic/pose',
+    'fused_fix': 'srmosaic/fix',
+    'sr_tile': 'srmosaic/sr_tile',
+}
+#: Diagnostics go to /diagnostics, where diagnostic_aggregator and rqt_robot_monitor listen (absolute,
+#: as diagnostic_updater publishes), and to srmosaic/diagnostics under the namespace (the contract's
+#: /srmosaic/diagnostics in the root namespace).
+DIAGNOSTICS_TOPICS = ('/diagnostics', 'srmosaic/diagnostics')
 
 #: Float64MultiArray layout of /srmosaic/registration (one message per processed frame, in
 #: processing order): stamp_sec, stamp_nanosec, ok (1: painted into the mosaic), inliers, rms_px,
@@ -86,12 +109,14 @@ def decode_registration(msg: Float64MultiArray) -> RegistrationMsg:
         covariance=cov if cov is not None and np.all(np.isfinite(cov)) else None)
 
 
-def pose_messages(stamp_ns: int, pose: Any) -> tuple[PoseWithCovarianceStamped, NavSatFix] | None:  # noqa: ANN401
+def pose_messages(stamp_ns: int, pose: Any, map_frame: str = 'srmosaic_enu',  # noqa: ANN401
+                  body_frame: str = 'srmosaic') -> tuple[PoseWithCovarianceStamped, NavSatFix] | None:
     """(/srmosaic/pose, /srmosaic/fix) messages of a fused FramePose, or None when it is not valid.
 
-    Pose: body position in the local ENU plane tangent at the first fix (m), frame_id
-    'srmosaic_enu', orientation body in ENU (REP 103), covariance of (east, north, up, roll,
-    pitch, yaw). Fix: WGS84 of the same pose, covariance ENU (m^2).
+    Pose: body position in the local ENU plane tangent at the first fix (m), frame_id `map_frame`
+    (live.map_frame), orientation body in ENU (REP 103), covariance of (east, north, up, roll,
+    pitch, yaw). Fix: WGS84 of the same pose, frame_id `body_frame` (live.body_frame), covariance
+    ENU (m^2).
     """
     if pose is None or not pose.valid:
         return None
@@ -99,7 +124,7 @@ def pose_messages(stamp_ns: int, pose: Any) -> tuple[PoseWithCovarianceStamped, 
 
     msg = PoseWithCovarianceStamped()
     msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(stamp_ns), 1_000_000_000)
-    msg.header.frame_id = 'srmosaic_enu'
+    msg.header.frame_id = map_frame
     e, n, u = (float(v) for v in pose.position_enu_m)
     msg.pose.pose.position.x, msg.pose.pose.position.y, msg.pose.pose.position.z = e, n, u
     q = quat_xyzw_from_matrix(R_enu_from_body(*pose.rpy_rad))
@@ -109,7 +134,7 @@ def pose_messages(stamp_ns: int, pose: Any) -> tuple[PoseWithCovarianceStamped, 
     msg.pose.covariance = [float(v) for v in cov.ravel()]
     fix = NavSatFix()
     fix.header.stamp = msg.header.stamp
-    fix.header.frame_id = 'srmosaic'
+    fix.header.frame_id = body_frame
     fix.status.status = 0
     fix.latitude, fix.longitude, fix.altitude = (float(pose.latitude_deg), float(pose.longitude_deg),
                                                  float(pose.altitude_m))
@@ -217,12 +242,48 @@ def check_range(node: Node, name: str, lo: float, hi: float) -> Any:  # noqa: AN
     return value
 
 
+def frame_ids(node: Node) -> tuple[str, str]:
+    """(map frame, body frame) of the pose messages: parameters live.map_frame and live.body_frame."""
+    out = []
+    for name in ('live.map_frame', 'live.body_frame'):
+        value = node.get_parameter(name).value
+        if not isinstance(value, str) or not value.strip() or value.startswith('/'):
+            msg = f'{name} must be a frame id (a non-empty name without a leading /), got {value!r}.'
+            raise SrMosaicError(msg)
+        out.append(value)
+    return out[0], out[1]
+
+
 def diagnostic_array(node: Node, name: str, message: str, values: dict[str, Any], *,
-                     level: bytes = DiagnosticStatus.OK) -> DiagnosticArray:
-    """One DiagnosticStatus (hardware_id 'srmosaic', values as strings) stamped with the node's clock."""
-    status = DiagnosticStatus(level=level, name=name, message=message, hardware_id='srmosaic',
+                     level: bytes = DiagnosticStatus.OK, hardware_id: str = 'srmosaic') -> DiagnosticArray:
+    """One DiagnosticStatus (values as strings) stamped with the node's clock."""
+    status = DiagnosticStatus(level=level, name=name, message=message, hardware_id=hardware_id,
                               values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
     out = DiagnosticArray()
     out.header.stamp = node.get_clock().now().to_msg()
     out.status = [status]
     return out
+
+
+class DiagnosticsPublisher:
+    """A node's status on every topic of DIAGNOSTICS_TOPICS.
+
+    The status is named `task` in the root namespace ('srmosaic: registration and mosaic') and
+    '<namespace>/<task>' under one ('uav1/srmosaic: registration and mosaic'), so that the statuses
+    of two aircraft in one graph stay apart on /diagnostics; hardware_id is the resolved name of
+    the camera's image topic ('/uav1/camera/image_raw'), which names the camera the node serves.
+    """
+
+    def __init__(self, node: Node, task: str) -> None:
+        namespace = node.get_namespace().strip('/')
+        self.name = f'{namespace}/{task}' if namespace else task
+        self.hardware_id = node.resolve_topic_name(TOPICS['image'])
+        self._node = node
+        self._publishers = [node.create_publisher(DiagnosticArray, topic, 10) for topic in DIAGNOSTICS_TOPICS]
+
+    def array(self, message: str, values: dict[str, Any], level: bytes = DiagnosticStatus.OK) -> DiagnosticArray:
+        return diagnostic_array(self._node, self.name, message, values, level=level, hardware_id=self.hardware_id)
+
+    def publish(self, msg: DiagnosticArray) -> None:
+        for pub in self._publishers:
+            pub.publish(msg)

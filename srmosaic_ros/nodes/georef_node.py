@@ -17,7 +17,7 @@ and mosaicking only, the cheapest onboard configuration) and this node runs the 
 (core/georef) from /fix (NavSatFix), /imu/data (Imu), /camera/camera_info and
 /srmosaic/registration (REGISTRATION_LAYOUT: each frame's stamp, its homography to the previous
 painted frame, the homography's covariance), and publishes /srmosaic/pose
-(PoseWithCovarianceStamped, ENU plane tangent at the first fix, frame_id 'srmosaic_enu') and
+(PoseWithCovarianceStamped, ENU plane tangent at the first fix, frame_id live.map_frame) and
 /srmosaic/fix (NavSatFix), one per registered frame, plus /srmosaic/diagnostics. Exactly one node of
 a graph publishes the poses in either mode.
 
@@ -32,7 +32,6 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
@@ -45,8 +44,8 @@ from ..core.georef.georeferencer import Georeferencer
 from ..core.undistort import Undistorter
 from ..errors import SrMosaicError
 from ..pipeline import SYNC_HOLD_FRAMES
-from .common import (TELEMETRY_QOS_DEPTH, RegistrationMsg, StreamOrder, WarnOnce, decode_registration,
-                     diagnostic_array, input_qos, pose_messages)
+from .common import (TELEMETRY_QOS_DEPTH, TOPICS, DiagnosticsPublisher, RegistrationMsg, StreamOrder, WarnOnce,
+                     decode_registration, frame_ids, input_qos, pose_messages)
 from .parameters import declare_pipeline_parameters, read_pipeline_config
 
 __all__ = ['GeorefNode', 'main']
@@ -72,7 +71,8 @@ class GeorefNode(Node):
         self._order = StreamOrder(self, self.warn, self.config.stamp_tolerance_s)  # stamps off the clock or backwards
         self._ref_stamp: int | None = None  # the last painted frame fed: what prev_H_cur maps into
         self._last_pose = None
-        self.pub_diag = self.create_publisher(DiagnosticArray, '/srmosaic/diagnostics', 10)
+        self.pub_diag = DiagnosticsPublisher(self, 'srmosaic: georeferencing')
+        self.frames = frame_ids(self)
         if not self.active:
             self.get_logger().info('georeferencing runs inside the mosaic node (live.georef_standalone is false); '
                                    'this node stays idle. Set live.georef_standalone:=true for the whole graph to '
@@ -84,13 +84,13 @@ class GeorefNode(Node):
         reliable = bool(self.get_parameter('live.reliable_inputs').value)
         qos = input_qos(reliable, TELEMETRY_QOS_DEPTH)
         group = MutuallyExclusiveCallbackGroup()  # one group: the filter sees its inputs one at a time, in order
-        self.create_subscription(NavSatFix, '/fix', self._on_fix, qos, callback_group=group)
-        self.create_subscription(Imu, '/imu/data', self._on_imu, qos, callback_group=group)
-        self.create_subscription(CameraInfo, '/camera/camera_info', self._on_camera_info, qos, callback_group=group)
-        self.create_subscription(Float64MultiArray, '/srmosaic/registration', self._on_registration,
+        self.create_subscription(NavSatFix, TOPICS['fix'], self._on_fix, qos, callback_group=group)
+        self.create_subscription(Imu, TOPICS['imu'], self._on_imu, qos, callback_group=group)
+        self.create_subscription(CameraInfo, TOPICS['camera_info'], self._on_camera_info, qos, callback_group=group)
+        self.create_subscription(Float64MultiArray, TOPICS['registration'], self._on_registration,
                                  input_qos(True, 200), callback_group=group)
-        self.pub_pose = self.create_publisher(PoseWithCovarianceStamped, '/srmosaic/pose', 50)
-        self.pub_fix = self.create_publisher(NavSatFix, '/srmosaic/fix', 50)
+        self.pub_pose = self.create_publisher(PoseWithCovarianceStamped, TOPICS['pose'], 50)
+        self.pub_fix = self.create_publisher(NavSatFix, TOPICS['fused_fix'], 50)
         period = float(self.get_parameter('live.preview_period_s').value)
         self.create_timer(0.2, self._on_tick, callback_group=group)
         self.create_timer(period, self._publish_diagnostics, callback_group=MutuallyExclusiveCallbackGroup())
@@ -168,7 +168,7 @@ class GeorefNode(Node):
         if reg.ok:
             self._ref_stamp = reg.stamp_ns
         self.warn.count('frames_fused')
-        msgs = pose_messages(reg.stamp_ns, pose)
+        msgs = pose_messages(reg.stamp_ns, pose, *self.frames)
         if msgs is not None:
             self.pub_pose.publish(msgs[0])
             self.pub_fix.publish(msgs[1])
@@ -189,7 +189,7 @@ class GeorefNode(Node):
             values.update({f'filter skipped: {k}': v for k, v in self.georef.skipped.items()})
         values.update({k: v for k, v in stats.items() if k.startswith('rejected')})
         level, message = self.warn.status(f"{values['poses_published']} poses")
-        self.pub_diag.publish(diagnostic_array(self, 'srmosaic: georeferencing', message, values, level=level))
+        self.pub_diag.publish(self.pub_diag.array(message, values, level))
 
     def finish(self) -> None:
         """Fuse the registrations still waiting for telemetry."""
@@ -198,7 +198,8 @@ class GeorefNode(Node):
                 self._fuse(self._pending.pop(0)[1])
 
 
-def main(args: list[str] | None = None) -> int:
-    from .runner import run_nodes
+def main(argv: list[str] | None = None) -> int:
+    """`ros2 run srmosaic_ros georef_node [--ros-args ...]`."""
+    from .executables import node_main
 
-    return run_nodes([GeorefNode], args)
+    return node_main('georef_node', GeorefNode, argv)

@@ -1,5 +1,9 @@
 """`srmosaic launch`: start the graph, in one process or several (the stand-in for ros2 launch).
 
+A ROS 2 launch file, `srmosaic launch launch/srmosaic.launch.xml namespace:=uav1 sr:=false`, starts
+each of its nodes as a child process, as `ros2 launch srmosaic_ros srmosaic.launch.xml ...` does
+(launch_xml.py says which part of the XML language it reads).
+
 Nodes: mosaic (registration and mosaic; by default also the georeferencing filter), georef (the
 filter in its own process; active when live.georef_standalone is true, idle otherwise), sr (SR
 tiles on /srmosaic/sr_tile). With no description, every node runs in this process with
@@ -31,8 +35,9 @@ import yaml
 
 from ..config import default_params_path, load_params, yaml_problem
 from ..errors import ConfigError
+from .launch_xml import LaunchNode, parse_launch_arguments, read_launch_xml
 
-__all__ = ['NODES', 'load_description', 'node_command', 'launch']
+__all__ = ['NODES', 'load_description', 'node_command', 'xml_node_command', 'launch']
 
 
 def _node_classes() -> dict[str, type]:
@@ -149,25 +154,56 @@ def run_named_nodes(names: list[str], args: list[str] | None) -> int:
     return run_nodes([classes[n] for n in names], args)
 
 
-def launch(description: Path | None, extra_params: list[str], extra_ros_args: list[str]) -> int:
+def xml_node_command(node: LaunchNode, extra_params: list[str], extra_ros_args: list[str], folder: Path) -> list[str]:
+    """The child command of one node of a launch file: its executable and arguments, namespace and
+    name, the node's parameter files, the launcher's --params files, the node's parameters and
+    remappings, then the launcher's --ros-args: what the command line says wins. Overrides travel
+    as parameter files (see overrides_last: rcl lets any file beat -p)."""
+    own = ['--ros-args']
+    for k, v in node.parameters.items():
+        own += ['-p', f'{k}:={v}']
+    for a, b in node.remappings:
+        own += ['-r', f'{a}:={b}']
+    sub = folder / ('node_' + node.label.strip('/').replace('/', '_'))
+    sub.mkdir(parents=True, exist_ok=True)
+    names = ['-r', f'__ns:={node.namespace}'] + (['-r', f'__node:={node.name}'] if node.name else [])
+    files = [w for f in [*node.param_files, *extra_params] for w in ('--params-file', str(f))]
+    extra = [a for a in extra_ros_args if a != '--ros-args']
+    return [sys.executable, '-m', 'srmosaic_ros.nodes.executables', node.executable, *node.arguments,
+            '--ros-args', *names, *files, *overrides_last(own, sub), *extra]
+
+
+def launch(description: Path | None, extra_params: list[str], extra_ros_args: list[str],
+           launch_arguments: list[str] | None = None) -> int:
     import tempfile
 
     for f in extra_params:  # rcl would end on a bad file with a traceback of its own
         load_params(f)
+    is_xml = description is not None and Path(description).name.endswith('.xml')
+    if launch_arguments and not is_xml:
+        msg = f'launch arguments {launch_arguments} need a launch file (FILE.launch.xml).'
+        raise ConfigError(msg)
     with tempfile.TemporaryDirectory(prefix='srmosaic-launch-') as tmp:
         extra_ros_args = overrides_last(extra_ros_args, Path(tmp))
         if description is None:
             return run_named_nodes(list(NODES), ['srmosaic', *ros_args(extra_params), *extra_ros_args])
-        return _launch_processes(description, extra_params, extra_ros_args, Path(tmp))
+        if is_xml:
+            nodes = read_launch_xml(description, parse_launch_arguments(launch_arguments or []))
+            children = [(node.label, xml_node_command(node, extra_params, extra_ros_args, Path(tmp))) for node in nodes]
+        else:
+            procs = load_description(description)
+            children = [(proc.get('name', '+'.join(proc['nodes'])),
+                         node_command({**proc, 'params': [*extra_params, *(proc.get('params') or [])]},
+                                      extra_ros_args, Path(tmp)))
+                        for proc in procs]
+        return _supervise(children)
 
 
-def _launch_processes(description: Path, extra_params: list[str], extra_ros_args: list[str], folder: Path) -> int:
-    procs = load_description(description)
+def _supervise(commands: list[tuple[str, list[str]]]) -> int:
+    """Start the children, forward SIGINT/SIGTERM to them, stop all when one fails; their status."""
     children = []
-    for proc in procs:
-        cmd = node_command({**proc, 'params': [*extra_params, *(proc.get('params') or [])]}, extra_ros_args, folder)
-        print(f"srmosaic launch: starting {proc.get('name', '+'.join(proc['nodes']))}: {' '.join(cmd[3:])}",
-              file=sys.stderr)
+    for label, cmd in commands:
+        print(f"srmosaic launch: starting {label}: {' '.join(cmd[3:])}", file=sys.stderr)
         children.append(subprocess.Popen(cmd))
 
     def forward(signum: int, frame: Any) -> None:  # noqa: ARG001, ANN401
@@ -180,12 +216,11 @@ def _launch_processes(description: Path, extra_params: list[str], extra_ros_args
     status = 0
     try:
         while any(c.poll() is None for c in children):
-            failed = [(proc, c.returncode) for proc, c in zip(procs, children) if c.poll() not in (None, 0)]
+            failed = [(label, c.returncode) for (label, _), c in zip(commands, children) if c.poll() not in (None, 0)]
             if failed:  # one failed: say which, stop the others
-                proc, code = failed[0]
+                label, code = failed[0]
                 how = f'was killed by {signal.Signals(-code).name}' if code < 0 else f'exited with status {code}'
-                print(f"srmosaic launch: {proc.get('name', '+'.join(proc['nodes']))} {how}; stopping the others",
-                      file=sys.stderr)
+                print(f'srmosaic launch: {label} {how}; stopping the others', file=sys.stderr)
                 forward(signal.SIGINT, None)
                 break
             time.sleep(0.2)

@@ -5,9 +5,11 @@ Subscribes (sensor-data QoS) to /camera/image_raw (sensor_msgs/Image) and
 /srmosaic/mosaic_preview (Image, downscaled) and /srmosaic/mosaic_preview/compressed (JPEG),
 /srmosaic/registration (std_msgs/Float64MultiArray, layout in REGISTRATION_LAYOUT),
 /srmosaic/pose (geometry_msgs/PoseWithCovarianceStamped: the fused body pose per frame, position
-in the local ENU plane tangent at the first fix, frame_id 'srmosaic_enu'; covariance of
+in the local ENU plane tangent at the first fix, frame_id live.map_frame; covariance of
 (east, north, up, roll, pitch, yaw)), /srmosaic/fix (NavSatFix of the same pose, covariance ENU)
-and /srmosaic/diagnostics (diagnostic_msgs/DiagnosticArray). All names are remappable.
+and /srmosaic/diagnostics (diagnostic_msgs/DiagnosticArray, also on /diagnostics). These are the
+names in the root namespace: the node uses relative names (nodes.common.TOPICS), so under
+`-r __ns:=/uav1` they are /uav1/camera/image_raw, /uav1/srmosaic/..., and all are remappable.
 The georeferencing filter runs inside this node (each frame is placed on the georeferenced raster
 by its fused pose before it is painted; see nodes/georef_node.py for the reasons); with
 `live.georef_standalone: true` it does not, the mosaic lies in the first frame's pixel plane, and
@@ -59,8 +61,8 @@ from ..core.types import Frame
 from ..io.mosaic_files import write_json
 from ..offline import peak_rss_mb, preview_image, write_outputs
 from ..pipeline import FrameRecord, Pipeline
-from .common import (IMAGE_QOS_DEPTH, REGISTRATION_LAYOUT, TELEMETRY_QOS_DEPTH, StreamOrder, WarnOnce,
-                     diagnostic_array, encode_registration, input_qos, pose_messages)
+from .common import (IMAGE_QOS_DEPTH, REGISTRATION_LAYOUT, TELEMETRY_QOS_DEPTH, TOPICS, DiagnosticsPublisher,
+                     StreamOrder, WarnOnce, encode_registration, frame_ids, input_qos, pose_messages)
 from .parameters import declare_pipeline_parameters, read_pipeline_config
 
 __all__ = ['MosaicNode', 'REGISTRATION_LAYOUT', 'main']
@@ -90,6 +92,7 @@ class MosaicNode(Node):
             config = dataclasses.replace(config, georef_enabled=False)
         self.config = config
         self.output_dir = str(self.get_parameter('live.output_dir').value)
+        self.frames = frame_ids(self)
         if self.output_dir:
             from ..offline import check_output_dir
 
@@ -122,25 +125,25 @@ class MosaicNode(Node):
         # mutually exclusive, so every stream stays in order.
         inputs = MutuallyExclusiveCallbackGroup()
         images = MutuallyExclusiveCallbackGroup()
-        self.create_subscription(Image, '/camera/image_raw', self._on_image, images_qos, callback_group=images)
-        self.create_subscription(CompressedImage, '/camera/image_raw/compressed', self._on_image, images_qos,
+        self.create_subscription(Image, TOPICS['image'], self._on_image, images_qos, callback_group=images)
+        self.create_subscription(CompressedImage, TOPICS['image_compressed'], self._on_image, images_qos,
                                  callback_group=images)
-        self.create_subscription(CameraInfo, '/camera/camera_info', self._on_camera_info, telemetry_qos,
+        self.create_subscription(CameraInfo, TOPICS['camera_info'], self._on_camera_info, telemetry_qos,
                                  callback_group=inputs)
-        self.create_subscription(NavSatFix, '/fix', self._on_fix, telemetry_qos, callback_group=inputs)
-        self.create_subscription(Imu, '/imu/data', self._on_imu, telemetry_qos, callback_group=inputs)
+        self.create_subscription(NavSatFix, TOPICS['fix'], self._on_fix, telemetry_qos, callback_group=inputs)
+        self.create_subscription(Imu, TOPICS['imu'], self._on_imu, telemetry_qos, callback_group=inputs)
         self._input_lock = threading.Lock()  # input callbacks run concurrently: guard their shared state
-        self.pub_preview = self.create_publisher(Image, '/srmosaic/mosaic_preview', 1)
-        self.pub_preview_c = self.create_publisher(CompressedImage, '/srmosaic/mosaic_preview/compressed', 1)
-        self.pub_registration = self.create_publisher(Float64MultiArray, '/srmosaic/registration', 50)
-        self.pub_diag = self.create_publisher(DiagnosticArray, '/srmosaic/diagnostics', 10)
+        self.pub_preview = self.create_publisher(Image, TOPICS['preview'], 1)
+        self.pub_preview_c = self.create_publisher(CompressedImage, TOPICS['preview_compressed'], 1)
+        self.pub_registration = self.create_publisher(Float64MultiArray, TOPICS['registration'], 50)
+        self.pub_diag = DiagnosticsPublisher(self, 'srmosaic: registration and mosaic')
         latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                              history=HistoryPolicy.KEEP_LAST)
-        self.pub_raster = self.create_publisher(String, '/srmosaic/raster', latched)
+        self.pub_raster = self.create_publisher(String, TOPICS['raster'], latched)
         self._raster_sent: LiveRaster | None = None
         if not self.georef_standalone:  # else the georef node publishes them (one publisher per graph)
-            self.pub_pose = self.create_publisher(PoseWithCovarianceStamped, '/srmosaic/pose', 50)
-            self.pub_fix = self.create_publisher(NavSatFix, '/srmosaic/fix', 50)
+            self.pub_pose = self.create_publisher(PoseWithCovarianceStamped, TOPICS['pose'], 50)
+            self.pub_fix = self.create_publisher(NavSatFix, TOPICS['fused_fix'], 50)
         self._preview_thread: threading.Thread | None = None
         self.create_timer(period, self._publish_periodic, callback_group=MutuallyExclusiveCallbackGroup())
         self._worker = threading.Thread(target=self._work, name='srmosaic-mosaic-worker', daemon=True)
@@ -259,7 +262,7 @@ class MosaicNode(Node):
             bool(reg is not None and reg.ok), getattr(reg, 'covariance', None)))
 
     def _publish_pose(self, record: FrameRecord) -> None:
-        msgs = None if self.georef_standalone else pose_messages(record.stamp_ns, record.pose)
+        msgs = None if self.georef_standalone else pose_messages(record.stamp_ns, record.pose, *self.frames)
         if msgs is not None:
             self.pub_pose.publish(msgs[0])
             self.pub_fix.publish(msgs[1])
@@ -341,7 +344,7 @@ class MosaicNode(Node):
             message += f"; {stats['dropped_frames']} frames dropped (falling behind)"
         rejecting, message = self.warn.status(message)
         level = max(level, rejecting)  # WARN while messages are being rejected, not for ever after
-        return diagnostic_array(self, 'srmosaic: registration and mosaic', message, values, level=level)
+        return self.pub_diag.array(message, values, level)
 
     # -- shutdown -------------------------------------------------------------------------------
     def finish(self) -> None:
@@ -364,7 +367,8 @@ class MosaicNode(Node):
                                    f'{self.output_dir}')
 
 
-def main(args: list[str] | None = None) -> int:
-    from .runner import run_nodes
+def main(argv: list[str] | None = None) -> int:
+    """`ros2 run srmosaic_ros mosaic_node [--ros-args ...]`."""
+    from .executables import node_main
 
-    return run_nodes([MosaicNode], args)
+    return node_main('mosaic_node', MosaicNode, argv)

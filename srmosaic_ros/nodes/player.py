@@ -1,8 +1,10 @@
-"""`srmosaic play BAG`: publish a bag's messages on their topics, in real time or faster.
+"""`srmosaic play BAG` (or `ros2 run srmosaic_ros player BAG`): publish a bag's messages on their
+topics, in real time or faster.
 
 The replacement of `ros2 bag play` for this environment. Messages are published as the serialized
 bytes stored in the bag (ROS 1 bags are converted to CDR), on publishers of the recorded types,
-paced by their log times divided by `--rate`.
+paced by their log times divided by `--rate`. The recorded names are published relative, under
+the player's namespace: `--ros-args -r __ns:=/uav1` plays /camera/image_raw on /uav1/camera/image_raw.
 """
 from __future__ import annotations
 
@@ -18,7 +20,7 @@ from ..errors import BagError
 from ..io.bags import inspect_bag, iter_raw
 from .runner import init_rclpy
 
-__all__ = ['play_bag']
+__all__ = ['play_bag', 'main']
 
 
 def _message_class(msgtype: str) -> type:
@@ -60,7 +62,7 @@ def play_bag(path: Path, *, rate: float = 1.0, topics: list[str] | None = None, 
     node = Node('srmosaic_player')
     qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.VOLATILE)
-    publishers = {t: node.create_publisher(_message_class(info.topics[t].msgtype), remap.get(t, t), qos)
+    publishers = {t: node.create_publisher(_message_class(info.topics[t].msgtype), remap.get(t, t).lstrip('/'), qos)
                   for t in selected}
     count = 0
     try:
@@ -86,3 +88,11 @@ def play_bag(path: Path, *, rate: float = 1.0, topics: list[str] | None = None, 
         node.destroy_node()
         rclpy.try_shutdown()
     return count
+
+
+def main(argv: list[str] | None = None) -> int:
+    """`ros2 run srmosaic_ros player BAG [--rate R] [--ros-args ...]`."""
+    from .executables import play_arguments, run_executable, run_play
+
+    return run_executable('player', play_arguments, run_play, argv,
+                          description='publish a bag on its topics (the stand-in for ros2 bag play)')

@@ -8,7 +8,8 @@ remove lens distortion from the images as the mosaic node does (``undistort``, c
 It needs nothing else, so it runs in the mosaic node's process or in its own (ground-station SR,
 behind a radio link that carries the frames and the registrations).
 
-Publishes /srmosaic/sr_tile (sensor_msgs/Image, rgb8 or mono8) and /srmosaic/diagnostics.
+Publishes /srmosaic/sr_tile (sensor_msgs/Image, rgb8 or mono8) and /srmosaic/diagnostics (also on
+/diagnostics). Names in the root namespace; the node's are relative (nodes.common.TOPICS).
 
 Tile placement, carried in every tile: header.stamp is the stamp of the newest frame used;
 header.frame_id is ``srmosaic_segment_<k>;x0=<int>;y0=<int>;width=<int>;height=<int>;factor=<int>``
@@ -75,7 +76,8 @@ from ..sr_live import (
     reconstruct_live_tile_image,
     sr_worker_ready,
 )
-from .common import IMAGE_QOS_DEPTH, StreamOrder, WarnOnce, check_range, decode_registration, diagnostic_array, input_qos
+from .common import (IMAGE_QOS_DEPTH, TOPICS, DiagnosticsPublisher, StreamOrder, WarnOnce, check_range,
+                     decode_registration, input_qos)
 from .parameters import declare_pipeline_parameters, read_pipeline_config
 
 __all__ = ['SRNode', 'main']
@@ -127,20 +129,20 @@ class SRNode(Node):
         reliable = bool(self.get_parameter('live.reliable_inputs').value)
         depth = IMAGE_QOS_DEPTH * 5 if reliable else IMAGE_QOS_DEPTH
         images = MutuallyExclusiveCallbackGroup()
-        self.create_subscription(Image, '/camera/image_raw', self._on_image, input_qos(reliable, depth),
+        self.create_subscription(Image, TOPICS['image'], self._on_image, input_qos(reliable, depth),
                                  callback_group=images)
-        self.create_subscription(CompressedImage, '/camera/image_raw/compressed', self._on_image,
+        self.create_subscription(CompressedImage, TOPICS['image_compressed'], self._on_image,
                                  input_qos(reliable, depth), callback_group=images)
         # the registrations are of undistorted frames: the images must be undistorted alike
         self._camera: CameraIntrinsics | None = None
         self._undistorter = Undistorter(self.config.undistort)
-        self.create_subscription(CameraInfo, '/camera/camera_info', self._on_camera_info, input_qos(False, 5),
+        self.create_subscription(CameraInfo, TOPICS['camera_info'], self._on_camera_info, input_qos(False, 5),
                                  callback_group=images)
         # Registrations are few and each matters: reliable, deep.
-        self.create_subscription(Float64MultiArray, '/srmosaic/registration', self._on_registration,
+        self.create_subscription(Float64MultiArray, TOPICS['registration'], self._on_registration,
                                  input_qos(True, 200), callback_group=MutuallyExclusiveCallbackGroup())
-        self.pub_tile = self.create_publisher(Image, '/srmosaic/sr_tile', 10)
-        self.pub_diag = self.create_publisher(DiagnosticArray, '/srmosaic/diagnostics', 10)
+        self.pub_tile = self.create_publisher(Image, TOPICS['sr_tile'], 10)
+        self.pub_diag = DiagnosticsPublisher(self, 'srmosaic: super-resolution')
         self.create_timer(self.period_s, self._on_timer, callback_group=MutuallyExclusiveCallbackGroup())
         self._worker = threading.Thread(target=self._work, name='srmosaic-sr-worker', daemon=True)
         self._worker.start()
@@ -358,7 +360,7 @@ class SRNode(Node):
         }
         values.update({k: v for k, v in stats.items() if k.startswith(('rejected', 'camera_info_scaled'))})
         level, message = self.warn.status(f"{values['tiles_published']} tiles published")
-        return diagnostic_array(self, 'srmosaic: super-resolution', message, values, level=level)
+        return self.pub_diag.array(message, values, level)
 
     def finish(self) -> None:
         """Stop the worker (a tile in progress completes first, up to 60 s), then its process."""
@@ -370,7 +372,8 @@ class SRNode(Node):
             self._pool.shutdown(wait=not self._worker.is_alive(), cancel_futures=True)
 
 
-def main(args: list[str] | None = None) -> int:
-    from .runner import run_nodes
+def main(argv: list[str] | None = None) -> int:
+    """`ros2 run srmosaic_ros sr_node [--ros-args ...]`."""
+    from .executables import node_main
 
-    return run_nodes([SRNode], args)
+    return node_main('sr_node', SRNode, argv)

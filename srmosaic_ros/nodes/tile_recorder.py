@@ -1,7 +1,8 @@
 """TileRecorderNode: the ground station's end of the live graph, SR tiles (and the preview) as GeoTIFFs.
 
-`srmosaic record-tiles DIR [--preview]` subscribes to /srmosaic/sr_tile, /srmosaic/raster
-(transient local: the last one arrives at once) and, with --preview, /srmosaic/mosaic_preview, and
+`srmosaic record-tiles DIR [--preview]` (or `ros2 run srmosaic_ros tile_recorder DIR [--preview]`)
+subscribes to srmosaic/sr_tile, srmosaic/raster (relative: under its namespace; transient local:
+the last one arrives at once) and, with --preview, /srmosaic/mosaic_preview, and
 writes what it receives into DIR:
 
 - ``sr_tiles/seg<k>_x<x0>_y<y0>.tif``: each SR tile as a GeoTIFF on the map (the live raster's CRS,
@@ -34,9 +35,9 @@ from ..errors import SrMosaicError
 from ..io.geotiff import GeoGrid, write_geotiff
 from ..io.mosaic_files import write_json, write_png
 from ..live_raster import ImagePlacement, LiveRaster
-from .common import WarnOnce
+from .common import TOPICS, WarnOnce
 
-__all__ = ['TileRecorderNode']
+__all__ = ['TileRecorderNode', 'main']
 
 
 class TileRecorderNode(Node):
@@ -53,10 +54,10 @@ class TileRecorderNode(Node):
         self._lock = threading.Lock()
         self.written: dict[str, int] = {'tiles': 0, 'previews': 0}
         latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        self.create_subscription(String, '/srmosaic/raster', self._on_raster, latched)
-        self.create_subscription(Image, '/srmosaic/sr_tile', self._on_tile, 20)
+        self.create_subscription(String, TOPICS['raster'], self._on_raster, latched)
+        self.create_subscription(Image, TOPICS['sr_tile'], self._on_tile, 20)
         if previews:
-            self.create_subscription(Image, '/srmosaic/mosaic_preview', self._on_preview, 1)
+            self.create_subscription(Image, TOPICS['preview'], self._on_preview, 1)
         # The executor waits in rcl without a timer; this one returns to Python twice a second, so that
         # SIGINT / SIGTERM (runner.py's handlers) stop the node.
         self.create_timer(0.5, lambda: None)
@@ -127,3 +128,11 @@ class TileRecorderNode(Node):
     def finish(self) -> None:
         self.get_logger().info(f"wrote {self.written['tiles']} SR tiles and {self.written['previews']} previews "
                                f'into {self.out}')
+
+
+def main(argv: list[str] | None = None) -> int:
+    """`ros2 run srmosaic_ros tile_recorder DIR [--preview] [--ros-args ...]`."""
+    from .executables import record_tiles_arguments, run_executable, run_record_tiles
+
+    return run_executable('tile_recorder', record_tiles_arguments, run_record_tiles, argv,
+                          description='write the live SR tiles (and the preview) into a folder as GeoTIFFs')

@@ -1,0 +1,241 @@
+"""The package as ROS 2 tools see it: node executables, launch files, namespaces, /diagnostics, colcon.
+
+DDS tests use their own ROS_DOMAIN_ID and ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, as in
+test_nodes_live.py; waits are conditions polled with generous timeouts.
+"""
+from __future__ import annotations
+
+import importlib.metadata
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from ros_graph import GraphListener
+
+from srmosaic_ros.errors import ConfigError
+from srmosaic_ros.nodes.executables import EXECUTABLES
+from srmosaic_ros.nodes.launch_xml import read_launch_xml
+from srmosaic_ros.nodes.launcher import xml_node_command
+
+ROOT = Path(__file__).resolve().parent.parent
+DEMO = ROOT / 'bags' / 'demo'
+LAUNCH = ROOT / 'launch' / 'srmosaic.launch.xml'
+MOSAIC = 'srmosaic: registration and mosaic'
+_DOMAIN = 190 + os.getpid() % 20
+
+
+@pytest.fixture
+def ros_env(monkeypatch, request):
+    domain = _DOMAIN + (hash(request.node.name) % 20)
+    monkeypatch.setenv('ROS_DOMAIN_ID', str(domain))
+    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    return dict(os.environ)
+
+
+def test_console_scripts_are_the_node_executables():
+    scripts = {ep.name: ep.value for ep in importlib.metadata.entry_points(group='console_scripts')
+               if ep.value.startswith('srmosaic_ros.')}
+    assert scripts == {'srmosaic': 'srmosaic_ros.cli:main', **EXECUTABLES}
+    for name, target in EXECUTABLES.items():
+        module, _, function = target.partition(':')
+        assert callable(getattr(importlib.import_module(module), function)), name
+
+
+def test_launch_file_nodes_and_namespaces(tmp_path):
+    default = read_launch_xml(LAUNCH)
+    assert [(n.executable, n.namespace) for n in default] == [('mosaic_node', '/'), ('sr_node', '/')]
+    assert all(Path(f).name == 'default.yaml' and Path(f).is_file() for n in default for f in n.param_files)
+    nodes = read_launch_xml(LAUNCH, {'namespace': 'uav1', 'georef_standalone': 'true', 'sr': 'false'})
+    assert [(n.executable, n.namespace, n.name) for n in nodes] == [
+        ('mosaic_node', '/uav1', 'srmosaic_mosaic'), ('georef_node', '/uav1', 'srmosaic_georef')]
+    assert nodes[0].parameters == {'live.georef_standalone': 'true'}
+    cmd = xml_node_command(nodes[0], [], ['--params-file', str(tmp_path / 'cli.yaml')], tmp_path)
+    assert cmd[1:4] == ['-m', 'srmosaic_ros.nodes.executables', 'mosaic_node']
+    assert ['-r', '__ns:=/uav1'] == cmd[5:7] and ['-r', '__node:=srmosaic_mosaic'] == cmd[7:9]
+    files = [cmd[i + 1] for i, w in enumerate(cmd) if w == '--params-file']
+    # the launch file's parameter file, its parameters, then the command line's: the command line wins
+    assert files[0] == nodes[0].param_files[0] and files[-1] == str(tmp_path / 'cli.yaml')
+    assert 'georef_standalone: true' in Path(files[1]).read_text()
+    # The Python launch file includes the XML one (ros2 launch takes either).
+    source = (ROOT / 'launch' / 'srmosaic.launch.py').read_text()
+    compile(source, 'srmosaic.launch.py', 'exec')
+    assert "'srmosaic.launch.xml'" in source and 'def generate_launch_description' in source
+
+
+@pytest.mark.parametrize(('body', 'args', 'says'), [
+    ('<include file="x.launch.xml"/>', {}, '<include> is not understood'),
+    ('<node pkg="demo_nodes_py" exec="talker"/>', {}, 'only the executables of srmosaic_ros'),
+    ('<node pkg="srmosaic_ros" exec="mosaic_node" respawn="true"/>', {}, "attributes ['respawn']"),
+    ('<node pkg="srmosaic_ros" exec="mosaic_node" if="maybe"/>', {}, 'must be true, false, 1 or 0'),
+    ('<node pkg="srmosaic_ros" exec="mosaic_node" namespace="$(var ns)"/>', {}, 'no <arg> or <let> before it'),
+    ('<node pkg="srmosaic_ros" exec="mosaic_node" namespace="$(eval 1)"/>', {}, "'$(eval 1)'"),
+    ('<arg name="ns"/><node pkg="srmosaic_ros" exec="mosaic_node"/>', {}, 'ns has no default: give it, ns:=VALUE'),
+    ('<arg name="ns" default=""/><node pkg="srmosaic_ros" exec="mosaic_node"/>', {'nz': 'uav1'},
+     "argument(s) ['nz'] are not declared; its arguments: ['ns']"),
+    ('<node pkg="srmosaic_ros" exec="mosaic_node"><param from="/nonexistent.yaml"/></node>', {},
+     'no such parameter file'),
+    ('<arg name="sr" default="false"/><node pkg="srmosaic_ros" exec="sr_node" if="$(var sr)"/>', {},
+     'starts no node'),
+])
+def test_launch_file_refusals_name_the_problem(tmp_path, body, args, says):
+    path = tmp_path / 'bad.launch.xml'
+    path.write_text(f'<launch>{body}</launch>')
+    with pytest.raises(ConfigError) as info:
+        read_launch_xml(path, args)
+    assert says in str(info.value) and str(path) in str(info.value)
+
+
+def test_launch_command_line_refusals_are_one_line(tmp_path):
+    for args, says in ((['launch', str(LAUNCH), 'namespace=uav1'], 'must be name:=value'),
+                       (['launch', str(LAUNCH), 'nope:=1'], "['nope'] are not declared"),
+                       (['launch', str(tmp_path / 'missing.launch.xml')], 'does not exist'),
+                       (['launch', str(ROOT / 'params' / 'default.yaml'), 'namespace:=uav1'], 'need a launch file')):
+        run = subprocess.run([sys.executable, '-m', 'srmosaic_ros.cli', *args], capture_output=True, text=True,
+                             timeout=60)
+        assert run.returncode == 2, run
+        assert says in run.stderr and 'Traceback' not in run.stderr, run.stderr
+    run = subprocess.run([sys.executable, '-m', 'srmosaic_ros.nodes.executables', 'player', '--rate', '0', 'x'],
+                         capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2 and 'must be a finite number > 0' in run.stderr, run.stderr
+    run = subprocess.run([sys.executable, '-m', 'srmosaic_ros.nodes.executables', 'bogus'], capture_output=True,
+                         text=True, timeout=60)
+    assert run.returncode == 2 and 'mosaic_node' in run.stderr
+
+
+class Listener(GraphListener):
+    """Records the given subscriptions: got[key] lists what arrived on topic of type."""
+
+    def __init__(self, topics: dict[str, tuple[type, str]]) -> None:
+        super().__init__('srmosaic_native_listener')
+        self.got = {key: self.subscribe(msg_type, topic, 200) for key, (msg_type, topic) in topics.items()}
+        self.start()
+
+    def statuses(self, key: str = 'diagnostics') -> dict[str, object]:
+        """The newest DiagnosticStatus of every status name seen on `key`."""
+        out = {}
+        for msg in list(self.got[key]):
+            for status in msg.status:
+                out[status.name] = status
+        return out
+
+
+def _stop(proc: subprocess.Popen, timeout: float = 60) -> str:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+    out, _ = proc.communicate(timeout=timeout)
+    return out
+
+
+def _values(status) -> dict[str, str]:
+    return {kv.key: kv.value for kv in status.values}
+
+
+@pytest.mark.ros
+def test_two_aircraft_in_one_graph_stay_apart(ros_env, tmp_path):
+    """A launch file starts a mosaic node per namespace; a bag played into /uav1 reaches only /uav1's
+    node, the statuses on /diagnostics are told apart by namespace and camera, and the frame ids of
+    the poses are the launch file's."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from geometry_msgs.msg import PoseWithCovarianceStamped
+    from sensor_msgs.msg import NavSatFix
+    from std_msgs.msg import Float64MultiArray
+
+    launch_file = tmp_path / 'two.launch.xml'
+    node = ('<node pkg="srmosaic_ros" exec="mosaic_node" namespace="{ns}">'
+            '<param name="live.reliable_inputs" value="true"/><param name="live.queue_size" value="100"/>'
+            '<param name="live.map_frame" value="{ns}_enu"/><param name="live.body_frame" value="{ns}_base"/></node>')
+    launch_file.write_text('<launch><arg name="first" default="uav1"/>'
+                           + node.format(ns='$(var first)') + node.format(ns='uav2') + '</launch>')
+    listener = Listener({'diagnostics': (DiagnosticArray, '/diagnostics'),
+                         'uav1_diagnostics': (DiagnosticArray, '/uav1/srmosaic/diagnostics'),
+                         'root_diagnostics': (DiagnosticArray, '/srmosaic/diagnostics'),
+                         'uav1': (Float64MultiArray, '/uav1/srmosaic/registration'),
+                         'uav2': (Float64MultiArray, '/uav2/srmosaic/registration'),
+                         'root': (Float64MultiArray, '/srmosaic/registration'),
+                         'pose': (PoseWithCovarianceStamped, '/uav1/srmosaic/pose'),
+                         'fix': (NavSatFix, '/uav1/srmosaic/fix')})
+    graph = subprocess.Popen([sys.executable, '-m', 'srmosaic_ros.cli', 'launch', str(launch_file)], env=ros_env,
+                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    player = None
+    names = {'uav1': f'uav1/{MOSAIC}', 'uav2': f'uav2/{MOSAIC}'}
+    try:
+        assert listener.wait_for(lambda: set(names.values()) <= set(listener.statuses()), 90), \
+            f'statuses on /diagnostics: {sorted(listener.statuses())}'
+        player = subprocess.Popen([sys.executable, '-m', 'srmosaic_ros.nodes.executables', 'player', str(DEMO),
+                                   '--rate', '2', '--delay', '15', '--ros-args', '-r', '__ns:=/uav1'],
+                                  env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        out, _ = player.communicate(timeout=120)
+        assert player.returncode == 0, out
+        assert listener.wait_for(lambda: len(listener.got['uav1']) >= 20, 240), \
+            f"{len(listener.got['uav1'])} registrations on /uav1"
+        time.sleep(1.0)
+        statuses = listener.statuses()
+        assert statuses[names['uav1']].hardware_id == '/uav1/camera/image_raw'
+        assert statuses[names['uav2']].hardware_id == '/uav2/camera/image_raw'
+        assert int(_values(statuses[names['uav1']])['frames_received']) >= 20
+        assert _values(statuses[names['uav2']])['frames_received'] == '0'
+        assert listener.got['uav2'] == [] and listener.got['root'] == [] and listener.got['root_diagnostics'] == []
+        assert names['uav1'] in listener.statuses('uav1_diagnostics')  # and srmosaic/diagnostics under the namespace
+        assert listener.got['pose'] and {p.header.frame_id for p in listener.got['pose']} == {'uav1_enu'}
+        assert {f.header.frame_id for f in listener.got['fix']} == {'uav1_base'}
+    except AssertionError as exc:
+        raise AssertionError(f'{exc}\n--- launch output ---\n{_stop(graph)}') from None
+    finally:
+        if player is not None and player.poll() is None:
+            player.kill()
+        log = _stop(graph)
+        listener.close()
+    assert graph.returncode == 0, log
+    assert 'starting /uav1/mosaic_node' in log and 'starting /uav2/mosaic_node' in log, log
+
+
+@pytest.mark.ros
+def test_colcon_built_package_runs_as_ros2_run_would(ros_env, tmp_path):
+    """`colcon build` of the source tree into a workspace; the installed executable (what
+    `ros2 run srmosaic_ros mosaic_node` starts) joins the graph and reports on /diagnostics, and the
+    installed launch file finds its parameters through the ament index."""
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    colcon = shutil.which('colcon', path=str(Path(sys.executable).parent))
+    assert colcon, 'colcon is installed with the test extras (setup.py)'
+    build = subprocess.run([colcon, '--log-base', str(tmp_path / 'log'), 'build', '--paths', str(ROOT),
+                            '--build-base', str(tmp_path / 'build'), '--install-base', str(tmp_path / 'install')],
+                           cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert build.returncode == 0, build.stdout + build.stderr
+    prefix = tmp_path / 'install' / 'srmosaic_ros'
+    share = prefix / 'share' / 'srmosaic_ros'
+    assert (share / 'params' / 'default.yaml').is_file() and (share / 'launch' / 'srmosaic.launch.xml').is_file()
+    assert (prefix / 'share' / 'ament_index' / 'resource_index' / 'packages' / 'srmosaic_ros').is_file()
+    site = next(prefix.glob('lib/python3*/site-packages'))
+    env = dict(ros_env, AMENT_PREFIX_PATH=str(prefix), PYTHONPATH=os.pathsep.join(
+        [str(site), *filter(None, [os.environ.get('PYTHONPATH')])]))
+    # ros2 launch's find-pkg-share: the installed share directory, through the ament index
+    check = subprocess.run([sys.executable, '-c', 'import sys; from srmosaic_ros.nodes.launch_xml import '
+                            'read_launch_xml; n = read_launch_xml(sys.argv[1]); '
+                            'print(n[0].param_files[0]); import srmosaic_ros; print(srmosaic_ros.__file__)',
+                            str(share / 'launch' / 'srmosaic.launch.xml')], env=env, cwd=tmp_path, capture_output=True,
+                           text=True, timeout=60)
+    assert check.returncode == 0, check.stderr
+    params_file, module = check.stdout.split()
+    assert Path(params_file) == share / 'params' / 'default.yaml'
+    assert Path(module).is_relative_to(site)  # the installed copy, not the source tree
+    executable = prefix / 'lib' / 'srmosaic_ros' / 'mosaic_node'
+    assert os.access(executable, os.X_OK)
+    listener = Listener({'diagnostics': (DiagnosticArray, '/diagnostics')})
+    node = subprocess.Popen([str(executable), '--ros-args', '-r', '__ns:=/cam7'], env=env, cwd=tmp_path,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        assert listener.wait_for(lambda: f'cam7/{MOSAIC}' in listener.statuses(), 90), \
+            f'statuses: {sorted(listener.statuses())}'
+        assert listener.statuses()[f'cam7/{MOSAIC}'].hardware_id == '/cam7/camera/image_raw'
+    except AssertionError as exc:
+        raise AssertionError(f'{exc}\n--- node output ---\n{_stop(node)}') from None
+    finally:
+        log = _stop(node)
+        listener.close()
+    assert node.returncode == 0, log
