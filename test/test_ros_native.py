@@ -239,3 +239,76 @@ def test_colcon_built_package_runs_as_ros2_run_would(ros_env, tmp_path):
         log = _stop(node)
         listener.close()
     assert node.returncode == 0, log
+
+
+def _call(listener: Listener, future, timeout: float = 30):
+    assert listener.wait_for(future.done, timeout), 'parameter service did not answer'
+    return future.result()
+
+
+@pytest.mark.ros
+def test_parameters_change_or_are_refused_and_qos_overrides_apply(ros_env):
+    """`ros2 param set` (rclpy's parameter client): a changeable parameter takes effect (the
+    diagnostics come faster), a read-only one and a value out of range are refused with a reason;
+    the standard qos_overrides.* parameters set a subscription's reliability, seen over DDS."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.parameter import Parameter
+    from rclpy.parameter_client import AsyncParameterClient
+    from rclpy.qos import ReliabilityPolicy
+
+    listener = Listener({'diagnostics': (DiagnosticArray, '/diagnostics')})
+    start = [sys.executable, '-m', 'srmosaic_ros.nodes.executables']
+    ros = ['--ros-args', '-r', '__ns:=/p1']
+    procs = {
+        'mosaic': subprocess.Popen([*start, 'mosaic_node', *ros, '-p',
+                                    'qos_overrides./p1/camera/image_raw.subscription.reliability:=reliable'],
+                                   env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True),
+        'sr': subprocess.Popen([*start, 'sr_node', *ros, '-p', 'live.sr_worker:=thread'], env=ros_env,
+                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)}
+    mosaic, sr = f'p1/{MOSAIC}', 'p1/srmosaic: super-resolution'
+
+    def arrivals(name: str, seconds: float) -> int:
+        before = sum(s.name == name for m in list(listener.got['diagnostics']) for s in m.status)
+        time.sleep(seconds)
+        return sum(s.name == name for m in list(listener.got['diagnostics']) for s in m.status) - before
+
+    try:
+        assert listener.wait_for(lambda: {mosaic, sr} <= set(listener.statuses()), 90), sorted(listener.statuses())
+        subs = {info.node_name: info.qos_profile.reliability
+                for info in listener.node.get_subscriptions_info_by_topic('/p1/camera/image_raw')}
+        assert subs == {'srmosaic_mosaic': ReliabilityPolicy.RELIABLE, 'srmosaic_sr': ReliabilityPolicy.BEST_EFFORT}
+        compressed = listener.node.get_subscriptions_info_by_topic('/p1/camera/image_raw/compressed')
+        assert {i.qos_profile.reliability for i in compressed} == {ReliabilityPolicy.BEST_EFFORT}
+
+        client = AsyncParameterClient(listener.node, '/p1/srmosaic_mosaic')
+        assert client.wait_for_services(timeout_sec=30)
+        slow = arrivals(mosaic, 3.0)  # live.preview_period_s 1.0
+        result = _call(listener, client.set_parameters([Parameter('live.preview_period_s', value=0.2)]))
+        assert result.results[0].successful, result
+        fast = arrivals(mosaic, 3.0)
+        assert slow <= 5 and fast >= 9, (slow, fast)
+        refused = _call(listener, client.set_parameters([Parameter('registration.max_features', value=50),
+                                                         Parameter('live.preview_period_s', value=0.0)]))
+        assert not refused.results[0].successful and 'read-only' in refused.results[0].reason, refused
+        assert not refused.results[1].successful, refused  # below the descriptor's 0.05
+        values = _call(listener, client.get_parameters(['live.preview_period_s', 'registration.max_features']))
+        assert [v.double_value for v in values.values[:1]] == [0.2] and values.values[1].integer_value == 1000
+
+        sr_client = AsyncParameterClient(listener.node, '/p1/srmosaic_sr')
+        assert sr_client.wait_for_services(timeout_sec=30)
+        refused = _call(listener, sr_client.set_parameters([Parameter('live.sr_refresh_growth', value=0.5)]))
+        assert not refused.results[0].successful and 'again and again' in refused.results[0].reason, refused
+        ok = _call(listener, sr_client.set_parameters([Parameter('live.sr_tiles_per_round', value=3)]))
+        assert ok.results[0].successful, ok
+        descriptor = _call(listener, sr_client.describe_parameters(['live.sr_worker', 'live.sr_tiles_per_round']))
+        assert [d.read_only for d in descriptor.descriptors] == [True, False]
+        assert descriptor.descriptors[1].integer_range[0].to_value == 100
+    except AssertionError as exc:
+        logs = ''.join(f'\n--- {name} ---\n{_stop(p)}' for name, p in procs.items())
+        raise AssertionError(f'{exc}{logs}') from None
+    finally:
+        logs = {name: _stop(p) for name, p in procs.items()}
+        listener.close()
+    for name, proc in procs.items():
+        assert proc.returncode == 0, logs[name]
+    assert 'live.preview_period_s is now 0.2' in logs['mosaic'] and 'live.sr_tiles_per_round is now 3' in logs['sr']

@@ -3,6 +3,7 @@ once-per-kind warnings, QoS."""
 from __future__ import annotations
 
 import collections
+import copy
 import math
 import threading
 from typing import Any
@@ -12,13 +13,14 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import NavSatFix
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from ..errors import SrMosaicError
 
 __all__ = ['TOPICS', 'DIAGNOSTICS_TOPICS', 'REGISTRATION_LAYOUT', 'DiagnosticsPublisher', 'diagnostic_array', 'RegistrationMsg', 'decode_registration', 'encode_registration',
-           'pose_messages', 'frame_ids', 'WarnOnce', 'input_qos', 'IMAGE_QOS_DEPTH', 'TELEMETRY_QOS_DEPTH', 'check_range']
+           'pose_messages', 'frame_ids', 'WarnOnce', 'subscribe_input', 'input_qos', 'IMAGE_QOS_DEPTH', 'TELEMETRY_QOS_DEPTH', 'check_range']
 
 IMAGE_QOS_DEPTH = 20
 TELEMETRY_QOS_DEPTH = 500
@@ -224,6 +226,16 @@ class StreamOrder:
             return False
         self._last[stream] = stamp_ns
         return True
+
+
+def subscribe_input(node: Node, msg_type: type, key: str, callback: Any, qos: QoSProfile,  # noqa: ANN401
+                    group: Any) -> Any:  # noqa: ANN401
+    """A subscription to TOPICS[key] whose history, depth and reliability the standard parameters
+    qos_overrides.<resolved topic>.subscription.{history,depth,reliability} override (given at start:
+    `-p qos_overrides./uav1/camera/image_raw.subscription.reliability:=reliable`); `qos` is the default."""
+    # a copy: rclpy writes the overrides into the profile it is given, which may be shared
+    return node.create_subscription(msg_type, TOPICS[key], callback, copy.copy(qos), callback_group=group,
+                                    qos_overriding_options=QoSOverridingOptions.with_default_policies())
 
 
 def input_qos(reliable: bool, depth: int) -> QoSProfile:

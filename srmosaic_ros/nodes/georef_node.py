@@ -45,8 +45,8 @@ from ..core.undistort import Undistorter
 from ..errors import SrMosaicError
 from ..pipeline import SYNC_HOLD_FRAMES
 from .common import (TELEMETRY_QOS_DEPTH, TOPICS, DiagnosticsPublisher, RegistrationMsg, StreamOrder, WarnOnce,
-                     decode_registration, frame_ids, input_qos, pose_messages)
-from .parameters import declare_pipeline_parameters, read_pipeline_config
+                     decode_registration, frame_ids, input_qos, pose_messages, subscribe_input)
+from .parameters import declare_pipeline_parameters, on_parameter_change, read_pipeline_config
 
 __all__ = ['GeorefNode', 'main']
 
@@ -59,7 +59,7 @@ class GeorefNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:  # noqa: ANN401
         super().__init__('srmosaic_georef', **kwargs)
-        defaults = declare_pipeline_parameters(self)
+        defaults = declare_pipeline_parameters(self, changeable=('live.preview_period_s',))
         self.config = read_pipeline_config(self, defaults)  # ConfigError refuses bad georef.* values
         self._undistorter = Undistorter(self.config.undistort)
         self.active = bool(self.get_parameter('live.georef_standalone').value)
@@ -84,16 +84,16 @@ class GeorefNode(Node):
         reliable = bool(self.get_parameter('live.reliable_inputs').value)
         qos = input_qos(reliable, TELEMETRY_QOS_DEPTH)
         group = MutuallyExclusiveCallbackGroup()  # one group: the filter sees its inputs one at a time, in order
-        self.create_subscription(NavSatFix, TOPICS['fix'], self._on_fix, qos, callback_group=group)
-        self.create_subscription(Imu, TOPICS['imu'], self._on_imu, qos, callback_group=group)
-        self.create_subscription(CameraInfo, TOPICS['camera_info'], self._on_camera_info, qos, callback_group=group)
-        self.create_subscription(Float64MultiArray, TOPICS['registration'], self._on_registration,
-                                 input_qos(True, 200), callback_group=group)
+        subscribe_input(self, NavSatFix, 'fix', self._on_fix, qos, group)
+        subscribe_input(self, Imu, 'imu', self._on_imu, qos, group)
+        subscribe_input(self, CameraInfo, 'camera_info', self._on_camera_info, qos, group)
+        subscribe_input(self, Float64MultiArray, 'registration', self._on_registration, input_qos(True, 200), group)
         self.pub_pose = self.create_publisher(PoseWithCovarianceStamped, TOPICS['pose'], 50)
         self.pub_fix = self.create_publisher(NavSatFix, TOPICS['fused_fix'], 50)
         period = float(self.get_parameter('live.preview_period_s').value)
         self.create_timer(0.2, self._on_tick, callback_group=group)
-        self.create_timer(period, self._publish_diagnostics, callback_group=MutuallyExclusiveCallbackGroup())
+        diagnostics = self.create_timer(period, self._publish_diagnostics, callback_group=MutuallyExclusiveCallbackGroup())
+        on_parameter_change(self, {'live.preview_period_s': lambda v: setattr(diagnostics, 'timer_period_ns', int(v * 1e9))})
 
     # -- inputs ---------------------------------------------------------------------------------
     def _in_order(self, stream: str, stamp_ns: int) -> bool:

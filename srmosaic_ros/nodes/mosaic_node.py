@@ -62,8 +62,9 @@ from ..io.mosaic_files import write_json
 from ..offline import peak_rss_mb, preview_image, write_outputs
 from ..pipeline import FrameRecord, Pipeline
 from .common import (IMAGE_QOS_DEPTH, REGISTRATION_LAYOUT, TELEMETRY_QOS_DEPTH, TOPICS, DiagnosticsPublisher,
-                     StreamOrder, WarnOnce, encode_registration, frame_ids, input_qos, pose_messages)
-from .parameters import declare_pipeline_parameters, read_pipeline_config
+                     StreamOrder, WarnOnce, encode_registration, frame_ids, input_qos, pose_messages,
+                     subscribe_input)
+from .parameters import declare_pipeline_parameters, on_parameter_change, read_pipeline_config
 
 __all__ = ['MosaicNode', 'REGISTRATION_LAYOUT', 'main']
 
@@ -72,7 +73,7 @@ class MosaicNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('srmosaic_mosaic', **kwargs)
-        self._defaults = declare_pipeline_parameters(self)
+        self._defaults = declare_pipeline_parameters(self, changeable=('live.preview_period_s',))
         config = read_pipeline_config(self, self._defaults)  # ConfigError refuses bad values at start
         queue_size = int(self.get_parameter('live.queue_size').value)
         period = float(self.get_parameter('live.preview_period_s').value)
@@ -125,13 +126,11 @@ class MosaicNode(Node):
         # mutually exclusive, so every stream stays in order.
         inputs = MutuallyExclusiveCallbackGroup()
         images = MutuallyExclusiveCallbackGroup()
-        self.create_subscription(Image, TOPICS['image'], self._on_image, images_qos, callback_group=images)
-        self.create_subscription(CompressedImage, TOPICS['image_compressed'], self._on_image, images_qos,
-                                 callback_group=images)
-        self.create_subscription(CameraInfo, TOPICS['camera_info'], self._on_camera_info, telemetry_qos,
-                                 callback_group=inputs)
-        self.create_subscription(NavSatFix, TOPICS['fix'], self._on_fix, telemetry_qos, callback_group=inputs)
-        self.create_subscription(Imu, TOPICS['imu'], self._on_imu, telemetry_qos, callback_group=inputs)
+        subscribe_input(self, Image, 'image', self._on_image, images_qos, images)
+        subscribe_input(self, CompressedImage, 'image_compressed', self._on_image, images_qos, images)
+        subscribe_input(self, CameraInfo, 'camera_info', self._on_camera_info, telemetry_qos, inputs)
+        subscribe_input(self, NavSatFix, 'fix', self._on_fix, telemetry_qos, inputs)
+        subscribe_input(self, Imu, 'imu', self._on_imu, telemetry_qos, inputs)
         self._input_lock = threading.Lock()  # input callbacks run concurrently: guard their shared state
         self.pub_preview = self.create_publisher(Image, TOPICS['preview'], 1)
         self.pub_preview_c = self.create_publisher(CompressedImage, TOPICS['preview_compressed'], 1)
@@ -145,7 +144,8 @@ class MosaicNode(Node):
             self.pub_pose = self.create_publisher(PoseWithCovarianceStamped, TOPICS['pose'], 50)
             self.pub_fix = self.create_publisher(NavSatFix, TOPICS['fused_fix'], 50)
         self._preview_thread: threading.Thread | None = None
-        self.create_timer(period, self._publish_periodic, callback_group=MutuallyExclusiveCallbackGroup())
+        periodic = self.create_timer(period, self._publish_periodic, callback_group=MutuallyExclusiveCallbackGroup())
+        on_parameter_change(self, {'live.preview_period_s': lambda v: setattr(periodic, 'timer_period_ns', int(v * 1e9))})
         self._worker = threading.Thread(target=self._work, name='srmosaic-mosaic-worker', daemon=True)
         self._worker.start()
 

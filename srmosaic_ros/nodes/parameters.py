@@ -4,19 +4,24 @@ params/default.yaml is the one source of defaults: every key in it is declared w
 the comment after it as description, and a range where the config dataclass has one. Values
 given with `--ros-args --params-file FILE` or `-p name:=value` override them; invalid values are
 refused at start (ConfigError) with the dataclass's message.
+
+Parameters are read-only once the node runs (`ros2 param set` is refused with rclpy's reason), except
+those a node names as changeable: their changes are checked (type and range by the descriptor, then
+the node's own check) and take effect at once (`on_parameter_change`).
 """
 from __future__ import annotations
 
 import re
 from pathlib import Path
+from collections.abc import Callable, Collection
 from typing import Any
 
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.node import Node
 
 from ..config import PipelineConfig, default_params_path, load_params, pipeline_config
 
-__all__ = ['declare_pipeline_parameters', 'read_pipeline_config']
+__all__ = ['declare_pipeline_parameters', 'read_pipeline_config', 'on_parameter_change']
 
 # Ranges stated once here for the ROS parameter descriptors; the dataclasses check them again.
 _RANGES: dict[str, tuple[float, float]] = {
@@ -77,8 +82,8 @@ def _comments(path: Path) -> dict[str, str]:
     return out
 
 
-def _descriptor(name: str, value: Any, description: str) -> ParameterDescriptor:
-    desc = ParameterDescriptor(name=name, description=description)
+def _descriptor(name: str, value: Any, description: str, read_only: bool) -> ParameterDescriptor:
+    desc = ParameterDescriptor(name=name, description=description, read_only=read_only)
     if name in _RANGES and not isinstance(value, bool):
         lo, hi = _RANGES[name]
         if isinstance(value, int):
@@ -88,14 +93,15 @@ def _descriptor(name: str, value: Any, description: str) -> ParameterDescriptor:
     return desc
 
 
-def declare_pipeline_parameters(node: Node) -> dict[str, Any]:
-    """Declare every key of params/default.yaml on `node`; return the defaults (dotted names)."""
+def declare_pipeline_parameters(node: Node, changeable: Collection[str] = ()) -> dict[str, Any]:
+    """Declare every key of params/default.yaml on `node`, read-only but for `changeable`; return the
+    defaults (dotted names)."""
     path = default_params_path()
     defaults = load_params(path)
     comments = _comments(path)
     for name, value in defaults.items():
         if not node.has_parameter(name):
-            node.declare_parameter(name, value, _descriptor(name, value, comments.get(name, '')))
+            node.declare_parameter(name, value, _descriptor(name, value, comments.get(name, ''), name not in changeable))
     return defaults
 
 
@@ -103,3 +109,30 @@ def read_pipeline_config(node: Node, defaults: dict[str, Any]) -> PipelineConfig
     """PipelineConfig from the node's current parameter values (raises ConfigError when invalid)."""
     values = {name: node.get_parameter(name).value for name in defaults}
     return pipeline_config(values, defaults=defaults)
+
+
+def on_parameter_change(node: Node, apply: dict[str, Callable[[Any], None]],
+                        check: dict[str, Callable[[Any], str | None]] | None = None) -> None:
+    """Changes of the changeable parameters take effect: `check[name](value)` may refuse one (the
+    reason it returns reaches `ros2 param set`), then `apply[name](value)` runs once rclpy stored it."""
+    check = check or {}
+    for name in apply:
+        if node.describe_parameter(name).read_only:
+            msg = f'{name} is read-only; declare it changeable to apply its changes'
+            raise ValueError(msg)
+
+    def refuse(params: list) -> SetParametersResult:
+        for param in params:
+            reason = check[param.name](param.value) if param.name in check else None
+            if reason:
+                return SetParametersResult(successful=False, reason=f'{param.name}: {reason}')
+        return SetParametersResult(successful=True)
+
+    def take_effect(params: list) -> None:
+        for param in params:
+            if param.name in apply:
+                apply[param.name](param.value)
+                node.get_logger().info(f'{param.name} is now {param.value!r}')
+
+    node.add_on_set_parameters_callback(refuse)
+    node.add_post_set_parameters_callback(take_effect)

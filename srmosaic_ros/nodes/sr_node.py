@@ -77,8 +77,18 @@ from ..sr_live import (
     sr_worker_ready,
 )
 from .common import (IMAGE_QOS_DEPTH, TOPICS, DiagnosticsPublisher, StreamOrder, WarnOnce, check_range,
-                     decode_registration, input_qos)
-from .parameters import declare_pipeline_parameters, read_pipeline_config
+                     decode_registration, input_qos, subscribe_input)
+from .parameters import declare_pipeline_parameters, on_parameter_change, read_pipeline_config
+
+#: Parameters `ros2 param set` changes while the node runs (the others are read-only).
+CHANGEABLE = ('live.sr_period_s', 'live.sr_tiles_per_round', 'live.sr_refresh_growth')
+
+
+def _refresh_growth_problem(value: float) -> str | None:
+    if 0.0 < value <= 1.0:
+        return (f'live.sr_refresh_growth = {value} would publish the same tiles again and again; '
+                'use 0 (each tile once) or a factor above 1 (default 2.0).')
+    return None
 
 __all__ = ['SRNode', 'main']
 
@@ -88,15 +98,13 @@ class SRNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:  # noqa: ANN401
         super().__init__('srmosaic_sr', **kwargs)
-        defaults = declare_pipeline_parameters(self)
+        defaults = declare_pipeline_parameters(self, changeable=CHANGEABLE)
         self.config = read_pipeline_config(self, defaults)  # ConfigError refuses bad sr / sr_tiles values
         self.period_s = float(check_range(self, 'live.sr_period_s', 0.1, 3600.0))
         self.tiles_per_round = int(check_range(self, 'live.sr_tiles_per_round', 1, 100))
         self.refresh_growth = float(check_range(self, 'live.sr_refresh_growth', 0.0, 100.0))
-        if 0.0 < self.refresh_growth <= 1.0:
-            msg = (f'live.sr_refresh_growth = {self.refresh_growth} would publish the same tiles again and again; '
-                   'use 0 (each tile once) or a factor above 1 (default 2.0).')
-            raise SrMosaicError(msg)
+        if problem := _refresh_growth_problem(self.refresh_growth):
+            raise SrMosaicError(problem)
         kept = int(check_range(self, 'live.sr_frames_kept', 1, 1000))
         pending = int(check_range(self, 'live.sr_images_pending', 1, 1000))
         if kept < self.config.sr_tiles.min_frames:
@@ -129,21 +137,23 @@ class SRNode(Node):
         reliable = bool(self.get_parameter('live.reliable_inputs').value)
         depth = IMAGE_QOS_DEPTH * 5 if reliable else IMAGE_QOS_DEPTH
         images = MutuallyExclusiveCallbackGroup()
-        self.create_subscription(Image, TOPICS['image'], self._on_image, input_qos(reliable, depth),
-                                 callback_group=images)
-        self.create_subscription(CompressedImage, TOPICS['image_compressed'], self._on_image,
-                                 input_qos(reliable, depth), callback_group=images)
+        subscribe_input(self, Image, 'image', self._on_image, input_qos(reliable, depth), images)
+        subscribe_input(self, CompressedImage, 'image_compressed', self._on_image, input_qos(reliable, depth), images)
         # the registrations are of undistorted frames: the images must be undistorted alike
         self._camera: CameraIntrinsics | None = None
         self._undistorter = Undistorter(self.config.undistort)
-        self.create_subscription(CameraInfo, TOPICS['camera_info'], self._on_camera_info, input_qos(False, 5),
-                                 callback_group=images)
+        subscribe_input(self, CameraInfo, 'camera_info', self._on_camera_info, input_qos(False, 5), images)
         # Registrations are few and each matters: reliable, deep.
-        self.create_subscription(Float64MultiArray, TOPICS['registration'], self._on_registration,
-                                 input_qos(True, 200), callback_group=MutuallyExclusiveCallbackGroup())
+        subscribe_input(self, Float64MultiArray, 'registration', self._on_registration, input_qos(True, 200),
+                        MutuallyExclusiveCallbackGroup())
         self.pub_tile = self.create_publisher(Image, TOPICS['sr_tile'], 10)
         self.pub_diag = DiagnosticsPublisher(self, 'srmosaic: super-resolution')
-        self.create_timer(self.period_s, self._on_timer, callback_group=MutuallyExclusiveCallbackGroup())
+        timer = self.create_timer(self.period_s, self._on_timer, callback_group=MutuallyExclusiveCallbackGroup())
+        on_parameter_change(self, {
+            'live.sr_period_s': lambda v: setattr(timer, 'timer_period_ns', int(v * 1e9)),
+            'live.sr_tiles_per_round': lambda v: setattr(self, 'tiles_per_round', int(v)),
+            'live.sr_refresh_growth': lambda v: setattr(self, 'refresh_growth', float(v)),
+        }, check={'live.sr_refresh_growth': _refresh_growth_problem})
         self._worker = threading.Thread(target=self._work, name='srmosaic-sr-worker', daemon=True)
         self._worker.start()
 
