@@ -9,7 +9,9 @@ georeferences the mosaic (poses, homography updates, drift control) as in a real
 SYNC_HOLD_FRAMES newer frames before processing, which adds that many frame periods of latency),
 and listens to /srmosaic/registration (one message per processed frame), /srmosaic/pose and
 /srmosaic/sr_tile. Prints, per layout: frames offered / processed / dropped, processed frames per
-second, latency from image publish to the registration result (median, p95), poses and SR tiles.
+second, latency from image publish to the registration result (median, p95), poses and SR tiles,
+and the bytes per second of every output topic and of the camera images (what a link between an
+onboard mosaic node and a ground station would carry; README, "Across machines").
 
 Layouts (`--graph`, repeatable; default all three):
   mosaic    the mosaic node alone (registration + mosaic + georeferencing filter), one process
@@ -28,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import importlib
 import math
 import os
 import signal
@@ -42,6 +45,19 @@ from pathlib import Path
 import numpy as np
 
 LAYOUTS = ('mosaic', 'combined', 'split')
+#: The graph's output topics whose bytes per second are measured (message type, topic).
+OUTPUTS = (('sensor_msgs/Image', '/srmosaic/mosaic_preview'),
+           ('sensor_msgs/CompressedImage', '/srmosaic/mosaic_preview/compressed'),
+           ('std_msgs/Float64MultiArray', '/srmosaic/registration'),
+           ('geometry_msgs/PoseWithCovarianceStamped', '/srmosaic/pose'), ('sensor_msgs/NavSatFix', '/srmosaic/fix'),
+           ('nav_msgs/Odometry', '/srmosaic/odom'),
+           ('std_msgs/String', '/srmosaic/raster'), ('sensor_msgs/Image', '/srmosaic/sr_tile'),
+           ('diagnostic_msgs/DiagnosticArray', '/srmosaic/diagnostics'))
+
+
+def _message_type(name: str) -> type:
+    package, cls = name.split('/')
+    return getattr(importlib.import_module(f'{package}.msg'), cls)
 
 
 def graph_command(layout: str, workdir: Path) -> list[str]:
@@ -114,6 +130,17 @@ def run_layout(layout: str, args: argparse.Namespace, flight, domain: int) -> di
                              lambda _m: counts.__setitem__('poses', counts['poses'] + 1), 1000)
     node.create_subscription(Image, '/srmosaic/sr_tile', lambda _m: counts.__setitem__('tiles', counts['tiles'] + 1),
                              100)
+    # What would cross an onboard -> ground link: the serialized bytes of every output topic
+    # (raw subscriptions: the CDR as DDS carries it, without deserializing).
+    link: dict[str, list[int]] = {}
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+    for mtype_out, name in OUTPUTS:
+        link[name] = [0, 0]
+        qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+        node.create_subscription(_message_type(mtype_out), name,
+                                 lambda b, n=name: (link[n].__setitem__(0, link[n][0] + 1),
+                                                    link[n].__setitem__(1, link[n][1] + len(b))), qos, raw=True)
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
     stop = False
@@ -143,6 +170,7 @@ def run_layout(layout: str, args: argparse.Namespace, flight, domain: int) -> di
     t0_wall = time.monotonic()
     t0_ns = time.time_ns()
     offered = 0
+    image_bytes = 0
     ti = 0
     loops = 0
     while time.monotonic() - t0_wall < args.seconds:
@@ -163,8 +191,10 @@ def run_layout(layout: str, args: argparse.Namespace, flight, domain: int) -> di
         if args.telemetry != 'none':  # as a camera driver does: CameraInfo with every image
             pub_info.publish(intrinsics_to_camera_info(flight.camera, stamp_ns=now_ns))
         pub.publish(_stamped(serialized[k], now_ns))
+        image_bytes += len(serialized[k])
         offered += 1
         time.sleep(max(0.0, t0_wall + offered * period - time.monotonic()))
+    published_s = time.monotonic() - t0_wall
     time.sleep(3.0)
     stop = True
     spinner.join()
@@ -176,11 +206,15 @@ def run_layout(layout: str, args: argparse.Namespace, flight, domain: int) -> di
     node.destroy_node()
     rclpy.try_shutdown(context=context)
     processed = len(latencies)
+    link_rates = {name: (n, b) for name, (n, b) in link.items()}  # messages, bytes over the run
+    link_rates[topic + ' (in)'] = (offered, image_bytes)
     span = (done_at[-1] - done_at[0]) if len(done_at) > 1 else float('nan')
     lat = np.array(latencies) if latencies else np.array([np.nan])
     return {'layout': layout, 'offered': offered, 'processed': processed,
             'fps': (processed - 1) / span if processed > 1 else float('nan'),
-            'lat_median_ms': float(np.median(lat)), 'lat_p95_ms': float(np.percentile(lat, 95)), **counts}
+            'lat_median_ms': float(np.median(lat)), 'lat_p95_ms': float(np.percentile(lat, 95)), 'link': link_rates,
+            'seconds': published_s,
+            **counts}
 
 
 def _stamped(cdr: bytes, stamp_ns: int) -> bytes:
@@ -236,6 +270,11 @@ def main() -> int:
               f"p95 {r['lat_p95_ms']:.0f} ms; {r['poses']} poses, {r['tiles']} SR tiles; mosaic node diagnostics: "
               f"received {r.get('frames_received', '?')}, dropped by its queue {r.get('dropped_frames', '?')}, "
               f"processing median {r.get('processing_ms_median', '?')} ms", flush=True)
+    for r in results:
+        print(f"\n{r['layout']}: bytes on each topic over the {r['seconds']:.1f} s of the run (what an onboard -> "
+              'ground link would carry)')
+        for name, (n, size) in r['link'].items():
+            print(f"  {name:<42} {n:>6} msgs {size / max(n, 1) / 1e3:>9.1f} kB/msg {size / r['seconds'] / 1e3:>10.1f} kB/s")
     print('\nlayout     offered processed   fps  lat_med_ms lat_p95_ms poses tiles')
     for r in results:
         print(f"{r['layout']:<10} {r['offered']:>7} {r['processed']:>9} {r['fps']:>5.2f} {r['lat_median_ms']:>11.0f} "

@@ -23,7 +23,6 @@ import numpy as np
 import pytest
 from ros_graph import GraphListener
 
-from srmosaic_ros.core.metrics import corner_error_px
 from srmosaic_ros.io.mosaic_files import read_frames_csv
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -142,6 +142,7 @@ def test_two_aircraft_in_one_graph_stay_apart(ros_env, tmp_path):
     the poses are the launch file's."""
     from diagnostic_msgs.msg import DiagnosticArray
     from geometry_msgs.msg import PoseWithCovarianceStamped
+    from nav_msgs.msg import Odometry
     from sensor_msgs.msg import NavSatFix
     from std_msgs.msg import Float64MultiArray
 
@@ -158,7 +159,8 @@ def test_two_aircraft_in_one_graph_stay_apart(ros_env, tmp_path):
                          'uav2': (Float64MultiArray, '/uav2/srmosaic/registration'),
                          'root': (Float64MultiArray, '/srmosaic/registration'),
                          'pose': (PoseWithCovarianceStamped, '/uav1/srmosaic/pose'),
-                         'fix': (NavSatFix, '/uav1/srmosaic/fix')})
+                         'fix': (NavSatFix, '/uav1/srmosaic/fix'),
+                         'odom': (Odometry, '/uav1/srmosaic/odom')})
     graph = subprocess.Popen([sys.executable, '-m', 'srmosaic_ros.cli', 'launch', str(launch_file)], env=ros_env,
                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     player = None
@@ -183,6 +185,14 @@ def test_two_aircraft_in_one_graph_stay_apart(ros_env, tmp_path):
         assert names['uav1'] in listener.statuses('uav1_diagnostics')  # and srmosaic/diagnostics under the namespace
         assert listener.got['pose'] and {p.header.frame_id for p in listener.got['pose']} == {'uav1_enu'}
         assert {f.header.frame_id for f in listener.got['fix']} == {'uav1_base'}
+        # nav_msgs/Odometry: the same poses, map frame to body frame, velocity marked not provided
+        odom = {(o.header.stamp.sec, o.header.stamp.nanosec): o for o in listener.got['odom']}
+        assert len(odom) == len(listener.got['pose'])
+        for pose in listener.got['pose']:
+            o = odom[pose.header.stamp.sec, pose.header.stamp.nanosec]
+            assert (o.header.frame_id, o.child_frame_id) == ('uav1_enu', 'uav1_base')
+            assert o.pose.pose == pose.pose.pose and list(o.pose.covariance) == list(pose.pose.covariance)
+            assert o.twist.covariance[0] == -1.0
     except AssertionError as exc:
         raise AssertionError(f'{exc}\n--- launch output ---\n{_stop(graph)}') from None
     finally:
@@ -300,6 +310,12 @@ def test_parameters_change_or_are_refused_and_qos_overrides_apply(ros_env):
         assert not refused.results[0].successful and 'again and again' in refused.results[0].reason, refused
         ok = _call(listener, sr_client.set_parameters([Parameter('live.sr_tiles_per_round', value=3)]))
         assert ok.results[0].successful, ok
+        # each node declares its own parameters only (a shared file's others are ignored)
+        sr_names = set(_call(listener, sr_client.list_parameters([], 0)).result.names)
+        mosaic_names = set(_call(listener, client.list_parameters([], 0)).result.names)
+        assert 'sr.iterations' in sr_names and 'registration.max_features' not in sr_names
+        assert 'registration.max_features' in mosaic_names and 'sr.iterations' not in mosaic_names
+        assert not any(n.startswith('survey.') for n in sr_names | mosaic_names)
         descriptor = _call(listener, sr_client.describe_parameters(['live.sr_worker', 'live.sr_tiles_per_round']))
         assert [d.read_only for d in descriptor.descriptors] == [True, False]
         assert descriptor.descriptors[1].integer_range[0].to_value == 100

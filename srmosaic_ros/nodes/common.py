@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseWithCovarianceStamped
+from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
@@ -20,7 +21,7 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from ..errors import SrMosaicError
 
 __all__ = ['TOPICS', 'DIAGNOSTICS_TOPICS', 'REGISTRATION_LAYOUT', 'DiagnosticsPublisher', 'diagnostic_array', 'RegistrationMsg', 'decode_registration', 'encode_registration',
-           'pose_messages', 'frame_ids', 'WarnOnce', 'subscribe_input', 'input_qos', 'IMAGE_QOS_DEPTH', 'TELEMETRY_QOS_DEPTH', 'check_range']
+           'pose_messages', 'PosePublisher', 'frame_ids', 'WarnOnce', 'camera_image', 'subscribe_input', 'input_qos', 'IMAGE_QOS_DEPTH', 'TELEMETRY_QOS_DEPTH', 'check_range']
 
 IMAGE_QOS_DEPTH = 20
 TELEMETRY_QOS_DEPTH = 500
@@ -40,6 +41,7 @@ TOPICS = {
     'raster': 'srmosaic/raster',
     'pose': 'srmosaic/pose',
     'fused_fix': 'srmosaic/fix',
+    'odom': 'srmosaic/odom',
     'sr_tile': 'srmosaic/sr_tile',
 }
 #: Diagnostics go to /diagnostics, where diagnostic_aggregator and rqt_robot_monitor listen (absolute,
@@ -112,13 +114,15 @@ def decode_registration(msg: Float64MultiArray) -> RegistrationMsg:
 
 
 def pose_messages(stamp_ns: int, pose: Any, map_frame: str = 'srmosaic_enu',  # noqa: ANN401
-                  body_frame: str = 'srmosaic') -> tuple[PoseWithCovarianceStamped, NavSatFix] | None:
-    """(/srmosaic/pose, /srmosaic/fix) messages of a fused FramePose, or None when it is not valid.
+                  body_frame: str = 'srmosaic') -> tuple[PoseWithCovarianceStamped, NavSatFix, Odometry] | None:
+    """(srmosaic/pose, srmosaic/fix, srmosaic/odom) messages of a fused FramePose, or None when it is not valid.
 
     Pose: body position in the local ENU plane tangent at the first fix (m), frame_id `map_frame`
     (live.map_frame), orientation body in ENU (REP 103), covariance of (east, north, up, roll,
     pitch, yaw). Fix: WGS84 of the same pose, frame_id `body_frame` (live.body_frame), covariance
-    ENU (m^2).
+    ENU (m^2). Odometry: the same pose from `map_frame` to child_frame_id `body_frame`; the filter
+    does not estimate the body's velocity, so the twist is zero with covariance[0] = -1 ("not
+    provided", as sensor_msgs marks a missing field).
     """
     if pose is None or not pose.valid:
         return None
@@ -132,7 +136,7 @@ def pose_messages(stamp_ns: int, pose: Any, map_frame: str = 'srmosaic_enu',  # 
     q = quat_xyzw_from_matrix(R_enu_from_body(*pose.rpy_rad))
     o = msg.pose.pose.orientation
     o.x, o.y, o.z, o.w = (float(v) for v in q)
-    cov = np.asarray(pose.covariance, dtype=float)
+    cov = np.asarray(pose.covariance, dtype=np.float64)
     msg.pose.covariance = [float(v) for v in cov.ravel()]
     fix = NavSatFix()
     fix.header.stamp = msg.header.stamp
@@ -142,7 +146,31 @@ def pose_messages(stamp_ns: int, pose: Any, map_frame: str = 'srmosaic_enu',  # 
                                                  float(pose.altitude_m))
     fix.position_covariance = [float(v) for v in cov[:3, :3].ravel()]
     fix.position_covariance_type = NavSatFix.COVARIANCE_TYPE_KNOWN
-    return msg, fix
+    odom = Odometry()
+    odom.header = msg.header
+    odom.child_frame_id = body_frame
+    odom.pose = msg.pose
+    odom.twist.covariance[0] = -1.0
+    return msg, fix, odom
+
+
+class PosePublisher:
+    """A node's srmosaic/pose, srmosaic/fix and srmosaic/odom (frame ids: live.map_frame, live.body_frame)."""
+
+    def __init__(self, node: Node) -> None:
+        self.frames = frame_ids(node)
+        self._publishers = [node.create_publisher(PoseWithCovarianceStamped, TOPICS['pose'], 50),
+                            node.create_publisher(NavSatFix, TOPICS['fused_fix'], 50),
+                            node.create_publisher(Odometry, TOPICS['odom'], 50)]
+
+    def publish(self, stamp_ns: int, pose: Any) -> bool:  # noqa: ANN401
+        """Publish the pose of the frame at `stamp_ns`; False (nothing sent) when it is not valid."""
+        msgs = pose_messages(stamp_ns, pose, *self.frames)
+        if msgs is None:
+            return False
+        for pub, msg in zip(self._publishers, msgs):
+            pub.publish(msg)
+        return True
 
 
 class WarnOnce:
@@ -236,6 +264,39 @@ def subscribe_input(node: Node, msg_type: type, key: str, callback: Any, qos: Qo
     # a copy: rclpy writes the overrides into the profile it is given, which may be shared
     return node.create_subscription(msg_type, TOPICS[key], callback, copy.copy(qos), callback_group=group,
                                     qos_overriding_options=QoSOverridingOptions.with_default_policies())
+
+
+def camera_image(msg: Any, camera: Any, warn: WarnOnce) -> tuple[np.ndarray, Any] | None:  # noqa: ANN401
+    """A camera Image / CompressedImage as an (H, W, 3) RGB or (H, W) mono uint8/uint16 array, with the
+    camera's intrinsics at its size; None (warned once per kind, counted) when it cannot be used.
+
+    A CameraInfo of another size with the same aspect ratio is scaled to the image (a driver's
+    binning or a resized stream; io/bags.py does the same offline), counted as camera_info_scaled;
+    another aspect ratio refuses the image. `camera` None (no CameraInfo yet) stays None.
+    """
+    from msg_adapters import image_to_rgb_or_mono
+
+    try:
+        image = image_to_rgb_or_mono(msg)
+    except SrMosaicError as exc:
+        warn(f'image: {type(exc).__name__}', f'image skipped: {exc}')
+        return None
+    if image.size == 0:
+        warn('image: empty', 'empty image skipped')
+        return None
+    if camera is None:
+        return image, None
+    h, w = image.shape[:2]
+    scaled = camera.scaled_to(w, h)
+    if scaled is None:
+        warn('image: size unlike the camera info',
+             f'image of {w}x{h} px but the camera info is of {camera.width}x{camera.height} (another aspect '
+             'ratio); publish the camera info of this camera mode; image skipped')
+        return None
+    if scaled is not camera:
+        warn.note('camera_info_scaled', f'camera info of {camera.width}x{camera.height} px scaled to the images '
+                  f'of {w}x{h} (the aspect ratio holds)')
+    return image, scaled
 
 
 def input_qos(reliable: bool, depth: int) -> QoSProfile:

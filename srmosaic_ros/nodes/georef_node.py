@@ -18,7 +18,7 @@ and mosaicking only, the cheapest onboard configuration) and this node runs the 
 /srmosaic/registration (REGISTRATION_LAYOUT: each frame's stamp, its homography to the previous
 painted frame, the homography's covariance), and publishes /srmosaic/pose
 (PoseWithCovarianceStamped, ENU plane tangent at the first fix, frame_id live.map_frame) and
-/srmosaic/fix (NavSatFix), one per registered frame, plus /srmosaic/diagnostics. Exactly one node of
+/srmosaic/fix (NavSatFix) and /srmosaic/odom (nav_msgs/Odometry), one per registered frame, plus /srmosaic/diagnostics. Exactly one node of
 a graph publishes the poses in either mode.
 
 Synchronisation: telemetry is fed to the filter as it arrives (the filter buffers it and fuses it
@@ -32,7 +32,6 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from geometry_msgs.msg import PoseWithCovarianceStamped
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Imu, NavSatFix
@@ -44,9 +43,9 @@ from ..core.georef.georeferencer import Georeferencer
 from ..core.undistort import Undistorter
 from ..errors import SrMosaicError
 from ..pipeline import SYNC_HOLD_FRAMES
-from .common import (TELEMETRY_QOS_DEPTH, TOPICS, DiagnosticsPublisher, RegistrationMsg, StreamOrder, WarnOnce,
-                     decode_registration, frame_ids, input_qos, pose_messages, subscribe_input)
-from .parameters import declare_pipeline_parameters, on_parameter_change, read_pipeline_config
+from .common import (TELEMETRY_QOS_DEPTH, DiagnosticsPublisher, PosePublisher, RegistrationMsg, StreamOrder, WarnOnce,
+                     decode_registration, input_qos, subscribe_input)
+from .parameters import GEOREF_PARAMETERS, declare_pipeline_parameters, on_parameter_change, read_pipeline_config
 
 __all__ = ['GeorefNode', 'main']
 
@@ -59,7 +58,7 @@ class GeorefNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:  # noqa: ANN401
         super().__init__('srmosaic_georef', **kwargs)
-        defaults = declare_pipeline_parameters(self, changeable=('live.preview_period_s',))
+        defaults = declare_pipeline_parameters(self, GEOREF_PARAMETERS, changeable=('live.preview_period_s',))
         self.config = read_pipeline_config(self, defaults)  # ConfigError refuses bad georef.* values
         self._undistorter = Undistorter(self.config.undistort)
         self.active = bool(self.get_parameter('live.georef_standalone').value)
@@ -72,7 +71,6 @@ class GeorefNode(Node):
         self._ref_stamp: int | None = None  # the last painted frame fed: what prev_H_cur maps into
         self._last_pose = None
         self.pub_diag = DiagnosticsPublisher(self, 'srmosaic: georeferencing')
-        self.frames = frame_ids(self)
         if not self.active:
             self.get_logger().info('georeferencing runs inside the mosaic node (live.georef_standalone is false); '
                                    'this node stays idle. Set live.georef_standalone:=true for the whole graph to '
@@ -88,8 +86,7 @@ class GeorefNode(Node):
         subscribe_input(self, Imu, 'imu', self._on_imu, qos, group)
         subscribe_input(self, CameraInfo, 'camera_info', self._on_camera_info, qos, group)
         subscribe_input(self, Float64MultiArray, 'registration', self._on_registration, input_qos(True, 200), group)
-        self.pub_pose = self.create_publisher(PoseWithCovarianceStamped, TOPICS['pose'], 50)
-        self.pub_fix = self.create_publisher(NavSatFix, TOPICS['fused_fix'], 50)
+        self.pub_poses = PosePublisher(self)
         period = float(self.get_parameter('live.preview_period_s').value)
         self.create_timer(0.2, self._on_tick, callback_group=group)
         diagnostics = self.create_timer(period, self._publish_diagnostics, callback_group=MutuallyExclusiveCallbackGroup())
@@ -168,10 +165,7 @@ class GeorefNode(Node):
         if reg.ok:
             self._ref_stamp = reg.stamp_ns
         self.warn.count('frames_fused')
-        msgs = pose_messages(reg.stamp_ns, pose, *self.frames)
-        if msgs is not None:
-            self.pub_pose.publish(msgs[0])
-            self.pub_fix.publish(msgs[1])
+        if self.pub_poses.publish(reg.stamp_ns, pose):
             self.warn.count('poses_published')
             self._last_pose = pose
 

@@ -6,14 +6,15 @@ Subscribes (sensor-data QoS) to /camera/image_raw (sensor_msgs/Image) and
 /srmosaic/registration (std_msgs/Float64MultiArray, layout in REGISTRATION_LAYOUT),
 /srmosaic/pose (geometry_msgs/PoseWithCovarianceStamped: the fused body pose per frame, position
 in the local ENU plane tangent at the first fix, frame_id live.map_frame; covariance of
-(east, north, up, roll, pitch, yaw)), /srmosaic/fix (NavSatFix of the same pose, covariance ENU)
+(east, north, up, roll, pitch, yaw)), /srmosaic/fix (NavSatFix of the same pose, covariance ENU),
+/srmosaic/odom (nav_msgs/Odometry of the same pose, child_frame_id live.body_frame)
 and /srmosaic/diagnostics (diagnostic_msgs/DiagnosticArray, also on /diagnostics). These are the
 names in the root namespace: the node uses relative names (nodes.common.TOPICS), so under
 `-r __ns:=/uav1` they are /uav1/camera/image_raw, /uav1/srmosaic/..., and all are remappable.
 The georeferencing filter runs inside this node (each frame is placed on the georeferenced raster
 by its fused pose before it is painted; see nodes/georef_node.py for the reasons); with
 `live.georef_standalone: true` it does not, the mosaic lies in the first frame's pixel plane, and
-the georef node publishes /srmosaic/pose and /srmosaic/fix instead. /srmosaic/registration is what
+the georef node publishes /srmosaic/pose, /srmosaic/fix and /srmosaic/odom instead. /srmosaic/registration is what
 the SR and georef nodes need from this one, so they can run in other processes. With
 georeferencing, /srmosaic/raster (std_msgs/String, transient local; live_raster.py) says where the
 plane of seg_H_frame (and of the SR tiles' placements) lies on the map.
@@ -36,9 +37,7 @@ from typing import Any
 
 import numpy as np
 import torch
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from geometry_msgs.msg import PoseWithCovarianceStamped
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -48,7 +47,6 @@ from std_msgs.msg import Float64MultiArray, String
 from msg_adapters import (
     camera_info_to_intrinsics,
     header_to_ns_frame,
-    image_to_rgb_or_mono,
     imu_to_sample,
     navsat_to_fix,
     numpy_to_compressed,
@@ -62,9 +60,9 @@ from ..io.mosaic_files import write_json
 from ..offline import peak_rss_mb, preview_image, write_outputs
 from ..pipeline import FrameRecord, Pipeline
 from .common import (IMAGE_QOS_DEPTH, REGISTRATION_LAYOUT, TELEMETRY_QOS_DEPTH, TOPICS, DiagnosticsPublisher,
-                     StreamOrder, WarnOnce, encode_registration, frame_ids, input_qos, pose_messages,
+                     PosePublisher, StreamOrder, WarnOnce, camera_image, encode_registration, frame_ids, input_qos,
                      subscribe_input)
-from .parameters import declare_pipeline_parameters, on_parameter_change, read_pipeline_config
+from .parameters import MOSAIC_PARAMETERS, declare_pipeline_parameters, on_parameter_change, read_pipeline_config
 
 __all__ = ['MosaicNode', 'REGISTRATION_LAYOUT', 'main']
 
@@ -73,7 +71,7 @@ class MosaicNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('srmosaic_mosaic', **kwargs)
-        self._defaults = declare_pipeline_parameters(self, changeable=('live.preview_period_s',))
+        self._defaults = declare_pipeline_parameters(self, MOSAIC_PARAMETERS, changeable=('live.preview_period_s',))
         config = read_pipeline_config(self, self._defaults)  # ConfigError refuses bad values at start
         queue_size = int(self.get_parameter('live.queue_size').value)
         period = float(self.get_parameter('live.preview_period_s').value)
@@ -93,7 +91,7 @@ class MosaicNode(Node):
             config = dataclasses.replace(config, georef_enabled=False)
         self.config = config
         self.output_dir = str(self.get_parameter('live.output_dir').value)
-        self.frames = frame_ids(self)
+        frame_ids(self)  # refused at start when not frame ids (PosePublisher uses them)
         if self.output_dir:
             from ..offline import check_output_dir
 
@@ -141,8 +139,7 @@ class MosaicNode(Node):
         self.pub_raster = self.create_publisher(String, TOPICS['raster'], latched)
         self._raster_sent: LiveRaster | None = None
         if not self.georef_standalone:  # else the georef node publishes them (one publisher per graph)
-            self.pub_pose = self.create_publisher(PoseWithCovarianceStamped, TOPICS['pose'], 50)
-            self.pub_fix = self.create_publisher(NavSatFix, TOPICS['fused_fix'], 50)
+            self.pub_poses = PosePublisher(self)
         self._preview_thread: threading.Thread | None = None
         periodic = self.create_timer(period, self._publish_periodic, callback_group=MutuallyExclusiveCallbackGroup())
         on_parameter_change(self, {'live.preview_period_s': lambda v: setattr(periodic, 'timer_period_ns', int(v * 1e9))})
@@ -161,26 +158,13 @@ class MosaicNode(Node):
         self.warn.count('frames_received')
         try:
             stamp_ns, frame_id = header_to_ns_frame(msg)
-            image = image_to_rgb_or_mono(msg)
         except SrMosaicError as exc:
             self.warn(f'image: {type(exc).__name__}', f'image skipped: {exc}')
             return
-        if image.size == 0:
-            self.warn('image: empty', 'empty image skipped')
+        decoded = camera_image(msg, self._camera, self.warn)
+        if decoded is None:
             return
-        camera = self._camera
-        if camera is not None:  # CameraInfo of another size: scaled when the aspect ratio holds (io/bags.py alike)
-            h, w = image.shape[:2]
-            scaled = camera.scaled_to(w, h)
-            if scaled is None:
-                self.warn('image: size unlike the camera info',
-                                f'image of {w}x{h} px but the camera info is of {camera.width}x{camera.height} '
-                                '(another aspect ratio); publish the camera info of this camera mode; image skipped')
-                return
-            if scaled is not camera:
-                self.warn.note('camera_info_scaled', f'camera info of {camera.width}x{camera.height} px scaled to '
-                               f'the images of {w}x{h} (the aspect ratio holds)')
-                camera = scaled
+        image, camera = decoded
         if not self._monotonic('image', stamp_ns):
             return
         with self._wake:
@@ -262,10 +246,8 @@ class MosaicNode(Node):
             bool(reg is not None and reg.ok), getattr(reg, 'covariance', None)))
 
     def _publish_pose(self, record: FrameRecord) -> None:
-        msgs = None if self.georef_standalone else pose_messages(record.stamp_ns, record.pose, *self.frames)
-        if msgs is not None:
-            self.pub_pose.publish(msgs[0])
-            self.pub_fix.publish(msgs[1])
+        if not self.georef_standalone:
+            self.pub_poses.publish(record.stamp_ns, record.pose)
 
     # -- periodic output ------------------------------------------------------------------------
     def _publish_periodic(self) -> None:

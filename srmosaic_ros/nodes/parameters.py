@@ -5,7 +5,8 @@ the comment after it as description, and a range where the config dataclass has 
 given with `--ros-args --params-file FILE` or `-p name:=value` override them; invalid values are
 refused at start (ConfigError) with the dataclass's message.
 
-Parameters are read-only once the node runs (`ros2 param set` is refused with rclpy's reason), except
+Each node declares its own keys only (MOSAIC_PARAMETERS, GEOREF_PARAMETERS, SR_PARAMETERS below), so
+`ros2 param list` shows what it uses. Parameters are read-only once the node runs (`ros2 param set` is refused with rclpy's reason), except
 those a node names as changeable: their changes are checked (type and range by the descriptor, then
 the node's own check) and take effect at once (`on_parameter_change`).
 """
@@ -21,7 +22,16 @@ from rclpy.node import Node
 
 from ..config import PipelineConfig, default_params_path, load_params, pipeline_config
 
-__all__ = ['declare_pipeline_parameters', 'read_pipeline_config', 'on_parameter_change']
+__all__ = ['MOSAIC_PARAMETERS', 'GEOREF_PARAMETERS', 'SR_PARAMETERS', 'declare_pipeline_parameters', 'read_pipeline_config', 'on_parameter_change']
+
+#: The keys each node declares: names, or section prefixes for all the keys of a section.
+_POSE_OUTPUT = ('live.map_frame', 'live.body_frame', 'live.georef_standalone', 'live.reliable_inputs', 'live.preview_period_s')
+MOSAIC_PARAMETERS = ('device', 'undistort', 'stamp_tolerance_s', 'registration', 'mosaic', 'georef', *_POSE_OUTPUT,
+                     'live.queue_size', 'live.torch_threads', 'live.output_dir')
+GEOREF_PARAMETERS = ('undistort', 'stamp_tolerance_s', 'georef', *_POSE_OUTPUT)
+SR_PARAMETERS = ('device', 'undistort', 'stamp_tolerance_s', 'sr', 'sr_tiles', 'live.reliable_inputs', 'live.torch_threads',
+                 'live.sr_period_s', 'live.sr_tiles_per_round', 'live.sr_refresh_growth', 'live.sr_frames_kept',
+                 'live.sr_images_pending', 'live.sr_worker')
 
 # Ranges stated once here for the ROS parameter descriptors; the dataclasses check them again.
 _RANGES: dict[str, tuple[float, float]] = {
@@ -93,21 +103,31 @@ def _descriptor(name: str, value: Any, description: str, read_only: bool) -> Par
     return desc
 
 
-def declare_pipeline_parameters(node: Node, changeable: Collection[str] = ()) -> dict[str, Any]:
-    """Declare every key of params/default.yaml on `node`, read-only but for `changeable`; return the
-    defaults (dotted names)."""
+def declare_pipeline_parameters(node: Node, own: Collection[str], changeable: Collection[str] = ()) -> dict[str, Any]:
+    """Declare the node's own keys of params/default.yaml on `node` (`own`: names or section
+    prefixes, 'georef' for every georef.* key), read-only but for `changeable`; return the defaults
+    of every key (dotted names). Keys of other nodes in a shared parameter file are left undeclared,
+    which rclpy ignores."""
     path = default_params_path()
     defaults = load_params(path)
     comments = _comments(path)
     for name, value in defaults.items():
-        if not node.has_parameter(name):
+        if _is_own(name, own) and not node.has_parameter(name):
             node.declare_parameter(name, value, _descriptor(name, value, comments.get(name, ''), name not in changeable))
+    if unknown := [name for name in changeable if name not in defaults or not _is_own(name, own)]:
+        msg = f'changeable parameters {unknown} are not among the node\'s own'
+        raise ValueError(msg)
     return defaults
 
 
+def _is_own(name: str, own: Collection[str]) -> bool:
+    return any(name == prefix or name.startswith(prefix + '.') for prefix in own)
+
+
 def read_pipeline_config(node: Node, defaults: dict[str, Any]) -> PipelineConfig:
-    """PipelineConfig from the node's current parameter values (raises ConfigError when invalid)."""
-    values = {name: node.get_parameter(name).value for name in defaults}
+    """PipelineConfig from the node's parameter values, the defaults for keys it does not declare
+    (raises ConfigError when invalid)."""
+    values = {name: node.get_parameter(name).value for name in defaults if node.has_parameter(name)}
     return pipeline_config(values, defaults=defaults)
 
 

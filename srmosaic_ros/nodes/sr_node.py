@@ -59,7 +59,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import Float64MultiArray
 
-from msg_adapters import (SUPPORTED_ENCODINGS, camera_info_to_intrinsics, header_to_ns_frame, image_to_rgb_or_mono,
+from msg_adapters import (SUPPORTED_ENCODINGS, camera_info_to_intrinsics, header_to_ns_frame,
                           numpy_to_image)
 
 from ..core.sr.reconstruct import SRFramesDisagree
@@ -76,9 +76,9 @@ from ..sr_live import (
     reconstruct_live_tile_image,
     sr_worker_ready,
 )
-from .common import (IMAGE_QOS_DEPTH, TOPICS, DiagnosticsPublisher, StreamOrder, WarnOnce, check_range,
+from .common import (IMAGE_QOS_DEPTH, TOPICS, DiagnosticsPublisher, StreamOrder, WarnOnce, camera_image, check_range,
                      decode_registration, input_qos, subscribe_input)
-from .parameters import declare_pipeline_parameters, on_parameter_change, read_pipeline_config
+from .parameters import SR_PARAMETERS, declare_pipeline_parameters, on_parameter_change, read_pipeline_config
 
 #: Parameters `ros2 param set` changes while the node runs (the others are read-only).
 CHANGEABLE = ('live.sr_period_s', 'live.sr_tiles_per_round', 'live.sr_refresh_growth')
@@ -98,7 +98,7 @@ class SRNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:  # noqa: ANN401
         super().__init__('srmosaic_sr', **kwargs)
-        defaults = declare_pipeline_parameters(self, changeable=CHANGEABLE)
+        defaults = declare_pipeline_parameters(self, SR_PARAMETERS, changeable=CHANGEABLE)
         self.config = read_pipeline_config(self, defaults)  # ConfigError refuses bad sr / sr_tiles values
         self.period_s = float(check_range(self, 'live.sr_period_s', 0.1, 3600.0))
         self.tiles_per_round = int(check_range(self, 'live.sr_tiles_per_round', 1, 100))
@@ -233,26 +233,10 @@ class SRNode(Node):
         """The frame's pixels (H, W[, 3]) uint8/uint16, decoded on first use and kept decoded."""
         if isinstance(frame.payload, np.ndarray):
             return frame.payload
-        try:
-            image = image_to_rgb_or_mono(frame.payload)
-        except SrMosaicError as exc:
-            self.warn(f'image: {type(exc).__name__}', f'image skipped: {exc}')
+        decoded = camera_image(frame.payload, self._camera, self.warn)
+        if decoded is None:
             return None
-        if image.size == 0:
-            self.warn('image: empty', 'empty image skipped')
-            return None
-        camera = self._camera
-        if camera is not None:  # CameraInfo of another size: scaled as the mosaic node does, or the image refused
-            h, w = image.shape[:2]
-            camera = camera.scaled_to(w, h)
-            if camera is None:
-                self.warn('image: size unlike the camera info',
-                          f'image of {w}x{h} px but the camera info is of {self._camera.width}x{self._camera.height} '
-                          '(another aspect ratio); publish the camera info of this camera mode; image skipped')
-                return None
-            if camera is not self._camera:
-                self.warn.note('camera_info_scaled', f'camera info of {self._camera.width}x{self._camera.height} px '
-                               f'scaled to the images of {w}x{h} (the aspect ratio holds)')
+        image, camera = decoded
         try:
             image = self._undistorter.image(image, camera)
         except SrMosaicError as exc:
