@@ -5,13 +5,8 @@ an unknown key is refused with the list of known ones, so a typo never silently 
 """
 from __future__ import annotations
 
-import os
-import sys
 from dataclasses import dataclass, field, fields
-from pathlib import Path
 from typing import Any
-
-import yaml
 
 from .core.georef.georeferencer import GeorefConfig
 from .core.mosaic.config import MosaicConfig
@@ -20,6 +15,7 @@ from .core.sr.scheduler import SRTileConfig
 from .core.registration import RegistrationConfig
 from .core.survey.config import SurveyConfig
 from .errors import ConfigError
+from .param_files import default_params_path, load_params, yaml_problem  # noqa: F401 (re-exported)
 
 __all__ = ['PipelineConfig', 'check_type', 'default_params_path', 'load_params', 'pipeline_config', 'yaml_problem']
 
@@ -49,65 +45,6 @@ class PipelineConfig:
     sr: SRConfig = field(default_factory=SRConfig)
     sr_tiles: SRTileConfig = field(default_factory=SRTileConfig)
     survey: SurveyConfig = field(default_factory=SurveyConfig)
-
-
-def default_params_path() -> Path:
-    """params/default.yaml of the source tree, or of the installed share/ directory."""
-    candidates = [
-        Path(__file__).resolve().parent.parent / 'params' / 'default.yaml',
-        Path(sys.prefix) / 'share' / 'srmosaic_ros' / 'params' / 'default.yaml',
-    ]
-    env = os.environ.get('AMENT_PREFIX_PATH', '')
-    candidates += [Path(p) / 'share' / 'srmosaic_ros' / 'params' / 'default.yaml' for p in env.split(os.pathsep) if p]
-    for path in candidates:
-        if path.is_file():
-            return path
-    msg = 'params/default.yaml not found; reinstall the package (make venv) or pass --params.'
-    raise ConfigError(msg)
-
-
-def _flatten(tree: dict[str, Any], prefix: str = '') -> dict[str, Any]:
-    flat: dict[str, Any] = {}
-    for key, value in tree.items():
-        name = f'{prefix}{key}'
-        if isinstance(value, dict):
-            flat.update(_flatten(value, name + '.'))
-        else:
-            flat[name] = value
-    return flat
-
-
-def yaml_problem(exc: yaml.YAMLError) -> str:
-    """PyYAML's several-line message as one line: what is wrong, and where (line, column)."""
-    problem = getattr(exc, 'problem', None)
-    mark = getattr(exc, 'problem_mark', None)
-    if problem is None:
-        return ' '.join(str(exc).split())
-    where = f' at line {mark.line + 1}, column {mark.column + 1}' if mark is not None else ''
-    return f'{problem}{where}'
-
-
-def load_params(path: str | os.PathLike[str]) -> dict[str, Any]:
-    """Read a ROS 2 parameter file; return dotted names -> values, merged over all node sections."""
-    path = Path(path)
-    try:
-        doc = yaml.safe_load(path.read_text())
-    except FileNotFoundError:
-        msg = f'parameter file {path} does not exist.'
-        raise ConfigError(msg) from None
-    except yaml.YAMLError as exc:
-        msg = f'parameter file {path} is not valid YAML: {yaml_problem(exc)}'
-        raise ConfigError(msg) from None
-    if not isinstance(doc, dict):
-        msg = f'parameter file {path} must map node names to {{ros__parameters: ...}}.'
-        raise ConfigError(msg)
-    flat: dict[str, Any] = {}
-    for node, section in doc.items():
-        if not isinstance(section, dict) or 'ros__parameters' not in section:
-            msg = f'parameter file {path}: section {node!r} has no ros__parameters.'
-            raise ConfigError(msg)
-        flat.update(_flatten(section['ros__parameters'] or {}))
-    return flat
 
 
 def _build(cls: type, prefix: str, flat: dict[str, Any]) -> Any:

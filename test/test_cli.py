@@ -232,3 +232,14 @@ except OutputError as exc:
     assert run.returncode == 0, run.stderr
     assert 'OutputError: a.png could not be written' in run.stdout, run.stdout + run.stderr
     assert not (tmp_path / 'a.png').exists()
+
+
+def test_the_command_line_starts_without_the_pipeline() -> None:
+    """Building the parser (every `srmosaic ... --help`, and the launcher reading parameter files)
+    imports neither torch nor filterpy: they took 4.5 s before each command got to its work."""
+    script = ('import sys; from srmosaic_ros.cli import build_parser; build_parser(); '
+              'from srmosaic_ros.nodes.launcher import load_description; '
+              "print(sorted(m for m in ('torch', 'filterpy', 'rclpy') if m in sys.modules))")
+    run = subprocess.run([sys.executable, '-c', script], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.split() == ['[]'], run.stdout

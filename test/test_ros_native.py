@@ -6,6 +6,7 @@ test_nodes_live.py; waits are conditions polled with generous timeouts.
 from __future__ import annotations
 
 import importlib.metadata
+import json
 import os
 import shutil
 import signal
@@ -328,3 +329,102 @@ def test_parameters_change_or_are_refused_and_qos_overrides_apply(ros_env):
     for name, proc in procs.items():
         assert proc.returncode == 0, logs[name]
     assert 'live.preview_period_s is now 0.2' in logs['mosaic'] and 'live.sr_tiles_per_round is now 3' in logs['sr']
+
+
+@pytest.mark.ros
+def test_mosaic_node_lifecycle(ros_env, tmp_path):
+    """The mosaic node as a managed node (live.autostart false): unconfigured until configured;
+    inactive, it ignores a played bag (counted); active, it mosaics the same bag played again;
+    deactivated, it keeps the mosaic; cleanup writes the outputs (live.output_dir)."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from lifecycle_msgs.msg import State, Transition
+    from lifecycle_msgs.srv import ChangeState, GetState
+    from std_msgs.msg import Float64MultiArray
+
+    out = tmp_path / 'live'
+    listener = Listener({'diagnostics': (DiagnosticArray, '/lc/srmosaic/diagnostics'),
+                         'registration': (Float64MultiArray, '/lc/srmosaic/registration')})
+    node = subprocess.Popen([sys.executable, '-m', 'srmosaic_ros.nodes.executables', 'mosaic_node', '--ros-args',
+                             '-r', '__ns:=/lc', '-p', 'live.autostart:=false', '-p', f'live.output_dir:={out}',
+                             '-p', 'live.reliable_inputs:=true', '-p', 'live.queue_size:=100',
+                             '-p', 'live.preview_period_s:=0.3'],
+                            env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    get_state = listener.node.create_client(GetState, '/lc/srmosaic_mosaic/get_state')
+    change_state = listener.node.create_client(ChangeState, '/lc/srmosaic_mosaic/change_state')
+
+    def state() -> int:
+        return _call(listener, get_state.call_async(GetState.Request())).current_state.id
+
+    def transition(tid: int) -> None:
+        assert _call(listener, change_state.call_async(ChangeState.Request(transition=Transition(id=tid)))).success
+
+    def play() -> None:
+        player = subprocess.run([sys.executable, '-m', 'srmosaic_ros.nodes.executables', 'player', str(DEMO), '--rate',
+                                 '2', '--delay', '15', '--ros-args', '-r', '__ns:=/lc'], env=ros_env,
+                                capture_output=True, text=True, timeout=120)
+        assert player.returncode == 0, player.stdout + player.stderr
+
+    def value(key: str) -> str | None:
+        status = listener.statuses().get(f'lc/{MOSAIC}')
+        return _values(status).get(key) if status is not None else None
+
+    try:
+        assert get_state.wait_for_service(timeout_sec=60) and change_state.wait_for_service(timeout_sec=10)
+        assert state() == State.PRIMARY_STATE_UNCONFIGURED
+        transition(Transition.TRANSITION_CONFIGURE)
+        assert state() == State.PRIMARY_STATE_INACTIVE
+        play()
+        assert listener.wait_for(lambda: int(value('frames_while_inactive') or 0) >= 50, 30), value('frames_while_inactive')
+        assert listener.got['registration'] == [] and value('frames_processed') == '0'
+        assert 'inactive' in listener.statuses()[f'lc/{MOSAIC}'].message
+        transition(Transition.TRANSITION_ACTIVATE)
+        play()
+        assert listener.wait_for(lambda: len(listener.got['registration']) == 60, 240), len(listener.got['registration'])
+        transition(Transition.TRANSITION_DEACTIVATE)
+        ignored = int(value('frames_while_inactive'))
+        play()  # paused: ignored, and the mosaic kept
+        assert listener.wait_for(lambda: int(value('frames_while_inactive')) >= ignored + 50, 30)
+        kept = int(value('frames_in_mosaic'))
+        assert kept >= 55 and len(listener.got['registration']) == 60
+        assert 'inactive' in listener.statuses()[f'lc/{MOSAIC}'].message
+        assert not (out / 'report.json').exists()
+        transition(Transition.TRANSITION_CLEANUP)
+        assert state() == State.PRIMARY_STATE_UNCONFIGURED
+        report = json.loads((out / 'report.json').read_text())
+        assert report['frames_registered'] == kept and (out / 'mosaic.png').is_file()
+    except AssertionError as exc:
+        raise AssertionError(f'{exc}\n--- node output ---\n{_stop(node)}') from None
+    finally:
+        log = _stop(node)
+        listener.close()
+    assert node.returncode == 0, log
+    assert log.count('wrote ') == 1, log  # cleanup wrote the outputs; the exit after it did not again
+
+
+@pytest.mark.ros
+def test_idle_nodes_stop_on_sigint(ros_env, tmp_path):
+    """Nodes with no timer of their own (the georef node idle, the mosaic node unconfigured, the
+    tile recorder waiting) stop cleanly on Ctrl-C: the executor returns to Python to run the handler."""
+    listener = Listener({})
+    start = [sys.executable, '-m', 'srmosaic_ros.nodes.executables']
+    procs = {'srmosaic_georef': [*start, 'georef_node'],
+             'srmosaic_mosaic': [*start, 'mosaic_node', '--ros-args', '-p', 'live.autostart:=false'],
+             'srmosaic_tile_recorder': [*start, 'tile_recorder', str(tmp_path / 'tiles')]}
+    running = {name: subprocess.Popen(cmd, env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+               for name, cmd in procs.items()}
+    try:
+        assert listener.wait_for(lambda: set(procs) <= set(listener.node.get_node_names()), 90), \
+            listener.node.get_node_names()
+    finally:
+        logs = {}
+        for name, proc in running.items():
+            proc.send_signal(signal.SIGINT)
+        for name, proc in running.items():
+            try:
+                logs[name] = proc.communicate(timeout=30)[0]
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                logs[name] = f'did not stop on SIGINT: {proc.communicate()[0]}'
+        listener.close()
+    for name, proc in running.items():
+        assert proc.returncode == 0, (name, logs[name])

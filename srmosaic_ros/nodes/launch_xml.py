@@ -60,7 +60,7 @@ def package_share() -> Path:
             return Path(get_package_share_directory(PACKAGE))
         except (PackageNotFoundError, OSError):  # not in the index, or no AMENT_PREFIX_PATH at all
             pass
-    from ..config import default_params_path
+    from ..param_files import default_params_path
 
     return default_params_path().parent.parent
 

@@ -33,7 +33,7 @@ from typing import Any
 
 import yaml
 
-from ..config import default_params_path, load_params, yaml_problem
+from ..param_files import default_params_path, load_params, yaml_problem
 from ..errors import ConfigError
 from .launch_xml import LaunchNode, parse_launch_arguments, read_launch_xml
 

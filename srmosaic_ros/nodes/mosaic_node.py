@@ -39,7 +39,8 @@ import numpy as np
 import torch
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
-from rclpy.node import Node
+from rclpy.lifecycle import LifecycleState, TransitionCallbackReturn
+from rclpy.lifecycle import Node as LifecycleNode
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, NavSatFix
 from std_msgs.msg import Float64MultiArray, String
@@ -62,16 +63,58 @@ from ..pipeline import FrameRecord, Pipeline
 from .common import (IMAGE_QOS_DEPTH, REGISTRATION_LAYOUT, TELEMETRY_QOS_DEPTH, TOPICS, DiagnosticsPublisher,
                      PosePublisher, StreamOrder, WarnOnce, camera_image, encode_registration, frame_ids, input_qos,
                      subscribe_input)
+from .lifecycle import autostart, configure_with, release
 from .parameters import MOSAIC_PARAMETERS, declare_pipeline_parameters, on_parameter_change, read_pipeline_config
 
 __all__ = ['MosaicNode', 'REGISTRATION_LAYOUT', 'main']
 
-class MosaicNode(Node):
-    """Registration + mosaic stage (see module docstring)."""
+class MosaicNode(LifecycleNode):
+    """Registration + mosaic stage (see module docstring), a managed (lifecycle) node.
+
+    configure reads the parameters and builds the pipeline, subscriptions, publishers and worker;
+    activate starts processing the inputs; deactivate pauses (inputs are counted and ignored, the
+    mosaic is kept); cleanup writes the outputs (live.output_dir) and frees the pipeline; shutdown
+    does the same from any state. With live.autostart (default) the node configures and activates
+    itself at start, a refused configure raising its error (as a plain node would).
+    """
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('srmosaic_mosaic', **kwargs)
         self._defaults = declare_pipeline_parameters(self, MOSAIC_PARAMETERS, changeable=('live.preview_period_s',))
+        self.warn = WarnOnce(self)  # the counters of the diagnostics; rejected inputs logged once per kind
+        self.active = False
+        self.configured = False
+        self._periodic = None
+        self._entities: list[tuple[Any, Any]] = []  # (destroy, entity) made by configure (lifecycle.py)
+        self.configure_error: Exception | None = None
+        on_parameter_change(self, {'live.preview_period_s': self._set_period})
+        autostart(self)
+
+    def _set_period(self, period_s: float) -> None:
+        if self._periodic is not None:
+            self._periodic.timer_period_ns = int(period_s * 1e9)
+
+    # -- lifecycle ------------------------------------------------------------------------------
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        return configure_with(self, self._configure)
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.active = True
+        return super().on_activate(state)
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.active = False
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.finish()
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.finish()
+        return TransitionCallbackReturn.SUCCESS
+
+    def _configure(self) -> None:
         config = read_pipeline_config(self, self._defaults)  # ConfigError refuses bad values at start
         queue_size = int(self.get_parameter('live.queue_size').value)
         period = float(self.get_parameter('live.preview_period_s').value)
@@ -103,7 +146,6 @@ class MosaicNode(Node):
         self._wake = threading.Condition()
         self._stop = False
         self._camera = None
-        self.warn = WarnOnce(self)  # the counters of the diagnostics; rejected inputs logged once per kind
         self._order = StreamOrder(self, self.warn, config.stamp_tolerance_s)  # stamps off the clock or backwards
         self._latency_ms: collections.deque[float] = collections.deque(maxlen=500)
         self._last_record: FrameRecord | None = None
@@ -141,10 +183,11 @@ class MosaicNode(Node):
         if not self.georef_standalone:  # else the georef node publishes them (one publisher per graph)
             self.pub_poses = PosePublisher(self)
         self._preview_thread: threading.Thread | None = None
-        periodic = self.create_timer(period, self._publish_periodic, callback_group=MutuallyExclusiveCallbackGroup())
-        on_parameter_change(self, {'live.preview_period_s': lambda v: setattr(periodic, 'timer_period_ns', int(v * 1e9))})
+        self._periodic = self.create_timer(period, self._publish_periodic, callback_group=MutuallyExclusiveCallbackGroup())
         self._worker = threading.Thread(target=self._work, name='srmosaic-mosaic-worker', daemon=True)
         self._worker.start()
+
+        self.configured = True
 
     # -- input callbacks: convert, check, enqueue; never raise ------------------------------
     def _monotonic(self, stream: str, stamp_ns: int) -> bool:
@@ -156,6 +199,9 @@ class MosaicNode(Node):
 
     def _on_image(self, msg: Image | CompressedImage) -> None:
         self.warn.count('frames_received')
+        if not self.active:  # inactive (lifecycle): paused, before the stamp order so a replay is taken later
+            self.warn.count('frames_while_inactive')
+            return
         try:
             stamp_ns, frame_id = header_to_ns_frame(msg)
         except SrMosaicError as exc:
@@ -184,6 +230,8 @@ class MosaicNode(Node):
 
     def _on_telemetry(self, kind: str, convert: Any, msg: Any) -> None:  # noqa: ANN401
         """Convert a fix or IMU message, check its time order, queue it for the worker."""
+        if not self.active:
+            return
         try:
             item = convert(msg)
         except SrMosaicError as exc:
@@ -324,13 +372,21 @@ class MosaicNode(Node):
             level, message = DiagnosticStatus.WARN, f'last frame not registered: {rec.reason}'
         if stats.get('dropped_frames', 0):
             message += f"; {stats['dropped_frames']} frames dropped (falling behind)"
+        if not self.active:
+            message = 'inactive (lifecycle): inputs ignored, the mosaic kept'
+            values['frames_while_inactive'] = stats.get('frames_while_inactive', 0)
         rejecting, message = self.warn.status(message)
         level = max(level, rejecting)  # WARN while messages are being rejected, not for ever after
         return self.pub_diag.array(message, values, level)
 
     # -- shutdown -------------------------------------------------------------------------------
     def finish(self) -> None:
-        """Drain the queue, stop the worker and write the outputs when `output_dir` is set."""
+        """Drain the queue, stop the worker, write the outputs when `output_dir` is set, and free what
+        configure made (cleanup, shutdown, or the end of the process); nothing when not configured."""
+        if not self.configured:
+            return
+        self.active = False
+        self.configured = False
         with self._wake:
             self._stop = True
             self._wake.notify()
@@ -347,6 +403,8 @@ class MosaicNode(Node):
             write_json(Path(self.output_dir) / 'report.json', report)
             self.get_logger().info(f"wrote {report['frames_registered']}/{report['frames_in']} frames to "
                                    f'{self.output_dir}')
+        release(self._entities)
+        self._entities, self._periodic, self.pipeline = [], None, None
 
 
 def main(argv: list[str] | None = None) -> int:

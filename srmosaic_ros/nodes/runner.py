@@ -58,7 +58,11 @@ def run_nodes(node_classes: Sequence[type], args: list[str] | None = None) -> in
         executor = SingleThreadedExecutor()
         for node in nodes:
             executor.add_node(node)
-        executor.spin()
+        # spin_once with a timeout returns to Python twice a second even when no node has a timer
+        # (an idle georef node, an unconfigured lifecycle node), so that the handlers above run:
+        # executor.spin() would wait in rcl, where Python signal handlers never run.
+        while rclpy.ok():
+            executor.spin_once(timeout_sec=0.5)
     except (_Stop, KeyboardInterrupt, ExternalShutdownException):
         pass
     except SrMosaicError as exc:

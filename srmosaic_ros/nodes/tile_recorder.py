@@ -58,9 +58,6 @@ class TileRecorderNode(Node):
         self.create_subscription(Image, TOPICS['sr_tile'], self._on_tile, 20)
         if previews:
             self.create_subscription(Image, TOPICS['preview'], self._on_preview, 1)
-        # The executor waits in rcl without a timer; this one returns to Python twice a second, so that
-        # SIGINT / SIGTERM (runner.py's handlers) stop the node.
-        self.create_timer(0.5, lambda: None)
         self.get_logger().info(f'recording SR tiles{" and previews" if previews else ""} into {self.out}')
 
     def _on_raster(self, msg: String) -> None:
