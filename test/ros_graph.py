@@ -1,10 +1,38 @@
-"""A listener node for tests over real DDS: subscriptions recorded into lists, spun in a thread."""
+"""Tests over real DDS: a listener node (subscriptions recorded into lists, spun in a thread) and
+the supervision of the processes under test."""
 from __future__ import annotations
 
+import contextlib
+import signal
+import subprocess
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
+
+
+def stop_process(proc: subprocess.Popen, timeout: float = 60) -> str:
+    """SIGINT (a clean shutdown, as Ctrl-C) unless it has ended; its output."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+    out, _ = proc.communicate(timeout=timeout)
+    return out
+
+
+@contextlib.contextmanager
+def supervised_processes(procs: dict[str, subprocess.Popen], close: Callable[[], None]) -> Iterator[dict[str, str]]:
+    """Run a test against started processes: a failed assertion carries their output; at the end each
+    is stopped (its output in the dict yielded), then `close` runs (the listener)."""
+    logs: dict[str, str] = {}
+    try:
+        yield logs
+    except AssertionError as exc:
+        outputs = ''.join(f'\n--- {name} output ---\n{stop_process(proc)}' for name, proc in procs.items())
+        raise AssertionError(f'{exc}{outputs}') from None
+    finally:
+        for name, proc in procs.items():
+            logs[name] = stop_process(proc) if proc.returncode is None else logs.get(name, '')
+        close()
 
 
 class GraphListener:

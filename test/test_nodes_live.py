@@ -21,7 +21,7 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
-from ros_graph import GraphListener
+from ros_graph import GraphListener, supervised_processes
 
 from srmosaic_ros.io.mosaic_files import read_frames_csv
 
@@ -192,12 +192,6 @@ def check_recorded_tiles(folder: Path, tiles: list, raster_text: str) -> None:
         assert ds.crs.to_epsg() == raster.epsg and ds.width > 100
 
 
-def _stop(proc: subprocess.Popen, timeout: float = 60) -> str:
-    proc.send_signal(signal.SIGINT)
-    out, _ = proc.communicate(timeout=timeout)
-    return out
-
-
 class _Supervision:
     """What :func:`supervised` gives the test: the Listener, and each process's output once stopped."""
 
@@ -212,15 +206,9 @@ def supervised(**procs: subprocess.Popen) -> Iterator[_Supervision]:
     """Run a test against started srmosaic processes: a failed assertion carries their output, and
     at the end each one is stopped (its output in ``.logs``) and must have exited cleanly."""
     sup = _Supervision(procs)
-    try:
+    with supervised_processes(procs, sup.listener.close) as logs:
+        sup.logs = logs
         yield sup
-    except AssertionError as exc:
-        outputs = ''.join(f'\n--- {name} output ---\n{_stop(proc)}' for name, proc in procs.items())
-        raise AssertionError(f'{exc}{outputs}') from None
-    finally:
-        for name, proc in procs.items():
-            sup.logs[name] = _stop(proc) if proc.returncode is None else sup.logs.get(name, '')
-        sup.listener.close()
     for name, proc in procs.items():
         assert proc.returncode == 0, sup.logs[name]
 

@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 
 import pytest
-from ros_graph import GraphListener
+from ros_graph import GraphListener, stop_process, supervised_processes
 
 from srmosaic_ros.errors import ConfigError
 from srmosaic_ros.nodes.executables import EXECUTABLES
@@ -125,13 +125,6 @@ class Listener(GraphListener):
         return out
 
 
-def _stop(proc: subprocess.Popen, timeout: float = 60) -> str:
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-    out, _ = proc.communicate(timeout=timeout)
-    return out
-
-
 def _values(status) -> dict[str, str]:
     return {kv.key: kv.value for kv in status.values}
 
@@ -195,11 +188,11 @@ def test_two_aircraft_in_one_graph_stay_apart(ros_env, tmp_path):
             assert o.pose.pose == pose.pose.pose and list(o.pose.covariance) == list(pose.pose.covariance)
             assert o.twist.covariance[0] == -1.0
     except AssertionError as exc:
-        raise AssertionError(f'{exc}\n--- launch output ---\n{_stop(graph)}') from None
+        raise AssertionError(f'{exc}\n--- launch output ---\n{stop_process(graph)}') from None
     finally:
         if player is not None and player.poll() is None:
             player.kill()
-        log = _stop(graph)
+        log = stop_process(graph)
         listener.close()
     assert graph.returncode == 0, log
     assert 'starting /uav1/mosaic_node' in log and 'starting /uav2/mosaic_node' in log, log
@@ -240,16 +233,11 @@ def test_colcon_built_package_runs_as_ros2_run_would(ros_env, tmp_path):
     listener = Listener({'diagnostics': (DiagnosticArray, '/diagnostics')})
     node = subprocess.Popen([str(executable), '--ros-args', '-r', '__ns:=/cam7'], env=env, cwd=tmp_path,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    try:
+    with supervised_processes({'node': node}, listener.close) as logs:
         assert listener.wait_for(lambda: f'cam7/{MOSAIC}' in listener.statuses(), 90), \
             f'statuses: {sorted(listener.statuses())}'
         assert listener.statuses()[f'cam7/{MOSAIC}'].hardware_id == '/cam7/camera/image_raw'
-    except AssertionError as exc:
-        raise AssertionError(f'{exc}\n--- node output ---\n{_stop(node)}') from None
-    finally:
-        log = _stop(node)
-        listener.close()
-    assert node.returncode == 0, log
+    assert node.returncode == 0, logs['node']
 
 
 def _call(listener: Listener, future, timeout: float = 30):
@@ -283,7 +271,7 @@ def test_parameters_change_or_are_refused_and_qos_overrides_apply(ros_env):
         time.sleep(seconds)
         return sum(s.name == name for m in list(listener.got['diagnostics']) for s in m.status) - before
 
-    try:
+    with supervised_processes(procs, listener.close) as logs:
         assert listener.wait_for(lambda: {mosaic, sr} <= set(listener.statuses()), 90), sorted(listener.statuses())
         subs = {info.node_name: info.qos_profile.reliability
                 for info in listener.node.get_subscriptions_info_by_topic('/p1/camera/image_raw')}
@@ -320,12 +308,6 @@ def test_parameters_change_or_are_refused_and_qos_overrides_apply(ros_env):
         descriptor = _call(listener, sr_client.describe_parameters(['live.sr_worker', 'live.sr_tiles_per_round']))
         assert [d.read_only for d in descriptor.descriptors] == [True, False]
         assert descriptor.descriptors[1].integer_range[0].to_value == 100
-    except AssertionError as exc:
-        logs = ''.join(f'\n--- {name} ---\n{_stop(p)}' for name, p in procs.items())
-        raise AssertionError(f'{exc}{logs}') from None
-    finally:
-        logs = {name: _stop(p) for name, p in procs.items()}
-        listener.close()
     for name, proc in procs.items():
         assert proc.returncode == 0, logs[name]
     assert 'live.preview_period_s is now 0.2' in logs['mosaic'] and 'live.sr_tiles_per_round is now 3' in logs['sr']
@@ -368,7 +350,7 @@ def test_mosaic_node_lifecycle(ros_env, tmp_path):
         status = listener.statuses().get(f'lc/{MOSAIC}')
         return _values(status).get(key) if status is not None else None
 
-    try:
+    with supervised_processes({'node': node}, listener.close) as logs:
         assert get_state.wait_for_service(timeout_sec=60) and change_state.wait_for_service(timeout_sec=10)
         assert state() == State.PRIMARY_STATE_UNCONFIGURED
         transition(Transition.TRANSITION_CONFIGURE)
@@ -385,20 +367,20 @@ def test_mosaic_node_lifecycle(ros_env, tmp_path):
         play()  # paused: ignored, and the mosaic kept
         assert listener.wait_for(lambda: int(value('frames_while_inactive')) >= ignored + 50, 30)
         kept = int(value('frames_in_mosaic'))
-        assert kept >= 55 and len(listener.got['registration']) == 60
-        assert 'inactive' in listener.statuses()[f'lc/{MOSAIC}'].message
+        status = listener.statuses()[f'lc/{MOSAIC}']
+        assert kept >= 55 and len(listener.got['registration']) == 60, (kept, _values(status))
+        assert 'inactive' in status.message, status.message
         assert not (out / 'report.json').exists()
         transition(Transition.TRANSITION_CLEANUP)
         assert state() == State.PRIMARY_STATE_UNCONFIGURED
         report = json.loads((out / 'report.json').read_text())
-        assert report['frames_registered'] == kept and (out / 'mosaic.png').is_file()
-    except AssertionError as exc:
-        raise AssertionError(f'{exc}\n--- node output ---\n{_stop(node)}') from None
-    finally:
-        log = _stop(node)
-        listener.close()
-    assert node.returncode == 0, log
-    assert log.count('wrote ') == 1, log  # cleanup wrote the outputs; the exit after it did not again
+        from srmosaic_ros.nodes.common import decode_registration
+
+        painted = sum(decode_registration(r).ok for r in listener.got['registration'])
+        assert report['frames_registered'] == painted >= kept, (report['frames_registered'], painted, kept)
+        assert (out / 'mosaic.png').is_file()
+    assert node.returncode == 0, logs['node']
+    assert logs['node'].count('wrote ') == 1, logs['node']  # cleanup wrote the outputs; the exit after it did not again
 
 
 @pytest.mark.ros
