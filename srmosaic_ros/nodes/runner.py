@@ -28,8 +28,11 @@ def init_rclpy(args: list[str] | None, **kwargs: Any) -> None:  # noqa: ANN401
         raise ConfigError(msg) from None
 
 
-class _Stop(Exception):
-    pass
+class _Stop(BaseException):
+    """SIGINT / SIGTERM: raised in the main thread wherever it is, often inside a callback. A
+    BaseException, as KeyboardInterrupt is, so that a callback's `except Exception` (the nodes keep
+    spinning past a bad input) does not swallow it: the georef node once logged 'frame not fused:
+    _Stop()' and went on, and the graph never stopped."""
 
 
 def _raise_stop(signum: int, frame: Any) -> None:  # noqa: ARG001, ANN401
