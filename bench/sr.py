@@ -167,7 +167,7 @@ def run_solver(st, mats, solver: str, device: str, *, iterations: int | None = N
         cb_time[0] += time.perf_counter() - t0
 
     res = reconstruct_tile(st.frames, mats, st.tile_shape, st.factor, solver=solver, device=device,
-                           iterations=iterations or CAPS[solver], tol=TOL, callback=cb, **settings)
+                           iterations=iterations or CAPS[solver], tol=TOL, callback=cb, **{**OVERRIDES, **settings})
     img = hwc(res.image)
     out.image, out.initial = img, hwc(res.initial)
     out.psnr_end, out.ssim_end = psnr(img, st.truth), ssim(img, st.truth)
@@ -424,6 +424,10 @@ def section_speed(world, device: str, repeats: int = 5) -> None:
         print(f'{devices[0]} {sv.upper()} 10 iterations: {r.timings["total"]:.3f} s')
 
 
+#: SR settings of every run (from the command line).
+OVERRIDES: dict[str, object] = {}
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument('--world', choices=sorted(WORLDS), default='caliterra')
@@ -434,7 +438,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument('--goal-cases', action='store_true',
                     help="quality: only the issue's goal cases (factor 2 / 5 frames, factor 4 / 20 frames, noise 2)")
     ap.add_argument('--out', default=str(ROOT / 'bench' / 'out'))
+    ap.add_argument('--no-anchor', action='store_true', help='SR without anchoring to the reference frame (sr.anchor)')
     args = ap.parse_args(argv)
+    if args.no_anchor:
+        OVERRIDES['anchor'] = False
     torch.set_num_threads(args.threads)
     if args.goal_cases:
         CONFIGS[:] = list(GOALS)

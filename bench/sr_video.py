@@ -34,8 +34,10 @@ REAL = ROOT.parent / 'shared' / 'data' / 'real'
 VIDEOS = (REAL / 'klv' / 'aphill_short.ts', REAL / 'gopro' / 'karma.mp4')
 RUNS: dict[str, dict[str, Any]] = {
     'default': {},
+    'no anchor': {'sr.anchor': False},
     'feather mosaic': {'mosaic.blend': 'feather'},
     'psf 0.3': {'sr.psf_sigma': 0.3},
+    'psf 0.5': {'sr.psf_sigma': 0.5},
 }
 
 

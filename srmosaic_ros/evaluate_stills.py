@@ -2,8 +2,8 @@
 
 A folder of stills (`data/sequences` layout: images/ and telemetry_from_exif.csv) is halved (area
 average, JPEG quality 98) into an LR folder for `srmosaic process --sr`; each SR tile is then
-compared with the HR original of its reference frame (the one whose centre is nearest the tile's,
-which the mosaic shows there), sampled at the tile's pixels through that frame's registered
+compared with the HR original of its reference frame (of the frames that hold the whole tile, the
+one whose centre is nearest the tile's: the frame SR anchors to), sampled at the tile's pixels through that frame's registered
 homography: HR pixel = 2 * LR pixel + 0.5 (pixel centres at integers). The baseline is mosaic.png
 sampled bicubically at the same points. Used by bench/sr_real.py and test/test_sr_consistency.py.
 """
@@ -49,6 +49,15 @@ def _sample(img: np.ndarray, img_H_tile: np.ndarray, shape: tuple[int, int]) -> 
     return np.clip(out, 0, 255).astype(np.float64)
 
 
+def _holds_tile(mosaic_H_frame: np.ndarray, size: tuple[int, int], entry: dict) -> bool:  # noqa: N803
+    """True when the LR frame of ``size`` (width, height) holds the tile's four corner pixels."""
+    x0, y0, w, h = entry['x0'], entry['y0'], entry['width'], entry['height']
+    corners = np.array([[x0, y0, 1], [x0 + w - 1, y0, 1], [x0 + w - 1, y0 + h - 1, 1], [x0, y0 + h - 1, 1]], float).T
+    p = np.linalg.inv(mosaic_H_frame) @ corners
+    fx, fy = p[0] / p[2], p[1] / p[2]
+    return bool(np.all((p[2] > 0) & (fx >= 0) & (fx <= size[0] - 1) & (fy >= 0) & (fy <= size[1] - 1)))
+
+
 def sr_errors_against_originals(out: Path, hr: dict[str, np.ndarray]) -> TileErrors:
     """Errors of every tile of ``out``/sr/tiles.json against the HR originals ``hr`` (name -> BGR
     image, in the folder's frame order = sorted names, one per frames.csv row)."""
@@ -57,13 +66,20 @@ def sr_errors_against_originals(out: Path, hr: dict[str, np.ndarray]) -> TileErr
     ok = [(names[i], r['mosaic_H_frame']) for i, r in enumerate(rows) if r['ok']]
     mosaic = cv2.imread(str(out / 'mosaic.png'), cv2.IMREAD_UNCHANGED)[:, :, :3]
     h_hr, w_hr = next(iter(hr.values())).shape[:2]
-    centres = frame_centres([h for _, h in ok], [(w_hr // 2, h_hr // 2)] * len(ok))
+    size = (w_hr // 2, h_hr // 2)
+    centres = frame_centres([h for _, h in ok], [size] * len(ok))
     result: TileErrors = {}
     for entry in json.loads((out / 'sr' / 'tiles.json').read_text()):
         sr = cv2.imread(str(out / 'sr' / entry['file']))[:, :, :3].astype(np.float64)
         grid_H = tile_grid_H(entry)  # noqa: N806
         c = np.array([entry['x0'] + (entry['width'] - 1) / 2, entry['y0'] + (entry['height'] - 1) / 2])
-        name, mosaic_H_frame = ok[int(np.argmin(np.hypot(*(centres - c).T)))]  # noqa: N806
+        # the reference is the nearest frame that holds the whole tile, as the SR scheduler picks
+        # them: a nearer frame that holds only part of it would be compared outside its own pixels
+        covers = np.array([_holds_tile(h, size, entry) for _, h in ok])
+        if not covers.any():
+            continue
+        dist = np.where(covers, np.hypot(*(centres - c).T), np.inf)
+        name, mosaic_H_frame = ok[int(np.argmin(dist))]  # noqa: N806
         truth = _sample(hr[name], _HR_H_LR @ np.linalg.inv(mosaic_H_frame) @ grid_H, sr.shape[:2])
         bicubic = _sample(mosaic, grid_H, sr.shape[:2])
         result[entry['file']] = (float(((sr - truth) ** 2).sum()), float(((bicubic - truth) ** 2).sum()), truth.size)

@@ -117,6 +117,8 @@ def super_resolve_mosaic(out: Path, items: Iterable[Any], config: PipelineConfig
         figures.append({'file': name, 'frames': len(use), 'frames_covering': plan.frames_covering,
                         'frames_consistent': int(np.count_nonzero(res.frame_consistent)),
                         'agrees_with_mosaic': bool(res.consistency.get('reference_kept', 1.0)),
+                        'anchored': bool(np.isfinite(res.anchor_rms)),
+                        'anchor_residual': round(255.0 * res.anchor_rms, 2) if np.isfinite(res.anchor_rms) else None,
                         'iterations': len(res.history), 'stop_reason': res.stop_reason,
                         'lambda': float(getattr(last, 'lam', float('nan'))) if last is not None else None,
                         'min_frame_weight': float(weights[np.isfinite(weights)].min()) if weights.size else None,

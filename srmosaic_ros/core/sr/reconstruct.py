@@ -40,6 +40,7 @@ import torch.nn.functional as F  # noqa: N812
 
 from ...errors import SrMosaicError
 from ..device import resolve_device
+from .anchor import anchor_to_frame
 from .consistency import consistent_frames, noise_sigma
 from .observation import FrameStack, build_frame_stack
 from .operators import Warp, gaussian_psf
@@ -61,6 +62,8 @@ __all__ = [
 ]
 
 LUMA = (0.299, 0.587, 0.114)
+#: Anchoring ignores the reference's residual below this many noise stds (core/sr/anchor.py).
+ANCHOR_NOISE = 2.0
 COLOR_MODES = ('luma', 'rgb')
 
 
@@ -112,6 +115,10 @@ class SRConfig:
         (pairwise NCC below this fraction of what their noise allows; core/sr/consistency.py), and
         a tile where fewer than two agree is refused (SRError); 0 turns the test off.
     lm_inner: inner CG iterations of LM.
+    anchor: after the solve, the reference frame's residual is back-projected onto the estimate
+        (core/sr/anchor.py), so the tile shows what the mosaic around it shows (the same moving
+        objects, the same side of a building) with the detail the fusion recovered; only when the
+        reference is among the frames kept, with a robust weight of at least 0.5.
     """
 
     psf_sigma: float = 0.5
@@ -133,6 +140,7 @@ class SRConfig:
     consistency: float = 0.8
     min_observed: int = 16
     lm_inner: int = 8
+    anchor: bool = True
     device: str = 'auto'
 
     def __post_init__(self) -> None:
@@ -168,6 +176,9 @@ class SRResult:
     frame_weights, frame_rms: (N,) per input frame (0 / NaN for frames that do not observe the tile).
     frame_consistent: (N,) False for frames left out by the consistency test (or not observing);
     consistency: its figures (noise, ncc_min, ncc_median, kept, frames; empty when off).
+    reference: index (into the caller's frames) of the reference frame, the one whose centre is
+    nearest the tile's; anchor_rms: RMS of its residual before anchoring (intensity), NaN when the
+    tile was not anchored.
     timings: seconds for 'setup', 'initial', 'solve', 'total'.
     """
 
@@ -181,6 +192,8 @@ class SRResult:
     frame_rms: np.ndarray = field(default_factory=lambda: np.zeros(0))
     frame_consistent: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
     consistency: dict[str, float] = field(default_factory=dict)
+    reference: int = -1
+    anchor_rms: float = math.nan
     timings: dict[str, float] = field(default_factory=dict)
     converged: bool = False
     stop_reason: str = ''
@@ -418,10 +431,11 @@ def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames:
     # noise of the frames themselves (luminance): the bilinear warp smooths it, which a high-pass
     # estimate on the warped frames would take for less noise
     noise = noise_sigma(luma(stack.crops), stack.in_frame)
+    ref = _nearest_frame(stack.index, tilem_H_frames, ts, (hm, wm))
     keep, consistency = np.ones(k_frames, dtype=bool), {}
     if cfg.consistency > 0 and k_frames >= 2:
         keep, consistency = consistent_frames(luma(warped), covered, threshold=cfg.consistency, noise=noise,
-                                              reference=_nearest_frame(stack.index, tilem_H_frames, ts, (hm, wm)))
+                                              reference=ref)
         if keep.sum() < 2:
             msg = (f'the {k_frames} frames on this tile disagree with each other (pairwise NCC median '
                    f'{consistency["ncc_median"]:.2f}, min {consistency["ncc_min"]:.2f}, against a noise of '
@@ -486,11 +500,16 @@ def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames:
     lm_opts = {'inner_iterations': cfg.lm_inner} if cfg.solver == 'lm' else {}
     res = solve(problem, x0, method=cfg.solver, iterations=cfg.iterations, tol=cfg.tol, callback=cb,
                 reweight=reweight, **lm_opts)
+    x_final, anchor_rms = res.x, math.nan
+    # a reference the robust weights (or the consistency test) set aside is the odd one out: a frame
+    # with a passing car, say, whose picture the tile should not take
+    if cfg.anchor and keep[ref] and float(problem.frame_weights[ref]) >= 0.5:
+        x_final, anchor_rms = anchor_to_frame(res.x, y_obs, stack, ref, s, threshold=ANCHOR_NOISE * noise)
     if device.type == 'cuda':
         torch.cuda.synchronize(device)
     t3 = time.perf_counter()
 
-    final_r = problem.y - problem.operator.apply(res.x)
+    final_r = problem.y - problem.operator.apply(x_final)
     rms = problem.frame_rms(final_r).cpu().numpy()
     weights_all = np.zeros(n_frames)
     rms_all = np.full(n_frames, math.nan)
@@ -500,11 +519,12 @@ def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames:
         rms_all[i] = float(rms[k])
         consistent_all[i] = bool(keep[k])
     crop = (slice(None), slice(m * s, (m + h_t) * s), slice(m * s, (m + w_t) * s))
-    image = compose(res.x)
+    image = compose(x_final)
     t4 = time.perf_counter()
     return SRResult(
         image=image, initial=x0_rgb[0][crop], lr_mosaic=mosaic[:, m:m + h_t, m:m + w_t],
         coverage=coverage[m:m + h_t, m:m + w_t], factor=s, history=res.history,
         frame_weights=weights_all, frame_rms=rms_all, frame_consistent=consistent_all, consistency=consistency,
+        reference=stack.index[ref], anchor_rms=anchor_rms,
         timings={'setup': t1 - t0, 'initial': t2 - t1, 'solve': t3 - t2, 'total': t4 - t0},
         converged=res.converged, stop_reason=res.stop_reason, config=cfg)

@@ -1,0 +1,65 @@
+"""Anchoring an SR tile to the frame the mosaic shows there (one back-projection step).
+
+The MAP estimate x fits all the tile's frames at once; where they differ from one another by more
+than the model allows (parallax of 3-D ground, a car that moved, compression), it is a compromise
+that matches none of them, while the best-view mosaic around the tile shows one frame, the
+reference (the frame whose centre is nearest the tile's). Anchoring adds back what the reference
+sees and x does not predict, upsampled onto the HR grid:
+
+    x_a = x + U_ref (y_ref - M D B W_ref x),
+
+U_ref the bicubic interpolation from the reference's LR window onto the HR tile (Irani and Peleg's
+back-projection, one step, for one frame), the residual soft-thresholded at twice the frames' noise
+std first: what the reference sees and the estimate misses is large and local (an object, an edge
+seen from elsewhere); its noise is small everywhere, and adding it back would undo the averaging
+that the fusion did. ``D B W_ref x_a`` then reproduces the reference in the
+band its LR pixels carry (up to the interpolation's own blur), and the tile keeps the detail above
+that band that only the fusion of several frames recovers. The tile thereby agrees with the mosaic
+around it: the same moving objects, the same side of a building, no seam at its border.
+"""
+from __future__ import annotations
+
+import numpy as np
+import torch
+import torch.nn.functional as F  # noqa: N812
+
+from .observation import FrameStack
+from .operators import lr_H_hr
+
+__all__ = ['anchor_to_frame']
+
+
+def anchor_to_frame(x: torch.Tensor, y: torch.Tensor, stack: FrameStack, k: int, factor: int, *,
+                    threshold: float = 0.0) -> tuple[torch.Tensor, float]:
+    """Back-project frame ``k``'s residual onto the HR estimate.
+
+    x: (1, C, H s, W s) HR estimate on the stack's tile grid; y: (K, C, h, w) the observations the
+    estimate was solved against (masked; C as ``x``); stack: the tile's frames; k: position of the
+    reference in the stack; factor: s; threshold: the residual is shrunk towards 0 by this much
+    (intensity; sign(r) max(|r| - threshold, 0)).
+
+    Returns ``(x_a (1, C, H s, W s), rms)``: the anchored estimate and the RMS of the reference's
+    residual before anchoring (intensity units, over its observed pixels). HR pixels whose bicubic
+    support reaches an unobserved reference pixel are left as they are.
+    """
+    pred = stack.operator.apply(x)[k:k + 1]
+    mask = stack.mask[k:k + 1]
+    r = (y[k:k + 1] - pred) * mask
+    observed = float(mask.sum()) * r.shape[1]
+    rms = float(torch.sqrt((r.double() ** 2).sum() / max(observed, 1.0)))
+    if threshold > 0:
+        r = torch.sign(r) * (r.abs() - threshold).clamp_min(0.0)
+    hc, wc = r.shape[-2:]
+    hs, ws = x.shape[-2:]
+    # HR tile pixel -> LR tile point -> LR window point, normalised for grid_sample(align_corners=True)
+    norm_H_window = np.array([[2.0 / max(wc - 1, 1), 0.0, -1.0], [0.0, 2.0 / max(hc - 1, 1), -1.0], [0.0, 0.0, 1.0]])  # noqa: N806
+    m = norm_H_window @ np.linalg.inv(stack.tile_H_windows[k]) @ lr_H_hr(factor)
+    vs, us = np.mgrid[0:hs, 0:ws].astype(np.float64)
+    q = m @ np.stack([us.ravel(), vs.ravel(), np.ones(us.size)])
+    grid = torch.as_tensor((q[:2] / q[2]).T.reshape(1, hs, ws, 2), dtype=x.dtype, device=x.device)
+    up = F.grid_sample(r.to(x.dtype), grid, mode='bicubic', padding_mode='zeros', align_corners=True)
+    # bicubic reads a 4x4 neighbourhood: use it only where the 5x5 around the nearest pixel is observed
+    observed_5x5 = F.max_pool2d(1.0 - mask.to(x.dtype), 5, stride=1, padding=2) < 0.5
+    valid = F.grid_sample(observed_5x5.to(x.dtype), grid, mode='nearest', padding_mode='zeros',
+                          align_corners=True) > 0.5
+    return x + up * valid, rms
