@@ -35,9 +35,9 @@ VIDEOS = (REAL / 'klv' / 'aphill_short.ts', REAL / 'gopro' / 'karma.mp4')
 RUNS: dict[str, dict[str, Any]] = {
     'default': {},
     'no anchor': {'sr.anchor': False},
-    'feather mosaic': {'mosaic.blend': 'feather'},
     'psf 0.3': {'sr.psf_sigma': 0.3},
     'psf 0.5': {'sr.psf_sigma': 0.5},
+    'psf 0.5, no anchor': {'sr.psf_sigma': 0.5, 'sr.anchor': False},
 }
 
 
@@ -73,20 +73,20 @@ def main() -> None:
         lr = work / f'{video.stem}_lr'
         hr = halve_video(video, lr, every=args.every, frames=args.frames)
         print(f'\n## {video.name}: {len(hr)} frames halved to {next(iter(hr.values())).shape[1] // 2} px wide')
-        print('| run | tiles (refused) | PSNR SR | PSNR bicubic | gain dB | mean tile gain | worst tile | tiles gaining |')
-        print('|---|---|---|---|---|---|---|---|')
+        print('| run | tiles (refused) | PSF sigma | PSNR SR | PSNR bicubic | gain dB | mean tile gain | worst tile | tiles gaining |')
+        print('|---|---|---|---|---|---|---|---|---|')
         for label, overrides in RUNS.items():
             out = work / f'{video.stem}_{label.replace(" ", "_")}'
             config = pipeline_config({'sr_tiles.tile_size': 64, **overrides})
             report = process_input(lr, out, config, sr_factor=2, progress=False)
             errors = sr_errors_against_originals(out, hr)
             if not errors:
-                print(f'| {label} | 0 | | | | | | |')
+                print(f'| {label} | 0 | | | | | | | |')
                 continue
             gains = np.array([psnr_from_sse(e[0], e[2]) - psnr_from_sse(e[1], e[2]) for e in errors.values()])
             sse_sr, sse_bi, n = (sum(e[i] for e in errors.values()) for i in range(3))
             refused = sum(1 for t in report['sr']['per_tile'] if 'error' in t)
-            print(f'| {label} | {len(errors)} ({refused}) | {psnr_from_sse(sse_sr, n):.2f} | {psnr_from_sse(sse_bi, n):.2f} '
+            print(f'| {label} | {len(errors)} ({refused}) | {report["sr"]["psf_sigma_px"]:g} | {psnr_from_sse(sse_sr, n):.2f} | {psnr_from_sse(sse_bi, n):.2f} '
                   f'| {psnr_from_sse(sse_sr, n) - psnr_from_sse(sse_bi, n):+.2f} | {gains.mean():+.2f} | {gains.min():+.2f} '
                   f'| {np.mean(gains > 0):.0%} |', flush=True)
 

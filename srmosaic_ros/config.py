@@ -108,6 +108,8 @@ def pipeline_config(overrides: dict[str, Any] | None = None, *, defaults: dict[s
             msg = f'unknown parameter {key!r}; known parameters: {known}.'
             raise ConfigError(msg)
         flat[key] = check_type(key, value, flat[key])
+    if 'sr.psf_sigma' in (overrides or {}) and 'sr.psf_ladder' not in (overrides or {}):
+        flat['sr.psf_ladder'] = []  # a PSF the user gives is used as given, not chosen from the frames
     device = flat.get('device', 'auto')
     if device not in DEVICES:
         msg = f"device must be one of {', '.join(DEVICES)}, got {device!r}."

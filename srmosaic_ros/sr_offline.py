@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import logging
 import time
+from dataclasses import replace
 from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -29,6 +30,7 @@ import numpy as np
 from tqdm import tqdm
 
 from .config import PipelineConfig
+from .core.sr.psf_select import TileFrames, choose_psf_sigma
 from .core.sr.reconstruct import SRError, SRFramesDisagree, reconstruct_tile
 from .core.sr.scheduler import plan_tiles
 from .core.types import CameraIntrinsics, Frame
@@ -89,15 +91,22 @@ def super_resolve_mosaic(out: Path, items: Iterable[Any], config: PipelineConfig
     tiles_dir = out / 'sr'
     tiles_dir.mkdir(parents=True, exist_ok=True)
     raster = read_raster(out / 'mosaic.tif') if (out / 'mosaic.tif').is_file() else None
+
+    def tile_inputs(plan: Any) -> TileFrames:
+        use = [k for k in plan.frames if k in frames]
+        return TileFrames([frames[k] for k in use],
+                          [_translation(-plan.x0, -plan.y0) @ rows[k]['mosaic_H_frame'] for k in use],
+                          (plan.height, plan.width))
+
+    sr_config, selection = _flight_psf(config, [tile_inputs(p) for p in plans[:PSF_TILES]], s)
     entries, figures, pasted = [], [], []
     for plan in tqdm(plans, unit='tile', desc='super-resolve', disable=not progress):
         t0 = time.perf_counter()
-        use = [k for k in plan.frames if k in frames]
-        tile_H = [_translation(-plan.x0, -plan.y0) @ rows[k]['mosaic_H_frame'] for k in use]  # noqa: N806
+        tile = tile_inputs(plan)
         try:
-            res = reconstruct_tile([frames[k] for k in use], tile_H, (plan.height, plan.width), s, config=config.sr)
+            res = reconstruct_tile(tile.frames, tile.tile_H_frames, tile.tile_shape, s, config=sr_config)
         except SRError as exc:
-            figures.append({'x0': plan.x0, 'y0': plan.y0, 'frames': len(use), 'error': str(exc),
+            figures.append({'x0': plan.x0, 'y0': plan.y0, 'frames': len(tile.frames), 'error': str(exc),
                             'frames_disagree': isinstance(exc, SRFramesDisagree)})
             continue
         image = res.image.detach().cpu().numpy().transpose(1, 2, 0)
@@ -114,7 +123,7 @@ def super_resolve_mosaic(out: Path, items: Iterable[Any], config: PipelineConfig
         pasted.append((plan.x0, plan.y0, np.clip(image * 255.0 + 0.5, 0, 255).astype(np.uint8)))
         last = res.history[-1] if res.history else None
         weights = np.asarray(res.frame_weights, dtype=float)
-        figures.append({'file': name, 'frames': len(use), 'frames_covering': plan.frames_covering,
+        figures.append({'file': name, 'frames': len(tile.frames), 'frames_covering': plan.frames_covering,
                         'frames_consistent': int(np.count_nonzero(res.frame_consistent)),
                         'agrees_with_mosaic': bool(res.consistency.get('reference_kept', 1.0)),
                         'anchored': bool(np.isfinite(res.anchor_rms)),
@@ -148,7 +157,31 @@ def super_resolve_mosaic(out: Path, items: Iterable[Any], config: PipelineConfig
     return {'factor': s, 'tiles': len(entries), 'tiles_planned': len(plans), 'tiles_refused': refused,
             'frames_read': len(frames),
             'solver': config.sr.solver, 'iterations_cap': config.sr.iterations,
-            'psf_sigma_px': config.sr.psf_sigma, 'per_tile': figures}
+            'psf_sigma_px': sr_config.psf_sigma, 'psf_selection': selection, 'per_tile': figures}
+
+
+#: Tiles (the best covered) on which the flight's PSF is chosen.
+PSF_TILES = 3
+
+
+def _flight_psf(config: PipelineConfig, tiles: list[TileFrames], factor: int) -> tuple[Any, dict[str, Any]]:
+    """The SR settings with the flight's PSF: chosen from ``sr.psf_ladder`` by predicting held-out frames
+    (core/sr/psf_select.py), or ``sr.psf_sigma`` as given; and what the report says about the choice."""
+    ladder = tuple(config.sr.psf_ladder)
+    if len(ladder) < 2:
+        return config.sr, {'method': 'given'}
+    t0 = time.perf_counter()
+    try:
+        choice = choose_psf_sigma(tiles, factor, config.sr, ladder)
+    except SRError as exc:
+        _LOG.warning('sr.psf_sigma %.2f kept: %s', config.sr.psf_sigma, exc)
+        return config.sr, {'method': 'given', 'ladder_failed': str(exc)}
+    _LOG.info('PSF chosen from the frames: sigma %.2f LR px (held-out RMS per sigma: %s)', choice.sigma,
+              ', '.join(f'{s:g}: {255 * r:.3f}' for s, r in zip(choice.ladder, choice.rms, strict=True)))
+    return replace(config.sr, psf_sigma=choice.sigma), {
+        'method': 'held_out_frames', 'ladder': list(choice.ladder),
+        'held_out_rms': [round(255.0 * r, 4) for r in choice.rms], 'predictions': choice.predictions,
+        'time_s': round(time.perf_counter() - t0, 2)}
 
 
 def sr_mosaic_strips(mosaic_rgb: np.ndarray, coverage: np.ndarray, factor: int,

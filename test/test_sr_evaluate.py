@@ -83,11 +83,16 @@ def test_evaluate_reports_sr_gain_over_bicubic(sr_run):
     assert sr['gain_db'] > 1.0, sr
     assert sr['gain_db_median'] > 0.5 and sr['ssim_sr'] > sr['ssim_bicubic']
     assert sr['gain_db'] == pytest.approx(sr['psnr_sr'] - sr['psnr_bicubic'])
-    # the PSF SR modelled (the default) beside the simulated camera's: sqrt(0.7^2 + 1/12) px
-    assert sr['psf_sigma_px'] == 0.5
+    # the PSF chosen from the frames (sr.psf_ladder, by predicting held-out frames) beside the
+    # simulated camera's, sqrt(0.7^2 + 1/12) px: the rung nearest it
+    assert sr['psf_sigma_px'] == 0.7
     assert sr['psf_sigma_true_px'] == pytest.approx(0.757, abs=1e-3)
-    # the report's iteration counts are the solver's (one history record per iteration)
     report = json.loads((out / 'report.json').read_text())['sr']
+    selection = report['psf_selection']
+    assert selection['method'] == 'held_out_frames' and selection['predictions'] >= 3
+    rms = dict(zip(selection['ladder'], selection['held_out_rms'], strict=True))
+    assert min(rms, key=rms.get) == 0.7 and rms[0.2] > rms[0.7]
+    # the report's iteration counts are the solver's (one history record per iteration)
     for t in report['per_tile']:
         cap = report['iterations_cap']
         assert 1 <= t['iterations'] <= cap

@@ -82,6 +82,9 @@ class SRConfig:
 
     psf_sigma: std of the Gaussian PSF in LR (frame) pixels; the HR kernel has std
         ``psf_sigma * factor`` (ignored when ``psf`` is given to :func:`reconstruct_tile`).
+    psf_ladder: sigmas from which ``srmosaic process --sr`` chooses the flight's PSF by predicting
+        held-out frames (core/sr/psf_select.py); empty: ``psf_sigma`` as given. Not read by
+        :func:`reconstruct_tile` itself.
     solver: 'sd' | 'cg' | 'lm'.  iterations: cap.  tol: stop when ||x_{n+1} - x_n|| / ||x_n|| < tol.
     lambda_mode: 'adaptive' (5.6, normalised) | 'fixed' (``lam``) | 'paper' (5.6 as printed).
     lambda_gamma, lambda_reference: the adaptive lambda at iteration n is::
@@ -122,6 +125,7 @@ class SRConfig:
     """
 
     psf_sigma: float = 0.5
+    psf_ladder: tuple[float, ...] = (0.2, 0.35, 0.5, 0.7, 0.9)
     solver: str = 'cg'
     iterations: int = 10
     tol: float = 1e-4
@@ -151,6 +155,8 @@ class SRConfig:
             (self.lambda_reference in ('initial', 'current'),
              f"lambda_reference must be 'initial' or 'current', got {self.lambda_reference!r}"),
             (self.psf_sigma >= 0, f'psf_sigma must be >= 0 (LR pixels), got {self.psf_sigma}'),
+            (all(isinstance(v, (int, float)) and 0 <= v <= 10 for v in self.psf_ladder),
+             f'psf_ladder holds sigmas in [0, 10] LR pixels (or none), got {list(self.psf_ladder)}'),
             (self.iterations >= 0, f'iterations must be >= 0, got {self.iterations}'),
             (self.huber_alpha > 0, f'huber_alpha must be > 0, got {self.huber_alpha}'),
             (self.lam >= 0 and self.lambda_gamma >= 0, 'lam and lambda_gamma must be >= 0'),
