@@ -38,6 +38,8 @@ RUNS: dict[str, dict[str, Any]] = {
     'psf 0.3': {'sr.psf_sigma': 0.3},
     'psf 0.5': {'sr.psf_sigma': 0.5},
     'psf 0.5, no anchor': {'sr.psf_sigma': 0.5, 'sr.anchor': False},
+    'lambda cap off': {'sr.lambda_noise_cap': 0.0},
+    'gamma 0.3': {'sr.lambda_gamma': 0.3},
 }
 
 

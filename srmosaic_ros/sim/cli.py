@@ -24,7 +24,7 @@ _OPTIONS: list[tuple[str, str, Any, str]] = [
     ('--world-gsd', 'world_gsd_m', float, 'metres per world pixel'),
     ('--origin-alt', 'origin_alt_m', float, 'ellipsoidal height (m) of the ground plane'),
     ('--trajectory', 'trajectory', str, 'flight pattern'),
-    ('--frames', 'frames', int, 'number of frames (default: 60 for a line, the whole lawnmower pattern)'),
+    ('--frames', 'frames', int, 'number of frames (default: 60 for a line, the whole lawnmower pattern or orbit)'),
     ('--rate', 'rate_hz', float, 'frame rate (Hz)'),
     ('--altitude', 'altitude_m', float, 'height above the ground (m)'),
     ('--speed', 'speed_m_s', float, 'ground speed (m/s)'),
@@ -32,6 +32,9 @@ _OPTIONS: list[tuple[str, str, Any, str]] = [
     ('--legs', 'legs', int, 'lawnmower: number of parallel legs'),
     ('--leg-length', 'leg_length_m', float, 'lawnmower: length of a leg (m)'),
     ('--leg-spacing', 'leg_spacing_m', float, 'lawnmower: distance between legs (m); legs step to the right'),
+    ('--orbit-radius', 'orbit_radius_m', float, 'orbit: radius (m) of the counter-clockwise circle about --start '
+     '(default there: the world centre); the camera looks at its centre'),
+    ('--laps', 'laps', float, 'orbit: how far round (1.25 flies a quarter lap over ground seen before)'),
     ('--gust-deg', 'gust_deg', float, 'RMS of the roll, pitch and yaw gust disturbances (deg)'),
     ('--gust-pos', 'gust_pos_m', float, 'RMS of the position wander (m)'),
     ('--gimbal-azimuth', 'gimbal_azimuth_deg', float, 'gimbal azimuth, counter-clockwise from the nose (deg)'),
@@ -55,7 +58,7 @@ _OPTIONS: list[tuple[str, str, Any, str]] = [
 _CHOICES = {'trajectory': TRAJECTORIES, 'mode': MODES}
 _METAVARS = {'world': 'PATH', 'frames': 'N', 'legs': 'N', 'width': 'W', 'height': 'H', 'decimate': 'N',
              'seed': 'N', 'noise_sigma': 'SIGMA', 'speed_m_s': 'M/S', 'psf_sigma_px': 'PX',
-             'trajectory': '{line,lawnmower}', 'mode': '{eo,ir}'}
+             'trajectory': '{line,lawnmower,orbit}', 'mode': '{eo,ir}'}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

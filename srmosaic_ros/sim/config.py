@@ -24,7 +24,7 @@ from ..errors import ConfigError
 __all__ = ['SimConfig', 'DEFAULT_WORLD', 'TRAJECTORIES', 'MODES', 'DEFAULT_LINE_FRAMES', 'DEFAULT_START_STAMP_NS']
 
 DEFAULT_WORLD = 'data/worlds/caliterra_IMG_9360.jpg'
-TRAJECTORIES = ('line', 'lawnmower')
+TRAJECTORIES = ('line', 'lawnmower', 'orbit')
 MODES = ('eo', 'ir')
 DEFAULT_LINE_FRAMES = 60
 DEFAULT_START_STAMP_NS = 1_700_000_000_000_000_000  # 2023-11-14T22:13:20Z, any fixed epoch would do
@@ -56,6 +56,9 @@ class SimConfig:
     legs: int = 3
     leg_length_m: float = 100.0
     leg_spacing_m: float = 60.0  # legs step to the right of the first leg's heading
+    orbit_radius_m: float = 60.0  # orbit: a counter-clockwise circle about the start point (--start) or the world centre
+    laps: float = 1.0  # orbit: how far round it flies (1.25: a quarter of the ground seen again)
+    orbit_look_at: bool = True  # orbit: the camera looks at the circle's centre (gimbal 90 deg left, below the horizon by atan(altitude / radius)), the gimbal options ignored
     turn_bank: bool = False  # True: coordinated-turn bank atan(v^2 kappa / g), eased in over 1 s
     gust_deg: float = 2.0  # RMS of each of the roll, pitch, yaw disturbances
     gust_pos_m: float = 1.0  # RMS of the east, north, up position wander
@@ -101,7 +104,8 @@ class SimConfig:
         need(self.mode in MODES, f'mode {self.mode!r} (use one of {MODES})')
         need(self.world_gsd_m > 0, f'world_gsd_m {self.world_gsd_m} must be > 0')
         need(self.frames is None or self.frames >= 1, f'frames {self.frames} must be >= 1')
-        for name in ('rate_hz', 'altitude_m', 'fix_rate_hz', 'imu_rate_hz', 'leg_length_m', 'leg_spacing_m'):
+        for name in ('rate_hz', 'altitude_m', 'fix_rate_hz', 'imu_rate_hz', 'leg_length_m', 'leg_spacing_m',
+                     'orbit_radius_m', 'laps'):
             need(getattr(self, name) > 0, f'{name} {getattr(self, name)} must be > 0')
         need(self.speed_m_s >= 0, f'speed_m_s {self.speed_m_s} must be >= 0')
         need(self.legs >= 1, f'legs {self.legs} must be >= 1')

@@ -19,7 +19,7 @@ from .config import DEFAULT_LINE_FRAMES, SimConfig
 from .render import hr_H_lr, quantize, render_frame
 from .telemetry import sample_stamps, simulate_fixes, simulate_imu
 from .traffic import make_traffic, paint_vehicles, restore_world
-from .trajectory import Path2D, Trajectory, lawnmower_path, line_path
+from .trajectory import Path2D, Trajectory, lawnmower_path, line_path, orbit_path
 from .truth import FrameTruth, Truth
 from .world import World, load_world, relative_to_repo
 
@@ -63,7 +63,7 @@ def frame_intrinsics(config: SimConfig) -> CameraIntrinsics:
 
 
 def frame_count(config: SimConfig, path: Path2D | None = None) -> int:
-    """Number of frames: config.frames, else 60 (line) or as many as the lawnmower pattern lasts."""
+    """Number of frames: config.frames, else 60 (line) or as many as the lawnmower pattern or orbit lasts."""
     if config.frames is not None:
         return int(config.frames)
     if config.trajectory == 'line' or path is None:
@@ -80,6 +80,18 @@ def build_trajectory(config: SimConfig) -> tuple[Trajectory, int]:
     if config.trajectory == 'line':
         n = frame_count(config)
         path = line_path((0.0, 0.0), heading, config.speed_m_s * (n - 1) / config.rate_hz)
+    elif config.trajectory == 'orbit':
+        centre = (0.0, 0.0) if config.start_east_m is None else (config.start_east_m, config.start_north_m)
+        path = orbit_path(centre, config.orbit_radius_m, config.laps, heading)
+        n = frame_count(config, path)
+        if config.speed_m_s * (n - 1) / config.rate_hz > path.length_m + 1e-6:
+            msg = (f'--frames {n} outlasts the orbit ({config.laps:g} laps of radius {config.orbit_radius_m:g} m at '
+                   f'--speed {config.speed_m_s:g} and --rate {config.rate_hz:g}); lower --frames or raise --laps.')
+            raise SimulationError(msg)
+        rng = np.random.default_rng([config.seed, _STREAM_TRAJECTORY])
+        traj = Trajectory(path, speed_m_s=config.speed_m_s, altitude_m=config.altitude_m, rng=rng,
+                          gust_deg=config.gust_deg, gust_pos_m=config.gust_pos_m, turn_bank=config.turn_bank)
+        return traj, n
     else:
         path = lawnmower_path((0.0, 0.0), heading, config.legs, config.leg_length_m, config.leg_spacing_m)
         n = frame_count(config, path)
@@ -99,6 +111,14 @@ def build_trajectory(config: SimConfig) -> tuple[Trajectory, int]:
     traj = Trajectory(path, speed_m_s=config.speed_m_s, altitude_m=config.altitude_m, rng=rng,
                       gust_deg=config.gust_deg, gust_pos_m=config.gust_pos_m, turn_bank=config.turn_bank)
     return traj, n
+
+
+def gimbal_deg(config: SimConfig) -> tuple[float, float]:
+    """(azimuth, elevation) of the camera on the body, degrees: the options', or on an orbit with
+    ``orbit_look_at`` the direction of the circle's centre (left of the nose, atan(h / r) down)."""
+    if config.trajectory == 'orbit' and config.orbit_look_at:
+        return 90.0, -math.degrees(math.atan2(config.altitude_m, config.orbit_radius_m))
+    return config.gimbal_azimuth_deg, config.gimbal_elevation_deg
 
 
 def _footprint(config: SimConfig, k: int, world_px_H_hr: np.ndarray, R_enu_from_cam: np.ndarray,  # noqa: N803
@@ -128,6 +148,8 @@ def _check_inside(config: SimConfig, world: World, footprints: list[np.ndarray])
             hint = 'one frame alone nearly covers the world: lower --altitude or --hfov, or raise --world-gsd'
         elif config.trajectory == 'line':
             hint = 'the flight is too long for the world: lower --frames or --speed (or raise --rate)'
+        elif config.trajectory == 'orbit':
+            hint = 'the orbit sees too far: lower --orbit-radius or --hfov, or raise --altitude'
         else:
             hint = 'the pattern is too large for the world: lower --legs, --leg-length, --leg-spacing or --frames'
         alternative = 'move --start / --heading' if config.start_east_m is not None else 'lower --altitude'
@@ -160,11 +182,11 @@ def simulate(config: SimConfig, *, progress: bool = False) -> SimulatedFlight:
     hr_homographies = []
     corners_all = []
     prev_ground_H = None
+    azimuth_deg, elevation_deg = gimbal_deg(config)
     for k, stamp in enumerate(stamps):
         st = traj.state((stamp - t0) * 1e-9)
         pose = camera_pose(st.position_enu_m, st.roll_rad, st.pitch_rad, st.yaw_rad,
-                           gimbal_azimuth_rad=math.radians(config.gimbal_azimuth_deg),
-                           gimbal_elevation_rad=math.radians(config.gimbal_elevation_deg),
+                           gimbal_azimuth_rad=math.radians(azimuth_deg), gimbal_elevation_rad=math.radians(elevation_deg),
                            lever_arm_body_m=config.lever_arm_m)
         enu_H_hr = ground_H_image(K_hr, pose.R_enu_from_cam, pose.center_enu_m)  # noqa: N806
         world_px_H_hr = normalize_H(world.world_px_H_enu @ enu_H_hr)  # noqa: N806

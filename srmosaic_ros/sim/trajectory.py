@@ -24,7 +24,7 @@ import numpy as np
 from ..core.georef.frames import R_enu_from_body, rotvec_from_matrix
 
 __all__ = ['GRAVITY_M_S2', 'Segment', 'Path2D', 'SmoothNoise', 'Trajectory', 'BodyState', 'line_path',
-           'lawnmower_path']
+           'lawnmower_path', 'orbit_path']
 
 GRAVITY_M_S2 = 9.80665
 _BANK_EASE_S = 1.0
@@ -147,6 +147,13 @@ def lawnmower_path(start: tuple[float, float], heading_rad: float, legs: int, le
             pos, heading = turn.end
             heading = math.atan2(math.sin(heading), math.cos(heading))
     return Path2D(segments)
+
+
+def orbit_path(centre: tuple[float, float], radius_m: float, laps: float, heading_rad: float) -> Path2D:
+    """A counter-clockwise circle of ``radius_m`` about ``centre``, ``laps`` times round, starting with
+    the tangent ``heading_rad`` (the centre then lies to the left of the nose)."""
+    start = (float(centre[0]) + radius_m * math.sin(heading_rad), float(centre[1]) - radius_m * math.cos(heading_rad))
+    return Path2D([Segment(start, float(heading_rad), 2.0 * math.pi * radius_m * laps, 1, float(radius_m))])
 
 
 class SmoothNoise:
