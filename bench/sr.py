@@ -439,9 +439,16 @@ def main(argv: list[str] | None = None) -> int:
                     help="quality: only the issue's goal cases (factor 2 / 5 frames, factor 4 / 20 frames, noise 2)")
     ap.add_argument('--out', default=str(ROOT / 'bench' / 'out'))
     ap.add_argument('--no-anchor', action='store_true', help='SR without anchoring to the reference frame (sr.anchor)')
+    ap.add_argument('--set', action='append', default=[], metavar='KEY=VALUE',
+                    help='an SR setting for every run, e.g. lambda_gamma=0.3 (a number, true or false)')
     args = ap.parse_args(argv)
     if args.no_anchor:
         OVERRIDES['anchor'] = False
+    for item in args.set:
+        key, _, value = item.partition('=')
+        OVERRIDES[key] = {'true': True, 'false': False}.get(value.lower(), None)
+        if OVERRIDES[key] is None:
+            OVERRIDES[key] = float(value)
     torch.set_num_threads(args.threads)
     if args.goal_cases:
         CONFIGS[:] = list(GOALS)

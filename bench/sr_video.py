@@ -37,9 +37,9 @@ RUNS: dict[str, dict[str, Any]] = {
     'no anchor': {'sr.anchor': False},
     'psf 0.3': {'sr.psf_sigma': 0.3},
     'psf 0.5': {'sr.psf_sigma': 0.5},
-    'psf 0.5, no anchor': {'sr.psf_sigma': 0.5, 'sr.anchor': False},
-    'lambda cap off': {'sr.lambda_noise_cap': 0.0},
+    'noise cap 1': {'sr.lambda_noise_cap': 1.0},
     'gamma 0.3': {'sr.lambda_gamma': 0.3},
+    'defaults before 2026-12-03': {'sr.psf_sigma': 0.5, 'sr.anchor': False, 'sr.lambda_noise_cap': 1.0},
 }
 
 

@@ -72,7 +72,7 @@ def test_lambda_noise_cap_acts_on_misfit_only(world, tile):
     frame misregistered by 0.5 px (misfit) the residual exceeds the noise and the cap lowers lambda."""
     def last_lambda(mats, **kw):
         return reconstruct_tile(tile.frames, mats, TILE, 2, iterations=5, device='cpu', **kw).history[-1].lam
-    fit_on, fit_off = last_lambda(tile.tile_H_frames), last_lambda(tile.tile_H_frames, lambda_noise_cap=0)
+    fit_on, fit_off = last_lambda(tile.tile_H_frames, lambda_noise_cap=1.0), last_lambda(tile.tile_H_frames, lambda_noise_cap=0)
     assert fit_on == pytest.approx(fit_off, rel=0.2)
     rng = np.random.default_rng(1)
     off = [perturb_homography(h, f.shape[:2], 0.5, rng) for h, f in zip(tile.tile_H_frames, tile.frames, strict=True)]

@@ -105,10 +105,9 @@ class SRConfig:
         best fixed lambda in every case.
     lambda_noise_cap: in the adaptive modes, the frames' RMS residuals in sigma(n) are capped at
         this many times their noise std (Immerkaer's estimate on the frames, core/sr/consistency.py);
-        0: not capped. Where the model fits (simulated flights) the residual is below the noise and
-        nothing changes (bench/sr.py within 0.07 dB); on real stills it is 2 to 4 times the noise
-        (misfit, not noise) and the cap lowers lambda: +0.21 dB on caliterra, +0.13 on brighton
-        (bench/sr_real.py, against the stills' own 2x originals).
+        0: not capped (the default: (5.6) as it reads). Where the model fits the residual is below
+        the noise and the cap changes nothing; on real frames it is several times the noise and the
+        cap lowers lambda, which real footage does not want (bench/sr_video.py, bench/sr_real.py).
     huber_alpha: Huber threshold (intensity, [0, 1]).
     color: 'luma' | 'rgb' (see the module docstring).  margin: LR pixels reconstructed around the
         tile and cut away (the tile's border then sees as many frames as its interior).
@@ -133,7 +132,7 @@ class SRConfig:
     lam: float = 0.01
     lambda_gamma: float = 0.1
     lambda_reference: str = 'initial'
-    lambda_noise_cap: float = 1.0
+    lambda_noise_cap: float = 0.0
     huber_alpha: float = 0.02
     color: str = 'luma'
     margin: int = 4
