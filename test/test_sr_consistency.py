@@ -118,10 +118,12 @@ def test_real_stills_super_resolved_against_their_originals(tmp_path) -> None:
         runs[label] = (report['sr'], sr_errors_against_originals(out, hr))
     report, errors = runs['global']
     _, unanchored = runs['global unanchored']
-    assert len(errors) >= 6 and sorted(errors) == sorted(unanchored)  # measured 8 tiles
-    assert sum(1 for t in report['per_tile'] if t.get('anchored')) >= len(errors) // 2  # 7 of 8
-    # pooled over the tiles against bicubic of mosaic.png: measured +3.37 dB anchored, +2.00 not
-    gain, gain_unanchored = pooled_gain_db(errors)[2], pooled_gain_db(unanchored)[2]
+    # anchored, a tile whose reference (the still the mosaic shows) disagrees with the others is
+    # left to the mosaic too: the anchored run's tiles are the unanchored run's less those
+    assert len(errors) >= 6 and set(errors) < set(unanchored)  # measured 7 of 8
+    assert sum(1 for t in report['per_tile'] if t.get('anchored')) == len(errors)
+    # pooled over the same tiles against bicubic of mosaic.png: measured +5.13 dB anchored, +3.11 not
+    gain, gain_unanchored = pooled_gain_db(errors)[2], pooled_gain_db(unanchored, sorted(errors))[2]
     assert gain > 2.0 and gain > gain_unanchored + 0.5, (gain, gain_unanchored)
     chain_report, chain_errors = runs['chain']
     refused = [t for t in chain_report['per_tile'] if 'error' in t]

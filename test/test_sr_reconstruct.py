@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from srmosaic_ros.core.sr import SRConfig, SRError, reconstruct_tile
+from srmosaic_ros.core.sr import SRConfig, SRError, SRFramesDisagree, reconstruct_tile
 from srmosaic_ros.core.sr.synthetic import make_synthetic_tile, perturb_homography
 
 from imagery import world_rgb
@@ -51,10 +51,16 @@ def test_beats_bicubic_by_a_clear_margin(tile, solver):
 def test_misregistered_frame_is_down_weighted(tile):
     mats = [h.copy() for h in tile.tile_H_frames]
     mats[2] = np.array([[1.0, 0.0, 1.5], [0.0, 1.0, -1.0], [0.0, 0.0, 1.0]]) @ mats[2]
-    robust = reconstruct_tile(tile.frames, mats, TILE, 2, iterations=10, device='cpu')
-    plain = reconstruct_tile(tile.frames, mats, TILE, 2, iterations=10, device='cpu', robust=False, consistency=0)
-    gate_only = reconstruct_tile(tile.frames, mats, TILE, 2, iterations=10, device='cpu', robust=False)
-    clean = reconstruct_tile(tile.frames, tile.tile_H_frames, TILE, 2, iterations=10, device='cpu')
+    # frame 2 is the tile's reference (the frame the mosaic shows): anchored (the default) the tile is
+    # left to the mosaic; the weights are measured without anchoring
+    with pytest.raises(SRFramesDisagree, match='the frame the mosaic shows'):
+        reconstruct_tile(tile.frames, mats, TILE, 2, iterations=10, device='cpu')
+    robust = reconstruct_tile(tile.frames, mats, TILE, 2, iterations=10, device='cpu', anchor=False)
+    plain = reconstruct_tile(tile.frames, mats, TILE, 2, iterations=10, device='cpu', robust=False, consistency=0,
+                             anchor=False)
+    gate_only = reconstruct_tile(tile.frames, mats, TILE, 2, iterations=10, device='cpu', robust=False, anchor=False)
+    clean = reconstruct_tile(tile.frames, tile.tile_H_frames, TILE, 2, iterations=10, device='cpu', anchor=False)
+    assert robust.reference == 2
     # the consistency test leaves the frame out (1.5 px off: NCC 0.72 with the others, 1.00 among them)
     assert list(gate_only.frame_consistent) == [True, True, False, True, True, True]
     assert gate_only.frame_weights[2] == 0.0
@@ -194,6 +200,9 @@ def test_anchoring_shows_what_the_reference_frame_shows(world, tile):
                                  robust=False, consistency=0) for a in (False, True)]
     excess = [float(r.image[:, v - 2:v + 3, u - 2:u + 3].mean()) - truth for r in admitted]
     assert excess[1] > 0.25 and excess[0] < 0.1, excess
-    # with the defaults the robust weights set that frame aside, and the tile is not anchored to it
-    default = reconstruct_tile(frames, tile.tile_H_frames, TILE, 2, iterations=10, device='cpu')
-    assert default.frame_weights[ref] < 0.5 and np.isnan(default.anchor_rms)
+    # with the defaults the robust weights set that frame aside: the tile is left to the mosaic,
+    # which shows that frame there; not anchored, it is fused from the others
+    with pytest.raises(SRFramesDisagree, match='robust weights'):
+        reconstruct_tile(frames, tile.tile_H_frames, TILE, 2, iterations=10, device='cpu')
+    fused = reconstruct_tile(frames, tile.tile_H_frames, TILE, 2, iterations=10, device='cpu', anchor=False)
+    assert fused.frame_weights[ref] < 0.5 and np.isnan(fused.anchor_rms)

@@ -119,8 +119,9 @@ class SRConfig:
     lm_inner: inner CG iterations of LM.
     anchor: after the solve, the reference frame's residual is back-projected onto the estimate
         (core/sr/anchor.py), so the tile shows what the mosaic around it shows (the same moving
-        objects, the same side of a building) with the detail the fusion recovered; only when the
-        reference is among the frames kept, with a robust weight of at least 0.5.
+        objects, the same side of a building) with the detail the fusion recovered. A tile whose
+        reference the consistency test or the robust weights (below 0.5) set aside is refused
+        (SRFramesDisagree): fused from the others, it would disagree with the mosaic around it.
     """
 
     psf_sigma: float = 0.5
@@ -506,9 +507,15 @@ def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames:
     res = solve(problem, x0, method=cfg.solver, iterations=cfg.iterations, tol=cfg.tol, callback=cb,
                 reweight=reweight, **lm_opts)
     x_final, anchor_rms = res.x, math.nan
-    # a reference the robust weights (or the consistency test) set aside is the odd one out: a frame
-    # with a passing car, say, whose picture the tile should not take
-    if cfg.anchor and keep[ref] and float(problem.frame_weights[ref]) >= 0.5:
+    if cfg.anchor:
+        if not (keep[ref] and float(problem.frame_weights[ref]) >= 0.5):
+            # the frame the mosaic shows here is the odd one out (parallax, a passing car): a tile
+            # fused from the others would disagree with the mosaic around it
+            msg = (f'the frame the mosaic shows on this tile disagrees with the other {k_frames - 1} (left out by '
+                   f"{'the consistency test' if not keep[ref] else 'the robust weights'}): parallax, motion or "
+                   'misregistration; the tile is left to the mosaic (sr.anchor: false super-resolves it from the '
+                   'others).')
+            raise SRFramesDisagree(msg)
         x_final, anchor_rms = anchor_to_frame(res.x, y_obs, stack, ref, s, threshold=ANCHOR_NOISE * noise)
     if device.type == 'cuda':
         torch.cuda.synchronize(device)
