@@ -128,6 +128,7 @@ def super_resolve_mosaic(out: Path, items: Iterable[Any], config: PipelineConfig
                         'agrees_with_mosaic': bool(res.consistency.get('reference_kept', 1.0)),
                         'anchored': bool(np.isfinite(res.anchor_rms)),
                         'anchor_residual': round(255.0 * res.anchor_rms, 2) if np.isfinite(res.anchor_rms) else None,
+                        'noise': round(255.0 * res.consistency['noise'], 2) if 'noise' in res.consistency else None,
                         'iterations': len(res.history), 'stop_reason': res.stop_reason,
                         'lambda': float(getattr(last, 'lam', float('nan'))) if last is not None else None,
                         'min_frame_weight': float(weights[np.isfinite(weights)].min()) if weights.size else None,
