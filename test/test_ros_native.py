@@ -384,6 +384,64 @@ def test_mosaic_node_lifecycle(ros_env, tmp_path):
 
 
 @pytest.mark.ros
+def test_georef_node_lifecycle(ros_env):
+    """The standalone georef node as a managed node (live.autostart false), beside a mosaic node
+    (also managed) that sends it the registrations: configured but inactive, it ignores a played bag
+    (counted, no pose); active, it fuses the same bag played again into poses; deactivated, it
+    publishes none; cleanup leaves it unconfigured."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from geometry_msgs.msg import PoseWithCovarianceStamped
+    from lifecycle_msgs.msg import State, Transition
+    from lifecycle_msgs.srv import ChangeState, GetState
+
+    listener = Listener({'diagnostics': (DiagnosticArray, '/glc/srmosaic/diagnostics'),
+                         'pose': (PoseWithCovarianceStamped, '/glc/srmosaic/pose')})
+    start = [sys.executable, '-m', 'srmosaic_ros.nodes.executables']
+    common = ['--ros-args', '-r', '__ns:=/glc', '-p', 'live.autostart:=false', '-p', 'live.georef_standalone:=true',
+              '-p', 'live.reliable_inputs:=true', '-p', 'live.preview_period_s:=0.3']
+    procs = {name: subprocess.Popen([*start, executable, *common], env=ros_env, stdout=subprocess.PIPE,
+                                    stderr=subprocess.STDOUT, text=True)
+             for name, executable in (('georef', 'georef_node'), ('mosaic', 'mosaic_node'))}
+    clients = {name: (listener.node.create_client(GetState, f'/glc/srmosaic_{name}/get_state'),
+                      listener.node.create_client(ChangeState, f'/glc/srmosaic_{name}/change_state'))
+               for name in procs}
+
+    def state(name: str) -> int:
+        return _call(listener, clients[name][0].call_async(GetState.Request())).current_state.id
+
+    def transition(name: str, tid: int) -> None:
+        request = ChangeState.Request(transition=Transition(id=tid))
+        assert _call(listener, clients[name][1].call_async(request)).success, (name, tid)
+
+    def play() -> None:
+        player = subprocess.run([*start, 'player', str(DEMO), '--rate', '2', '--delay', '15', '--ros-args', '-r',
+                                 '__ns:=/glc'], env=ros_env, capture_output=True, text=True, timeout=120)
+        assert player.returncode == 0, player.stdout + player.stderr
+
+    def value(key: str) -> str | None:
+        status = listener.statuses().get('glc/srmosaic: georeferencing')
+        return _values(status).get(key) if status is not None else None
+
+    with supervised_processes(procs, listener.close):
+        for name in procs:
+            assert clients[name][0].wait_for_service(timeout_sec=60) and clients[name][1].wait_for_service(timeout_sec=10)
+            assert state(name) == State.PRIMARY_STATE_UNCONFIGURED
+            transition(name, Transition.TRANSITION_CONFIGURE)
+        assert state('georef') == State.PRIMARY_STATE_INACTIVE
+        play()  # both inactive: ignored, and taken again when replayed
+        assert listener.wait_for(lambda: int(value('inputs_while_inactive') or 0) >= 50, 30), value('inputs_while_inactive')
+        assert listener.got['pose'] == [] and value('frames_fused') == '0'
+        for name in procs:
+            transition(name, Transition.TRANSITION_ACTIVATE)
+        play()
+        assert listener.wait_for(lambda: len(listener.got['pose']) >= 50, 120), len(listener.got['pose'])
+        transition('georef', Transition.TRANSITION_DEACTIVATE)
+        assert listener.wait_for(lambda: 'inactive' in listener.statuses()['glc/srmosaic: georeferencing'].message, 10)
+        transition('georef', Transition.TRANSITION_CLEANUP)
+        assert state('georef') == State.PRIMARY_STATE_UNCONFIGURED
+
+
+@pytest.mark.ros
 def test_idle_nodes_stop_on_sigint(ros_env, tmp_path):
     """Nodes with no timer of their own (the georef node idle, the mosaic node unconfigured, the
     tile recorder waiting) stop cleanly on Ctrl-C: the executor returns to Python to run the handler."""

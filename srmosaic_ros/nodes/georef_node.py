@@ -33,7 +33,8 @@ import time
 from typing import Any
 
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
-from rclpy.node import Node
+from rclpy.lifecycle import LifecycleState, TransitionCallbackReturn
+from rclpy.lifecycle import Node as LifecycleNode
 from sensor_msgs.msg import CameraInfo, Imu, NavSatFix
 from std_msgs.msg import Float64MultiArray
 
@@ -45,6 +46,7 @@ from ..errors import SrMosaicError
 from ..pipeline import SYNC_HOLD_FRAMES
 from .common import (TELEMETRY_QOS_DEPTH, DiagnosticsPublisher, PosePublisher, RegistrationMsg, StreamOrder, WarnOnce,
                      decode_registration, input_qos, subscribe_input)
+from .lifecycle import autostart, configure_with, release
 from .parameters import GEOREF_PARAMETERS, declare_pipeline_parameters, on_parameter_change, read_pipeline_config
 
 __all__ = ['GeorefNode', 'main']
@@ -53,16 +55,58 @@ __all__ = ['GeorefNode', 'main']
 SYNC_TIMEOUT_S = 1.0
 
 
-class GeorefNode(Node):
-    """Georeferencing stage (see module docstring)."""
+class GeorefNode(LifecycleNode):
+    """Georeferencing stage (see module docstring), a managed (lifecycle) node as the mosaic node is.
+
+    configure reads the parameters and, in standalone mode, builds the subscriptions, publishers and
+    timers; activate starts fusing; deactivate pauses (inputs are counted and ignored, the filter is
+    kept); cleanup fuses the registrations still waiting and frees what configure made (the filter
+    with it); shutdown does the same from any state. With live.autostart (default) the node
+    configures and activates itself at start.
+    """
 
     def __init__(self, **kwargs: Any) -> None:  # noqa: ANN401
         super().__init__('srmosaic_georef', **kwargs)
-        defaults = declare_pipeline_parameters(self, GEOREF_PARAMETERS, changeable=('live.preview_period_s',))
-        self.config = read_pipeline_config(self, defaults)  # ConfigError refuses bad georef.* values
-        self._undistorter = Undistorter(self.config.undistort)
-        self.active = bool(self.get_parameter('live.georef_standalone').value)
+        self._defaults = declare_pipeline_parameters(self, GEOREF_PARAMETERS,
+                                                     changeable=('live.preview_period_s',))
         self.warn = WarnOnce(self)
+        self.processing = False  # lifecycle: active
+        self.configured = False
+        self.standalone = False
+        self._diagnostics_timer = None
+        self._entities: list[tuple[Any, Any]] = []  # (destroy, entity) made by configure (lifecycle.py)
+        self.configure_error: Exception | None = None
+        on_parameter_change(self, {'live.preview_period_s': self._set_period})
+        autostart(self)
+
+    def _set_period(self, period_s: float) -> None:
+        if self._diagnostics_timer is not None:
+            self._diagnostics_timer.timer_period_ns = int(period_s * 1e9)
+
+    # -- lifecycle ------------------------------------------------------------------------------
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        return configure_with(self, self._configure)
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.processing = True
+        return super().on_activate(state)
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.processing = False
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.finish()
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.finish()
+        return TransitionCallbackReturn.SUCCESS
+
+    def _configure(self) -> None:
+        self.config = read_pipeline_config(self, self._defaults)  # ConfigError refuses bad georef.* values
+        self._undistorter = Undistorter(self.config.undistort)
+        self.standalone = bool(self.get_parameter('live.georef_standalone').value)
         self.georef: Georeferencer | None = None
         self._camera = None
         self._pending: list[tuple[float, RegistrationMsg]] = []  # (arrival monotonic s, registration)
@@ -70,15 +114,16 @@ class GeorefNode(Node):
         self._order = StreamOrder(self, self.warn, self.config.stamp_tolerance_s)  # stamps off the clock or backwards
         self._ref_stamp: int | None = None  # the last painted frame fed: what prev_H_cur maps into
         self._last_pose = None
-        self.pub_diag = DiagnosticsPublisher(self, 'srmosaic: georeferencing')
-        if not self.active:
+        if not self.standalone:
             self.get_logger().info('georeferencing runs inside the mosaic node (live.georef_standalone is false); '
                                    'this node stays idle. Set live.georef_standalone:=true for the whole graph to '
                                    'run the filter here.')
+            self.configured = True
             return
         if not self.config.georef_enabled:
             msg = 'live.georef_standalone is true but georef.enabled is false: nothing to do; enable one of them.'
             raise SrMosaicError(msg)
+        self.pub_diag = DiagnosticsPublisher(self, 'srmosaic: georeferencing')
         reliable = bool(self.get_parameter('live.reliable_inputs').value)
         qos = input_qos(reliable, TELEMETRY_QOS_DEPTH)
         group = MutuallyExclusiveCallbackGroup()  # one group: the filter sees its inputs one at a time, in order
@@ -89,14 +134,18 @@ class GeorefNode(Node):
         self.pub_poses = PosePublisher(self)
         period = float(self.get_parameter('live.preview_period_s').value)
         self.create_timer(0.2, self._on_tick, callback_group=group)
-        diagnostics = self.create_timer(period, self._publish_diagnostics, callback_group=MutuallyExclusiveCallbackGroup())
-        on_parameter_change(self, {'live.preview_period_s': lambda v: setattr(diagnostics, 'timer_period_ns', int(v * 1e9))})
+        self._diagnostics_timer = self.create_timer(period, self._publish_diagnostics,
+                                                    callback_group=MutuallyExclusiveCallbackGroup())
+        self.configured = True
 
     # -- inputs ---------------------------------------------------------------------------------
     def _in_order(self, stream: str, stamp_ns: int) -> bool:
         return self._order.accept(stream, stamp_ns)
 
     def _telemetry(self, kind: str, convert: Any, msg: Any) -> None:  # noqa: ANN401
+        if not self.processing:
+            self.warn.count('inputs_while_inactive')
+            return
         try:
             item = convert(msg)
         except SrMosaicError as exc:
@@ -124,6 +173,9 @@ class GeorefNode(Node):
             self.warn('camera_info', f'camera info skipped: {exc}')
 
     def _on_registration(self, msg: Float64MultiArray) -> None:
+        if not self.processing:  # paused (lifecycle): before the stamp order, so a replay is taken later
+            self.warn.count('inputs_while_inactive')
+            return
         try:
             reg = decode_registration(msg)
         except SrMosaicError as exc:
@@ -182,14 +234,25 @@ class GeorefNode(Node):
         if self.georef is not None:
             values.update({f'filter skipped: {k}': v for k, v in self.georef.skipped.items()})
         values.update({k: v for k, v in stats.items() if k.startswith('rejected')})
-        level, message = self.warn.status(f"{values['poses_published']} poses")
+        message = f"{values['poses_published']} poses"
+        if not self.processing:
+            message = 'inactive (lifecycle): inputs ignored, the filter kept'
+            values['inputs_while_inactive'] = stats.get('inputs_while_inactive', 0)
+        level, message = self.warn.status(message)
         self.pub_diag.publish(self.pub_diag.array(message, values, level))
 
     def finish(self) -> None:
-        """Fuse the registrations still waiting for telemetry."""
-        if self.active:
+        """Fuse the registrations still waiting for telemetry and free what configure made (cleanup,
+        shutdown, or the end of the process); nothing when not configured."""
+        if not self.configured:
+            return
+        self.processing = False
+        self.configured = False
+        if self.standalone:
             while self._pending:
                 self._fuse(self._pending.pop(0)[1])
+        release(self._entities)
+        self._entities, self._diagnostics_timer, self.georef = [], None, None
 
 
 def main(argv: list[str] | None = None) -> int:
