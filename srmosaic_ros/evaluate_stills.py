@@ -16,7 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .core.sr.scheduler import frame_centres
+from .core.sr.scheduler import frame_centres, frame_holds_rect
 from .evaluate import tile_grid_H
 from .io.mosaic_files import read_frames_csv
 
@@ -49,15 +49,6 @@ def _sample(img: np.ndarray, img_H_tile: np.ndarray, shape: tuple[int, int]) -> 
     return np.clip(out, 0, 255).astype(np.float64)
 
 
-def _holds_tile(mosaic_H_frame: np.ndarray, size: tuple[int, int], entry: dict) -> bool:  # noqa: N803
-    """True when the LR frame of ``size`` (width, height) holds the tile's four corner pixels."""
-    x0, y0, w, h = entry['x0'], entry['y0'], entry['width'], entry['height']
-    corners = np.array([[x0, y0, 1], [x0 + w - 1, y0, 1], [x0 + w - 1, y0 + h - 1, 1], [x0, y0 + h - 1, 1]], float).T
-    p = np.linalg.inv(mosaic_H_frame) @ corners
-    fx, fy = p[0] / p[2], p[1] / p[2]
-    return bool(np.all((p[2] > 0) & (fx >= 0) & (fx <= size[0] - 1) & (fy >= 0) & (fy <= size[1] - 1)))
-
-
 def sr_errors_against_originals(out: Path, hr: dict[str, np.ndarray]) -> TileErrors:
     """Errors of every tile of ``out``/sr/tiles.json against the HR originals ``hr`` (name -> BGR
     image, in the folder's frame order = sorted names, one per frames.csv row)."""
@@ -75,7 +66,8 @@ def sr_errors_against_originals(out: Path, hr: dict[str, np.ndarray]) -> TileErr
         c = np.array([entry['x0'] + (entry['width'] - 1) / 2, entry['y0'] + (entry['height'] - 1) / 2])
         # the reference is the nearest frame that holds the whole tile, as the SR scheduler picks
         # them: a nearer frame that holds only part of it would be compared outside its own pixels
-        covers = np.array([_holds_tile(h, size, entry) for _, h in ok])
+        rect = (entry['x0'], entry['y0'], entry['width'], entry['height'])
+        covers = np.array([frame_holds_rect(np.linalg.inv(h), size, rect) for _, h in ok])
         if not covers.any():
             continue
         dist = np.where(covers, np.hypot(*(centres - c).T), np.inf)

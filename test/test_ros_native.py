@@ -363,6 +363,8 @@ def test_mosaic_node_lifecycle(ros_env, tmp_path):
         play()
         assert listener.wait_for(lambda: len(listener.got['registration']) == 60, 240), len(listener.got['registration'])
         transition(Transition.TRANSITION_DEACTIVATE)
+        # the next diagnostics after the transition carry the count (one may still be on its way)
+        assert listener.wait_for(lambda: value('frames_while_inactive') is not None, 10)
         ignored = int(value('frames_while_inactive'))
         play()  # paused: ignored, and the mosaic kept
         assert listener.wait_for(lambda: int(value('frames_while_inactive')) >= ignored + 50, 30)

@@ -33,8 +33,6 @@ import time
 from typing import Any
 
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
-from rclpy.lifecycle import LifecycleState, TransitionCallbackReturn
-from rclpy.lifecycle import Node as LifecycleNode
 from sensor_msgs.msg import CameraInfo, Imu, NavSatFix
 from std_msgs.msg import Float64MultiArray
 
@@ -46,7 +44,7 @@ from ..errors import SrMosaicError
 from ..pipeline import SYNC_HOLD_FRAMES
 from .common import (TELEMETRY_QOS_DEPTH, DiagnosticsPublisher, PosePublisher, RegistrationMsg, StreamOrder, WarnOnce,
                      decode_registration, input_qos, subscribe_input)
-from .lifecycle import autostart, configure_with, release
+from .lifecycle import ManagedNode, autostart, release
 from .parameters import GEOREF_PARAMETERS, declare_pipeline_parameters, on_parameter_change, read_pipeline_config
 
 __all__ = ['GeorefNode', 'main']
@@ -55,7 +53,7 @@ __all__ = ['GeorefNode', 'main']
 SYNC_TIMEOUT_S = 1.0
 
 
-class GeorefNode(LifecycleNode):
+class GeorefNode(ManagedNode):
     """Georeferencing stage (see module docstring), a managed (lifecycle) node as the mosaic node is.
 
     configure reads the parameters and, in standalone mode, builds the subscriptions, publishers and
@@ -70,38 +68,9 @@ class GeorefNode(LifecycleNode):
         self._defaults = declare_pipeline_parameters(self, GEOREF_PARAMETERS,
                                                      changeable=('live.preview_period_s',))
         self.warn = WarnOnce(self)
-        self.processing = False  # lifecycle: active
-        self.configured = False
         self.standalone = False
-        self._diagnostics_timer = None
-        self._entities: list[tuple[Any, Any]] = []  # (destroy, entity) made by configure (lifecycle.py)
-        self.configure_error: Exception | None = None
         on_parameter_change(self, {'live.preview_period_s': self._set_period})
         autostart(self)
-
-    def _set_period(self, period_s: float) -> None:
-        if self._diagnostics_timer is not None:
-            self._diagnostics_timer.timer_period_ns = int(period_s * 1e9)
-
-    # -- lifecycle ------------------------------------------------------------------------------
-    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
-        return configure_with(self, self._configure)
-
-    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self.processing = True
-        return super().on_activate(state)
-
-    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self.processing = False
-        return super().on_deactivate(state)
-
-    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self.finish()
-        return TransitionCallbackReturn.SUCCESS
-
-    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self.finish()
-        return TransitionCallbackReturn.SUCCESS
 
     def _configure(self) -> None:
         self.config = read_pipeline_config(self, self._defaults)  # ConfigError refuses bad georef.* values
@@ -134,7 +103,7 @@ class GeorefNode(LifecycleNode):
         self.pub_poses = PosePublisher(self)
         period = float(self.get_parameter('live.preview_period_s').value)
         self.create_timer(0.2, self._on_tick, callback_group=group)
-        self._diagnostics_timer = self.create_timer(period, self._publish_diagnostics,
+        self._periodic = self.create_timer(period, self._publish_diagnostics,
                                                     callback_group=MutuallyExclusiveCallbackGroup())
         self.configured = True
 
@@ -143,7 +112,7 @@ class GeorefNode(LifecycleNode):
         return self._order.accept(stream, stamp_ns)
 
     def _telemetry(self, kind: str, convert: Any, msg: Any) -> None:  # noqa: ANN401
-        if not self.processing:
+        if not self.active:
             self.warn.count('inputs_while_inactive')
             return
         try:
@@ -173,7 +142,7 @@ class GeorefNode(LifecycleNode):
             self.warn('camera_info', f'camera info skipped: {exc}')
 
     def _on_registration(self, msg: Float64MultiArray) -> None:
-        if not self.processing:  # paused (lifecycle): before the stamp order, so a replay is taken later
+        if not self.active:  # paused (lifecycle): before the stamp order, so a replay is taken later
             self.warn.count('inputs_while_inactive')
             return
         try:
@@ -235,7 +204,7 @@ class GeorefNode(LifecycleNode):
             values.update({f'filter skipped: {k}': v for k, v in self.georef.skipped.items()})
         values.update({k: v for k, v in stats.items() if k.startswith('rejected')})
         message = f"{values['poses_published']} poses"
-        if not self.processing:
+        if not self.active:
             message = 'inactive (lifecycle): inputs ignored, the filter kept'
             values['inputs_while_inactive'] = stats.get('inputs_while_inactive', 0)
         level, message = self.warn.status(message)
@@ -246,13 +215,13 @@ class GeorefNode(LifecycleNode):
         shutdown, or the end of the process); nothing when not configured."""
         if not self.configured:
             return
-        self.processing = False
+        self.active = False
         self.configured = False
         if self.standalone:
             while self._pending:
                 self._fuse(self._pending.pop(0)[1])
         release(self._entities)
-        self._entities, self._diagnostics_timer, self.georef = [], None, None
+        self._entities, self._periodic, self.georef = [], None, None
 
 
 def main(argv: list[str] | None = None) -> int:

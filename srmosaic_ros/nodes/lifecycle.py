@@ -13,11 +13,12 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from rclpy.lifecycle import TransitionCallbackReturn
+from rclpy.lifecycle import LifecycleState, TransitionCallbackReturn
+from rclpy.lifecycle import Node as LifecycleNode
 
 from ..errors import SrMosaicError
 
-__all__ = ['autostart', 'configure_with', 'release']
+__all__ = ['ManagedNode', 'autostart', 'configure_with', 'release']
 
 
 def _entities(node: Any) -> list[tuple[Callable[[Any], Any], Any]]:  # noqa: ANN401
@@ -56,3 +57,50 @@ def autostart(node: Any) -> None:  # noqa: ANN401
     if node.configure_error is not None:
         raise node.configure_error
     node.trigger_activate()
+
+
+class ManagedNode(LifecycleNode):
+    """The transitions shared by the package's managed nodes.
+
+    A subclass builds in ``_configure`` (run through :func:`configure_with`), frees in ``finish``
+    (cleanup, shutdown, the end of the process), reads ``self.active`` in its input callbacks, and
+    keeps the timer whose period ``live.preview_period_s`` changes live in ``self._periodic``; it
+    calls :func:`autostart` at the end of its constructor.
+    """
+
+    def __init__(self, name: str, **kwargs: Any) -> None:  # noqa: ANN401
+        super().__init__(name, **kwargs)
+        self.active = False
+        self.configured = False
+        self._periodic: Any = None
+        self._entities: list[tuple[Callable[[Any], Any], Any]] = []  # (destroy, entity) made by configure
+        self.configure_error: Exception | None = None
+
+    def _configure(self) -> None:
+        raise NotImplementedError
+
+    def finish(self) -> None:
+        raise NotImplementedError
+
+    def _set_period(self, period_s: float) -> None:
+        if self._periodic is not None:
+            self._periodic.timer_period_ns = int(period_s * 1e9)
+
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        return configure_with(self, self._configure)
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.active = True
+        return super().on_activate(state)
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.active = False
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.finish()
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.finish()
+        return TransitionCallbackReturn.SUCCESS

@@ -39,8 +39,6 @@ import numpy as np
 import torch
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
-from rclpy.lifecycle import LifecycleState, TransitionCallbackReturn
-from rclpy.lifecycle import Node as LifecycleNode
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, NavSatFix
 from std_msgs.msg import Float64MultiArray, String
@@ -63,12 +61,12 @@ from ..pipeline import FrameRecord, Pipeline
 from .common import (IMAGE_QOS_DEPTH, REGISTRATION_LAYOUT, TELEMETRY_QOS_DEPTH, TOPICS, DiagnosticsPublisher,
                      PosePublisher, StreamOrder, WarnOnce, camera_image, encode_registration, frame_ids, input_qos,
                      subscribe_input)
-from .lifecycle import autostart, configure_with, release
+from .lifecycle import ManagedNode, autostart, release
 from .parameters import MOSAIC_PARAMETERS, declare_pipeline_parameters, on_parameter_change, read_pipeline_config
 
 __all__ = ['MosaicNode', 'REGISTRATION_LAYOUT', 'main']
 
-class MosaicNode(LifecycleNode):
+class MosaicNode(ManagedNode):
     """Registration + mosaic stage (see module docstring), a managed (lifecycle) node.
 
     configure reads the parameters and builds the pipeline, subscriptions, publishers and worker;
@@ -82,37 +80,8 @@ class MosaicNode(LifecycleNode):
         super().__init__('srmosaic_mosaic', **kwargs)
         self._defaults = declare_pipeline_parameters(self, MOSAIC_PARAMETERS, changeable=('live.preview_period_s',))
         self.warn = WarnOnce(self)  # the counters of the diagnostics; rejected inputs logged once per kind
-        self.active = False
-        self.configured = False
-        self._periodic = None
-        self._entities: list[tuple[Any, Any]] = []  # (destroy, entity) made by configure (lifecycle.py)
-        self.configure_error: Exception | None = None
         on_parameter_change(self, {'live.preview_period_s': self._set_period})
         autostart(self)
-
-    def _set_period(self, period_s: float) -> None:
-        if self._periodic is not None:
-            self._periodic.timer_period_ns = int(period_s * 1e9)
-
-    # -- lifecycle ------------------------------------------------------------------------------
-    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
-        return configure_with(self, self._configure)
-
-    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self.active = True
-        return super().on_activate(state)
-
-    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self.active = False
-        return super().on_deactivate(state)
-
-    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self.finish()
-        return TransitionCallbackReturn.SUCCESS
-
-    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self.finish()
-        return TransitionCallbackReturn.SUCCESS
 
     def _configure(self) -> None:
         config = read_pipeline_config(self, self._defaults)  # ConfigError refuses bad values at start

@@ -88,10 +88,6 @@ def build_trajectory(config: SimConfig) -> tuple[Trajectory, int]:
             msg = (f'--frames {n} outlasts the orbit ({config.laps:g} laps of radius {config.orbit_radius_m:g} m at '
                    f'--speed {config.speed_m_s:g} and --rate {config.rate_hz:g}); lower --frames or raise --laps.')
             raise SimulationError(msg)
-        rng = np.random.default_rng([config.seed, _STREAM_TRAJECTORY])
-        traj = Trajectory(path, speed_m_s=config.speed_m_s, altitude_m=config.altitude_m, rng=rng,
-                          gust_deg=config.gust_deg, gust_pos_m=config.gust_pos_m, turn_bank=config.turn_bank)
-        return traj, n
     else:
         path = lawnmower_path((0.0, 0.0), heading, config.legs, config.leg_length_m, config.leg_spacing_m)
         n = frame_count(config, path)
@@ -102,7 +98,9 @@ def build_trajectory(config: SimConfig) -> tuple[Trajectory, int]:
                    f'{fit} frames at --speed {config.speed_m_s:g} and --rate {config.rate_hz:g}); '
                    'lower --frames or raise --legs / --leg-length.')
             raise SimulationError(msg)
-    if config.start_east_m is None:
+    if config.trajectory == 'orbit':
+        pass  # placed about its centre already
+    elif config.start_east_m is None:
         lo, hi = path.bbox()
         path = path.translated(-(lo + hi) / 2.0)
     else:

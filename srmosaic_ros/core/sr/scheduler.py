@@ -15,7 +15,7 @@ import numpy as np
 
 from ..metrics import apply_homography
 
-__all__ = ['SRTileConfig', 'TilePlan', 'frame_centres', 'plan_tiles']
+__all__ = ['SRTileConfig', 'TilePlan', 'frame_centres', 'frame_holds_rect', 'plan_tiles']
 
 
 @dataclass(frozen=True)
@@ -63,6 +63,17 @@ def frame_centres(plane_H_frames: list[np.ndarray], frame_sizes: list[tuple[int,
                      for H, (w, h) in zip(plane_H_frames, frame_sizes, strict=True)]).reshape(-1, 2)
 
 
+def frame_holds_rect(frame_H_mosaic: np.ndarray, frame_size: tuple[int, int],  # noqa: N803
+                     rect: tuple[int, int, int, int]) -> bool:
+    """True when the frame of ``frame_size`` (width, height) holds the corner pixels of the mosaic
+    rectangle ``rect = (x0, y0, width, height)``; frame_H_mosaic maps mosaic pixels to frame pixels."""
+    x0, y0, w, h = rect
+    corners = np.array([[x0, y0], [x0 + w - 1, y0], [x0 + w - 1, y0 + h - 1], [x0, y0 + h - 1]], float)
+    p = apply_homography(frame_H_mosaic, corners)
+    fw, fh = frame_size
+    return bool(np.all((p[:, 0] >= 0) & (p[:, 0] <= fw - 1) & (p[:, 1] >= 0) & (p[:, 1] <= fh - 1)))
+
+
 def plan_tiles(mosaic_H_frames: dict[int, np.ndarray], frame_sizes: dict[int, tuple[int, int]],  # noqa: N803
                coverage: np.ndarray, config: SRTileConfig) -> list[TilePlan]:
     """Tiles to reconstruct. mosaic_H_frames: frame index -> (3, 3) frame pixels -> mosaic pixels;
@@ -78,13 +89,8 @@ def plan_tiles(mosaic_H_frames: dict[int, np.ndarray], frame_sizes: dict[int, tu
         for x0 in range(0, w - t + 1, t):
             if coverage[y0:y0 + t, x0:x0 + t].mean() < config.min_coverage:
                 continue
-            corners = np.array([[x0, y0], [x0 + t - 1, y0], [x0 + t - 1, y0 + t - 1], [x0, y0 + t - 1]], float)
-            covering = []
-            for k, frame_H_mosaic in inverse.items():  # noqa: N806
-                fw, fh = frame_sizes[k]
-                p = apply_homography(frame_H_mosaic, corners)
-                if np.all((p[:, 0] >= 0) & (p[:, 0] <= fw - 1) & (p[:, 1] >= 0) & (p[:, 1] <= fh - 1)):
-                    covering.append(k)
+            covering = [k for k, frame_H_mosaic in inverse.items()  # noqa: N806
+                        if frame_holds_rect(frame_H_mosaic, frame_sizes[k], (x0, y0, t, t))]
             if len(covering) < config.min_frames:
                 continue
             c = np.array([x0 + (t - 1) / 2, y0 + (t - 1) / 2])
