@@ -21,12 +21,15 @@ from .checkpoint import Checkpoint, checkpoint_path, fingerprint, load_checkpoin
 from .config import PipelineConfig
 from .io.bags import TopicConfig, read_flight
 from .io.metadata import merge_by_time
+from .io.prefetch import prefetched
 from .io.mosaic_files import write_frames_csv, write_json, write_png
 from .errors import InputError, OutputError, SrMosaicError
 from .io.mosaic_video import MosaicVideoRecorder
 from .pipeline import SYNC_HOLD_FRAMES, Pipeline, PipelineResult
 from .core.georef.geotag_fit import GEOTAG_MIN_EXTENT_M
+from .core.device import cores_left_for_torch
 from .core.image_ops import to_float01
+from .core.stage_clock import StageClock
 from .core.types import Frame
 
 if TYPE_CHECKING:
@@ -149,6 +152,9 @@ class StripPreview:
         """The preview, float32 (h', w', C), or (h', w') for one channel."""
         return self._out[:, :, 0] if self._squeeze else self._out
 
+
+#: Input items read ahead by a background thread while the pipeline works (io/prefetch.py).
+READ_AHEAD = 8
 
 #: Rows of the mosaic rendered, written and downscaled at a time (one tile row of mosaic.tif).
 STRIP_ROWS = 512
@@ -627,7 +633,7 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
                   select: str = 'all', camera_yaml: Path | None = None, hfov_deg: float | None = None,
                   telemetry_csv: Path | None = None, mosaic_video: bool = False,
                   checkpoint_every: int = 0, resume: bool = False, sr_factor: int | None = None,
-                  progress: bool = True) -> dict[str, Any]:
+                  progress: bool = True, overlap: bool = True) -> dict[str, Any]:
     """Run the pipeline over a bag, a video or a folder of stills and write the outputs into ``out``;
     returns the report (also in report.json).
 
@@ -638,7 +644,8 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
     raised again so the command exits non-zero; over an earlier complete run, those partial outputs go
     to ``out``/failed_run/ instead, the earlier run staying in place. With checkpoint_every > 0 the
     state is checkpointed every that many frames (see checkpoint.py); resume=True continues from the
-    last checkpoint in ``out``.
+    last checkpoint in ``out``. overlap: read the input ahead and paint on a background thread while
+    the next frames are registered (the outputs are those of the sequential run, overlap=False).
     """
     t0 = time.perf_counter()
     if checkpoint_every < 0:
@@ -653,7 +660,7 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
             report = _process(path, out, transaction.stage, config, items, reader, kind, t0, topics=topics,
                               select=select, camera_yaml=camera_yaml, hfov_deg=hfov_deg, telemetry_csv=telemetry_csv,
                               mosaic_video=mosaic_video, checkpoint_every=checkpoint_every, resume=resume,
-                              sr_factor=sr_factor, progress=progress)
+                              sr_factor=sr_factor, progress=progress, overlap=overlap)
         except OSError as exc:
             if exc.errno not in (errno.ENOSPC, errno.EFBIG, errno.EDQUOT):
                 raise
@@ -667,7 +674,7 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
 def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: Iterable[Any], reader: Any,  # noqa: ANN401, PLR0913
              kind: str, t0: float, *, topics: TopicConfig | None, select: str, camera_yaml: Path | None,
              hfov_deg: float | None, telemetry_csv: Path | None, mosaic_video: bool, checkpoint_every: int,
-             resume: bool, sr_factor: int | None, progress: bool) -> dict[str, Any]:
+             resume: bool, sr_factor: int | None, progress: bool, overlap: bool) -> dict[str, Any]:
     """process_input's work: outputs into ``stage``, checkpoints into ``out``."""
     summary = getattr(reader, 'summary', None)
     if kind == 'images':
@@ -683,26 +690,30 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
     settings = {'select': select, 'topics': repr(topics), 'config': repr(config), 'mosaic_video': mosaic_video,
                 'camera': str(camera_yaml), 'hfov': hfov_deg, 'telemetry': str(telemetry_csv)}
     run_id = fingerprint(path, settings)
-    pipeline = Pipeline(config)
+    pipeline = Pipeline(config, paint_thread=overlap)
     recorder = MosaicVideoRecorder() if mosaic_video else None
     recent: dict[int, np.ndarray] = {}
     skip_items = frames_done = 0
     if resume:
         state = load_checkpoint(out, run_id)
         pipeline, recorder = state.pipeline, state.recorder
+        if overlap:
+            pipeline.start_paint_thread()
         recent = state.recent or {}
         skip_items, frames_done = state.items_consumed, state.frames_consumed
     bar = tqdm(total=reader.frame_count, initial=frames_done, unit='frame', desc='process', disable=not progress)
     error: SrMosaicError | None = None
     consumed = 0
-    with bar:
+    clock = pipeline.clock
+    with bar, cores_left_for_torch(1 if overlap else 0):  # one core is the painter's (Pipeline paint_thread)
         try:
-            for item in items:
+            for item in _timed(prefetched(items, READ_AHEAD if overlap else 0), clock):
                 consumed += 1
                 if consumed <= skip_items:  # already in the checkpointed state
                     continue
                 records = pipeline.feed(item)
                 if isinstance(item, Frame):
+                    clock.end_frame()
                     frames_done += 1
                     bar.update(1)
                     bar.set_postfix(segments=len(pipeline.segments), refresh=False)
@@ -715,7 +726,8 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
                         if rec.painted and rec.stamp_ns in recent:
                             recorder.add(rec.segment, to_float01(recent[rec.stamp_ns]), rec.seg_H_frame)
                 if checkpoint_every and isinstance(item, Frame) and frames_done % checkpoint_every == 0:
-                    save_checkpoint(out, Checkpoint(run_id, consumed, frames_done, pipeline, recorder, recent))
+                    with clock.stage('outputs'):
+                        save_checkpoint(out, Checkpoint(run_id, consumed, frames_done, pipeline, recorder, recent))
         except SrMosaicError as exc:
             error = exc
     if recorder is not None and error is None:
@@ -744,8 +756,9 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
             report_extra['video']['ended_early'] = reader.ended_early
     if error is not None:
         report_extra['error'] = str(error)
-    report = write_outputs(result, stage, config, report_extra,
-                           meta_centres=summary.centres if summary is not None else None)
+    with clock.stage('outputs'):
+        report = write_outputs(result, stage, config, report_extra,
+                               meta_centres=summary.centres if summary is not None else None)
     if report.get('georeferenced') is None:
         report['not_georeferenced_reason'] = not_georeferenced_reason(result, config,
                                                                       dict(getattr(reader, 'skipped', {})))
@@ -756,6 +769,7 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
     wall = time.perf_counter() - t0
     report['wall_s'] = round(wall, 3)
     report['frames_per_s'] = round(len(result.records) / wall, 2) if wall > 0 else None
+    report['stage_times'] = clock.summary()
     report['peak_rss_mb'] = round(peak_rss_mb(), 1)
     if resume:
         report['resumed_after_frames'] = skip_frames_note(skip_items, frames_done)
@@ -774,6 +788,20 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
         raise error
     shutil.rmtree(checkpoint_path(out).parent, ignore_errors=True)  # complete: the checkpoint is spent
     return report
+
+
+def _timed(items: Iterable[Any], clock: StageClock) -> Iterator[Any]:
+    """The items, the time spent reading and decoding each counted to the clock's 'decode' stage."""
+    it = iter(items)
+    while True:
+        t0 = time.perf_counter()
+        try:
+            item = next(it)
+        except StopIteration:
+            return
+        finally:
+            clock.add('decode', time.perf_counter() - t0)
+        yield item
 
 
 def _process_survey(path: Path, out: Path, config: PipelineConfig, reader: Any, t0: float, *,  # noqa: ANN401

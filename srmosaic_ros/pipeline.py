@@ -41,8 +41,10 @@ from .core.mosaic.canvas import CanvasError
 from .core.mosaic.segments import Segment
 from .core.mosaic.keyframe import KeyframeResult, corner_shift_px, render_view
 from .core.registration import Features, Registration, make_registrar
-from .core.registration.factory import FallbackRegistrar
+from .core.registration.pyramid import PyramidRegistrar
 from .core.georef.georeferencer import FramePose, Georeferencer
+from .core.serial_worker import SerialWorker
+from .core.stage_clock import StageClock
 from .core.undistort import Undistorter
 from .core.types import CameraAttitude, CameraIntrinsics, Frame, GeoFix, ImuSample
 
@@ -114,9 +116,14 @@ class _Held:
 class Pipeline:
     """Offline and live pipeline over frames and telemetry (see module docstring)."""
 
-    def __init__(self, config: PipelineConfig | None = None) -> None:
+    def __init__(self, config: PipelineConfig | None = None, *, paint_thread: bool = False) -> None:
+        """paint_thread: paint into the mosaic on a background thread while the next frames are
+        registered (offline runs; the canvas may then be read only after :meth:`sync`)."""
         self.config = config or PipelineConfig()
-        self.registrar = make_registrar(self.config.registration, self.config.device)
+        self._painter: SerialWorker | None = SerialWorker(name='srmosaic-paint') if paint_thread else None
+        registrar = make_registrar(self.config.registration, self.config.device)
+        max_width = self.config.registration.max_width
+        self.registrar = PyramidRegistrar(registrar, max_width) if max_width > 0 else registrar
         self.records: list[FrameRecord] = []
         self.segments: list[Segment] = []
         self.fixes: list[GeoFix] = []
@@ -139,6 +146,7 @@ class Pipeline:
         self._settling_seg: Segment | None = None
         self._settled: list[FrameRecord] = []  # records decided by the last settle (returned by _process)
         self._fused: collections.deque[FrameRecord] = collections.deque(maxlen=1000)
+        self.clock = StageClock()  # seconds per stage per input frame (the driver calls clock.end_frame())
 
     # -- input -------------------------------------------------------------------------------
     def feed(self, item: Frame | GeoFix | ImuSample | CameraIntrinsics) -> list[FrameRecord]:
@@ -165,15 +173,18 @@ class Pipeline:
                     else:
                         self.georef.feed_camera_attitude(earlier)
             if self.georef is not None:
-                self.georef.feed_fix(item)
+                with self.clock.stage('fuse'):
+                    self.georef.feed_fix(item)
         elif isinstance(item, ImuSample):
             self.imus.append(item)
             if self.georef is not None:
-                self.georef.feed_imu(item)
+                with self.clock.stage('fuse'):
+                    self.georef.feed_imu(item)
         elif isinstance(item, CameraAttitude):
             self.attitudes.append(item)
             if self.georef is not None:
-                self.georef.feed_camera_attitude(item)
+                with self.clock.stage('fuse'):
+                    self.georef.feed_camera_attitude(item)
         else:
             msg = f'Pipeline.feed takes Frame, GeoFix, ImuSample or CameraAttitude, not {type(item).__name__}.'
             raise TypeError(msg)
@@ -228,7 +239,7 @@ class Pipeline:
         if self.georef is None or pose is None or not pose.valid or camera is None:
             return None
         if self.georef.raster is None:
-            self.georef.make_raster(pose, camera)
+            self.georef.make_raster(pose, camera, coarsen=1.0 / self._plane_scale(held.record.size[0]))
         self.georef.reset_drift()
         # the first drift-control call of a chain anchors it (returned unchanged) with this frame's pose
         return self.georef.correct(self.georef.raster_H_frame(pose, camera), pose, camera)
@@ -246,8 +257,16 @@ class Pipeline:
             self._settling_seg = seg
             self._place(seg, held, start)
         else:
-            self._paint(seg, held, start if start is not None else np.eye(3))
+            if start is None:  # the segment's plane: its first frame's pixels, scaled to mosaic.max_width
+                s = self._plane_scale(held.record.size[0])
+                start = np.diag([s, s, 1.0])
+            self._paint(seg, held, start)
         return seg
+
+    def _plane_scale(self, width: int) -> float:
+        """Mosaic pixels per frame pixel of a segment's first frame, ``width`` px wide (mosaic.max_width)."""
+        max_width = self.config.mosaic.max_width
+        return 1.0 if max_width <= 0 or width <= max_width else max_width / width
 
     def _chained(self, seg: Segment, prev_seg_H_frame: np.ndarray, reg: Registration, held: _Held) -> np.ndarray:  # noqa: N803
         """seg_H_frame of a registered frame: the chain (4.6), with drift control on the raster."""
@@ -255,6 +274,12 @@ class Pipeline:
         pose = held.record.pose
         if not seg.georeferenced or self.georef is None or pose is None or not pose.valid or held.camera is None:
             return chained
+        with self.clock.stage('fuse'):
+            return self._drift_corrected(chained, reg, pose, held)
+
+    def _drift_corrected(self, chained: np.ndarray, reg: Registration, pose: FramePose, held: _Held) -> np.ndarray:
+        """The chained seg_H_frame pulled toward the pose-predicted placement (drift control)."""
+        assert self.georef is not None and held.camera is not None
         if reg.covariance is not None:
             sigma = self.georef.corner_sigma_px(reg.prev_H_cur, reg.covariance)
         else:
@@ -271,6 +296,16 @@ class Pipeline:
         w, h = held.record.size
         if cfg.keyframe_revisit_frames > 0 and not self._revisits(seg, seg_H_frame, w, h):
             return seg_H_frame
+        with self.clock.stage('register'):
+            result = self._register_to_mosaic(seg, held, seg_H_frame)
+        held.record.keyframe = result
+        return seg_H_frame if result.seg_H_frame is None else result.seg_H_frame
+
+    def _register_to_mosaic(self, seg: Segment, held: _Held, seg_H_frame: np.ndarray) -> KeyframeResult:  # noqa: N803
+        """The keyframe's registration to the mosaic rendered where the chain puts it."""
+        cfg = self.config.mosaic
+        w, h = held.record.size
+        self.sync()
         view, covered = render_view(seg.canvas, seg_H_frame, w, h, gray=True)
         coverage = float(covered.mean())
         if coverage < cfg.keyframe_min_coverage:
@@ -278,7 +313,7 @@ class Pipeline:
         else:
             # Optional refinement: no OpenCV second opinion (its SIFT on both images would cost a
             # live node several frame periods, and a failed keyframe changes nothing).
-            extra = {'second_opinion': False} if isinstance(self.registrar, FallbackRegistrar) else {}
+            extra = {'second_opinion': False} if getattr(self.registrar, 'has_second_opinion', False) else {}
             reg = self.registrar.register(self.registrar.describe(view), held.features, **extra)
             if not reg.ok:
                 result = KeyframeResult(None, coverage, float('nan'), f'registration to the mosaic failed: {reg.reason}')
@@ -289,8 +324,7 @@ class Pipeline:
                     result = KeyframeResult(None, coverage, shift, f'correction of {shift:.1f} px refused')
                 else:
                     result = KeyframeResult(refined / refined[2, 2], coverage, shift)
-        held.record.keyframe = result
-        return seg_H_frame if result.seg_H_frame is None else result.seg_H_frame
+        return result
 
     def _revisits(self, seg: Segment, seg_H_frame: np.ndarray, w: int, h: int) -> bool:  # noqa: N803
         """Whether the frame flies over ground an earlier pass painted: its predicted centre lies within
@@ -319,15 +353,50 @@ class Pipeline:
         return bool(near[:min(run, n - gap)].any())
 
     def _paint(self, seg: Segment, held: _Held, seg_H_frame: np.ndarray) -> bool:  # noqa: N803
-        image = held.image if held.image is not None else self._as_canvas_image(held.raw)
-        try:
-            seg.add(held.record.index, image, seg_H_frame)
-        except CanvasError as exc:  # absurd footprint: refuse, never allocate a giant canvas
-            held.record.reason = f'not painted: {exc}'
-            return False
+        with self.clock.stage('paint'):
+            if self._painter is not None:
+                return self._paint_later(seg, held, seg_H_frame)
+            image = held.image if held.image is not None else self._as_canvas_image(held.raw)
+            try:
+                seg.add(held.record.index, image, seg_H_frame)
+            except CanvasError as exc:  # absurd footprint: refuse, never allocate a giant canvas
+                held.record.reason = f'not painted: {exc}'
+                return False
         held.record.segment = seg.index
         held.record.seg_H_frame = seg_H_frame
         return True
+
+    def _paint_later(self, seg: Segment, held: _Held, seg_H_frame: np.ndarray) -> bool:  # noqa: N803
+        """_paint on the painter thread: the placement is checked and recorded now, the pixels follow."""
+        record = held.record
+        try:
+            seg.canvas.check_placement(seg_H_frame, *record.size)
+        except CanvasError as exc:
+            record.reason = f'not painted: {exc}'
+            return False
+        seg.place(record.index, seg_H_frame)
+        record.segment = seg.index
+        record.seg_H_frame = seg_H_frame
+        image, raw = held.image, held.raw
+
+        def paint() -> None:
+            try:
+                seg.canvas.paint(image if image is not None else self._as_canvas_image(raw), seg_H_frame)
+            except CanvasError as exc:  # refused after all (the canvas grew meanwhile): as if never placed
+                seg.unplace(record.index)
+                record.segment, record.seg_H_frame = -1, None
+                record.reason = f'not painted: {exc}'
+
+        self._painter.submit(paint)
+        return True
+
+    def sync(self) -> None:
+        """Wait for the frames being painted on the painter thread (paint_thread=True): the canvases
+        are complete after this. Raises the error of a paint that failed."""
+        if self._painter is not None:
+            t0 = time.perf_counter()
+            self._painter.wait()
+            self.clock.add('paint', time.perf_counter() - t0)
 
     # -- one frame -----------------------------------------------------------------------------
     def _fuse(self, held: _Held, reg: Registration | None, ref: _Held | None) -> None:
@@ -336,16 +405,18 @@ class Pipeline:
             return
         use = reg is not None and reg.ok and ref is not None
         self._fused.append(held.record)
-        held.record.pose = self.georef.feed_frame(
+        with self.clock.stage('fuse'):
+            held.record.pose = self.georef.feed_frame(
             held.record.stamp_ns, reg.prev_H_cur if use else None, reg.covariance if use else None,
-            rms_px=reg.rms_px if use else float('nan'), inliers=reg.inliers if use else 0, camera=held.camera,
-            ref_stamp_ns=ref.record.stamp_ns if use else None)
+                rms_px=reg.rms_px if use else float('nan'), inliers=reg.inliers if use else 0, camera=held.camera,
+                ref_stamp_ns=ref.record.stamp_ns if use else None)
 
     def _process(self, frame: Frame) -> list[FrameRecord]:
         t0 = time.perf_counter()
         # a camera with lens distortion: from here on the frame is that of its pinhole camera
         # (core/undistort.py); an unusable distortion model raises InputError before any record
-        frame = self.undistorter.frame(frame, self.camera)
+        with self.clock.stage('undistort'):
+            frame = self.undistorter.frame(frame, self.camera)
         h, w = frame.image.shape[:2]
         record = FrameRecord(len(self.records), frame.stamp_ns, (w, h))
         self.records.append(record)
@@ -353,8 +424,16 @@ class Pipeline:
             record.reason = f'frame of {w}x{h} pixels is too small to register'
             record.time_s = time.perf_counter() - t0
             return [record]
-        held = _Held(self.registrar.describe(frame.image), self._as_canvas_image(frame.image), record,
-                     frame.camera or self.camera, raw=frame.image)
+        with self.clock.stage('describe'):
+            features = self.registrar.describe(frame.image)
+        if self._painter is not None:  # converted on the painter thread
+            image = None
+            if self._channels is None:
+                self._channels = 1 if frame.image.ndim == 2 else frame.image.shape[2]
+        else:
+            with self.clock.stage('paint'):  # the float image the canvas paints
+                image = self._as_canvas_image(frame.image)
+        held = _Held(features, image, record, frame.camera or self.camera, raw=frame.image)
         decided = [record]
         if self._last_good is None:
             self._fuse(held, None, None)
@@ -362,7 +441,8 @@ class Pipeline:
             if record.seg_H_frame is not None:  # placed (its placement refused: the next frame starts anew)
                 self._last_good = held
         else:
-            reg = self.registrar.register(self._last_good.features, held.features)
+            with self.clock.stage('register'):
+                reg = self.registrar.register(self._last_good.features, held.features)
             record.registration = reg
             self._fuse(held, reg, self._last_good)
             if reg.ok and self._place(self._active, held, self._keyframe(
@@ -385,7 +465,8 @@ class Pipeline:
         """Register `held` to the orphan; on success the orphan starts a new segment holding both."""
         orphan = self._orphan
         assert orphan is not None
-        reg = self.registrar.register(orphan.features, held.features)
+        with self.clock.stage('register'):
+            reg = self.registrar.register(orphan.features, held.features)
         if not reg.ok:
             return False
         seg = self._start_segment(orphan)
@@ -404,6 +485,7 @@ class Pipeline:
         paint the frames held for settling: every frame held back is decided."""
         decided = self._drain(all_frames=True)
         self._settle()
+        self.sync()
         return decided + self._take_settled()
 
     @property
@@ -475,11 +557,32 @@ class Pipeline:
         self._settled = []
         return out
 
+    def close(self) -> None:
+        """Finish the paints in flight and stop the painter thread (the pipeline stays usable, painting
+        in the caller's thread)."""
+        if self._painter is not None:
+            painter, self._painter = self._painter, None
+            painter.close()
+
+    def start_paint_thread(self) -> None:
+        """Paint on a background thread from now on (as Pipeline(paint_thread=True))."""
+        if self._painter is None:
+            self._painter = SerialWorker(name='srmosaic-paint')
+
+    def __getstate__(self) -> dict:
+        """Picklable (checkpoints): the paints in flight are finished first; the thread is not kept."""
+        self.sync()
+        state = dict(self.__dict__)
+        state['_painter'] = None
+        return state
+
     def __setstate__(self, state: dict) -> None:
         """Pipelines resumed from checkpoints of earlier versions get the attributes added since."""
         self.__dict__.update(state)
+        self.__dict__.setdefault('_painter', None)
         for name, default in (('_centres', dict), ('_settling', list), ('_settled', list), ('attitudes', list),
                               ('_fused', lambda: collections.deque(maxlen=1000))):
             if name not in self.__dict__:
                 self.__dict__[name] = default()
         self.__dict__.setdefault('_settling_seg', None)
+        self.__dict__.setdefault('clock', StageClock())

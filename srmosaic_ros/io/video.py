@@ -217,6 +217,7 @@ class VideoReader:
         last_pts = None
         with av.open(str(self.path)) as container:
             stream = container.streams.video[0]
+            stream.thread_type = 'AUTO'  # FFmpeg's frame and slice threads: HD decoding keeps up
             if sel.mode == 'iframes':
                 stream.codec_context.skip_frame = 'NONKEY'
             time_base: Fraction = stream.time_base or Fraction(1, 90000)

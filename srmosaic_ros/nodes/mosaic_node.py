@@ -108,7 +108,8 @@ class MosaicNode(ManagedNode):
             from ..offline import check_output_dir
 
             check_output_dir(Path(self.output_dir), 'live.output_dir')  # at start, not at shutdown with the mosaic in hand
-        self.pipeline = Pipeline(config)
+        # frames painted on a thread of their own while the next ones register (the preview syncs first)
+        self.pipeline = Pipeline(config, paint_thread=True)
         self._lock = threading.Lock()  # guards the pipeline (worker vs preview/diagnostics timer)
         self._queue: collections.deque[Frame] = collections.deque(maxlen=queue_size)
         self._telemetry: collections.deque[Any] = collections.deque(maxlen=10000)
@@ -235,6 +236,7 @@ class MosaicNode(ManagedNode):
                 try:
                     if frame is not None:
                         records += self.pipeline.feed(frame)
+                        self.pipeline.clock.end_frame()
                     elif idle and self.pipeline.held_back:
                         records += self.pipeline.flush()  # input paused: do not hold frames forever
                 except SrMosaicError as exc:
@@ -283,6 +285,10 @@ class MosaicNode(ManagedNode):
         region = 'srmosaic_mosaic'
         if self._lock.acquire(timeout=2.0):  # the worker holds it per frame; skip a round when busy
             try:
+                try:
+                    self.pipeline.sync()  # the frames still being painted
+                except Exception as exc:  # noqa: BLE001 - a paint that failed skips its frame, not the node
+                    self.warn(f'paint: {type(exc).__name__}', f'a frame was not painted: {exc!r}')
                 raster = self._live_raster()
                 seg = self.pipeline.segments[-1] if self.pipeline.segments else None
                 if seg is not None and not seg.canvas.is_empty:
@@ -368,10 +374,12 @@ class MosaicNode(ManagedNode):
                 report = write_outputs(result, Path(self.output_dir), self.config,
                                        {'input': 'live', 'node_stats': self.warn.snapshot()})
             report['wall_s'] = round(sum(r.time_s for r in result.records), 3)  # processing time
+            report['stage_times'] = self.pipeline.clock.summary()
             report['peak_rss_mb'] = round(peak_rss_mb(), 1)
             write_json(Path(self.output_dir) / 'report.json', report)
             self.get_logger().info(f"wrote {report['frames_registered']}/{report['frames_in']} frames to "
                                    f'{self.output_dir}')
+        self.pipeline.close()
         release(self._entities)
         self._entities, self._periodic, self.pipeline = [], None, None
 

@@ -591,12 +591,13 @@ class Georeferencer:
 
     # -- raster and placement ------------------------------------------------------------------
     def make_raster(self, pose: FramePose, camera: CameraIntrinsics | None = None, *,
-                    gsd_m_per_px: float | None = None) -> GeoRaster:
+                    gsd_m_per_px: float | None = None, coarsen: float = 1.0) -> GeoRaster:
         """The north-up UTM raster of this flight (created once, then returned as is).
 
         gsd: ``gsd_m_per_px``, else the config's, else the ground sampling of ``pose``'s frame at its
-        centre (height above ground / fx), rounded to two significant digits. Pixel (0, 0) is the
-        ground point under the frame centre, snapped to the gsd grid.
+        centre (height above ground / fx) times ``coarsen`` (>= 1: a mosaic coarser than large
+        frames), rounded to two significant digits. Pixel (0, 0) is the ground point under the frame
+        centre, snapped to the gsd grid.
         """
         if self.raster is not None:
             return self.raster
@@ -611,7 +612,7 @@ class Georeferencer:
             # the depth of the ground under the principal point: the height for a nadir camera,
             # the slant range / sin(depression) along the axis of an oblique one (full resolution across the range)
             down = -float(pose.camera.R_enu_from_cam[2, 2]) if pose.camera is not None else 1.0
-            raw = agl / max(down, 0.1) / math.sqrt(cam.fx * cam.fy)
+            raw = agl / max(down, 0.1) / math.sqrt(cam.fx * cam.fy) * max(coarsen, 1.0)
             gsd = float(f'{raw:.2g}')
             self._raster_agl_m = float(agl)  # checked against the filter's later estimate (_check_raster_agl)
         epsg = utm_epsg(self.origin.lat0_deg, self.origin.lon0_deg)

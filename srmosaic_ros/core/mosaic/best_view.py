@@ -125,11 +125,15 @@ def update_best(tile: object, loc: tuple[slice, slice], colour: np.ndarray, q: n
     winner agrees with the mean and the frame disagrees with both, the frame saw something that
     moved and is kept out of the pixel.
     """
-    seen = q > 0
-    score = np.full(q.shape, -np.inf, np.float32)
-    score[seen] = np.log(q[seen]) + np.float32(index / recency_frames if recency_frames > 0 else 0.0)
+    with np.errstate(divide='ignore'):  # log 0 = -inf: not seen, beaten by every score and beating none
+        score = np.log(q)
+    score += np.float32(index / recency_frames if recency_frames > 0 else 0.0)
     best, best_w, best_id, best_q = tile.best[loc], tile.best_w[loc], tile.best_id[loc], tile.best_q[loc]  # type: ignore[attr-defined]
     second, second_w = tile.second[loc], tile.second_w[loc]  # type: ignore[attr-defined]
+    if not (agree > 0 or moving > 0):
+        _update_scores_only(score, colour, q, index, best, best_w, best_id, best_q, second, second_w)
+        return
+    seen = q > 0
     fresh = best_id < 0
     none = np.zeros(q.shape, bool)
     d_cb = _disagreement(colour, best) if (agree > 0 or moving > 0) else None
@@ -160,19 +164,49 @@ def update_best(tile: object, loc: tuple[slice, slice], colour: np.ndarray, q: n
         total = best_q + np.where(joins, q, np.float32(0.0))
         frac = np.where(joins, q / np.maximum(total, np.float32(1e-30)), np.float32(0.0))
         best += (colour - best) * frac[..., None]
-        np.copyto(best_q, total, where=joins)
+        _copy_where(best_q, total, joins)
     if take.any():
         replaced = take & ~fresh & ~best_moved  # a winner that saw something move is not kept as runner-up
-        np.copyto(second, best, where=replaced[..., None])
-        np.copyto(second_w, best_w, where=replaced)
-        np.copyto(best, colour, where=take[..., None])
-        np.copyto(best_q, q, where=take)
+        _copy_where(second, best, replaced)
+        _copy_where(second_w, best_w, replaced)
+        _copy_where(best, colour, take)
+        _copy_where(best_q, q, take)
     if lead.any():
-        np.copyto(best_w, score, where=lead)
-        best_id[lead] = index
+        _copy_where(best_w, score, lead)
+        _copy_where(best_id, np.full(lead.shape, index, np.int32), lead)
     if runner.any():
-        np.copyto(second, colour, where=runner[..., None])
-        np.copyto(second_w, score, where=runner)
+        _copy_where(second, colour, runner)
+        _copy_where(second_w, score, runner)
+
+
+def _copy_where(dst: np.ndarray, src: np.ndarray, mask: np.ndarray) -> None:
+    """dst[mask] = src[mask] in place; dst, src (h, w) or (h, w, C), mask bool (h, w). OpenCV's
+    masked copy is 10 to 30 times faster than numpy's ``copyto(where=)`` on these tile views."""
+    out = cv2.copyTo(src, mask.view(np.uint8), dst)
+    if out is not dst:  # a layout OpenCV could not write in place: numpy's way
+        np.copyto(dst, src, where=mask[..., None] if dst.ndim == 3 else mask)
+
+
+def _update_scores_only(score: np.ndarray, colour: np.ndarray, q: np.ndarray, index: int, best: np.ndarray,
+                        best_w: np.ndarray, best_id: np.ndarray, best_q: np.ndarray, second: np.ndarray,
+                        second_w: np.ndarray) -> None:
+    """update_best without consensus or moving vote: the frame leads where it scores higher (the
+    winner becomes the runner-up) and is the runner-up where it beats that one only. The same
+    updates as the general path, without its masks (the scores of unseen pixels are -inf)."""
+    lead = score > best_w
+    if lead.any():
+        replaced = lead & (best_id >= 0)
+        _copy_where(second, best, replaced)
+        _copy_where(second_w, best_w, replaced)
+        _copy_where(best, colour, lead)
+        _copy_where(best_q, q, lead)
+        _copy_where(best_w, score, lead)
+        _copy_where(best_id, np.full(lead.shape, index, np.int32), lead)
+    runner = score > second_w
+    runner &= ~lead
+    if runner.any():
+        _copy_where(second, colour, runner)
+        _copy_where(second_w, score, runner)
 
 
 def transition_image(best: np.ndarray, second: np.ndarray, second_w: np.ndarray) -> np.ndarray:

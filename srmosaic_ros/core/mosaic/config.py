@@ -27,6 +27,7 @@ class MosaicConfig:
     keyframe_max_correction_px: float = 10.0  # larger corner corrections are refused (prediction kept)
     settle_s: float = 3.0  # a georeferenced segment's first frames are painted once this span of them is placed (0: at once)
     settle_max_frames: int = 30  # ... or once this many are held, whichever comes first
+    max_width: int = 1280  # frames wider are painted at the coarser ground sampling that brings them to this width (0: their own)
 
     def __post_init__(self) -> None:
         if not 64 <= self.tile_size <= 4096:
@@ -75,6 +76,10 @@ class MosaicConfig:
             raise ValueError(msg)
         if not (isinstance(self.settle_s, (int, float)) and 0.0 <= self.settle_s <= 600.0):
             msg = f'mosaic.settle_s must be in 0 .. 600 seconds (0: paint a segment\'s first frames at once), got {self.settle_s!r}.'
+            raise ValueError(msg)
+        if isinstance(self.max_width, bool) or not isinstance(self.max_width, int) \
+                or not (self.max_width == 0 or self.max_width >= 64):
+            msg = f'mosaic.max_width must be 0 (the frames\' own resolution) or an integer >= 64, got {self.max_width!r}.'
             raise ValueError(msg)
         if isinstance(self.settle_max_frames, bool) or not isinstance(self.settle_max_frames, int) \
                 or not 1 <= self.settle_max_frames <= 1000:

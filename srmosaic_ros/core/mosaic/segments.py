@@ -41,5 +41,15 @@ class Segment:
     def add(self, frame_index: int, image: np.ndarray, seg_H_frame: np.ndarray) -> None:  # noqa: N803
         """Paint a frame (float32 (H, W, C) in [0, 1]) into the segment at seg_H_frame."""
         self.canvas.paint(image, seg_H_frame)
+        self.place(frame_index, seg_H_frame)
+
+    def place(self, frame_index: int, seg_H_frame: np.ndarray) -> None:  # noqa: N803
+        """Record a frame as part of the segment at seg_H_frame (its paint is the caller's: add() does both)."""
         self.frames.append(frame_index)
         self.seg_H_frames[frame_index] = seg_H_frame
+
+    def unplace(self, frame_index: int) -> None:
+        """Forget a placed frame (its paint was refused after all)."""
+        if frame_index in self.seg_H_frames:
+            del self.seg_H_frames[frame_index]
+            self.frames.remove(frame_index)

@@ -39,6 +39,9 @@ class FallbackRegistrar:
     too few inliers on one pair (scale 0.91 with 110 px motion) that SIFT registers.
     """
 
+    #: register() takes second_opinion (callers of optional registrations turn it off)
+    has_second_opinion = True
+
     def __init__(self, primary: TorchRegistrar, fallback: Registrar) -> None:
         self.primary = primary
         self.fallback = fallback

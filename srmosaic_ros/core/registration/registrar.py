@@ -34,7 +34,9 @@ class RegistrationConfig:
     backend: 'torch' (TorchRegistrar: torch tensor ops on the pipeline's device, photometric
     refinement, homography covariance) or 'opencv' (Registrar: OpenCV SIFT + MAGSAC++, CPU only,
     no covariance). opencv_fallback: with the torch backend, register a pair that fails once more
-    with the OpenCV registrar (FallbackRegistrar). See make_registrar.
+    with the OpenCV registrar (FallbackRegistrar). See make_registrar. max_width: the pipeline
+    registers frames wider than this on the pyramid level that brings them to it or less
+    (pyramid.PyramidRegistrar; 0: full size); the pixel thresholds are then in pixels of that level.
     """
 
     backend: str = 'torch'
@@ -51,6 +53,7 @@ class RegistrationConfig:
     max_scale_change: float = 1.6
     max_perspective: float = 0.3
     guided_radius_px: float = 3.0
+    max_width: int = 1280
 
     def __post_init__(self) -> None:
         checks = {
@@ -67,6 +70,7 @@ class RegistrationConfig:
             'max_scale_change': self.max_scale_change >= 1.0,
             'max_perspective': self.max_perspective > 0.0,
             'guided_radius_px': self.guided_radius_px >= 0.0,
+            'max_width': self.max_width == 0 or self.max_width >= 64,
         }
         bad = [name for name, ok in checks.items() if not ok]
         if bad:

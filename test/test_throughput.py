@@ -1,0 +1,216 @@
+"""Throughput machinery: per-stage times, the overlapped run (read-ahead, painter thread) giving the
+sequential run's outputs, registration on a pyramid level, painting at a coarser mosaic sampling."""
+from __future__ import annotations
+
+import json
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from srmosaic_ros.config import pipeline_config
+from srmosaic_ros.core.device import cores_left_for_torch
+from srmosaic_ros.core.metrics import corner_error_px
+from srmosaic_ros.core.registration import RegistrationConfig, make_registrar
+from srmosaic_ros.core.registration.pyramid import PyramidRegistrar, full_from_level, level_for_width, to_full
+from srmosaic_ros.core.registration.registrar import Registration
+from srmosaic_ros.core.serial_worker import SerialWorker
+from srmosaic_ros.core.stage_clock import STAGES, StageClock
+from srmosaic_ros.core.types import Frame
+from srmosaic_ros.errors import ConfigError
+from srmosaic_ros.io.mosaic_files import read_frames_csv
+from srmosaic_ros.io.prefetch import prefetched
+from srmosaic_ros.offline import process_input
+from srmosaic_ros.pipeline import Pipeline
+
+from imagery import similarity, translation, view, world_rgb
+
+ROOT = Path(__file__).resolve().parent.parent
+DEMO = ROOT / 'bags' / 'demo'
+
+
+# -- stage clock -------------------------------------------------------------------------------
+
+def test_stage_clock_sums_per_frame_and_spreads_outputs():
+    clock = StageClock()
+    for ms in (2.0, 4.0, 6.0):
+        clock.add('describe', ms / 1e3)
+        clock.add('paint', 1e-3)
+        clock.end_frame()
+    clock.add('outputs', 0.3)
+    s = clock.summary()
+    assert s['describe']['median_ms'] == pytest.approx(4.0)
+    assert s['describe']['total_s'] == pytest.approx(0.012)
+    assert s['outputs']['median_ms'] == pytest.approx(100.0)  # 0.3 s over 3 frames
+    assert s['total']['median_ms'] == pytest.approx(4.0 + 1.0 + 100.0)
+    assert 'register' not in s  # never ran
+    with pytest.raises(ValueError, match='unknown stage'), clock.stage('decoding'):
+        pass
+
+
+# -- overlapped run = sequential run -------------------------------------------------------------
+
+@pytest.fixture
+def one_torch_thread():
+    """Both runs with one torch thread: reductions over another thread count differ in the last bits."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+def test_overlapped_run_writes_the_sequential_outputs(tmp_path, one_torch_thread):
+    """Read-ahead and the painter thread change nothing in what is written: frames.csv byte for byte,
+    the mosaic pixel for pixel; report.json gains the stage times. Frames are registered on the
+    pyramid level 1 and painted at half their sampling (max_width 320 of 640 px frames)."""
+    config = pipeline_config({'registration.max_width': 320, 'mosaic.max_width': 320})
+    seq = process_input(DEMO, tmp_path / 'seq', config, progress=False, overlap=False)
+    ovl = process_input(DEMO, tmp_path / 'ovl', config, progress=False, overlap=True)
+    assert (tmp_path / 'seq' / 'frames.csv').read_bytes() == (tmp_path / 'ovl' / 'frames.csv').read_bytes()
+    import rasterio
+
+    with rasterio.open(tmp_path / 'seq' / 'mosaic.tif') as a, rasterio.open(tmp_path / 'ovl' / 'mosaic.tif') as b:
+        assert a.transform == b.transform
+        assert np.array_equal(a.read(), b.read())
+    assert seq['frames_registered'] == ovl['frames_registered'] == 60
+    # painted at half the frames' sampling: a 640 px frame covers about 320 mosaic pixels
+    rows = read_frames_csv(tmp_path / 'ovl' / 'frames.csv')
+    h = rows[0]['mosaic_H_frame']
+    assert abs(np.linalg.det(h[:2, :2] / h[2, 2])) ** 0.5 == pytest.approx(0.5, rel=0.1)
+    stages = json.loads((tmp_path / 'ovl' / 'report.json').read_text())['stage_times']
+    for name in ('decode', 'describe', 'register', 'paint', 'outputs', 'total'):
+        assert stages[name]['frames'] == 60 and stages[name]['total_s'] > 0
+    assert stages['total']['total_s'] <= ovl['wall_s'] + 1e-3
+    assert set(stages) <= {*STAGES, 'total'}
+
+
+def test_prefetched_keeps_order_raises_in_place_and_stops_when_closed():
+    assert list(prefetched(range(100), depth=3)) == list(range(100))
+
+    def broken():
+        yield 1
+        yield 2
+        raise OSError('damaged file')
+
+    got = []
+    with pytest.raises(OSError, match='damaged file'):
+        for item in prefetched(broken(), depth=4):
+            got.append(item)
+    assert got == [1, 2]
+
+    read = []
+
+    def endless():
+        i = 0
+        while True:
+            read.append(i)
+            yield i
+            i += 1
+
+    gen = prefetched(endless(), depth=2)
+    assert next(gen) == 0
+    gen.close()
+    n = len(read)
+    time.sleep(0.3)
+    assert len(read) <= n + 1  # the reader stopped
+    assert not any(t.name == 'srmosaic-read-ahead' and t.is_alive() for t in threading.enumerate())
+
+
+def test_serial_worker_runs_in_order_and_raises_in_the_caller():
+    out = []
+    worker = SerialWorker(depth=2)
+    for i in range(20):
+        worker.submit(lambda i=i: out.append(i))
+    worker.wait()
+    assert out == list(range(20))
+
+    def fail():
+        raise RuntimeError('paint failed')
+
+    worker.submit(fail)
+    with pytest.raises(RuntimeError, match='paint failed'):
+        worker.wait()
+    worker.submit(lambda: out.append('after'))
+    worker.close()
+    assert out[-1] == 'after'
+
+
+def test_cores_left_for_torch_restores_the_thread_count():
+    before = torch.get_num_threads()
+    with cores_left_for_torch(1) as n:
+        assert 1 <= n <= before
+        assert torch.get_num_threads() == n
+    assert torch.get_num_threads() == before
+
+
+# -- registration on a pyramid level -----------------------------------------------------------------
+
+def test_level_for_width():
+    assert [level_for_width(w, 1280) for w in (640, 1280, 1920, 2560, 3840, 7680)] == [0, 0, 1, 1, 2, 3]
+    assert level_for_width(3840, 0) == 0
+
+
+def test_to_full_maps_homography_rms_and_covariance():
+    """A level-1 registration mapped to full size: H by conjugation, RMS doubled, the covariance by
+    the Jacobian (checked against the sample covariance of conjugated random homographies)."""
+    rng = np.random.default_rng(3)
+    h_level = np.array([[1.01, 0.02, 5.0], [-0.015, 0.99, -3.0], [1e-5, -2e-5, 1.0]])
+    cov = np.diag([1e-6, 1e-6, 1e-2, 1e-6, 1e-6, 1e-2, 1e-11, 1e-11])
+    reg = to_full(Registration(True, h_level, inliers=50, rms_px=0.2, covariance=cov), 1)
+    t = full_from_level(1)
+    expect = t @ h_level @ np.linalg.inv(t)
+    np.testing.assert_allclose(reg.prev_H_cur, expect / expect[2, 2], rtol=1e-12, atol=1e-12)
+    assert reg.rms_px == pytest.approx(0.4)
+    samples = []
+    for d in rng.multivariate_normal(np.zeros(8), cov, size=20000):
+        hs = np.append(h_level.ravel()[:8] + d, 1.0).reshape(3, 3)
+        hf = t @ hs @ np.linalg.inv(t)
+        samples.append((hf / hf[2, 2]).ravel()[:8])
+    sample_cov = np.cov(np.array(samples).T)
+    np.testing.assert_allclose(np.sqrt(np.diag(reg.covariance)), np.sqrt(np.diag(sample_cov)), rtol=0.05)
+
+
+def test_pyramid_registrar_registers_a_1920_frame_pair_on_level_1():
+    """1920 x 1080 frames (the orthophoto at full scale) registered on the 960 x 540 level: the full-size
+    homography within 0.1 px at the corners, as the full-size registration."""
+    world = world_rgb(1.0)
+    w, h = 1920, 1080
+    a = translation(20, 200)
+    b = a @ similarity(2.0, 1.02, 31.0, -17.0, w / 2, h / 2)
+    fa, fb = view(a, w, h, noise=2.0, seed=1, image=world), view(b, w, h, noise=2.0, seed=2, image=world)
+    truth = np.linalg.inv(a) @ b
+    config = RegistrationConfig()
+    pyr = PyramidRegistrar(make_registrar(config, 'cpu'), 1280)
+    fa_l, fb_l = pyr.describe(fa), pyr.describe(fb)
+    assert fa_l.level == 1
+    reg = pyr.register(fa_l, fb_l)
+    assert reg.ok, reg.reason
+    assert corner_error_px(reg.prev_H_cur, truth, w, h) < 0.1
+    assert reg.covariance is not None and reg.extras['level'] == 1.0
+
+
+def test_max_width_settings_are_checked():
+    with pytest.raises(ConfigError, match='max_width'):
+        pipeline_config({'mosaic.max_width': 10})
+    with pytest.raises(ConfigError, match='max_width'):
+        pipeline_config({'registration.max_width': 3})
+
+
+def test_wide_frames_are_painted_at_max_width():
+    """Without georeferencing a segment's plane is its first frame's pixels scaled to mosaic.max_width:
+    a 1920 px frame covers 1280 mosaic pixels (and 1920 with max_width 0)."""
+    world = world_rgb(1.0)
+    w, h = 1920, 1080
+    frames = [Frame(i * 40_000_000, view(translation(20 + 12 * i, 200), w, h, noise=2.0, seed=i, image=world))
+              for i in range(3)]
+    for max_width, side in ((1280, 1280), (0, 1920)):
+        pipe = Pipeline(pipeline_config({'mosaic.max_width': max_width}))
+        for f in frames:
+            pipe.feed_frame(f)
+        res = pipe.finish()
+        assert all(r.painted for r in res.records)
+        x0, y0, x1, y1 = res.segments[0].canvas.bounds()
+        assert x1 - x0 == pytest.approx(side + 24 * side / w, abs=4)
