@@ -1,6 +1,6 @@
 """Live graph benchmark: frames per second through DDS and end-to-end latency, per graph layout.
 
-For each graph layout it starts `srmosaic launch` in a child process, publishes 640x480 frames
+For each graph layout it starts `srmosaic launch` in a child process, publishes 640x480 frames (--width, --height)
 rendered by the simulator at a fixed rate on /camera/image_raw (raw sensor_msgs/Image, header stamp
 = publish time; `--compressed`: JPEG on .../compressed), with the simulated /fix and /imu/data
 re-stamped on the same clock, and /camera/camera_info with every image, so that the mosaic node
@@ -18,7 +18,7 @@ Layouts (`--graph`, repeatable; default all three):
   combined  `srmosaic launch`: mosaic, georef (idle) and sr nodes in one process
   split     mosaic | georef (live.georef_standalone) | sr, three processes (launch description)
 
-    .venv/bin/python bench/live.py [--fps 25] [--seconds 20] [--graph split] [--compressed]
+    .venv/bin/python bench/live.py [--fps 25] [--seconds 20] [--graph split] [--compressed] [--width 1280 --height 720]
 
 The mosaic node's own diagnostics are printed too: frames it received (the rest were lost by
 best-effort DDS before reaching it), frames its bounded queue dropped, and its median processing
@@ -236,6 +236,8 @@ def main() -> int:
                          '4 legs of 150 m, 50 m apart (side overlap: the return legs revisit ground)')
     ap.add_argument('--speed', type=float, default=12.5,
                     help='ground speed, m/s (default 12.5: 0.5 m, about 4 px, per frame at 25 fps and 100 m)')
+    ap.add_argument('--width', type=int, default=640, help='frame width, px (default 640)')
+    ap.add_argument('--height', type=int, default=480, help='frame height, px (default 480)')
     ap.add_argument('--compressed', action='store_true', help='publish JPEG CompressedImage instead of raw')
     ap.add_argument('--graph', action='append', choices=LAYOUTS, help='layouts to run (default: all)')
     ap.add_argument('--telemetry', choices=('sim', 'none'), default='sim')
@@ -258,7 +260,8 @@ def main() -> int:
     if trajectory == 'auto':
         trajectory = 'line' if args.speed * args.frames / args.fps <= 250.0 else 'lawnmower'
     shape = {'trajectory': 'lawnmower', 'legs': 4, 'leg_length_m': 150.0, 'leg_spacing_m': 50.0} if trajectory == 'lawnmower' else {}
-    flight = simulate(SimConfig(frames=args.frames, rate_hz=args.fps, speed_m_s=args.speed, **shape))
+    flight = simulate(SimConfig(frames=args.frames, rate_hz=args.fps, speed_m_s=args.speed, width=args.width,
+                                height=args.height, **shape))
     results = []
     for i, layout in enumerate(args.graph or LAYOUTS):
         print(f'{layout}: publishing {args.fps} frames/s for {args.seconds} s ...', flush=True)

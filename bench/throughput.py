@@ -94,17 +94,18 @@ def row(name: str, size: str, report: dict[str, Any], truth: Path, out: Path) ->
 
 
 def print_table(rows: list[dict[str, Any]]) -> None:
-    head = (f"{'size':>10} {'code':<9} {'video':>5} {'fps':>6} " + ' '.join(f'{s[:8]:>8}' for s in STAGES)
+    head = (f"{'size':>10} {'code':<9} {'video':>5} {'fps':>6} {'run fps':>7} " + ' '.join(f'{s[:8]:>8}' for s in STAGES)
             + f" {'err px':>7} {'pair px':>7} {'in mos':>6} {'MB':>6}")
     print(head)
     print('-' * len(head))
     for r in rows:
         stages = ' '.join(f"{r['stage_ms'][s]:8.1f}" if s in r['stage_ms'] else f"{'-':>8}" for s in STAGES)
         pair = r['pair_error_mean_px']
-        print(f"{r['size']:>10} {r['code']:<9} {r['video_fps']:5.0f} {r['fps']:6.1f} {stages} "
+        print(f"{r['size']:>10} {r['code']:<9} {r['video_fps']:5.0f} {r['fps']:6.1f} {r['fps_loop'] or 0:7.1f} {stages} "
               f"{r['corner_error_mean_px']:7.3f} {(pair if pair is not None else float('nan')):7.4f} "
               f"{r['frames_registered']:>3}/{r['frames']:<3}{r['peak_rss_mb'] or 0:7.0f}")
-    print('fps: frames per second end to end (process start-up included); stage columns: median ms per '
+    print('fps: frames per second end to end (process start-up included); run fps: report.json\'s (from the '
+          'input opened to report.json written: start-up of Python and torch left out); stage columns: median ms per '
           'input frame; err px: mean corner error of the mosaic placement, pair px: of consecutive frames, in '
           'full-size frame pixels; in mos: frames in the main mosaic; MB: peak memory')
 

@@ -353,9 +353,9 @@ class Pipeline:
         return bool(near[:min(run, n - gap)].any())
 
     def _paint(self, seg: Segment, held: _Held, seg_H_frame: np.ndarray) -> bool:  # noqa: N803
+        if self._painter is not None:
+            return self._paint_later(seg, held, seg_H_frame)
         with self.clock.stage('paint'):
-            if self._painter is not None:
-                return self._paint_later(seg, held, seg_H_frame)
             image = held.image if held.image is not None else self._as_canvas_image(held.raw)
             try:
                 seg.add(held.record.index, image, seg_H_frame)
@@ -380,12 +380,13 @@ class Pipeline:
         image, raw = held.image, held.raw
 
         def paint() -> None:
-            try:
-                seg.canvas.paint(image if image is not None else self._as_canvas_image(raw), seg_H_frame)
-            except CanvasError as exc:  # refused after all (the canvas grew meanwhile): as if never placed
-                seg.unplace(record.index)
-                record.segment, record.seg_H_frame = -1, None
-                record.reason = f'not painted: {exc}'
+            with self.clock.stage('paint'):
+                try:
+                    seg.canvas.paint(image if image is not None else self._as_canvas_image(raw), seg_H_frame)
+                except CanvasError as exc:  # refused after all (the canvas grew meanwhile): as if never placed
+                    seg.unplace(record.index)
+                    record.segment, record.seg_H_frame = -1, None
+                    record.reason = f'not painted: {exc}'
 
         self._painter.submit(paint)
         return True
@@ -394,9 +395,7 @@ class Pipeline:
         """Wait for the frames being painted on the painter thread (paint_thread=True): the canvases
         are complete after this. Raises the error of a paint that failed."""
         if self._painter is not None:
-            t0 = time.perf_counter()
-            self._painter.wait()
-            self.clock.add('paint', time.perf_counter() - t0)
+            self._painter.wait()  # (the painter counts its own time)
 
     # -- one frame -----------------------------------------------------------------------------
     def _fuse(self, held: _Held, reg: Registration | None, ref: _Held | None) -> None:

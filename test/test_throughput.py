@@ -83,7 +83,8 @@ def test_overlapped_run_writes_the_sequential_outputs(tmp_path, one_torch_thread
     stages = json.loads((tmp_path / 'ovl' / 'report.json').read_text())['stage_times']
     for name in ('decode', 'describe', 'register', 'paint', 'outputs', 'total'):
         assert stages[name]['frames'] == 60 and stages[name]['total_s'] > 0
-    assert stages['total']['total_s'] <= ovl['wall_s'] + 1e-3
+    # the painter's time counts too: the stages add up to the run's time, or more where they overlapped
+    assert 0.5 * ovl['wall_s'] <= stages['total']['total_s'] <= 2.5 * ovl['wall_s']
     assert set(stages) <= {*STAGES, 'total'}
 
 

@@ -9,10 +9,14 @@
 A frame's sample holds the work done between its arrival and the next frame's, whichever frame
 that work was for (a frame held for telemetry or settling is painted during a later one), so the
 per-stage totals are exact and the per-frame figures are what a user waiting on the stream sees.
+Stages may run on other threads (an offline run paints on a painter thread): their time is
+counted all the same, so the stages of a frame may add up to more than the wall time between
+frames (what the overlap gained).
 """
 from __future__ import annotations
 
 import collections
+import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -38,6 +42,7 @@ class StageClock:
         self._current: dict[str, float] = dict.fromkeys(STAGES, 0.0)
         self._samples: dict[str, collections.deque[float]] = {s: collections.deque(maxlen=KEEP_FRAMES) for s in STAGES}
         self._total: dict[str, float] = dict.fromkeys(STAGES, 0.0)
+        self._lock = threading.Lock()
         self.frames = 0
 
     @contextmanager
@@ -53,16 +58,26 @@ class StageClock:
             self.add(name, time.perf_counter() - t0)
 
     def add(self, name: str, seconds: float) -> None:
-        """Count ``seconds`` to stage ``name`` of the current frame."""
-        self._current[name] += seconds
-        self._total[name] += seconds
+        """Count ``seconds`` to stage ``name`` of the current frame (from any thread)."""
+        with self._lock:
+            self._current[name] += seconds
+            self._total[name] += seconds
 
     def end_frame(self) -> None:
         """Close the current input frame: each stage's time since the last call is one sample."""
-        for name, seconds in self._current.items():
-            self._samples[name].append(seconds)
-            self._current[name] = 0.0
-        self.frames += 1
+        with self._lock:
+            for name, seconds in self._current.items():
+                self._samples[name].append(seconds)
+                self._current[name] = 0.0
+            self.frames += 1
+
+    def __getstate__(self) -> dict:
+        """Picklable (checkpoints): the lock is rebuilt."""
+        return {k: v for k, v in self.__dict__.items() if k != '_lock'}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._lock = threading.Lock()
 
     def summary(self) -> dict[str, dict[str, float | int]]:
         """{stage: {'median_ms', 'p95_ms' (per input frame), 'total_s', 'frames'}} plus 'total' (the
