@@ -1,6 +1,6 @@
 # The two commands the README opens with:
 #   make demo   build .venv and run the main job on the bundled demo flight (out/demo/)
-#   make test   build .venv and run the whole test suite
+#   make test   build .venv, lint the repository (ruff.toml) and run the whole test suite
 PYTHON ?= python3
 VENV   := .venv
 STAMP  := $(VENV)/.installed
@@ -20,6 +20,7 @@ demo: $(STAMP)
 	$(VENV)/bin/srmosaic evaluate out/demo --truth bags/demo/ground_truth.json
 
 test: $(STAMP)
+	$(VENV)/bin/ruff check .
 	$(VENV)/bin/python -m pytest -q -ra
 
 # Regenerate the bundled demo bag (command recorded in bags/README.md).

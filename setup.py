@@ -38,8 +38,9 @@ setup(
     install_requires=INSTALL_REQUIRES,
     extras_require={
         # colcon and ament_package: a test builds the package as a ROS workspace does (colcon build)
+        # ruff: the lint `make test` runs first (ruff.toml)
         'test': ['pytest==9.2.0', 'pytest-timeout==2.4.0', 'colcon-common-extensions==0.3.0',
-                 'ros-jazzy-ament-package==0.16.4'],
+                 'ros-jazzy-ament-package==0.16.4', 'ruff==0.17.5'],
         'bench': ['matplotlib==3.11.2'],
     },
     python_requires='>=3.11',

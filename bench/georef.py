@@ -58,25 +58,25 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from srmosaic_ros.core.georef import (  # noqa: E402
+from srmosaic_ros.core.georef import (
     FramePose,
     GeorefConfig,
     Georeferencer,
     camera_pose_from_enu_H_image,
     homography_from_corners,
 )
-from srmosaic_ros.core.georef.anchoring import fit_similarity  # noqa: E402
-from srmosaic_ros.core.georef.frames import matrix_from_quat_xyzw, rpy_from_R_enu_from_body  # noqa: E402
-from srmosaic_ros.core.georef.geodetic import LocalTangentPlane  # noqa: E402
-from srmosaic_ros.core.georef.ground_homography import apply_H, ground_H_image, normalize_H  # noqa: E402
-from srmosaic_ros.core.georef.ukf import corner_jacobian  # noqa: E402
-from srmosaic_ros.core.metrics import corner_error_px, mosaic_corner_errors  # noqa: E402
-from srmosaic_ros.core.registration import RegistrationConfig, make_registrar  # noqa: E402
-from srmosaic_ros.io.geotiff import write_geotiff  # noqa: E402
-from srmosaic_ros.io.kml import write_kml_for_raster  # noqa: E402
-from srmosaic_ros.io.mosaic_files import write_json, write_png  # noqa: E402
-from srmosaic_ros.io.poses_csv import write_poses_csv  # noqa: E402
-from srmosaic_ros.sim import SimConfig, SimulatedFlight, simulate  # noqa: E402
+from srmosaic_ros.core.georef.anchoring import fit_similarity
+from srmosaic_ros.core.georef.frames import matrix_from_quat_xyzw, rpy_from_R_enu_from_body
+from srmosaic_ros.core.georef.geodetic import LocalTangentPlane
+from srmosaic_ros.core.georef.ground_homography import apply_H, ground_H_image, normalize_H
+from srmosaic_ros.core.georef.ukf import corner_jacobian
+from srmosaic_ros.core.metrics import corner_error_px, mosaic_corner_errors
+from srmosaic_ros.core.registration import RegistrationConfig, make_registrar
+from srmosaic_ros.io.geotiff import write_geotiff
+from srmosaic_ros.io.kml import write_kml_for_raster
+from srmosaic_ros.io.mosaic_files import write_json, write_png
+from srmosaic_ros.io.poses_csv import write_poses_csv
+from srmosaic_ros.sim import SimConfig, SimulatedFlight, simulate
 
 BASE = {'width': 320, 'height': 240, 'world_gsd_m': 0.3, 'altitude_m': 100.0, 'gps_sigma_h_m': 2.5,
         'gps_sigma_v_m': 5.0, 'imu_sigma_deg': 0.5}
@@ -91,7 +91,7 @@ GOALS = {'fused_over_gps': 0.5, 'georef_rms_m': 2.0, 'mosaic_px': 3.0}
 # --- inputs ------------------------------------------------------------------------------------
 
 
-def corners_of(cam) -> np.ndarray:  # noqa: ANN001
+def corners_of(cam) -> np.ndarray:
     return np.array([[0.0, 0.0], [cam.width - 1.0, 0.0], [cam.width - 1.0, cam.height - 1.0], [0.0, cam.height - 1.0]])
 
 
@@ -126,8 +126,8 @@ def registrations(flight: SimulatedFlight, sigma_px: float, seed: int) -> list[t
     c = corners_of(flight.camera)
     out: list[tuple[np.ndarray, np.ndarray] | None] = [None]
     for t in flight.truth.frames[1:]:
-        H = homography_from_corners(c, apply_H(t.prev_H_cur, c) + rng.normal(0.0, sigma_px, (4, 2)))  # noqa: N806
-        J_inv = np.linalg.inv(corner_jacobian(H, c))  # noqa: N806
+        H = homography_from_corners(c, apply_H(t.prev_H_cur, c) + rng.normal(0.0, sigma_px, (4, 2)))
+        J_inv = np.linalg.inv(corner_jacobian(H, c))
         out.append((H, sigma_px**2 * J_inv @ J_inv.T))
     return out
 
@@ -164,7 +164,7 @@ def utm_affine(ltp: LocalTangentPlane, epsg: int, centre_en: np.ndarray) -> np.n
     lat, lon, _ = ltp.geodetic_from_enu(np.c_[e.ravel(), n.ravel(), np.zeros(e.size)])
     x, y = Transformer.from_crs(4326, epsg, always_xy=True).transform(lon, lat)
     coef, *_ = np.linalg.lstsq(np.c_[e.ravel(), n.ravel(), np.ones(e.size)], np.c_[x, y], rcond=None)
-    A = np.eye(3)  # noqa: N806
+    A = np.eye(3)
     A[:2] = coef.T
     return A
 
@@ -174,10 +174,10 @@ def truth_positions(georef: Georeferencer, flight: SimulatedFlight) -> np.ndarra
                      for t in flight.truth.frames])
 
 
-def true_raster_H_frames(georef: Georeferencer, flight: SimulatedFlight) -> list[np.ndarray]:  # noqa: N802
+def true_raster_H_frames(georef: Georeferencer, flight: SimulatedFlight) -> list[np.ndarray]:
     world = flight.world
-    A = utm_affine(world.origin, georef.raster.epsg, np.zeros(2))  # noqa: N806
-    raster_H_world_px = georef.raster.raster_H_utm @ A @ world.enu_H_world_px  # noqa: N806
+    A = utm_affine(world.origin, georef.raster.epsg, np.zeros(2))
+    raster_H_world_px = georef.raster.raster_H_utm @ A @ world.enu_H_world_px
     return [normalize_H(raster_H_world_px @ t.world_px_H_frame) for t in flight.truth.frames]
 
 
@@ -199,12 +199,12 @@ def chain_only(georef: Georeferencer, flight: SimulatedFlight, regs: list) -> tu
     rpy0 = rpy_from_R_enu_from_body(matrix_from_quat_xyzw(imu.orientation_xyzw))
     y0 = np.r_[p0, rpy0]
     cam0 = georef.mount.camera_pose(y0)
-    raster_H_enu = georef.raster_H_enu()  # noqa: N806
-    enu_H_raster = np.linalg.inv(raster_H_enu)  # noqa: N806
-    H = normalize_H(raster_H_enu @ ground_H_image(cam.K, cam0.R_enu_from_cam, cam0.center_enu_m))  # noqa: N806
+    raster_H_enu = georef.raster_H_enu()
+    enu_H_raster = np.linalg.inv(raster_H_enu)
+    H = normalize_H(raster_H_enu @ ground_H_image(cam.K, cam0.R_enu_from_cam, cam0.center_enu_m))
     placed, positions = [H], [p0]
     for reg in regs[1:]:
-        H = normalize_H(H @ reg[0])  # noqa: N806
+        H = normalize_H(H @ reg[0])
         placed.append(H)
         pose = camera_pose_from_enu_H_image(cam.K, enu_H_raster @ H)
         positions.append(georef.mount.body_pose(pose)[:3])
@@ -304,7 +304,7 @@ def paint(flight: SimulatedFlight, placed: list[np.ndarray]) -> tuple[np.ndarray
     coverage = np.zeros((size[1], size[0]), np.uint8)
     ones = np.full((cam.height, cam.width), 255, np.uint8)
     ones[:2], ones[-2:], ones[:, :2], ones[:, -2:] = 0, 0, 0, 0
-    for frame, H in zip(flight.frames, placed):  # noqa: N806
+    for frame, H in zip(flight.frames, placed):
         warped = cv2.warpPerspective(frame.image.astype(np.float32) / 255.0, shift @ H, size, flags=cv2.INTER_LINEAR)
         m = cv2.warpPerspective(ones, shift @ H, size, flags=cv2.INTER_NEAREST) > 0
         image[m] = warped[m]

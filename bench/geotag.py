@@ -26,12 +26,12 @@ from pyproj import Transformer
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from srmosaic_ros.config import pipeline_config  # noqa: E402
-from srmosaic_ros.core.georef.geodetic import LocalTangentPlane  # noqa: E402
-from srmosaic_ros.core.georef.ground_homography import apply_H, ground_H_image  # noqa: E402
-from srmosaic_ros.offline import process_input  # noqa: E402
-from srmosaic_ros.sim import SimConfig, simulate  # noqa: E402
-from srmosaic_ros.sim.record import write_stills_folder  # noqa: E402
+from srmosaic_ros.config import pipeline_config
+from srmosaic_ros.core.georef.geodetic import LocalTangentPlane
+from srmosaic_ros.core.georef.ground_homography import apply_H, ground_H_image
+from srmosaic_ros.offline import process_input
+from srmosaic_ros.sim import SimConfig, simulate
+from srmosaic_ros.sim.record import write_stills_folder
 
 CASES = [(2.5, 0.1), (2.5, 0.5), (2.5, 2.0), (5.0, 0.5), (1.0, 0.1)]  # (GNSS sigma m, tilt deg RMS)
 
@@ -53,8 +53,8 @@ def run_case(sigma_h: float, tilt_deg: float, seed: int, work: Path) -> dict[str
     err, tag_err = [], []
     fix_at = {f.stamp_ns: f for f in flight.fixes}
     for row, t in zip(rows, flight.truth.frames):
-        H = np.array([float(row[f'h{i}{j}']) for i in range(3) for j in range(3)]).reshape(3, 3)  # noqa: N806
-        ground_H = ground_H_image(cam.K, t.R_enu_from_cam, t.camera_enu_m)  # noqa: N806
+        H = np.array([float(row[f'h{i}{j}']) for i in range(3) for j in range(3)]).reshape(3, 3)
+        ground_H = ground_H_image(cam.K, t.R_enu_from_cam, t.camera_enu_m)
         for px in ([cam.cx, cam.cy], [0.0, 0.0], [cam.width - 1.0, cam.height - 1.0]):
             m = apply_H(H, np.array([px]))[0]
             e, n = transform @ (m[0] + 0.5, m[1] + 0.5)

@@ -75,7 +75,7 @@ def graph_command(layout: str, workdir: Path) -> list[str]:
     return [*base, 'launch', str(description), *ros, '-p', 'live.georef_standalone:=true']
 
 
-def run_layout(layout: str, args: argparse.Namespace, flight, domain: int) -> dict:  # noqa: ANN001
+def run_layout(layout: str, args: argparse.Namespace, flight, domain: int) -> dict:
     import rclpy
     from geometry_msgs.msg import PoseWithCovarianceStamped
     from rclpy.executors import SingleThreadedExecutor

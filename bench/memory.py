@@ -133,7 +133,7 @@ def child(stats_path: Path, argv: list[str]) -> int:
 
     original = pl.Pipeline.finish
 
-    def finish(self: Any) -> Any:  # noqa: ANN401
+    def finish(self: Any) -> Any:
         result = original(self)
         stats = {'peak_rss_mb': round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1),
                  'segments': [c.tile_stats() for c in {id(seg.canvas): seg.canvas for seg in result.segments}.values()]}

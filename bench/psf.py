@@ -27,13 +27,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from srmosaic_ros.core.sr.psf_estimate import estimate_psf_sigma  # noqa: E402
-from srmosaic_ros.core.sr.quality import psnr  # noqa: E402
-from srmosaic_ros.core.sr.reconstruct import reconstruct_tile  # noqa: E402
-from srmosaic_ros.core.sr.synthetic import make_synthetic_tile  # noqa: E402
-from srmosaic_ros.sim import SimConfig, simulate  # noqa: E402
-from srmosaic_ros.sim.chart import write_edge_chart  # noqa: E402
-from srmosaic_ros.sim.render import effective_sigma_px  # noqa: E402
+from srmosaic_ros.core.sr.psf_estimate import estimate_psf_sigma
+from srmosaic_ros.core.sr.quality import psnr
+from srmosaic_ros.core.sr.reconstruct import reconstruct_tile
+from srmosaic_ros.core.sr.synthetic import make_synthetic_tile
+from srmosaic_ros.sim import SimConfig, simulate
+from srmosaic_ros.sim.chart import write_edge_chart
+from srmosaic_ros.sim.render import effective_sigma_px
 
 SIGMAS = (0.3, 0.5, 0.8, 1.1)
 ORIGIN = {'origin_lat_deg': 45.0, 'origin_lon_deg': 7.0}

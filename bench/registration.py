@@ -39,10 +39,10 @@ import torch
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from srmosaic_ros.core.image_ops import to_gray_u8  # noqa: E402
-from srmosaic_ros.core.metrics import corner_error_px  # noqa: E402
-from srmosaic_ros.core.registration import RegistrationConfig  # noqa: E402
-from srmosaic_ros.core.registration.torch_registrar import TorchRegistrar, TorchRegistrarOptions  # noqa: E402
+from srmosaic_ros.core.image_ops import to_gray_u8
+from srmosaic_ros.core.metrics import corner_error_px
+from srmosaic_ros.core.registration import RegistrationConfig
+from srmosaic_ros.core.registration.torch_registrar import TorchRegistrar, TorchRegistrarOptions
 
 WORLDS = {'caliterra': ROOT / 'data' / 'worlds' / 'caliterra_IMG_9360.jpg',
           'brighton': ROOT / 'data' / 'worlds' / 'brighton_DJI_0025.jpg'}
@@ -104,7 +104,7 @@ def flight(world_shape: tuple[int, int], motion: Motion, frames: int, seed: int)
     rng = np.random.default_rng(seed)
     wh, ww = world_shape
     cx, cy = (WIDTH - 1) / 2.0, (HEIGHT - 1) / 2.0
-    world_H = _similarity(rng.uniform(0, 360), 1.0, ww / 2 - cx, wh / 2 - cy, cx, cy)  # noqa: N806
+    world_H = _similarity(rng.uniform(0, 360), 1.0, ww / 2 - cx, wh / 2 - cy, cx, cy)
     out = [world_H]
     for _ in range(frames - 1):
         centre = world_H @ np.array([cx, cy, 1.0])
@@ -131,19 +131,19 @@ def flight(world_shape: tuple[int, int], motion: Motion, frames: int, seed: int)
         p[2, :2] = rng.uniform(-motion.persp, motion.persp, 2)
         c = np.array([[1.0, 0, cx], [0, 1.0, cy], [0, 0, 1.0]])
         delta = delta @ c @ p @ np.linalg.inv(c)
-        world_H = world_H @ delta  # noqa: N806
-        world_H = world_H / world_H[2, 2]  # noqa: N806
+        world_H = world_H @ delta
+        world_H = world_H / world_H[2, 2]
         out.append(world_H)
     return out
 
 
-def render(world: np.ndarray, world_H_frame: np.ndarray, rng: np.random.Generator, *,  # noqa: N803
+def render(world: np.ndarray, world_H_frame: np.ndarray, rng: np.random.Generator, *,
            ir: bool) -> np.ndarray:
     """Frame pixel p shows world point world_H_frame @ p; EO -> RGB uint8, IR -> uint8 (H, W)."""
     # Pixel integration: render at SUPERSAMPLE x the resolution, then average SUPERSAMPLE**2 blocks.
     k = SUPERSAMPLE
     fine_from_frame = np.array([[k, 0.0, (k - 1) / 2.0], [0.0, k, (k - 1) / 2.0], [0.0, 0.0, 1.0]])
-    world_H_fine = world_H_frame @ np.linalg.inv(fine_from_frame)  # noqa: N806
+    world_H_fine = world_H_frame @ np.linalg.inv(fine_from_frame)
     fine = cv2.warpPerspective(world, world_H_fine, (WIDTH * k, HEIGHT * k),
                                flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REFLECT)
     frame = cv2.resize(fine, (WIDTH, HEIGHT), interpolation=cv2.INTER_AREA)
@@ -182,7 +182,7 @@ class OpenCVBaseline:
         kps, desc = self.sift.detectAndCompute(to_gray_u8(image), None)
         return np.array([k.pt for k in kps], np.float32).reshape(-1, 2), desc
 
-    def register(self, prev, cur) -> tuple[bool, np.ndarray | None]:  # noqa: ANN001
+    def register(self, prev, cur) -> tuple[bool, np.ndarray | None]:
         (pp, pd), (cp, cd) = prev, cur
         if pd is None or cd is None or len(pp) < 4 or len(cp) < 4:
             return False, None
@@ -208,7 +208,7 @@ class OpenCVBaselinePairs(OpenCVBaseline):
     def describe(self, image: np.ndarray) -> np.ndarray:
         return image
 
-    def register(self, prev, cur) -> tuple[bool, np.ndarray | None]:  # noqa: ANN001
+    def register(self, prev, cur) -> tuple[bool, np.ndarray | None]:
         return super().register(super().describe(prev), super().describe(cur))
 
 
@@ -217,10 +217,10 @@ class Ours:
         self.name = name
         self.registrar = registrar
 
-    def describe(self, image: np.ndarray):  # noqa: ANN201
+    def describe(self, image: np.ndarray):
         return self.registrar.describe(image)
 
-    def register(self, prev, cur) -> tuple[bool, np.ndarray | None]:  # noqa: ANN001
+    def register(self, prev, cur) -> tuple[bool, np.ndarray | None]:
         r = self.registrar.register(prev, cur)
         return r.ok, r.prev_H_cur
 
@@ -230,7 +230,7 @@ def _sync(device: torch.device) -> None:
         torch.cuda.synchronize(device)
 
 
-def run_methods(methods: list, frames: list[np.ndarray], truths: list[np.ndarray | None],  # noqa: ANN001
+def run_methods(methods: list, frames: list[np.ndarray], truths: list[np.ndarray | None],
                 device: torch.device, repeat: int = 1) -> list[dict]:
     """Describe every frame once, register each to the previous; time describe + register per frame.
 

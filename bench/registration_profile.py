@@ -31,10 +31,10 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / 'bench'))
 
-import registration as flights  # noqa: E402  (bench/registration.py: the same synthetic frames)
+import registration as flights  # bench/registration.py: the same synthetic frames
 
-from srmosaic_ros.core.registration import RegistrationConfig  # noqa: E402
-from srmosaic_ros.core.registration import static_describe, torch_registrar  # noqa: E402
+from srmosaic_ros.core.registration import RegistrationConfig
+from srmosaic_ros.core.registration import static_describe, torch_registrar
 
 #: (module, function, stage label): the functions TorchRegistrar calls, in the order of a frame.
 STAGES = [
@@ -65,7 +65,7 @@ def _wrap(times: dict[str, float], counts: collections.Counter, device: torch.de
         saved.append((mod, name, f))
 
         @functools.wraps(f)
-        def timed(*a, _f=f, _label=label, **k):  # noqa: ANN002, ANN003, ANN202
+        def timed(*a, _f=f, _label=label, **k):
             if device.type == 'cuda':
                 torch.cuda.synchronize(device)
             t0 = time.perf_counter()
@@ -118,7 +118,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f'registration profile: {n} frames 640x480 (brighton, EO, small motion), device {dev} ({what}), '
           f'torch {torch.__version__}')
     print(f'describe + register: {1e3 * wall / n:.2f} ms per frame with a synchronisation after each stage')
-    print(f'| stage | ms per frame | calls per frame |\n|---|---|---|')
+    print('| stage | ms per frame | calls per frame |\n|---|---|---|')
     for _, _, label in STAGES:
         if counts[label]:
             print(f'| {label} | {1e3 * times[label] / n:.2f} | {counts[label] / n:.1f} |')

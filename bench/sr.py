@@ -37,13 +37,13 @@ import torch
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from srmosaic_ros.core.device import resolve_device  # noqa: E402
-from srmosaic_ros.core.sr import reconstruct_tile  # noqa: E402
-from srmosaic_ros.core.sr.quality import edge_mask, overshoot, overshoot_map, psnr, side_by_side, ssim  # noqa: E402
-from srmosaic_ros.core.sr.synthetic import make_synthetic_tile  # noqa: E402
-from srmosaic_ros.core.types import Frame  # noqa: E402
-from srmosaic_ros.pipeline import Pipeline  # noqa: E402
-from srmosaic_ros.sim.world import ir_from_rgb  # noqa: E402
+from srmosaic_ros.core.device import resolve_device
+from srmosaic_ros.core.sr import reconstruct_tile
+from srmosaic_ros.core.sr.quality import edge_mask, overshoot, overshoot_map, psnr, side_by_side, ssim
+from srmosaic_ros.core.sr.synthetic import make_synthetic_tile
+from srmosaic_ros.core.types import Frame
+from srmosaic_ros.pipeline import Pipeline
+from srmosaic_ros.sim.world import ir_from_rgb
 
 WORLDS = {
     # name: (file, scale, origin (x0, y0) of the 256 x 256 HR tile in the scaled image)
@@ -106,7 +106,7 @@ def registered_homographies(st) -> tuple[list[np.ndarray], list[int], float]:
     c = frame_corners(w, h)
     seg = np.concatenate([apply_homography(r.seg_H_frame, c) for r in recs])
     tru = np.concatenate([apply_homography(st.tile_H_frames[r.index], c) for r in recs])
-    tile_H_seg, _ = cv2.findHomography(seg, tru, 0)  # noqa: N806
+    tile_H_seg, _ = cv2.findHomography(seg, tru, 0)
     mats = [tile_H_seg @ r.seg_H_frame for r in recs]
     err = np.linalg.norm(np.concatenate([apply_homography(m, c) for m in mats]) - tru, axis=1).mean()
     return mats, [r.index for r in recs], float(err)

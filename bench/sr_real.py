@@ -26,9 +26,9 @@ from typing import Any
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from srmosaic_ros.config import pipeline_config  # noqa: E402
-from srmosaic_ros.evaluate_stills import halve_stills, pooled_gain_db, sr_errors_against_originals  # noqa: E402
-from srmosaic_ros.offline import process_input  # noqa: E402
+from srmosaic_ros.config import pipeline_config
+from srmosaic_ros.evaluate_stills import halve_stills, pooled_gain_db, sr_errors_against_originals
+from srmosaic_ros.offline import process_input
 
 SEQUENCES = ('caliterra', 'brighton_beach')
 RUNS: dict[str, dict[str, Any]] = {

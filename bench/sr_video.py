@@ -25,10 +25,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from srmosaic_ros.config import pipeline_config  # noqa: E402
-from srmosaic_ros.evaluate_stills import psnr_from_sse, sr_errors_against_originals  # noqa: E402
-from srmosaic_ros.io.video import VideoReader  # noqa: E402
-from srmosaic_ros.offline import process_input  # noqa: E402
+from srmosaic_ros.config import pipeline_config
+from srmosaic_ros.evaluate_stills import psnr_from_sse, sr_errors_against_originals
+from srmosaic_ros.io.video import VideoReader
+from srmosaic_ros.offline import process_input
 
 REAL = ROOT.parent / 'shared' / 'data' / 'real'
 VIDEOS = (REAL / 'klv' / 'aphill_short.ts', REAL / 'gopro' / 'karma.mp4')
@@ -88,7 +88,8 @@ def main() -> None:
             gains = np.array([psnr_from_sse(e[0], e[2]) - psnr_from_sse(e[1], e[2]) for e in errors.values()])
             sse_sr, sse_bi, n = (sum(e[i] for e in errors.values()) for i in range(3))
             refused = sum(1 for t in report['sr']['per_tile'] if 'error' in t)
-            print(f'| {label} | {len(errors)} ({refused}) | {report["sr"]["psf_sigma_px"]:g} | {psnr_from_sse(sse_sr, n):.2f} | {psnr_from_sse(sse_bi, n):.2f} '
+            print(f'| {label} | {len(errors)} ({refused}) | {report["sr"]["psf_sigma_px"]:g} | {psnr_from_sse(sse_sr, n):.2f} '
+                  f'| {psnr_from_sse(sse_bi, n):.2f} '
                   f'| {psnr_from_sse(sse_sr, n) - psnr_from_sse(sse_bi, n):+.2f} | {gains.mean():+.2f} | {gains.min():+.2f} '
                   f'| {np.mean(gains > 0):.0%} |', flush=True)
 

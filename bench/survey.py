@@ -65,7 +65,7 @@ def odm_agreement(out: Path, dst: Path) -> dict:
     good = [m for m, n in cv2.BFMatcher().knnMatch(db, da, k=2) if m.distance < 0.75 * n.distance]
     pb = np.float32([kb[m.queryIdx].pt for m in good])
     pa = np.float32([ka[m.trainIdx].pt for m in good])
-    H, inl = cv2.findHomography(pb, pa, cv2.RANSAC, 3.0)  # noqa: N806 - ODM px -> our small px
+    H, inl = cv2.findHomography(pb, pa, cv2.RANSAC, 3.0)  # ODM px -> our small px
     inl = inl.ravel() > 0
     res = cv2.perspectiveTransform(pb[inl][None], H)[0] - pa[inl]
     m_per_small_px = gsd / s

@@ -39,7 +39,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from srmosaic_ros.evaluate import evaluate_dir  # noqa: E402
+from srmosaic_ros.evaluate import evaluate_dir
 
 #: (width, height, frames/s of the video)
 SIZES = {'640x480': (640, 480, 30.0), '1280x720': (1280, 720, 30.0), '1920x1080': (1920, 1080, 25.0),

@@ -22,10 +22,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from srmosaic_ros.config import pipeline_config  # noqa: E402
-from srmosaic_ros.pipeline import Pipeline  # noqa: E402
-from srmosaic_ros.sim import SimConfig, simulate  # noqa: E402
-from srmosaic_ros.sim.traffic import vehicle_mask  # noqa: E402
+from srmosaic_ros.config import pipeline_config
+from srmosaic_ros.pipeline import Pipeline
+from srmosaic_ros.sim import SimConfig, simulate
+from srmosaic_ros.sim.traffic import vehicle_mask
 
 
 RUNS = {'feather': {'mosaic.blend': 'feather'}, 'multiband': {'mosaic.blend': 'multiband'},
@@ -34,7 +34,7 @@ RUNS = {'feather': {'mosaic.blend': 'feather'}, 'multiband': {'mosaic.blend': 'm
         'bestview, moving 0.03': {'mosaic.blend': 'bestview', 'mosaic.moving': 0.03}}
 
 
-def canvas_of(flight, overrides: dict):  # noqa: ANN001, ANN201
+def canvas_of(flight, overrides: dict):
     pipe = Pipeline(pipeline_config({'georef.enabled': False, **overrides}))
     for frame in flight.frames:
         pipe.feed_frame(frame)

@@ -47,13 +47,13 @@ from typing import Any
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from srmosaic_ros.config import pipeline_config  # noqa: E402
-from srmosaic_ros.evaluate import evaluate_dir  # noqa: E402
-from srmosaic_ros.io.mosaic_files import read_frames_csv  # noqa: E402
-from srmosaic_ros.offline import process_input  # noqa: E402
-from srmosaic_ros.sim import SimConfig, simulate  # noqa: E402
-from srmosaic_ros.sim.cli import _write_video_and_sidecar  # noqa: E402
-from srmosaic_ros.sim.truth import save_truth  # noqa: E402
+from srmosaic_ros.config import pipeline_config
+from srmosaic_ros.evaluate import evaluate_dir
+from srmosaic_ros.io.mosaic_files import read_frames_csv
+from srmosaic_ros.offline import process_input
+from srmosaic_ros.sim import SimConfig, simulate
+from srmosaic_ros.sim.cli import _write_video_and_sidecar
+from srmosaic_ros.sim.truth import save_truth
 
 #: The flight (see the module docstring); frames and seed come from the command line.
 FLIGHT = {'trajectory': 'line', 'rate_hz': 15.0, 'speed_m_s': 7.0, 'altitude_m': 100.0, 'heading_deg': 0.0,
@@ -87,7 +87,7 @@ def make_videos(work: Path, frames: int, gops: list[int], seed: int, fresh: bool
     return videos, truth
 
 
-def run_one(video: Path, truth: Path, out: Path, select: str, rate_hz: float, config: Any) -> dict[str, Any]:  # noqa: ANN401
+def run_one(video: Path, truth: Path, out: Path, select: str, rate_hz: float, config: Any) -> dict[str, Any]:
     """`process VIDEO --select SELECT` in this process, evaluated against the truth; one table row."""
     report = process_input(video, out, config, select=select, hfov_deg=FLIGHT['hfov_deg'], progress=False)
     ev = evaluate_dir(out, truth)

@@ -61,12 +61,12 @@ def check_flavor(flavor: str) -> Flavor:
 @cache
 def rosbags_typestore() -> Typestore:
     """The ROS 2 Jazzy typestore that rosbags-flavoured messages are built from."""
-    from rosbags.typesys import Stores, get_typestore  # noqa: PLC0415
+    from rosbags.typesys import Stores, get_typestore
 
     return get_typestore(Stores.ROS2_JAZZY)
 
 
-def _rclpy_class(msgtype: str) -> Any:  # noqa: ANN401
+def _rclpy_class(msgtype: str) -> Any:
     package, _, name = msgtype.split('/')
     try:
         module = importlib.import_module(f'{package}.msg')
@@ -80,9 +80,9 @@ def _rclpy_class(msgtype: str) -> Any:  # noqa: ANN401
         raise MessageError(msg) from None
 
 
-def _rosbags_default(typestore: Typestore, fielddef: tuple[Any, Any]) -> Any:  # noqa: ANN401
+def _rosbags_default(typestore: Typestore, fielddef: tuple[Any, Any]) -> Any:
     """Default value of one rosbags field definition (zeros, empty strings, empty sequences)."""
-    from rosbags.typesys.base import Nodetype  # noqa: PLC0415
+    from rosbags.typesys.base import Nodetype
 
     kind, detail = fielddef
     if kind == Nodetype.BASE:
@@ -106,7 +106,7 @@ def _rosbags_default(typestore: Typestore, fielddef: tuple[Any, Any]) -> Any:  #
     return []
 
 
-def _rosbags_new(typestore: Typestore, msgtype: str, fields: dict[str, Any]) -> Any:  # noqa: ANN401
+def _rosbags_new(typestore: Typestore, msgtype: str, fields: dict[str, Any]) -> Any:
     cls = typestore.types[msgtype]
     _, fielddefs = typestore.fielddefs[msgtype]
     values = {
@@ -119,7 +119,7 @@ def _rosbags_new(typestore: Typestore, msgtype: str, fields: dict[str, Any]) -> 
     return cls(**values)
 
 
-def new_message(flavor: str, msgtype: str, **fields: Any) -> Any:  # noqa: ANN401
+def new_message(flavor: str, msgtype: str, **fields: Any) -> Any:
     """Build a message ``msgtype`` (e.g. 'sensor_msgs/msg/Image') of ``flavor``.
 
     Fields not given take their defaults (zeros, empty). Values must already be in the
@@ -130,7 +130,7 @@ def new_message(flavor: str, msgtype: str, **fields: Any) -> Any:  # noqa: ANN40
     return _rosbags_new(rosbags_typestore(), msgtype, fields)
 
 
-def as_u8(data: Any) -> np.ndarray:  # noqa: ANN401
+def as_u8(data: Any) -> np.ndarray:
     """1-D uint8 view (no copy where possible) of a ``data`` field of either flavour.
 
     rosbags gives numpy uint8 arrays, rclpy ``array.array('B')``; bytes and lists work too.
@@ -144,7 +144,7 @@ def as_u8(data: Any) -> np.ndarray:  # noqa: ANN401
     return np.asarray(data, dtype=np.uint8).reshape(-1)
 
 
-def u8_field(buffer: np.ndarray, flavor: str) -> Any:  # noqa: ANN401
+def u8_field(buffer: np.ndarray, flavor: str) -> Any:
     """A uint8 buffer as the ``data`` field of ``flavor`` (a fresh array, never a view)."""
     flat = np.ascontiguousarray(buffer, dtype=np.uint8).reshape(-1)
     if flavor == 'rclpy':
@@ -152,7 +152,7 @@ def u8_field(buffer: np.ndarray, flavor: str) -> Any:  # noqa: ANN401
     return flat.copy()
 
 
-def float_field(values: Sequence[float] | np.ndarray, flavor: str) -> Any:  # noqa: ANN401
+def float_field(values: Sequence[float] | np.ndarray, flavor: str) -> Any:
     """A float64 array/sequence field (CameraInfo.k, covariances...) for ``flavor``."""
     flat = np.asarray(values, dtype=np.float64).reshape(-1)
     if flavor == 'rclpy':

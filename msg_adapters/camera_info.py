@@ -20,7 +20,7 @@ from .stamps import make_header
 __all__ = ['camera_info_to_intrinsics', 'intrinsics_to_camera_info']
 
 
-def _matrix_field(msg: Any, name: str, size: int | None) -> np.ndarray:  # noqa: ANN401
+def _matrix_field(msg: Any, name: str, size: int | None) -> np.ndarray:
     value = getattr(msg, name, None)
     if value is None:
         value = getattr(msg, name.upper(), None)
@@ -34,7 +34,7 @@ def _matrix_field(msg: Any, name: str, size: int | None) -> np.ndarray:  # noqa:
     return values
 
 
-def camera_info_to_intrinsics(msg: Any) -> CameraIntrinsics:  # noqa: ANN401
+def camera_info_to_intrinsics(msg: Any) -> CameraIntrinsics:
     """Intrinsics from a sensor_msgs/CameraInfo of either flavour (or a ROS 1 one from rosbags).
 
     fx, fy, cx, cy come from the camera matrix ``k`` (row-major 3x3).
@@ -91,7 +91,7 @@ def intrinsics_to_camera_info(
     stamp_ns: int = 0,
     frame_id: str = '',
     flavor: str = 'rclpy',
-) -> Any:  # noqa: ANN401
+) -> Any:
     """sensor_msgs/CameraInfo of ``flavor``: ``k``, ``d``, ``r`` = identity, ``p`` = [K | 0]."""
     flavor = check_flavor(flavor)
     k = [intr.fx, 0.0, intr.cx, 0.0, intr.fy, intr.cy, 0.0, 0.0, 1.0]

@@ -66,12 +66,12 @@ def _encoding(name: str, field: str) -> _Encoding:
     return enc
 
 
-def is_compressed_image(msg: Any) -> bool:  # noqa: ANN401
+def is_compressed_image(msg: Any) -> bool:
     """True for a sensor_msgs/CompressedImage (has ``format``), False for an Image."""
     return hasattr(msg, 'format') and not hasattr(msg, 'encoding')
 
 
-def image_to_numpy(msg: Any) -> np.ndarray:  # noqa: ANN401
+def image_to_numpy(msg: Any) -> np.ndarray:
     """Pixels of a sensor_msgs/Image (rclpy or rosbags) as a new numpy array.
 
     Returns:
@@ -125,7 +125,7 @@ def _to_rgb(pixels: np.ndarray, order: str) -> np.ndarray:
     return np.ascontiguousarray(pixels[..., 2::-1])  # bgr, bgra
 
 
-def _decode_compressed(msg: Any) -> np.ndarray:  # noqa: ANN401
+def _decode_compressed(msg: Any) -> np.ndarray:
     fmt = str(msg.format)
     if 'compresseddepth' in fmt.lower():
         msg_ = (
@@ -164,7 +164,7 @@ def _decode_compressed(msg: Any) -> np.ndarray:  # noqa: ANN401
     return _to_rgb(decoded, order)
 
 
-def image_to_rgb_or_mono(msg: Any) -> np.ndarray:  # noqa: ANN401
+def image_to_rgb_or_mono(msg: Any) -> np.ndarray:
     """Pixels of an Image or CompressedImage normalised for the core.
 
     Returns:
@@ -190,7 +190,7 @@ def numpy_to_image(
     flavor: str = 'rclpy',
     is_bigendian: bool = False,
     step: int | None = None,
-) -> Any:  # noqa: ANN401
+) -> Any:
     """Build a sensor_msgs/Image of ``flavor`` from pixels already in ``encoding``'s order.
 
     Args:
@@ -264,7 +264,7 @@ def numpy_to_compressed(
     stamp_ns: int = 0,
     frame_id: str = '',
     flavor: str = 'rclpy',
-) -> Any:  # noqa: ANN401
+) -> Any:
     """Build a sensor_msgs/CompressedImage of ``flavor`` as image_transport's plugin would.
 
     Args:

@@ -21,7 +21,7 @@ __all__ = ['imu_to_sample', 'sample_to_imu']
 _MIN_QUATERNION_NORM = 1e-6
 
 
-def _covariance(msg: Any, name: str) -> np.ndarray:  # noqa: ANN401
+def _covariance(msg: Any, name: str) -> np.ndarray:
     values = np.asarray(getattr(msg, name), dtype=np.float64).reshape(-1)
     if values.size != 9:
         msg_ = f'Imu.{name} has {values.size} values; expected 9.'
@@ -29,7 +29,7 @@ def _covariance(msg: Any, name: str) -> np.ndarray:  # noqa: ANN401
     return values
 
 
-def _vector(msg: Any, name: str) -> np.ndarray:  # noqa: ANN401
+def _vector(msg: Any, name: str) -> np.ndarray:
     """(3,) values of a Vector3 field; all NaN when its covariance[0] == -1 marks it missing (so that
     the zeros a driver sends then are not read as a measurement of no rotation)."""
     vec = getattr(msg, name)
@@ -46,7 +46,7 @@ def _vector(msg: Any, name: str) -> np.ndarray:  # noqa: ANN401
     return values
 
 
-def imu_to_sample(msg: Any) -> ImuSample:  # noqa: ANN401
+def imu_to_sample(msg: Any) -> ImuSample:
     """ImuSample from a sensor_msgs/Imu of either flavour.
 
     ``orientation_xyzw`` is the unit (normalised) quaternion, or None when
@@ -91,7 +91,7 @@ def imu_to_sample(msg: Any) -> ImuSample:  # noqa: ANN401
     )
 
 
-def sample_to_imu(sample: ImuSample, *, flavor: str = 'rclpy') -> Any:  # noqa: ANN401
+def sample_to_imu(sample: ImuSample, *, flavor: str = 'rclpy') -> Any:
     """sensor_msgs/Imu of ``flavor``; a None orientation becomes covariance[0] = -1.
 
     Angular velocity and linear acceleration covariances are written as zeros (unknown); a NaN
@@ -106,12 +106,12 @@ def sample_to_imu(sample: ImuSample, *, flavor: str = 'rclpy') -> Any:  # noqa: 
         quat = np.asarray(sample.orientation_xyzw, dtype=np.float64).reshape(4)
         cov = np.asarray(sample.orientation_covariance, dtype=np.float64).reshape(9)
 
-    def vector3(values: np.ndarray) -> Any:  # noqa: ANN401
+    def vector3(values: np.ndarray) -> Any:
         values = np.asarray(values, dtype=np.float64).reshape(3)
         x, y, z = (float(v) for v in (np.zeros(3) if np.all(np.isnan(values)) else values))
         return new_message(flavor, 'geometry_msgs/msg/Vector3', x=x, y=y, z=z)
 
-    def vector_covariance(values: np.ndarray) -> Any:  # noqa: ANN401
+    def vector_covariance(values: np.ndarray) -> Any:
         cov = np.zeros(9)
         if np.all(np.isnan(np.asarray(values, dtype=np.float64))):
             cov[0] = -1.0

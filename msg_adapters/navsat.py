@@ -17,7 +17,7 @@ __all__ = ['navsat_to_fix', 'fix_to_navsat']
 _LIMITS = {'latitude': 90.0, 'longitude': 180.0}
 
 
-def navsat_to_fix(msg: Any) -> GeoFix:  # noqa: ANN401
+def navsat_to_fix(msg: Any) -> GeoFix:
     """GeoFix from a sensor_msgs/NavSatFix of either flavour.
 
     A fix whose ``status`` says no fix is passed on (``status`` = -1) as long as its numbers are
@@ -66,7 +66,7 @@ def navsat_to_fix(msg: Any) -> GeoFix:  # noqa: ANN401
     )
 
 
-def fix_to_navsat(fix: GeoFix, *, flavor: str = 'rclpy') -> Any:  # noqa: ANN401
+def fix_to_navsat(fix: GeoFix, *, flavor: str = 'rclpy') -> Any:
     """sensor_msgs/NavSatFix of ``flavor`` from a GeoFix (service left unknown)."""
     flavor = check_flavor(flavor)
     status = new_message(flavor, 'sensor_msgs/msg/NavSatStatus', status=int(fix.status), service=0)

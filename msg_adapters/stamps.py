@@ -13,7 +13,7 @@ _NS_PER_S = 1_000_000_000
 _INT32_MIN, _INT32_MAX = -(2**31), 2**31 - 1
 
 
-def stamp_to_ns(stamp: Any) -> int:  # noqa: ANN401
+def stamp_to_ns(stamp: Any) -> int:
     """Integer nanoseconds of a builtin_interfaces/Time (``sec``, ``nanosec``) of either flavour.
 
     ROS 1 times deserialised by rosbags use the same field names; genpy's ``secs``/``nsecs``
@@ -31,7 +31,7 @@ def stamp_to_ns(stamp: Any) -> int:  # noqa: ANN401
     return int(sec) * _NS_PER_S + int(nanosec)
 
 
-def ns_to_stamp(ns: int, flavor: str = 'rclpy') -> Any:  # noqa: ANN401
+def ns_to_stamp(ns: int, flavor: str = 'rclpy') -> Any:
     """builtin_interfaces/Time of ``flavor`` for integer nanoseconds ``ns`` (nanosec in [0, 1e9))."""
     sec, nanosec = divmod(int(ns), _NS_PER_S)
     if not _INT32_MIN <= sec <= _INT32_MAX:
@@ -43,13 +43,13 @@ def ns_to_stamp(ns: int, flavor: str = 'rclpy') -> Any:  # noqa: ANN401
     return new_message(flavor, 'builtin_interfaces/msg/Time', sec=sec, nanosec=nanosec)
 
 
-def header_to_ns_frame(msg: Any) -> tuple[int, str]:  # noqa: ANN401
+def header_to_ns_frame(msg: Any) -> tuple[int, str]:
     """(stamp_ns, frame_id) of a message with a std_msgs/Header."""
     header = msg.header
     return stamp_to_ns(header.stamp), str(header.frame_id)
 
 
-def make_header(stamp_ns: int, frame_id: str, flavor: str) -> Any:  # noqa: ANN401
+def make_header(stamp_ns: int, frame_id: str, flavor: str) -> Any:
     """std_msgs/Header of ``flavor``."""
     return new_message(
         flavor, 'std_msgs/msg/Header', stamp=ns_to_stamp(stamp_ns, flavor), frame_id=str(frame_id)

@@ -121,7 +121,7 @@ def load_checkpoint(out: Path, expected_fingerprint: str) -> Checkpoint:
     return state
 
 
-def _tensor_storage_from_bytes(b: bytes) -> Any:  # noqa: ANN401
+def _tensor_storage_from_bytes(b: bytes) -> Any:
     """torch.storage._load_from_bytes, which unpickles with weights_only=False, made safe."""
     import torch
 
@@ -150,7 +150,7 @@ _PACKAGE_FUNCTIONS = {('srmosaic_ros.core.georef.ukf', '_constant_velocity'),
 class _CheckpointUnpickler(pickle.Unpickler):
     """Resolves only the globals a checkpoint of this package holds."""
 
-    def find_class(self, module: str, name: str) -> Any:  # noqa: ANN401
+    def find_class(self, module: str, name: str) -> Any:
         import numpy as np
 
         if module == 'torch.storage' and name == '_load_from_bytes':

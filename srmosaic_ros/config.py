@@ -15,7 +15,7 @@ from .core.sr.scheduler import SRTileConfig
 from .core.registration import RegistrationConfig
 from .core.survey.config import SurveyConfig
 from .errors import ConfigError
-from .param_files import default_params_path, load_params, yaml_problem  # noqa: F401 (re-exported)
+from .param_files import default_params_path, load_params, yaml_problem  # re-exported
 
 __all__ = ['PipelineConfig', 'check_type', 'default_params_path', 'load_params', 'pipeline_config', 'yaml_problem']
 
@@ -59,7 +59,7 @@ _KINDS = {bool: 'a boolean (true or false, unquoted)', int: 'an integer', float:
           list: 'a list'}
 
 
-def check_type(key: str, value: Any, default: Any) -> Any:  # noqa: ANN401
+def check_type(key: str, value: Any, default: Any) -> Any:
     """``value`` for parameter ``key`` if it has the type of its default (params/default.yaml): a
     boolean for a boolean (a quoted "false" is a string, and would read as true), an integer for an
     integer, a number (integer or float, not a boolean) for a float, a string for a string, a list

@@ -66,7 +66,7 @@ def evaluate_dir(out_dir: Path, truth_path: Path) -> dict[str, Any]:
             continue
         # True homography between the two rows' frames (consecutive or not, e.g. I-frames only).
         f_prev, f_cur = by_stamp[prev['stamp_ns']], by_stamp[cur['stamp_ns']]
-        true_H = np.linalg.inv(f_prev.world_px_H_frame) @ f_cur.world_px_H_frame  # noqa: N806
+        true_H = np.linalg.inv(f_prev.world_px_H_frame) @ f_cur.world_px_H_frame
         est = np.linalg.inv(prev['mosaic_H_frame']) @ cur['mosaic_H_frame']
         pair_err.append(corner_error_px(est, true_H, w, h))
     if pair_err:
@@ -138,7 +138,7 @@ def _georef_errors(out_dir: Path, truth: Any, ok: list[dict[str, Any]], by_stamp
     return out
 
 
-def tile_grid_H(entry: dict[str, Any]) -> np.ndarray:  # noqa: N802
+def tile_grid_H(entry: dict[str, Any]) -> np.ndarray:
     """(3, 3) SR tile pixel (u, v) -> mosaic.png point (x0 + (u + 0.5) / s - 0.5, y0 + (v + 0.5) / s - 0.5)."""
     s = float(entry['factor'])
     return np.array([[1.0 / s, 0.0, entry['x0'] + 0.5 / s - 0.5], [0.0, 1.0 / s, entry['y0'] + 0.5 / s - 0.5],
@@ -180,7 +180,7 @@ def _world_H_mosaic_local(entry: dict[str, Any], ok: list[dict[str, Any]], by_st
     if not src:
         msg = f'no registered frame sees SR tile {entry["file"]}; is this the ground truth of the same flight?'
         raise InputError(msg)
-    H, _ = cv2.findHomography(np.concatenate(src), np.concatenate(dst), 0)  # noqa: N806
+    H, _ = cv2.findHomography(np.concatenate(src), np.concatenate(dst), 0)
     return H, len(src)
 
 
@@ -193,7 +193,7 @@ def _same_channels(img: np.ndarray, channels: int) -> np.ndarray:
     return np.repeat(img[:, :, None], 3, axis=2) if img.ndim == 2 else img[:, :, :3]
 
 
-def sr_figures(out_dir: Path, truth: Any, ok: list[dict[str, Any]], by_stamp: dict[int, Any], *,  # noqa: ANN401
+def sr_figures(out_dir: Path, truth: Any, ok: list[dict[str, Any]], by_stamp: dict[int, Any], *,
                compare: bool = True) -> dict[str, Any]:
     """PSNR / SSIM of every SR tile and of the bicubic upsampling of mosaic.png against the truth.
 
@@ -241,9 +241,9 @@ def sr_figures(out_dir: Path, truth: Any, ok: list[dict[str, Any]], by_stamp: di
             sr = cv2.cvtColor(sr[:, :, :3], cv2.COLOR_BGR2RGB)
         sr = _same_channels(sr.astype(np.float64) / 255.0, channels)
         th, tw = sr.shape[:2]
-        world_H_mosaic, n_frames = _world_H_mosaic_local(entry, ok, by_stamp, w, h)  # noqa: N806
-        grid_H = tile_grid_H(entry)  # noqa: N806
-        world_H_tile = world_H_mosaic @ grid_H  # noqa: N806
+        world_H_mosaic, n_frames = _world_H_mosaic_local(entry, ok, by_stamp, w, h)
+        grid_H = tile_grid_H(entry)
+        world_H_tile = world_H_mosaic @ grid_H
         centre = np.array([[(tw - 1) / 2.0, (th - 1) / 2.0]])
         d = float(np.sqrt(np.prod(local_scales(world_H_tile, centre)[0])))  # world px per tile px
         sigma = 0.5 * np.sqrt(d * d - 1.0) if d > 1.0 else 0.0

@@ -179,7 +179,7 @@ class _MosaicWindows:
             self._ds.close()
 
 
-def _agreement(stamp_ns: int, grey: np.ndarray, mosaic_H_frame: np.ndarray,  # noqa: N803
+def _agreement(stamp_ns: int, grey: np.ndarray, mosaic_H_frame: np.ndarray,
                mosaic: _MosaicWindows, max_stretch: float = 0.0) -> FrameAgreement:
     """NCC and sharpness ratio of one frame (grey (h, w) float32) against the mosaic under it.
 
@@ -217,8 +217,8 @@ def _agreement(stamp_ns: int, grey: np.ndarray, mosaic_H_frame: np.ndarray,  # n
     m_grey, m_alpha = mosaic.window(x0, y0, x1, y1, k)
     bh, bw = m_grey.shape
     scale = 1.0 / k
-    grid_H_mosaic = np.array([[scale, 0.0, -x0 * scale], [0.0, scale, -y0 * scale], [0.0, 0.0, 1.0]])  # noqa: N806
-    grid_H_frame = grid_H_mosaic @ m_red  # noqa: N806
+    grid_H_mosaic = np.array([[scale, 0.0, -x0 * scale], [0.0, scale, -y0 * scale], [0.0, 0.0, 1.0]])
+    grid_H_frame = grid_H_mosaic @ m_red
     # as the canvas paints: INTER_LINEAR, replicated border, and a separate validity mask
     kept = np.isfinite(grey)
     warped = cv2.warpPerspective(np.where(kept, grey, np.float32(0.0)), grid_H_frame, (bw, bh), flags=cv2.INTER_LINEAR,
@@ -321,7 +321,7 @@ def _pick(n: int, max_frames: int | None) -> np.ndarray:
     return np.unique(np.round(np.linspace(0, n - 1, max_frames)).astype(int))
 
 
-def _nan_stat(values: list[float], fn: Any) -> float | None:  # noqa: ANN401
+def _nan_stat(values: list[float], fn: Any) -> float | None:
     v = np.array([x for x in values if math.isfinite(x)])
     return float(fn(v)) if v.size else None
 

@@ -43,7 +43,7 @@ def halve_stills(src: Path, dst: Path, *, jpeg_quality: int = 98) -> dict[str, n
     return hr
 
 
-def _sample(img: np.ndarray, img_H_tile: np.ndarray, shape: tuple[int, int]) -> np.ndarray:  # noqa: N803
+def _sample(img: np.ndarray, img_H_tile: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     out = cv2.warpPerspective(img.astype(np.float32), img_H_tile, (shape[1], shape[0]),
                               flags=cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE)
     return np.clip(out, 0, 255).astype(np.float64)
@@ -62,7 +62,7 @@ def sr_errors_against_originals(out: Path, hr: dict[str, np.ndarray]) -> TileErr
     result: TileErrors = {}
     for entry in json.loads((out / 'sr' / 'tiles.json').read_text()):
         sr = cv2.imread(str(out / 'sr' / entry['file']))[:, :, :3].astype(np.float64)
-        grid_H = tile_grid_H(entry)  # noqa: N806
+        grid_H = tile_grid_H(entry)
         c = np.array([entry['x0'] + (entry['width'] - 1) / 2, entry['y0'] + (entry['height'] - 1) / 2])
         # the reference is the nearest frame that holds the whole tile, as the SR scheduler picks
         # them: a nearer frame that holds only part of it would be compared outside its own pixels
@@ -71,7 +71,7 @@ def sr_errors_against_originals(out: Path, hr: dict[str, np.ndarray]) -> TileErr
         if not covers.any():
             continue
         dist = np.where(covers, np.hypot(*(centres - c).T), np.inf)
-        name, mosaic_H_frame = ok[int(np.argmin(dist))]  # noqa: N806
+        name, mosaic_H_frame = ok[int(np.argmin(dist))]
         truth = _sample(hr[name], _HR_H_LR @ np.linalg.inv(mosaic_H_frame) @ grid_H, sr.shape[:2])
         bicubic = _sample(mosaic, grid_H, sr.shape[:2])
         result[entry['file']] = (float(((sr - truth) ** 2).sum()), float(((bicubic - truth) ** 2).sum()), truth.size)

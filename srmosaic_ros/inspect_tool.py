@@ -44,7 +44,7 @@ def _plan(positions: bool, intrinsics: bool, attitude: bool, attitude_what: str 
             '(stills)')
 
 
-def _stills_plan(path: Path, reader: Any) -> str:  # noqa: ANN401
+def _stills_plan(path: Path, reader: Any) -> str:
     """What `process` does with a folder of stills under the default parameters (survey.mode)."""
     from .config import pipeline_config
     from .survey import use_global_alignment
@@ -166,7 +166,7 @@ def _inspect_video(path: Path) -> dict[str, Any]:
     return out
 
 
-def _codec_name(stream: Any) -> str:  # noqa: ANN401
+def _codec_name(stream: Any) -> str:
     ctx = getattr(stream, 'codec_context', None)
     name = getattr(ctx, 'name', None) if ctx is not None else None
     return name or getattr(stream, 'codec_tag', None) or stream.metadata.get('handler_name', '') or 'data'

@@ -50,10 +50,10 @@ class LiveRaster:
     origin_easting_m: float
     origin_northing_m: float
     rotation_rad: float = 0.0
-    canvas_H_raster: np.ndarray | None = None  # noqa: N815
+    canvas_H_raster: np.ndarray | None = None
 
     @classmethod
-    def from_georaster(cls, raster: GeoRaster, canvas_H_raster: np.ndarray | None) -> LiveRaster:  # noqa: N803
+    def from_georaster(cls, raster: GeoRaster, canvas_H_raster: np.ndarray | None) -> LiveRaster:
         return cls(int(raster.epsg), float(raster.gsd_m_per_px), float(raster.origin_easting_m),
                    float(raster.origin_northing_m), float(raster.rotation_rad),
                    None if canvas_H_raster is None else np.asarray(canvas_H_raster, dtype=np.float64))
@@ -84,13 +84,13 @@ class LiveRaster:
         return raster
 
     @property
-    def utm_H_raster(self) -> np.ndarray:  # noqa: N802
+    def utm_H_raster(self) -> np.ndarray:
         """(3, 3) raster pixel (centres at integers) -> (easting, northing) m, as GeoRaster's."""
         g, c, s = self.gsd_m_per_px, math.cos(self.rotation_rad), math.sin(self.rotation_rad)
         return np.array([[g * c, g * s, self.origin_easting_m], [g * s, -g * c, self.origin_northing_m],
                          [0.0, 0.0, 1.0]])
 
-    def utm_H_plane(self, *, canvas_frame_removed: bool = True) -> np.ndarray:  # noqa: N802
+    def utm_H_plane(self, *, canvas_frame_removed: bool = True) -> np.ndarray:
         """(3, 3) live plane pixel -> UTM; by default with the canvas similarity taken out (the best
         live estimate); ``canvas_frame_removed=False``: the raster as painted."""
         if canvas_frame_removed and self.canvas_H_raster is not None:

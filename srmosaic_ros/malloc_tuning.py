@@ -23,7 +23,7 @@ HEAP_TRIM_EVERY = 50
 
 
 @functools.lru_cache(maxsize=1)
-def _malloc_trim():  # noqa: ANN202
+def _malloc_trim():
     if not sys.platform.startswith('linux'):
         return None
     try:

@@ -25,7 +25,7 @@ from .io.prefetch import prefetched
 from .io.mosaic_files import write_frames_csv, write_json, write_png
 from .errors import InputError, OutputError, SrMosaicError
 from .io.mosaic_video import MosaicVideoRecorder
-from .pipeline import SYNC_HOLD_FRAMES, Pipeline, PipelineResult
+from .pipeline import Pipeline, PipelineResult
 from .core.georef.geotag_fit import GEOTAG_MIN_EXTENT_M
 from .core.device import cores_left_for_torch
 from .core.image_ops import to_float01
@@ -206,7 +206,7 @@ def write_outputs(result: PipelineResult, out: Path, config: PipelineConfig, ext
     out.mkdir(parents=True, exist_ok=True)
     main = result.main_segment
     main_canvas = main.canvas if main is not None else None
-    mosaic_H_seg = np.eye(3)  # noqa: N806
+    mosaic_H_seg = np.eye(3)
     segments_report = []
     written: dict[int, str] = {}  # id(canvas) -> file
     geo: dict[str, Any] = {}
@@ -214,7 +214,7 @@ def write_outputs(result: PipelineResult, out: Path, config: PipelineConfig, ext
         x0, y0, x1, y1 = seg.canvas.bounds()
         if id(seg.canvas) not in written:
             if seg.canvas is main_canvas:
-                mosaic_H_seg = _translation(-x0, -y0)  # noqa: N806
+                mosaic_H_seg = _translation(-x0, -y0)
                 geo = _write_main_mosaic(out, result, config, (x0, y0, x1, y1))
                 written[id(seg.canvas)] = 'mosaic.png'
             elif len(seg.frames) >= 2:
@@ -301,7 +301,7 @@ def open_source(path: Path, *, topics: TopicConfig | None = None, select: str = 
     return reader, reader, 'bag'
 
 
-def _video_with_metadata(path: Path, reader: Any) -> tuple[Iterable[Any], Any, str]:  # noqa: ANN401
+def _video_with_metadata(path: Path, reader: Any) -> tuple[Iterable[Any], Any, str]:
     """A video's own metadata, found in order: MISB KLV stream, DJI SRT beside it, GoPro GPMF track."""
     from .io.dji_srt import find_srt, read_srt
     from .io.gpmf import read_gpmf
@@ -449,7 +449,7 @@ def _ground_offsets(result: PipelineResult, stamps_ns: np.ndarray, config: Pipel
     order = np.argsort(t)
     t = t[order]
     mount = config.georef.mount
-    R_bc = R_body_from_cam(mount.gimbal_azimuth_rad, mount.gimbal_elevation_rad)  # noqa: N806
+    R_bc = R_body_from_cam(mount.gimbal_azimuth_rad, mount.gimbal_elevation_rad)
     for k, stamp in enumerate(stamps_ns):
         j = int(np.clip(np.searchsorted(t, stamp), 1, len(t) - 1)) if len(t) > 1 else 0
         j = j - 1 if len(t) > 1 and abs(t[j - 1] - stamp) < abs(t[j] - stamp) else j
@@ -461,7 +461,7 @@ def _ground_offsets(result: PipelineResult, stamps_ns: np.ndarray, config: Pipel
     return out
 
 
-def _geotag_fit(result: PipelineResult, origin: tuple[int, int], config: PipelineConfig) -> Any:  # noqa: ANN401
+def _geotag_fit(result: PipelineResult, origin: tuple[int, int], config: PipelineConfig) -> Any:
     """GeotagFit of mosaic.png's grid (pixel (0, 0) = canvas pixel ``origin``) from the frames of the
     main canvas and the fixes at their stamps (core/georef/geotag_fit.py), or None (with the reason
     logged) when there are no fixes or they cannot place the mosaic."""
@@ -524,7 +524,7 @@ class OutputTransaction:
     def __enter__(self) -> OutputTransaction:
         import fcntl
 
-        self._lock = open(self.out / '.srmosaic.lock', 'a+')  # noqa: SIM115 - held for the run
+        self._lock = open(self.out / '.srmosaic.lock', 'a+')  # held for the run
         try:
             fcntl.flock(self._lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
@@ -543,7 +543,7 @@ class OutputTransaction:
         self.stage.mkdir()
         return self
 
-    def __exit__(self, exc_type: type | None, exc: BaseException | None, tb: Any) -> None:  # noqa: ANN401
+    def __exit__(self, exc_type: type | None, exc: BaseException | None, tb: Any) -> None:
         try:
             if exc_type is None:
                 self.removed = self._publish(self.out)
@@ -671,7 +671,7 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
     return report
 
 
-def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: Iterable[Any], reader: Any,  # noqa: ANN401, PLR0913
+def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: Iterable[Any], reader: Any,
              kind: str, t0: float, *, topics: TopicConfig | None, select: str, camera_yaml: Path | None,
              hfov_deg: float | None, telemetry_csv: Path | None, mosaic_video: bool, checkpoint_every: int,
              resume: bool, sr_factor: int | None, progress: bool, overlap: bool) -> dict[str, Any]:
@@ -804,7 +804,7 @@ def _timed(items: Iterable[Any], clock: StageClock) -> Iterator[Any]:
         yield item
 
 
-def _process_survey(path: Path, out: Path, config: PipelineConfig, reader: Any, t0: float, *,  # noqa: ANN401
+def _process_survey(path: Path, out: Path, config: PipelineConfig, reader: Any, t0: float, *,
                     sr_factor: int | None, progress: bool) -> dict[str, Any]:
     """A folder of stills aligned globally (survey.py), with the report and SR as process_input's."""
     from .survey import process_survey
@@ -837,7 +837,7 @@ def _process_survey(path: Path, out: Path, config: PipelineConfig, reader: Any, 
     return report
 
 
-def _with_ground_hint(config: PipelineConfig, summary: Any) -> PipelineConfig:  # noqa: ANN401
+def _with_ground_hint(config: PipelineConfig, summary: Any) -> PipelineConfig:
     """The ground height the metadata implies (KLV frame centre elevation, a DJI take-off altitude)
     as the filter's prior, unless georef.ground_altitude_m is set."""
     import dataclasses
@@ -861,7 +861,7 @@ def _covered(stamps: np.ndarray, frames_ns: np.ndarray, within_ns: int = 1_000_0
     return int(np.sum(d <= within_ns))
 
 
-def _metadata_report(summary: Any, result: PipelineResult) -> dict[str, Any]:  # noqa: ANN401
+def _metadata_report(summary: Any, result: PipelineResult) -> dict[str, Any]:
     """report.json ``metadata``: the carrier, the fields used and how many frames each covers."""
     out = summary.to_dict()
     frames_ns = np.array([r.stamp_ns for r in result.records], dtype=np.int64)

@@ -268,7 +268,7 @@ class Pipeline:
         max_width = self.config.mosaic.max_width
         return 1.0 if max_width <= 0 or width <= max_width else max_width / width
 
-    def _chained(self, seg: Segment, prev_seg_H_frame: np.ndarray, reg: Registration, held: _Held) -> np.ndarray:  # noqa: N803
+    def _chained(self, seg: Segment, prev_seg_H_frame: np.ndarray, reg: Registration, held: _Held) -> np.ndarray:
         """seg_H_frame of a registered frame: the chain (4.6), with drift control on the raster."""
         chained = prev_seg_H_frame @ reg.prev_H_cur
         pose = held.record.pose
@@ -288,7 +288,7 @@ class Pipeline:
             sigma = 2.0 * reg.rms_px * math.sqrt(8.0 / max(reg.inliers, 8))
         return self.georef.correct(chained, pose, held.camera, chain_sigma_px=sigma)
 
-    def _keyframe(self, seg: Segment, held: _Held, seg_H_frame: np.ndarray) -> np.ndarray:  # noqa: N803
+    def _keyframe(self, seg: Segment, held: _Held, seg_H_frame: np.ndarray) -> np.ndarray:
         """seg_H_frame, corrected by registering the frame to the mosaic when it is a keyframe (keyframe.py)."""
         cfg = self.config.mosaic
         if cfg.keyframe_interval <= 0 or len(seg.frames) % cfg.keyframe_interval != 0:
@@ -301,7 +301,7 @@ class Pipeline:
         held.record.keyframe = result
         return seg_H_frame if result.seg_H_frame is None else result.seg_H_frame
 
-    def _register_to_mosaic(self, seg: Segment, held: _Held, seg_H_frame: np.ndarray) -> KeyframeResult:  # noqa: N803
+    def _register_to_mosaic(self, seg: Segment, held: _Held, seg_H_frame: np.ndarray) -> KeyframeResult:
         """The keyframe's registration to the mosaic rendered where the chain puts it."""
         cfg = self.config.mosaic
         w, h = held.record.size
@@ -326,7 +326,7 @@ class Pipeline:
                     result = KeyframeResult(refined / refined[2, 2], coverage, shift)
         return result
 
-    def _revisits(self, seg: Segment, seg_H_frame: np.ndarray, w: int, h: int) -> bool:  # noqa: N803
+    def _revisits(self, seg: Segment, seg_H_frame: np.ndarray, w: int, h: int) -> bool:
         """Whether the frame flies over ground an earlier pass painted: its predicted centre lies within
         half its smaller side of the centre of a frame painted at least mosaic.keyframe_revisit_frames
         frames earlier that is not part of the current pass (the unbroken run of such nearby frames
@@ -352,7 +352,7 @@ class Pipeline:
             run -= 1
         return bool(near[:min(run, n - gap)].any())
 
-    def _paint(self, seg: Segment, held: _Held, seg_H_frame: np.ndarray) -> bool:  # noqa: N803
+    def _paint(self, seg: Segment, held: _Held, seg_H_frame: np.ndarray) -> bool:
         if self._painter is not None:
             return self._paint_later(seg, held, seg_H_frame)
         with self.clock.stage('paint'):
@@ -366,7 +366,7 @@ class Pipeline:
         held.record.seg_H_frame = seg_H_frame
         return True
 
-    def _paint_later(self, seg: Segment, held: _Held, seg_H_frame: np.ndarray) -> bool:  # noqa: N803
+    def _paint_later(self, seg: Segment, held: _Held, seg_H_frame: np.ndarray) -> bool:
         """_paint on the painter thread: the placement is checked and recorded now, the pixels follow."""
         record = held.record
         try:
@@ -517,7 +517,7 @@ class Pipeline:
         return PipelineResult(self.records, self.segments, self.fixes, self.imus, self.georef, self.attitudes)
 
     # -- settling --------------------------------------------------------------------------------
-    def _place(self, seg: Segment, held: _Held, seg_H_frame: np.ndarray) -> bool:  # noqa: N803
+    def _place(self, seg: Segment, held: _Held, seg_H_frame: np.ndarray) -> bool:
         """Paint the frame now, or hold it while its segment settles (module docstring)."""
         if seg is not self._settling_seg:
             return self._paint(seg, held, seg_H_frame)

@@ -76,7 +76,7 @@ class SRTilePlacement:
         segment, x0, y0, width, height, factor = (int(g) for g in m.groups())
         return cls(segment, x0, y0, width, height, factor)
 
-    def plane_H_tile(self) -> np.ndarray:  # noqa: N802
+    def plane_H_tile(self) -> np.ndarray:
         """(3, 3) tile (HR) pixels -> segment plane pixels: u -> x0 + (u + 0.5) / factor - 0.5."""
         s = float(self.factor)
         return np.array([[1.0 / s, 0.0, self.x0 + 0.5 / s - 0.5],
@@ -111,7 +111,7 @@ class ImagePlacement:
             raise SrMosaicError(msg)
         return cls(*(int(g) for g in m.groups()[:5]))
 
-    def plane_H_image(self, image_width: int, image_height: int) -> np.ndarray:  # noqa: N802
+    def plane_H_image(self, image_width: int, image_height: int) -> np.ndarray:
         """(3, 3) image pixel (centres at integers) -> plane pixel, for an image of that size."""
         if image_width < 1 or image_height < 1:
             msg = f'an image of {image_width}x{image_height} pixels cannot be placed.'
@@ -151,13 +151,13 @@ class LiveFrameStore:
         self.added = 0  # registered frames ever added (a change means new work for the planner)
         self.missed = 0  # registrations whose image was not (or no longer) in the store
 
-    def add_image(self, stamp_ns: int, payload: Any) -> None:  # noqa: ANN401
+    def add_image(self, stamp_ns: int, payload: Any) -> None:
         self._pending[int(stamp_ns)] = payload
         self._pending.move_to_end(int(stamp_ns))
         while len(self._pending) > self._pending_max:
             self._pending.popitem(last=False)
 
-    def add_registration(self, stamp_ns: int, segment: int, seg_H_frame: np.ndarray | None) -> bool:  # noqa: N803
+    def add_registration(self, stamp_ns: int, segment: int, seg_H_frame: np.ndarray | None) -> bool:
         """The mosaic placed (segment >= 0, finite seg_H_frame) or skipped the frame at stamp_ns.
 
         Returns True when a frame was added to the registered store."""
@@ -254,7 +254,7 @@ def plan_live_tiles(frames: Sequence[LiveFrame], sizes: dict[int, tuple[int, int
     return (fresh + [entry for _, entry in refresh])[:config.max_tiles]
 
 
-def reconstruct_live_tile(plan: TilePlan, images: Sequence[np.ndarray], seg_H_frames: Sequence[np.ndarray],  # noqa: N803
+def reconstruct_live_tile(plan: TilePlan, images: Sequence[np.ndarray], seg_H_frames: Sequence[np.ndarray],
                           factor: int, config: SRConfig, segment: int) -> tuple[np.ndarray, SRTilePlacement, Any]:
     """Super-resolve one planned tile (core/sr/reconstruct_tile).
 
@@ -262,7 +262,7 @@ def reconstruct_live_tile(plan: TilePlan, images: Sequence[np.ndarray], seg_H_fr
     Returns (tile (H s, W s[, 3]) uint8, its placement, the SRResult); raises SRError when no frame
     observes the tile or its frames disagree (core/sr/consistency.py).
     """
-    tile_H = [_translation(-plan.x0, -plan.y0) @ H for H in seg_H_frames]  # noqa: N806
+    tile_H = [_translation(-plan.x0, -plan.y0) @ H for H in seg_H_frames]
     res = reconstruct_tile(list(images), tile_H, (plan.height, plan.width), factor, config=config)
     image = res.to_numpy()
     if image.shape[2] == 1:
@@ -270,7 +270,7 @@ def reconstruct_live_tile(plan: TilePlan, images: Sequence[np.ndarray], seg_H_fr
     return image, SRTilePlacement(segment, plan.x0, plan.y0, plan.width, plan.height, factor), res
 
 
-def reconstruct_live_tile_image(plan: TilePlan, images: Sequence[np.ndarray], seg_H_frames: Sequence[np.ndarray],  # noqa: N803
+def reconstruct_live_tile_image(plan: TilePlan, images: Sequence[np.ndarray], seg_H_frames: Sequence[np.ndarray],
                                 factor: int, config: SRConfig, segment: int) -> tuple[np.ndarray, SRTilePlacement, str]:
     """:func:`reconstruct_live_tile` for a worker process: (tile, placement, the solver's stop reason),
     leaving the SRResult's tensors in the worker."""
@@ -283,9 +283,9 @@ def init_sr_worker_process(torch_threads: int, niceness: int = 10, parent_pid: i
     allows it: SR is background work and must not take the CPU from registration), torch threads, SIGINT left to the parent (which shuts the worker
     down), and the SR modules imported now rather than at the first tile. The worker ends itself
     when ``parent_pid`` (default: its parent at start) is no longer its parent."""
-    import signal  # noqa: PLC0415
-    import threading  # noqa: PLC0415
-    import time  # noqa: PLC0415
+    import signal
+    import threading
+    import time
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     # A node killed outright (SIGKILL, OOM) cannot shut its pool down: the worker would finish its
@@ -306,7 +306,7 @@ def init_sr_worker_process(torch_threads: int, niceness: int = 10, parent_pid: i
         os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
     except (AttributeError, OSError):
         pass
-    import torch  # noqa: PLC0415
+    import torch
 
     if torch_threads > 0:
         torch.set_num_threads(torch_threads)

@@ -72,7 +72,7 @@ def super_resolve_mosaic(out: Path, items: Iterable[Any], config: PipelineConfig
             camera = item
         if not isinstance(item, Frame) or item.stamp_ns not in stamps:
             continue
-        item = undistorter.frame(item, camera)  # noqa: PLW2901
+        item = undistorter.frame(item, camera)
         k = stamps[item.stamp_ns]
         sizes[k] = (item.image.shape[1], item.image.shape[0])
         buffered[k] = item.image  # kept until planning: frames of one flight share a size

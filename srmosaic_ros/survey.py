@@ -70,12 +70,12 @@ class SurveyStill:
     file: Path
     size: tuple[int, int]
     stamp_ns: int
-    K: np.ndarray  # noqa: N815
+    K: np.ndarray
     focal_known: bool
     position_m: np.ndarray
     latlon: tuple[float, float]
     nadir_view: bool
-    R_enu_from_cam: np.ndarray | None = None  # noqa: N815 - from the gimbal angles (None: unknown)
+    R_enu_from_cam: np.ndarray | None = None  # from the gimbal angles (None: unknown)
     height_m: float = math.nan  # above the ground: the XMP's height above take-off (NaN: unknown)
 
 
@@ -153,18 +153,18 @@ def survey_stills(reader: ImageFolderReader) -> tuple[list[SurveyStill], int, tu
         w, h = (meta.width_px, meta.height_px) if meta is not None else _size_of(file)
         camera = reader.camera(meta, w, h) if meta is not None else None
         if camera is not None:
-            K = np.array([[camera.fx, 0.0, camera.cx], [0.0, camera.fy, camera.cy], [0.0, 0.0, 1.0]])  # noqa: N806
+            K = np.array([[camera.fx, 0.0, camera.cx], [0.0, camera.fy, camera.cy], [0.0, 0.0, 1.0]])
         else:
             f = NOMINAL_FOCAL_PER_SIDE * max(w, h)
-            K = np.array([[f, 0.0, (w - 1) / 2.0], [0.0, f, (h - 1) / 2.0], [0.0, 0.0, 1.0]])  # noqa: N806
+            K = np.array([[f, 0.0, (w - 1) / 2.0], [0.0, f, (h - 1) / 2.0], [0.0, 0.0, 1.0]])
         pos = np.array([math.nan, math.nan])
         if ok[k] and to_utm is not None:
             e, n = to_utm.transform(lonlat[k, 0], lonlat[k, 1])
             pos = np.array([e - origin[0], n - origin[1]])
         nadir = meta is None or meta.gimbal_ypr_deg is None or abs(meta.gimbal_ypr_deg[1] + 90.0) <= 10.0
-        R = None  # noqa: N806
+        R = None
         if meta is not None and meta.gimbal_ypr_deg is not None:
-            R = R_enu_from_cam_aviation(*meta.gimbal_ypr_deg)  # noqa: N806
+            R = R_enu_from_cam_aviation(*meta.gimbal_ypr_deg)
         height = meta.relative_altitude_m if meta is not None else math.nan
         stills.append(SurveyStill(file, (w, h), int(stamp), K, camera is not None, pos,
                                   (float(lonlat[k, 1]), float(lonlat[k, 0])), nadir, R, float(height)))
@@ -181,7 +181,7 @@ def _size_of(file: Path) -> tuple[int, int]:
 class _FeatureCache:
     """Features of the working-resolution stills, the last ``size`` described kept (LRU)."""
 
-    def __init__(self, registrar: Any, stills: list[SurveyStill], reduction: list[int], size: int,  # noqa: ANN401
+    def __init__(self, registrar: Any, stills: list[SurveyStill], reduction: list[int], size: int,
                  max_features: int) -> None:
         self.registrar, self.stills, self.reduction, self.size = registrar, stills, reduction, size
         self.max_features = max_features
@@ -189,7 +189,7 @@ class _FeatureCache:
         self.described = 0
         self.unreadable: dict[int, str] = {}
 
-    def get(self, k: int) -> Any:  # noqa: ANN401
+    def get(self, k: int) -> Any:
         if k in self.unreadable:
             return None
         if k in self.cache:
@@ -208,7 +208,7 @@ class _FeatureCache:
         return feats
 
 
-def _compact(features: Any, max_features: int) -> Any:  # noqa: ANN401
+def _compact(features: Any, max_features: int) -> Any:
     """Torch features described up to max_features at once, without the scale-space gradients kept
     for describing more later (7.5 of 12 MB for a 1000x750 still): a cached still costs its
     pyramid, templates and descriptors only (about 5 MB)."""
@@ -225,7 +225,7 @@ def _compact(features: Any, max_features: int) -> Any:  # noqa: ANN401
     return features
 
 
-def _working_K(still: SurveyStill, r: int) -> np.ndarray:  # noqa: N802
+def _working_K(still: SurveyStill, r: int) -> np.ndarray:
     return np.linalg.inv(_full_from_reduced(r)) @ still.K
 
 
@@ -293,7 +293,7 @@ def process_survey(path: Path, out: Path, config: PipelineConfig, reader: ImageF
         # No positions: the chain of consecutive pairs predicts the footprints (on the first
         # still's plane, in its height's units), so a line that comes back over old ground finds it.
         chain = solve_survey(n, pairs, SurveyPriors(np.full((n, 2), np.nan), np.full(n, np.nan), 1.0))
-        G = chain.ground_H_frame  # noqa: N806
+        G = chain.ground_H_frame
         centres = np.array([G[k][:2, 2] / G[k][2, 2] if chain.placed_by[k] else [np.nan, np.nan] for k in range(n)])
         wh = np.array([[s.size[0] / s.K[0, 0], s.size[1] / s.K[1, 1]] for s in stills]) * np.array(
             [[math.sqrt(abs(np.linalg.det(G[k][:2, :2] / G[k][2, 2]))) if chain.placed_by[k] else np.nan]
@@ -387,7 +387,7 @@ def process_survey(path: Path, out: Path, config: PipelineConfig, reader: ImageF
     return report
 
 
-def _paint_and_write(out: Path, config: PipelineConfig, stills: list[SurveyStill], sol: Any, epsg: int,  # noqa: ANN401
+def _paint_and_write(out: Path, config: PipelineConfig, stills: list[SurveyStill], sol: Any, epsg: int,
                      origin: tuple[float, float], *, progress: bool, has_gps: bool) -> tuple[dict[str, Any], list]:
     """Paint the placed stills on a north-up raster and write mosaic.png/.tif/.kml, preview.png,
     frames.csv; returns (the report without the survey entry, the frames.csv rows)."""
@@ -420,17 +420,17 @@ def _paint_and_write(out: Path, config: PipelineConfig, stills: list[SurveyStill
     if area_px > scfg.max_mosaic_megapixels * 1e6:
         g *= math.sqrt(area_px / (scfg.max_mosaic_megapixels * 1e6))
     raster = GeoRaster(epsg or 32631, g, origin[0] + float(e_min), origin[1] + float(n_max))
-    raster_H_local = raster.raster_H_utm @ np.array([[1.0, 0, origin[0]], [0, 1.0, origin[1]], [0, 0, 1]])  # noqa: N806
+    raster_H_local = raster.raster_H_utm @ np.array([[1.0, 0, origin[0]], [0, 1.0, origin[1]], [0, 0, 1]])
     canvas = TiledCanvas(3, config.mosaic.tile_size, blend=scfg.blend, max_canvas_side_px=config.mosaic.max_canvas_side_px,
                          max_tiles_in_memory=config.mosaic.max_tiles_in_memory, spill_dir=config.mosaic.spill_dir)
-    canvas_H = {}  # noqa: N806
+    canvas_H = {}
     refused: dict[int, str] = {}
     t_start = time.perf_counter()
     with canvas:
         bar = tqdm(total=len(placed), unit='still', desc='survey: paint', disable=not progress)
         with bar:
             for k in placed:
-                H = raster_H_local @ sol.ground_H_frame[k] @ np.linalg.inv(stills[k].K)  # noqa: N806
+                H = raster_H_local @ sol.ground_H_frame[k] @ np.linalg.inv(stills[k].K)
                 r = 1
                 for cand in (8, 4, 2):  # the largest reduction that still resolves the mosaic's GSD
                     if gsd[k] * cand <= g * 1.0001:
@@ -458,7 +458,7 @@ def _paint_and_write(out: Path, config: PipelineConfig, stills: list[SurveyStill
     shift = np.array([[1.0, 0, -x0], [0, 1.0, -y0], [0, 0, 1]])
     rows = []
     for k, s in enumerate(stills):
-        H = shift @ canvas_H[k] if k in canvas_H else None  # noqa: N806
+        H = shift @ canvas_H[k] if k in canvas_H else None
         rows.append({'stamp_ns': s.stamp_ns, 'ok': H is not None, 'inliers': 0, 'rms_px': float('nan'),
                      'mosaic_H_frame': H, 'meta_latlon': s.latlon if s.nadir_view and math.isfinite(s.latlon[0]) else None,
                      'placed_by': sol.placed_by[k] if H is not None else ''})

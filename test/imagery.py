@@ -22,7 +22,7 @@ def translation(dx: float, dy: float) -> np.ndarray:
     return np.array([[1.0, 0.0, dx], [0.0, 1.0, dy], [0.0, 0.0, 1.0]])
 
 
-def view(world_H_frame: np.ndarray, width: int, height: int, *, noise: float = 0.0, seed: int = 0,  # noqa: N803
+def view(world_H_frame: np.ndarray, width: int, height: int, *, noise: float = 0.0, seed: int = 0,
          image: np.ndarray | None = None) -> np.ndarray:
     """Render a width x height frame whose pixel p shows world pixel world_H_frame @ p (uint8 RGB)."""
     src = world_rgb() if image is None else image
@@ -37,8 +37,8 @@ def view(world_H_frame: np.ndarray, width: int, height: int, *, noise: float = 0
 def similarity(angle_deg: float, scale: float, tx: float, ty: float, cx: float = 0.0, cy: float = 0.0) -> np.ndarray:
     """Rotation by angle about (cx, cy), scaling, then translation by (tx, ty)."""
     a = np.deg2rad(angle_deg)
-    R = scale * np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])  # noqa: N806
-    H = np.eye(3)  # noqa: N806
+    R = scale * np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    H = np.eye(3)
     H[:2, :2] = R
     H[:2, 2] = np.array([cx, cy]) - R @ np.array([cx, cy]) + np.array([tx, ty])
     return H

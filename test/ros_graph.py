@@ -51,7 +51,7 @@ class GraphListener:
         self._stop = False
         self._thread = threading.Thread(target=self._spin, daemon=True)
 
-    def subscribe(self, msg_type: type, topic: str, qos: Any = 100) -> list:  # noqa: ANN401
+    def subscribe(self, msg_type: type, topic: str, qos: Any = 100) -> list:
         """The list every message on `topic` is appended to."""
         received: list = []
         self.node.create_subscription(msg_type, topic, received.append, qos)

@@ -155,7 +155,7 @@ def test_a_shrinking_frame_is_reduced_before_it_is_warped() -> None:
 
 
 @pytest.mark.parametrize('bound', [0, 2])
-def test_best_view_tiles_spill_pickle_and_preview(bound: int, tmp_path) -> None:  # noqa: ANN001
+def test_best_view_tiles_spill_pickle_and_preview(bound: int, tmp_path) -> None:
     """The best-view layout spills and pickles byte for byte, and previews the winners' pixels."""
     canvas = TiledCanvas(3, tile_size=64, blend='bestview', max_tiles_in_memory=bound, spill_dir=tmp_path)
     for k in range(5):

@@ -175,7 +175,7 @@ def test_bad_files_are_refused_in_one_line(tmp_path: Path, demo_out: Path, case:
     assert a_file.read_text() == 'keep me'
 
 
-def _limited(limit_bytes: int):  # noqa: ANN202
+def _limited(limit_bytes: int):
     """preexec_fn: a file size limit of ``limit_bytes`` (RLIMIT_FSIZE), its signal ignored so that
     writes past it fail with EFBIG as on a full disk (ENOSPC), without needing a small filesystem."""
     import resource

@@ -65,7 +65,7 @@ def _write_rows(frames_csv: Path, rows: list[dict[str, str]], meta: list[tuple[f
             writer.writerow([row[k] for k in FRAMES_CSV_HEADER] + extra)
 
 
-def _H(row: dict[str, str]) -> np.ndarray:  # noqa: N802
+def _H(row: dict[str, str]) -> np.ndarray:
     return np.array([float(row[f'h{r}{c}']) for r in range(3) for c in range(3)]).reshape(3, 3)
 
 
@@ -98,7 +98,7 @@ def test_misplaced_frames_lower_consistency(caliterra_run: tuple[Path, dict], ca
     rows = _rows(out / 'frames.csv')
     shift = np.array([[1.0, 0.0, 8.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
     for row in rows[1::2]:
-        H = shift @ _H(row)  # noqa: N806
+        H = shift @ _H(row)
         row.update({f'h{r}{c}': repr(float(H[r, c])) for r in range(3) for c in range(3)})
     _write_rows(out / 'frames.csv', rows)   # without the meta columns
     fig = evaluate_real(out, progress=False)
@@ -185,7 +185,7 @@ def test_frame_alone_under_itself_scores_one(tmp_path: Path) -> None:
         out = tmp_path / f'out_{zoom}'
         out.mkdir()
         c, s = math.cos(0.3) * zoom, math.sin(0.3) * zoom
-        H = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])  # noqa: N806
+        H = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
         corners = apply_homography(H, np.array([[0, 0], [w - 1, 0], [w - 1, h - 1], [0, h - 1]], float))
         H[:2, 2] = 5.3 - corners.min(axis=0)   # sub-pixel offset into the mosaic
         far = apply_homography(H, np.array([[0, 0], [w - 1, 0], [w - 1, h - 1], [0, h - 1]], float)).max(axis=0)

@@ -31,7 +31,7 @@ CANON_FX_2000 = 4.5 * CANON_PX_PER_MM * 2000 / 4000
 
 
 def utc_ns(*fields: int) -> int:
-    return calendar.timegm(datetime(*fields).timetuple()) * 10**9  # noqa: DTZ001 - fields are UTC
+    return calendar.timegm(datetime(*fields).timetuple()) * 10**9  # fields are UTC
 
 
 def dms(deg: float, minutes: float, seconds: float) -> float:

@@ -28,7 +28,7 @@ def info_rate(tau_pos_s: float, tau_att_s: float = 0.5) -> np.ndarray:
     return np.diag([1.0 / (tau_pos_s * P_POS)] * 3 + [1.0 / (tau_att_s * P_ATT)] * 3)
 
 
-def make_georef(**config) -> Georeferencer:  # noqa: ANN003
+def make_georef(**config) -> Georeferencer:
     georef = Georeferencer(GeorefConfig(ground_altitude_m=0.0, **config), CAM)
     georef.feed_fix(GeoFix(0, 45.0, 7.0, 100.0))
     georef.make_raster(pose_at(georef, 0.0))
@@ -56,21 +56,21 @@ def corner_error(a: np.ndarray, b: np.ndarray) -> float:
 def test_transition_keeps_the_pose_covariance_and_decays_with_the_time_constant() -> None:
     rng = np.random.default_rng(0)
     a = rng.normal(size=(7, 7))
-    P0 = a @ a.T + 0.1 * np.eye(7)  # noqa: N806
-    P1 = 0.8 * P0 + 0.05 * np.eye(7)  # noqa: N806
+    P0 = a @ a.T + 0.1 * np.eye(7)
+    P1 = 0.8 * P0 + 0.05 * np.eye(7)
     for kwargs in ({'time_constant_s': 2.0}, {'info_rate': np.diag([0.8, 0.8, 0.2, 5e4, 5e4, 5e4, 0.0])}):
-        A, Q = pose_error_transition(P0, P1, 0.25, **kwargs)  # noqa: N806
+        A, Q = pose_error_transition(P0, P1, 0.25, **kwargs)
         np.testing.assert_allclose(A @ P0 @ A.T + Q, P1, atol=1e-9)  # Cov(y_k) = P_k at every frame
         assert np.linalg.eigvalsh(Q).min() > -1e-12
     # scalar: the correlation of consecutive errors is exp(-dt / tau), tau = 1 / (P Lambda)
     for dt in (0.25, 0.0625):
-        A, Q = pose_error_transition(np.eye(1) * 2.0, np.eye(1) * 2.0, dt, info_rate=np.eye(1) * 0.1)  # noqa: N806
+        A, Q = pose_error_transition(np.eye(1) * 2.0, np.eye(1) * 2.0, dt, info_rate=np.eye(1) * 0.1)
         assert A[0, 0] == pytest.approx(math.exp(-dt * 2.0 * 0.1))
         assert Q[0, 0] == pytest.approx(2.0 * (1.0 - math.exp(-2.0 * dt * 2.0 * 0.1)))
-    A, Q = pose_error_transition(np.eye(2), np.eye(2), 0.25, time_constant_s=0.0)  # noqa: N806
+    A, Q = pose_error_transition(np.eye(2), np.eye(2), 0.25, time_constant_s=0.0)
     np.testing.assert_allclose(A, 0.0)
     np.testing.assert_allclose(Q, np.eye(2))  # white: independent poses
-    A, Q = pose_error_transition(np.eye(2), np.eye(2), 0.25)  # noqa: N806 - no information: persistent
+    A, Q = pose_error_transition(np.eye(2), np.eye(2), 0.25)  # no information: persistent
     np.testing.assert_allclose(A, np.eye(2))
     np.testing.assert_allclose(Q, 0.0, atol=1e-12)
 

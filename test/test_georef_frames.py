@@ -66,7 +66,7 @@ def test_quaternion_and_rotvec_round_trips() -> None:
     rng = np.random.default_rng(0)
     cases = [random_rotation(rng) for _ in range(50)]
     cases += [np.diag([1.0, -1.0, -1.0]), np.diag([-1.0, 1.0, -1.0]), np.diag([-1.0, -1.0, 1.0]), np.eye(3)]
-    for R in cases:  # noqa: N806
+    for R in cases:
         q = quat_xyzw_from_matrix(R)
         assert q[3] >= 0 and abs(np.linalg.norm(q) - 1) < 1e-12
         np.testing.assert_allclose(matrix_from_quat_xyzw(q), R, atol=1e-12)
@@ -77,7 +77,7 @@ def test_quaternion_and_rotvec_round_trips() -> None:
 
 
 def test_default_mounting_is_nadir_top_to_nose_right_to_right_wing() -> None:
-    R = R_BODY_FROM_CAM_NADIR  # noqa: N806
+    R = R_BODY_FROM_CAM_NADIR
     np.testing.assert_allclose(R @ [0, 0, 1], [0, 0, -1], atol=1e-15)  # optical axis down
     np.testing.assert_allclose(R @ [0, -1, 0], [1, 0, 0], atol=1e-15)  # image up -> nose
     np.testing.assert_allclose(R @ [1, 0, 0], [0, -1, 0], atol=1e-15)  # image right -> right wing
@@ -86,7 +86,7 @@ def test_default_mounting_is_nadir_top_to_nose_right_to_right_wing() -> None:
 
 def test_gimbal_angles() -> None:
     # elevation 0: looking along the nose, image up = body up
-    R = R_body_from_cam(0.0, 0.0)  # noqa: N806
+    R = R_body_from_cam(0.0, 0.0)
     np.testing.assert_allclose(R @ [0, 0, 1], [1, 0, 0], atol=1e-15)
     np.testing.assert_allclose(R @ [0, -1, 0], [0, 0, 1], atol=1e-15)
     # azimuth 90 deg (counter-clockwise from above): looking along the left wing
@@ -99,15 +99,15 @@ def test_gimbal_angles() -> None:
 def test_camera_pose_lever_arm_rotates_with_the_body() -> None:
     pose = camera_pose(np.array([10.0, 20.0, 100.0]), 0.0, 0.0, 90 * DEG, lever_arm_body_m=(1.0, 0.0, -0.5))
     np.testing.assert_allclose(pose.center_enu_m, [10.0, 21.0, 99.5], atol=1e-12)
-    R, C = pose  # noqa: N806 - unpacks like a tuple
+    R, C = pose  # unpacks like a tuple
     np.testing.assert_allclose(R @ [0, 0, 1], [0, 0, -1], atol=1e-15)
     np.testing.assert_allclose(R @ [0, -1, 0], [0, 1, 0], atol=1e-15)  # image up -> nose -> north
 
 
 def test_rigid_transforms() -> None:
     rng = np.random.default_rng(1)
-    R, t = random_rotation(rng), rng.normal(size=3)  # noqa: N806
-    a_T_b = make_T(R, t)  # noqa: N806
+    R, t = random_rotation(rng), rng.normal(size=3)
+    a_T_b = make_T(R, t)
     np.testing.assert_allclose(invert_T(a_T_b) @ a_T_b, np.eye(4), atol=1e-12)
     p_b = np.array([1.0, 2.0, 3.0, 1.0])
     np.testing.assert_allclose((a_T_b @ p_b)[:3], R @ p_b[:3] + t)
@@ -122,14 +122,14 @@ def nadir(east: float, north: float, h: float, yaw_deg: float = 0.0, roll_deg: f
 
 
 def test_principal_point_maps_below_a_nadir_camera() -> None:
-    R, C = nadir(12.0, -7.0, 100.0, yaw_deg=33.0)  # noqa: N806
+    R, C = nadir(12.0, -7.0, 100.0, yaw_deg=33.0)
     np.testing.assert_allclose(apply_H(ground_H_image(K, R, C), PP), [12.0, -7.0], atol=1e-9)
 
 
 @pytest.mark.parametrize('yaw_deg', [0.0, 90.0, -135.0])
 def test_pixel_offset_maps_to_h_offset_over_f_in_the_right_direction(yaw_deg: float) -> None:
     h, dx, dy = 80.0, 40.0, -25.0
-    R, C = nadir(5.0, 6.0, h, yaw_deg=yaw_deg)  # noqa: N806
+    R, C = nadir(5.0, 6.0, h, yaw_deg=yaw_deg)
     g = apply_H(ground_H_image(K, R, C), PP + [dx, dy])
     yaw = yaw_deg * DEG
     nose = np.array([math.cos(yaw), math.sin(yaw)])
@@ -141,10 +141,10 @@ def test_pixel_offset_maps_to_h_offset_over_f_in_the_right_direction(yaw_deg: fl
 def test_roll_and_pitch_signs() -> None:
     h = 100.0
     # right wing down: the belly, hence the view, turns toward the left wing (north when flying east)
-    R, C = nadir(0.0, 0.0, h, yaw_deg=0.0, roll_deg=5.0)  # noqa: N806
+    R, C = nadir(0.0, 0.0, h, yaw_deg=0.0, roll_deg=5.0)
     np.testing.assert_allclose(apply_H(ground_H_image(K, R, C), PP), [0.0, h * math.tan(5 * DEG)], atol=1e-9)
     # nose down: the belly, hence the view, tilts aft (west when flying east)
-    R, C = nadir(0.0, 0.0, h, yaw_deg=0.0, pitch_deg=5.0)  # noqa: N806
+    R, C = nadir(0.0, 0.0, h, yaw_deg=0.0, pitch_deg=5.0)
     np.testing.assert_allclose(apply_H(ground_H_image(K, R, C), PP), [-h * math.tan(5 * DEG), 0.0], atol=1e-9)
 
 
@@ -152,11 +152,11 @@ def test_ground_homography_agrees_with_projection_and_inverse() -> None:
     rng = np.random.default_rng(2)
     for _ in range(20):
         attitude = R_enu_from_body(*rng.normal(0, 0.1, 2), rng.uniform(-math.pi, math.pi))
-        R = attitude @ R_BODY_FROM_CAM_NADIR  # noqa: N806
-        C = np.array([*rng.normal(0, 50, 2), rng.uniform(30, 300)])  # noqa: N806
+        R = attitude @ R_BODY_FROM_CAM_NADIR
+        C = np.array([*rng.normal(0, 50, 2), rng.uniform(30, 300)])
         z0 = rng.normal(0, 5)
         ground = np.c_[rng.normal(C[0], 20, (10, 2))[:, 0], rng.normal(C[1], 20, 10)]
-        X = np.c_[ground, np.full(10, z0)]  # noqa: N806
+        X = np.c_[ground, np.full(10, z0)]
         x = (K @ R.T @ (X - C).T).T
         pix = x[:, :2] / x[:, 2:]
         np.testing.assert_allclose(apply_H(image_H_ground(K, R, C, ground_z_m=z0), ground), pix, atol=1e-7)
@@ -168,15 +168,15 @@ def test_frame2_H_frame1_is_eq_428() -> None:
     for _ in range(20):
         poses = []
         for _ in range(2):
-            R = R_enu_from_body(*rng.normal(0, 0.05, 2), rng.uniform(-3, 3)) @ R_BODY_FROM_CAM_NADIR  # noqa: N806
+            R = R_enu_from_body(*rng.normal(0, 0.05, 2), rng.uniform(-3, 3)) @ R_BODY_FROM_CAM_NADIR
             poses.append((R, np.array([*rng.normal(0, 10, 2), rng.uniform(80, 120)])))
         composed = image_H_ground(K, *poses[1]) @ ground_H_image(K, *poses[0])
         composed /= composed[2, 2]
         np.testing.assert_allclose(frame2_H_frame1(K, *poses[0], *poses[1]), composed, atol=1e-9, rtol=1e-9)
     # identical poses: identity; a pure east translation of a north-flying nadir camera: a shift
-    R, C = nadir(0.0, 0.0, 100.0, yaw_deg=90.0)  # noqa: N806
+    R, C = nadir(0.0, 0.0, 100.0, yaw_deg=90.0)
     np.testing.assert_allclose(frame2_H_frame1(K, R, C, R, C), np.eye(3), atol=1e-12)
-    H = frame2_H_frame1(K, R, C, R, C + [2.0, 0.0, 0.0])  # noqa: N806
+    H = frame2_H_frame1(K, R, C, R, C + [2.0, 0.0, 0.0])
     # the camera moved 2 m toward its right: the scene moves 2 * f / h px to the left
     np.testing.assert_allclose(H, [[1, 0, -2 * F_PX / 100], [0, 1, 0], [0, 0, 1]], atol=1e-9)
 

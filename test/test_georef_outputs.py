@@ -9,20 +9,20 @@ import numpy as np
 import pytest
 
 import rasterio  # a pinned dependency: a missing install must fail, not skip
-from pyproj import Transformer  # noqa: E402
+from pyproj import Transformer
 
-from srmosaic_ros.core.georef import FramePose, GeoRaster, GeorefConfig, Georeferencer  # noqa: E402
-from srmosaic_ros.core.georef.ground_homography import apply_H  # noqa: E402
-from srmosaic_ros.io.geotiff import write_geotiff  # noqa: E402
-from srmosaic_ros.io.kml import GX_NS, KML_NS, latlonbox_from_corners, write_kml, write_kml_for_raster  # noqa: E402
-from srmosaic_ros.io.poses_csv import POSES_CSV_HEADER, read_poses_csv, write_poses_csv  # noqa: E402
-from srmosaic_ros.sim import SimConfig, simulate  # noqa: E402
+from srmosaic_ros.core.georef import FramePose, GeoRaster, GeorefConfig, Georeferencer
+from srmosaic_ros.core.georef.ground_homography import apply_H
+from srmosaic_ros.io.geotiff import write_geotiff
+from srmosaic_ros.io.kml import GX_NS, KML_NS, latlonbox_from_corners, write_kml, write_kml_for_raster
+from srmosaic_ros.io.poses_csv import POSES_CSV_HEADER, read_poses_csv, write_poses_csv
+from srmosaic_ros.sim import SimConfig
 
-from sim_geometry import simulate_geometry  # noqa: E402
+from sim_geometry import simulate_geometry
 
 
 @pytest.fixture(scope='module')
-def georeferenced():  # noqa: ANN201
+def georeferenced():
     """A 60-frame flight through the Georeferencer: (flight, georef, poses, raster_H_frames)."""
     flight = simulate_geometry(SimConfig(width=320, height=240, world_gsd_m=0.3, frames=60, speed_m_s=8.0,
                                          heading_deg=30.0, seed=5))
@@ -36,7 +36,7 @@ def georeferenced():  # noqa: ANN201
         elif kind == 1:
             georef.feed_imu(item)
         else:
-            H = None if item == 0 else flight.truth.frames[item].prev_H_cur  # noqa: N806
+            H = None if item == 0 else flight.truth.frames[item].prev_H_cur
             pose = georef.feed_frame(stamp, H, None, rms_px=0.3)
             poses.append(pose)
             if item == 0:
@@ -47,7 +47,7 @@ def georeferenced():  # noqa: ANN201
     return flight, georef, poses, placed
 
 
-def truth_footprint_utm(flight, epsg: int) -> np.ndarray:  # noqa: ANN001
+def truth_footprint_utm(flight, epsg: int) -> np.ndarray:
     """(4 N, 2) UTM easting, northing of every frame's corners, from the simulator's truth."""
     cam, world = flight.camera, flight.world
     c = np.array([[-0.5, -0.5], [cam.width - 0.5, -0.5], [cam.width - 0.5, cam.height - 0.5], [-0.5, cam.height - 0.5]])
@@ -57,7 +57,7 @@ def truth_footprint_utm(flight, epsg: int) -> np.ndarray:  # noqa: ANN001
     return np.c_[e, n]
 
 
-def paint_coverage(flight, placed: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:  # noqa: ANN001
+def paint_coverage(flight, placed: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """(coverage (H, W) bool, mosaic_H_raster translation) of all frames on the raster grid."""
     cam = flight.camera
     c = np.array([[-0.5, -0.5], [cam.width - 0.5, -0.5], [cam.width - 0.5, cam.height - 0.5], [-0.5, cam.height - 0.5]])
@@ -67,7 +67,7 @@ def paint_coverage(flight, placed: list[np.ndarray]) -> tuple[np.ndarray, np.nda
     shift = np.array([[1.0, 0.0, -x0], [0.0, 1.0, -y0], [0.0, 0.0, 1.0]])
     cov = np.zeros((y1 - y0 + 1, x1 - x0 + 1), np.uint8)
     ones = np.ones((cam.height, cam.width), np.uint8)
-    for H in placed:  # noqa: N806
+    for H in placed:
         cov |= cv2.warpPerspective(ones, shift @ H, (cov.shape[1], cov.shape[0]), flags=cv2.INTER_NEAREST)
     return cov.astype(bool), shift
 
@@ -75,7 +75,7 @@ def paint_coverage(flight, placed: list[np.ndarray]) -> tuple[np.ndarray, np.nda
 # --- GeoTIFF -----------------------------------------------------------------------------------
 
 
-def test_geotiff_opens_in_the_right_utm_zone_where_the_ground_truth_is(georeferenced, tmp_path) -> None:  # noqa: ANN001
+def test_geotiff_opens_in_the_right_utm_zone_where_the_ground_truth_is(georeferenced, tmp_path) -> None:
     flight, georef, _, placed = georeferenced
     raster = georef.raster
     assert raster.epsg == 32614  # caliterra, Texas: UTM 14 N
@@ -131,7 +131,7 @@ def test_geotiff_grey_float_nan_and_large_outputs(tmp_path) -> None:
 # --- KML ---------------------------------------------------------------------------------------
 
 
-def test_kml_ground_overlay_has_the_mosaic_corners(georeferenced, tmp_path) -> None:  # noqa: ANN001
+def test_kml_ground_overlay_has_the_mosaic_corners(georeferenced, tmp_path) -> None:
     _, georef, _, _ = georeferenced
     raster = georef.raster.shifted(-100.0, -50.0)
     width, height = 600, 300
@@ -176,7 +176,7 @@ def test_kml_latlonbox_mode(tmp_path) -> None:
 # --- poses.csv ---------------------------------------------------------------------------------
 
 
-def test_poses_csv_header_units_and_missing_poses(georeferenced, tmp_path) -> None:  # noqa: ANN001
+def test_poses_csv_header_units_and_missing_poses(georeferenced, tmp_path) -> None:
     flight, _, poses, _ = georeferenced
     rows_in = [FramePose.invalid(flight.frames[0].stamp_ns - 1, 'no fix yet')] + poses
     write_poses_csv(tmp_path / 'poses.csv', rows_in)
@@ -209,7 +209,7 @@ def test_a_flight_whose_first_fixes_are_unusable_starts_on_the_map(tmp_path):
     from srmosaic_ros.evaluate import evaluate_dir
     from srmosaic_ros.offline import process_input
 
-    def no_fix(kind: str, index: int, msg) -> None:  # noqa: ANN001
+    def no_fix(kind: str, index: int, msg) -> None:
         if kind == 'fix' and index < 20:
             msg.latitude = float('nan')
 

@@ -23,35 +23,35 @@ from srmosaic_ros.core.georef.frames import R_enu_from_body, quat_xyzw_from_matr
 from srmosaic_ros.core.georef.ground_homography import apply_H, ground_H_image
 from srmosaic_ros.core.georef.ukf import SLOT_CUR, corner_jacobian, wrap_angle
 from srmosaic_ros.core.types import FIX_STATUS_NO_FIX, GeoFix, ImuSample
-from srmosaic_ros.sim import SimConfig, simulate
+from srmosaic_ros.sim import SimConfig
 
 CORNER_SIGMA_PX = 0.35  # per coordinate, like the OpenCV registrar on 320 x 240 frames
 
-from sim_geometry import simulate_geometry  # noqa: E402
+from sim_geometry import simulate_geometry
 
 
 @pytest.fixture(scope='module')
-def flight():  # noqa: ANN201
+def flight():
     """A 160-frame line flight at 100 m (geometry and telemetry only: the images are blank)."""
     return simulate_geometry(SimConfig(width=320, height=240, world_gsd_m=0.3, frames=160, speed_m_s=8.0, seed=3))
 
 
-def corners(cam) -> np.ndarray:  # noqa: ANN001
+def corners(cam) -> np.ndarray:
     return np.array([[0.0, 0.0], [cam.width - 1.0, 0.0], [cam.width - 1.0, cam.height - 1.0], [0.0, cam.height - 1.0]])
 
 
-def noisy_registration(H: np.ndarray, cam, rng: np.random.Generator,  # noqa: ANN001, ANN201, N803
+def noisy_registration(H: np.ndarray, cam, rng: np.random.Generator,
                        sigma: float = CORNER_SIGMA_PX):
     """(prev_H_cur with Gaussian corner noise, its (8, 8) covariance of h)."""
     c = corners(cam)
-    H_noisy = homography_from_corners(c, apply_H(H, c) + rng.normal(0.0, sigma, (4, 2)))  # noqa: N806
-    J_inv = np.linalg.inv(corner_jacobian(H_noisy, c))  # noqa: N806
+    H_noisy = homography_from_corners(c, apply_H(H, c) + rng.normal(0.0, sigma, (4, 2)))
+    J_inv = np.linalg.inv(corner_jacobian(H_noisy, c))
     return H_noisy, sigma**2 * J_inv @ J_inv.T
 
 
-def run(flight, config: GeorefConfig | None = None, *, homographies: bool = True, fixes=None,  # noqa: ANN001
-        imus=None, seed: int = 0, frame_hook=None, late=(),  # noqa: ANN001
-        frames=None, on_pose=None) -> tuple[Georeferencer, list[FramePose]]:  # noqa: ANN001
+def run(flight, config: GeorefConfig | None = None, *, homographies: bool = True, fixes=None,
+        imus=None, seed: int = 0, frame_hook=None, late=(),
+        frames=None, on_pose=None) -> tuple[Georeferencer, list[FramePose]]:
     """Feed a flight in stamp order (fixes, then IMU, then the frame at equal stamps).
 
     late: (arrival_ns, fix) pairs fed when the stream reaches arrival_ns, whatever their stamp.
@@ -75,23 +75,23 @@ def run(flight, config: GeorefConfig | None = None, *, homographies: bool = True
             georef.feed_imu(item)
         else:
             truth = flight.truth.frames[item]
-            H, cov = None, None  # noqa: N806
+            H, cov = None, None
             if item > 0 and homographies and item - 1 in kept:
-                H, cov = noisy_registration(truth.prev_H_cur, flight.camera, rng)  # noqa: N806
+                H, cov = noisy_registration(truth.prev_H_cur, flight.camera, rng)
             if frame_hook is not None:
-                H, cov = frame_hook(item, H, cov)  # noqa: N806
+                H, cov = frame_hook(item, H, cov)
             poses.append(georef.feed_frame(stamp, H, cov, rms_px=0.5, inliers=200))
             if on_pose is not None:
                 on_pose(georef, poses[-1])
     return georef, poses
 
 
-def truth_enu(georef: Georeferencer, flight) -> np.ndarray:  # noqa: ANN001
+def truth_enu(georef: Georeferencer, flight) -> np.ndarray:
     return np.array([georef.origin.enu_from_geodetic(t.latitude_deg, t.longitude_deg, t.altitude_m)
                      for t in flight.truth.frames])
 
 
-def gps_only(georef: Georeferencer, flight) -> np.ndarray:  # noqa: ANN001
+def gps_only(georef: Georeferencer, flight) -> np.ndarray:
     """Fixes interpolated linearly at the frame stamps."""
     stamps = np.array([f.stamp_ns for f in flight.fixes], dtype=np.float64)
     enu = np.array([georef.origin.enu_from_geodetic(f.latitude_deg, f.longitude_deg, f.altitude_m)
@@ -111,7 +111,7 @@ def positions(poses: list[FramePose]) -> np.ndarray:
 # --- the filter on a simulated flight ---------------------------------------------------------
 
 
-def test_fused_track_beats_gps_only_and_is_consistent(flight) -> None:  # noqa: ANN001
+def test_fused_track_beats_gps_only_and_is_consistent(flight) -> None:
     georef, poses = run(flight)
     assert len(poses) == len(flight.frames) and all(p.valid for p in poses)
     truth = truth_enu(georef, flight)
@@ -134,19 +134,19 @@ def test_fused_track_beats_gps_only_and_is_consistent(flight) -> None:  # noqa: 
     assert not georef.skipped
 
 
-def test_registrations_without_covariance_use_the_rms_default(flight) -> None:  # noqa: ANN001
-    georef, poses = run(flight, frame_hook=lambda k, H, cov: (H, None))  # noqa: N803
+def test_registrations_without_covariance_use_the_rms_default(flight) -> None:
+    georef, poses = run(flight, frame_hook=lambda k, H, cov: (H, None))
     truth = truth_enu(georef, flight)
     assert rmse_h(positions(poses), truth) < 0.5 * rmse_h(gps_only(georef, flight), truth)
 
 
-def test_gps_and_imu_alone_still_track(flight) -> None:  # noqa: ANN001
+def test_gps_and_imu_alone_still_track(flight) -> None:
     georef, poses = run(flight, homographies=False)
     truth = truth_enu(georef, flight)
     assert rmse_h(positions(poses), truth) < rmse_h(gps_only(georef, flight), truth)
 
 
-def test_homography_model_reproduces_the_simulators_homographies(flight) -> None:  # noqa: ANN001
+def test_homography_model_reproduces_the_simulators_homographies(flight) -> None:
     georef = Georeferencer(GeorefConfig(ground_altitude_m=flight.config.origin_alt_m), flight.camera)
     georef.feed_fix(flight.fixes[0])
     truth = truth_enu(georef, flight)
@@ -162,7 +162,7 @@ def test_homography_model_reproduces_the_simulators_homographies(flight) -> None
 # --- failures: dropouts, NaN, NO_FIX, out of order, outliers ---------------------------------
 
 
-def test_gps_dropout_dead_reckons_and_does_not_jump(flight) -> None:  # noqa: ANN001
+def test_gps_dropout_dead_reckons_and_does_not_jump(flight) -> None:
     t0 = flight.frames[0].stamp_ns
     lo, hi = t0 + 20_000_000_000, t0 + 32_000_000_000  # 12 s without GNSS
     kept = [f for f in flight.fixes if not lo <= f.stamp_ns < hi]
@@ -187,7 +187,7 @@ def test_gps_dropout_dead_reckons_and_does_not_jump(flight) -> None:  # noqa: AN
     assert err[-20:].max() < 1.5
 
 
-def test_bad_fixes_and_imu_samples_are_skipped_with_one_warning_each(flight, caplog) -> None:  # noqa: ANN001
+def test_bad_fixes_and_imu_samples_are_skipped_with_one_warning_each(flight, caplog) -> None:
     fixes = list(flight.fixes)
     bad = [
         dataclasses.replace(fixes[10], stamp_ns=fixes[10].stamp_ns + 1, latitude_deg=float('nan')),
@@ -218,7 +218,7 @@ def test_bad_fixes_and_imu_samples_are_skipped_with_one_warning_each(flight, cap
     assert rmse_h(positions(poses), truth) < 0.5 * rmse_h(gps_only(georef, flight), truth)
 
 
-def test_duplicate_and_out_of_order_frames_get_invalid_poses(flight) -> None:  # noqa: ANN001
+def test_duplicate_and_out_of_order_frames_get_invalid_poses(flight) -> None:
     georef = Georeferencer(GeorefConfig(), flight.camera)
     assert not georef.feed_frame(flight.frames[0].stamp_ns).valid  # no fix yet
     for fix in flight.fixes[:3]:
@@ -235,12 +235,12 @@ def test_duplicate_and_out_of_order_frames_get_invalid_poses(flight) -> None:  #
     assert nxt.valid and georef.skipped['homography_invalid'] == 1
 
 
-def test_wrong_registration_is_gated_and_does_not_move_the_track(flight) -> None:  # noqa: ANN001
+def test_wrong_registration_is_gated_and_does_not_move_the_track(flight) -> None:
     bad_frames = {50, 51, 90}
 
-    def hook(k, H, cov):  # noqa: ANN001, ANN202, N803
+    def hook(k, H, cov):
         if k in bad_frames:  # 40 px off and rotated: a wrong match
-            H = H @ np.array([[0.98, -0.17, 40.0], [0.17, 0.98, -25.0], [0.0, 0.0, 1.0]])  # noqa: N806
+            H = H @ np.array([[0.98, -0.17, 40.0], [0.17, 0.98, -25.0], [0.0, 0.0, 1.0]])
         return H, cov
 
     georef, poses = run(flight, frame_hook=hook)
@@ -250,7 +250,7 @@ def test_wrong_registration_is_gated_and_does_not_move_the_track(flight) -> None
     assert err[[49, 50, 51, 52, 89, 90, 91]].max() < 2.0
 
 
-def test_gnss_outlier_is_gated_and_a_persistent_offset_is_reacquired(flight) -> None:  # noqa: ANN001
+def test_gnss_outlier_is_gated_and_a_persistent_offset_is_reacquired(flight) -> None:
     georef0, _ = run(flight)
     origin = georef0.origin
 
@@ -273,7 +273,7 @@ def test_gnss_outlier_is_gated_and_a_persistent_offset_is_reacquired(flight) -> 
     assert np.all(np.abs(err_e - 25.0) < 3.0), err_e
 
 
-def test_without_imu_the_attitude_comes_from_the_course(flight) -> None:  # noqa: ANN001
+def test_without_imu_the_attitude_comes_from_the_course(flight) -> None:
     georef, poses = run(flight, imus=[])
     assert georef.skipped['no_attitude'] == 1
     truth = truth_enu(georef, flight)
@@ -304,20 +304,20 @@ def test_an_unknown_heading_keeps_its_sigma_points_within_a_turn() -> None:
 def test_sequential_updates_equal_a_joint_linear_update() -> None:
     """Sigma points are regenerated between updates: two position updates == one stacked update."""
     rng = np.random.default_rng(1)
-    A = rng.normal(size=(13, 13))  # noqa: N806
-    P0 = A @ A.T / 13 + np.eye(13)  # noqa: N806
+    A = rng.normal(size=(13, 13))
+    P0 = A @ A.T / 13 + np.eye(13)
     ukf1, ukf2 = PoseUkf(), PoseUkf()
     for u in (ukf1, ukf2):
         u.initialize(0, np.zeros(6), np.eye(6))
         u.ukf.x, u.ukf.P = rng.normal(size=13) * 0 + 1.0, P0.copy()
-    z1, z2, R = np.array([1.5, 0.2, -1.0]), np.array([0.5, 0.7, 2.0]), np.diag([0.5, 0.7, 0.9])  # noqa: N806
+    z1, z2, R = np.array([1.5, 0.2, -1.0]), np.array([0.5, 0.7, 2.0]), np.diag([0.5, 0.7, 0.9])
     ukf1.update_position(0, z1, R)
     ukf1.update_position(0, z2, R)
     # the same two measurements at once: a linear Kalman update
-    H = np.zeros((6, 13))  # noqa: N806
+    H = np.zeros((6, 13))
     H[:3, 6:9] = H[3:, 6:9] = np.eye(3)
-    S = H @ P0 @ H.T + np.kron(np.eye(2), R)  # noqa: N806
-    K = P0 @ H.T @ np.linalg.inv(S)  # noqa: N806
+    S = H @ P0 @ H.T + np.kron(np.eye(2), R)
+    K = P0 @ H.T @ np.linalg.inv(S)
     x = np.ones(13) + K @ (np.r_[z1, z2] - H @ np.ones(13))
     np.testing.assert_allclose(ukf1.x, x, atol=1e-9)
     np.testing.assert_allclose(ukf1.P, P0 - K @ S @ K.T, atol=1e-9)
@@ -328,19 +328,19 @@ def test_linear_updates_equal_filterpys_unscented_update(kind: str) -> None:
     """GNSS and IMU orientation updates take the exact Kalman path (their hx is linear); it must give
     what filterpy's sigma-point update gives, at an interpolated stamp, including the gate value."""
     rng = np.random.default_rng(7)
-    A = rng.normal(size=(13, 13))  # noqa: N806
-    P0 = A @ A.T / 13 + 0.1 * np.eye(13)  # noqa: N806
+    A = rng.normal(size=(13, 13))
+    P0 = A @ A.T / 13 + 0.1 * np.eye(13)
     x0 = rng.normal(size=13)
     fast, ref = PoseUkf(), PoseUkf()
     for u in (fast, ref):
         u.initialize(0, np.zeros(6), np.eye(6))
         u.advance(100_000_000)
         u.ukf.x, u.ukf.P = x0.copy(), P0.copy()
-    z, R = rng.normal(size=3) * 0.3, np.diag([0.5, 0.7, 0.9])  # noqa: N806
+    z, R = rng.normal(size=3) * 0.3, np.diag([0.5, 0.7, 0.9])
     update = fast.update_position if kind == 'position' else fast.update_attitude
     got = update(30_000_000, z, R)
     # The reference: the same measurement through filterpy's unscented update (linear=None).
-    import srmosaic_ros.core.georef.ukf as ukf_module  # noqa: PLC0415
+    import srmosaic_ros.core.georef.ukf as ukf_module
     a = ref.interpolation_weight(30_000_000)
     first = 0 if kind == 'position' else 3
 
@@ -358,18 +358,18 @@ def test_linear_updates_equal_filterpys_unscented_update(kind: str) -> None:
     np.testing.assert_allclose(fast.P, ref.P, atol=1e-10)
 
 
-def test_batched_measurement_models_equal_filterpys_update(flight) -> None:  # noqa: ANN001
+def test_batched_measurement_models_equal_filterpys_update(flight) -> None:
     """The homography and gyro updates map all sigma points in one call (hx_batch); the models must
     agree with the per-point ones, and the update (one pass: UkfParams.iterations = 1) with
     filterpy's own, on a perturbed state with a lever arm and an oblique gimbal."""
-    import srmosaic_ros.core.georef.ukf as ukf_module  # noqa: PLC0415
+    import srmosaic_ros.core.georef.ukf as ukf_module
 
     cam = flight.camera
     mount = CameraMount(gimbal_azimuth_rad=0.3, gimbal_elevation_rad=-1.2, lever_arm_body_m=(0.4, -0.2, 0.1))
     rng = np.random.default_rng(11)
     x0 = np.r_[0.0, 0.0, 100.0, 0.02, -0.03, 0.5, 8.0, 1.0, 101.0, -0.01, 0.04, 0.55, 1.5]
-    A = rng.normal(size=(13, 13)) * 0.05  # noqa: N806
-    P0 = A @ A.T + np.diag([1, 1, 1, 1e-4, 1e-4, 1e-4] * 2 + [1.0])  # noqa: N806
+    A = rng.normal(size=(13, 13)) * 0.05
+    P0 = A @ A.T + np.diag([1, 1, 1, 1e-4, 1e-4, 1e-4] * 2 + [1.0])
     c = corners(cam)
     fast, ref = PoseUkf(UkfParams(iterations=1)), PoseUkf()
     for u in (fast, ref):
@@ -380,7 +380,7 @@ def test_batched_measurement_models_equal_filterpys_update(flight) -> None:  # n
     np.testing.assert_allclose(fast.homography_model_batch(cam.K, mount, c)(sig), np.array([hx(x) for x in sig]),
                                atol=1e-9)
     z = hx(x0) + rng.normal(0, 0.5, 8)
-    R = np.diag(rng.uniform(0.2, 0.5, 8))  # noqa: N806
+    R = np.diag(rng.uniform(0.2, 0.5, 8))
     got = fast._update('homography', z, R, hx, inflate=None, hx_batch=fast.homography_model_batch(cam.K, mount, c))
     want = ref._update('homography', z, R, hx, inflate=None)
     assert got.status == want.status == 'accepted'
@@ -401,9 +401,9 @@ def test_batched_measurement_models_equal_filterpys_update(flight) -> None:  # n
 
 
 def test_corner_jacobian_matches_finite_differences() -> None:
-    H = np.array([[1.02, 0.05, 12.0], [-0.04, 0.99, -7.0], [2e-5, -1e-5, 1.0]])  # noqa: N806
+    H = np.array([[1.02, 0.05, 12.0], [-0.04, 0.99, -7.0], [2e-5, -1e-5, 1.0]])
     c = np.array([[0.0, 0.0], [319.0, 0.0], [319.0, 239.0], [0.0, 239.0]])
-    J = corner_jacobian(H, c)  # noqa: N806
+    J = corner_jacobian(H, c)
     h = H.ravel()[:8]
     for i in range(8):
         step = 1e-7 * max(1.0, abs(h[i]))
@@ -415,7 +415,7 @@ def test_corner_jacobian_matches_finite_differences() -> None:
 
 
 def test_camera_pose_decomposition_and_body_pose_invert_the_forward_model() -> None:
-    K = np.array([[277.0, 0.0, 159.5], [0.0, 277.0, 119.5], [0.0, 0.0, 1.0]])  # noqa: N806
+    K = np.array([[277.0, 0.0, 159.5], [0.0, 277.0, 119.5], [0.0, 0.0, 1.0]])
     mount = CameraMount(math.radians(10.0), math.radians(-70.0), (0.2, -0.1, -0.3))
     pose6 = np.array([12.0, -40.0, 95.0, math.radians(3.0), math.radians(-2.0), math.radians(130.0)])
     cam = mount.camera_pose(pose6)
@@ -457,7 +457,7 @@ def test_imu_orientation_follows_rep145() -> None:
 # --- placement on the raster and drift control -----------------------------------------------
 
 
-def true_pose(georef: Georeferencer, flight, k: int) -> FramePose:  # noqa: ANN001
+def true_pose(georef: Georeferencer, flight, k: int) -> FramePose:
     t = flight.truth.frames[k]
     p = georef.origin.enu_from_geodetic(t.latitude_deg, t.longitude_deg, t.altitude_m)
     rpy = np.radians([t.roll_deg, t.pitch_deg, t.yaw_deg])
@@ -465,7 +465,7 @@ def true_pose(georef: Georeferencer, flight, k: int) -> FramePose:  # noqa: ANN0
                      camera=georef.mount.camera_pose(np.r_[p, rpy]), ground_z_m=0.0)
 
 
-def test_raster_H_frame_of_the_true_pose_matches_the_true_footprint(flight) -> None:  # noqa: ANN001, N802
+def test_raster_H_frame_of_the_true_pose_matches_the_true_footprint(flight) -> None:
     from pyproj import Transformer
 
     georef = Georeferencer(GeorefConfig(ground_altitude_m=flight.config.origin_alt_m), flight.camera)
@@ -483,7 +483,7 @@ def test_raster_H_frame_of_the_true_pose_matches_the_true_footprint(flight) -> N
         assert np.abs(est - np.c_[e, n]).max() < 0.02  # metres
 
 
-def test_drift_control_pulls_a_drifting_chain_back_to_the_poses(flight) -> None:  # noqa: ANN001
+def test_drift_control_pulls_a_drifting_chain_back_to_the_poses(flight) -> None:
     from srmosaic_ros.core.metrics import mosaic_corner_errors
 
     # Poses taken as independent from frame to frame (time constant 0): the mechanism at full strength.
@@ -513,7 +513,7 @@ def test_drift_control_pulls_a_drifting_chain_back_to_the_poses(flight) -> None:
     np.testing.assert_allclose(georef.correct(chained[-1], FramePose.invalid(0, 'x')), chained[-1] / chained[-1][2, 2])
 
 
-def test_current_pose_slot_is_the_latest_frame(flight) -> None:  # noqa: ANN001
+def test_current_pose_slot_is_the_latest_frame(flight) -> None:
     georef, poses = run(flight)
     y, _ = georef.ukf.pose(SLOT_CUR)
     np.testing.assert_allclose(y[:3], poses[-1].position_enu_m)
@@ -521,7 +521,7 @@ def test_current_pose_slot_is_the_latest_frame(flight) -> None:  # noqa: ANN001
     assert prev is not None and prev.stamp_ns == flight.frames[-2].stamp_ns
 
 
-def test_offline_smoothing_improves_on_the_filter_and_stays_consistent(flight) -> None:  # noqa: ANN001
+def test_offline_smoothing_improves_on_the_filter_and_stays_consistent(flight) -> None:
     georef, poses = run(flight)
     smoothed = georef.smoothed_poses()
     assert len(smoothed) == len(poses)
@@ -537,7 +537,7 @@ def test_offline_smoothing_improves_on_the_filter_and_stays_consistent(flight) -
     assert georef.poses[-1] is poses[-1]
 
 
-def test_registration_to_an_older_frame_is_not_fused(flight) -> None:  # noqa: ANN001
+def test_registration_to_an_older_frame_is_not_fused(flight) -> None:
     georef = Georeferencer(GeorefConfig(), flight.camera)
     for fix in flight.fixes[:3]:
         georef.feed_fix(fix)
@@ -552,15 +552,15 @@ def test_registration_to_an_older_frame_is_not_fused(flight) -> None:  # noqa: A
     assert pose.homography_used
 
 
-def test_corner_sigma_of_a_registration_covariance(flight) -> None:  # noqa: ANN001
+def test_corner_sigma_of_a_registration_covariance(flight) -> None:
     georef = Georeferencer(GeorefConfig(drift_chain_sigma_px=0.7), flight.camera)
     rng = np.random.default_rng(0)
-    H, cov = noisy_registration(flight.truth.frames[5].prev_H_cur, flight.camera, rng, 0.4)  # noqa: N806
+    H, cov = noisy_registration(flight.truth.frames[5].prev_H_cur, flight.camera, rng, 0.4)
     assert georef.corner_sigma_px(H, cov) == pytest.approx(0.4, rel=1e-6)
     assert georef.corner_sigma_px(H, None) == 0.7
 
 
-def test_camera_dropout_is_bridged_on_telemetry(flight) -> None:  # noqa: ANN001
+def test_camera_dropout_is_bridged_on_telemetry(flight) -> None:
     """15 s without frames (telemetry goes on): nothing is dropped, the track resumes."""
     kept = [k for k in range(len(flight.frames)) if not 40 <= k < 100]
     georef, poses = run(flight, frames=kept)
@@ -575,7 +575,7 @@ def test_camera_dropout_is_bridged_on_telemetry(flight) -> None:  # noqa: ANN001
 
 
 @pytest.mark.parametrize(('ground_known', 'warns'), [(False, True), (True, False)])
-def test_low_flight_with_a_nominal_ground_warns_about_the_raster_gsd(ground_known: bool, warns: bool, caplog) -> None:  # noqa: ANN001
+def test_low_flight_with_a_nominal_ground_warns_about_the_raster_gsd(ground_known: bool, warns: bool, caplog) -> None:
     """A 60 m flight with the ground guessed from georef.nominal_agl_m (100 m): the raster's GSD is
     chosen for 100 m; once the filter knows better, one warning names the keys that fix it. With
     the ground given, nothing to warn about."""
@@ -597,17 +597,17 @@ def test_iterated_update_is_one_pass_for_a_linear_model() -> None:
     """Posterior linearisation of a linear hx is exact at every pass (A = M, Omega = 0): five
     passes give the Kalman update of one."""
     rng = np.random.default_rng(3)
-    A = rng.normal(size=(13, 13))  # noqa: N806
-    P0 = A @ A.T / 13 + 0.1 * np.eye(13)  # noqa: N806
+    A = rng.normal(size=(13, 13))
+    P0 = A @ A.T / 13 + 0.1 * np.eye(13)
     x0 = rng.normal(size=13)
-    M = rng.normal(size=(4, 13))  # noqa: N806
-    z, R = rng.normal(size=4), np.diag([0.3, 0.4, 0.5, 0.6])  # noqa: N806
+    M = rng.normal(size=(4, 13))
+    z, R = rng.normal(size=4), np.diag([0.3, 0.4, 0.5, 0.6])
     u = PoseUkf(UkfParams(iterations=5))
     u.initialize(0, np.zeros(6), np.eye(6))
     u.ukf.x, u.ukf.P = x0.copy(), P0.copy()
     got = u._update('homography', z, R, lambda x: M @ x, inflate=None, hx_batch=lambda xs: xs @ M.T)
-    S = M @ P0 @ M.T + R  # noqa: N806
-    K = P0 @ M.T @ np.linalg.inv(S)  # noqa: N806
+    S = M @ P0 @ M.T + R
+    K = P0 @ M.T @ np.linalg.inv(S)
     assert got.accepted
     np.testing.assert_allclose(u.x, x0 + K @ (z - M @ x0), atol=1e-9)
     np.testing.assert_allclose(u.P, P0 - K @ S @ K.T, atol=1e-9)
@@ -633,7 +633,7 @@ def test_iterated_update_approaches_the_true_posterior_of_a_ratio() -> None:
     def posterior(iterations: int) -> tuple[np.ndarray, np.ndarray]:
         u = PoseUkf(UkfParams(iterations=iterations))
         u.initialize(0, np.zeros(6), np.eye(6))
-        x, P = np.zeros(13), np.eye(13)  # noqa: N806
+        x, P = np.zeros(13), np.eye(13)
         x[[6, 12]], P[[6, 12], [6, 12]] = prior_x, prior_sd**2
         u.ukf.x, u.ukf.P = x, P
         res = u._update('homography', z, np.array([[r_sd**2]]), lambda x: np.array([x[6] / x[12]]), inflate=None,
@@ -673,7 +673,7 @@ def test_wrong_ground_prior_keeps_the_filter_consistent() -> None:
     assert err[5] < 0.7 * err[1]
 
 
-def test_imu_without_rates_gives_no_gyro_update(flight) -> None:  # noqa: ANN001
+def test_imu_without_rates_gives_no_gyro_update(flight) -> None:
     """Orientation-only Imu samples (rates NaN: a flight log, EXIF, covariance[0] = -1) are fused as
     attitudes, never as a gyro measuring no rotation; they are counted, not warned about."""
     imus = [dataclasses.replace(i, angular_velocity_rad_s=np.full(3, np.nan)) for i in flight.imus]
@@ -692,7 +692,7 @@ def test_filter_steps_are_bounded() -> None:
         GeorefConfig(max_attitude_step_sigma_deg=0.0)
 
 
-def test_registrations_without_intrinsics_are_counted_not_fused(flight) -> None:  # noqa: ANN001
+def test_registrations_without_intrinsics_are_counted_not_fused(flight) -> None:
     """No camera model: the filter tracks the telemetry and counts the registrations it cannot use
     (also across frame gaps, which would otherwise be reported as bridged)."""
     georef = Georeferencer(GeorefConfig(max_step_s=0.1))  # every frame gap bridged

@@ -99,7 +99,7 @@ def test_stills_without_intrinsics_are_georeferenced_by_their_geotags(tmp_path: 
     cam = flight.camera
     errors = []
     for row, t in zip(rows, flight.truth.frames):
-        H = np.array([float(row[f'h{i}{j}']) for i in range(3) for j in range(3)]).reshape(3, 3)  # noqa: N806
+        H = np.array([float(row[f'h{i}{j}']) for i in range(3) for j in range(3)]).reshape(3, 3)
         for px in ([cam.cx, cam.cy], [0.0, 0.0], [cam.width - 1.0, cam.height - 1.0]):
             m = apply_H(H, np.array([px]))[0]
             e, n = transform @ (m[0] + 0.5, m[1] + 0.5)      # GDAL: pixel corner convention
@@ -194,7 +194,7 @@ def test_fit_with_attitudes_takes_the_tilt_out_and_finds_the_height() -> None:
 
 
 @pytest.fixture(scope='module')
-def stills_bag(tmp_path_factory) -> Path:  # noqa: ANN001
+def stills_bag(tmp_path_factory) -> Path:
     """A survey of stills 2 s apart as a bag with CameraInfo, fixes (5 Hz) and IMU (50 Hz)."""
     from srmosaic_ros.sim.record import write_flight
 

@@ -79,7 +79,7 @@ def write_flight(
     return sent
 
 
-def consume(path: Path, **kwargs: Any) -> list[Frame | GeoFix | ImuSample]:  # noqa: ANN401
+def consume(path: Path, **kwargs: Any) -> list[Frame | GeoFix | ImuSample]:
     return list(read_flight(path, **kwargs))
 
 
@@ -187,7 +187,7 @@ def test_ros1_bag(tmp_path: Path) -> None:
     store = get_typestore(Stores.ROS1_NOETIC)
     types = store.types
 
-    def header(t: int) -> Any:  # noqa: ANN401
+    def header(t: int) -> Any:
         return types['std_msgs/msg/Header'](
             seq=0, stamp=types['builtin_interfaces/msg/Time'](sec=t // 10**9, nanosec=t % 10**9),
             frame_id='cam')
@@ -303,7 +303,7 @@ def test_wrong_msgtype(tmp_path: Path, storage: str) -> None:
                r'topic must be sensor_msgs/msg/Image or sensor_msgs/msg/CompressedImage')
     with pytest.raises(BagError, match=pattern):
         read_flight(bag)
-    with pytest.raises(BagError, match=r"Topic '/fix' .* type 'sensor_msgs/msg/Imu', but the fix topic must be sensor_msgs/msg/NavSatFix"):  # noqa: E501
+    with pytest.raises(BagError, match=r"Topic '/fix' .* type 'sensor_msgs/msg/Imu', but the fix topic must be sensor_msgs/msg/NavSatFix"):
         read_flight(bag, require_image=False, topics=TopicConfig(image=''))
 
 
@@ -388,7 +388,7 @@ def test_metadata_missing_or_garbled(tmp_path: Path, storage: str) -> None:
     with pytest.raises(BagError, match=r"Cannot open bag '.*flight'"):
         read_flight(bag)
     meta.unlink()
-    with pytest.raises(BagError, match=rf"folder without metadata.yaml.*pass that file itself"):
+    with pytest.raises(BagError, match=r"folder without metadata.yaml.*pass that file itself"):
         read_flight(bag)
     assert len(consume(_storage_file(bag))) == 6  # as it says: the bare file reads
 

@@ -51,17 +51,17 @@ class DriftingRegistrar:
     as chained registration errors add up; registrations to the rendered mosaic (float32 views,
     not uint8 frames) are left unbiased, so keyframes see the truth of the mosaic."""
 
-    def __init__(self, inner, bias_px: float) -> None:  # noqa: ANN001
+    def __init__(self, inner, bias_px: float) -> None:
         self.inner, self.bias = inner, translation(bias_px, 0.0)
         self.frame_features: set[int] = set()
 
-    def describe(self, image: np.ndarray):  # noqa: ANN201
+    def describe(self, image: np.ndarray):
         f = self.inner.describe(image)
         if image.dtype == np.uint8:
             self.frame_features.add(id(f))
         return f
 
-    def register(self, prev, cur):  # noqa: ANN001, ANN201
+    def register(self, prev, cur):
         reg = self.inner.register(prev, cur)
         if reg.ok and id(prev) in self.frame_features:
             reg = dataclasses.replace(reg, prev_H_cur=reg.prev_H_cur @ self.bias)

@@ -45,7 +45,7 @@ def _painted_canvas(channels: int, blend: str) -> TiledCanvas:
     world = _texture(760, 1460, channels, seed=channels)
     canvas = TiledCanvas(channels, 128, blend=blend)
     for k, (x, y) in enumerate([(x, y) for y in (0, 200, 440) for x in range(0, 1100, 180)]):
-        x, y = x + 37 * (y // 200 % 2), y + (k % 3) * 7  # noqa: PLW2901 (stagger)
+        x, y = x + 37 * (y // 200 % 2), y + (k % 3) * 7  # stagger
         crop = world[y:y + 240, x:x + 320]
         canvas.paint(crop if channels > 1 else crop[:, :, 0], np.array([[1, 0, x + 0.3], [0, 1, y + 0.6], [0, 0, 1.0]]))
     return canvas
@@ -145,7 +145,7 @@ def test_write_outputs_of_a_real_run_match_the_whole_image_writers(tmp_path: Pat
     assert np.array_equal(_read_png(plain / 'mosaic.png'), _read_png(tmp_path / 'before.png'))
 
 
-def _strips(image: np.ndarray, covered: np.ndarray, rows: int, fail_after: int | None = None):  # noqa: ANN202
+def _strips(image: np.ndarray, covered: np.ndarray, rows: int, fail_after: int | None = None):
     for k, r in enumerate(range(0, image.shape[0], rows)):
         if fail_after is not None and k == fail_after:
             msg = 'rendering failed mid-way'

@@ -374,7 +374,7 @@ def _block_means(c: TiledCanvas, f: int) -> tuple[np.ndarray, np.ndarray]:
 
 @pytest.mark.parametrize(('blend', 'channels', 'in_memory'), [('feather', 3, 0), ('multiband', 1, 2)])
 def test_render_preview_is_the_block_mean_and_incremental(blend: str, channels: int, in_memory: int,
-                                                          tmp_path) -> None:  # noqa: ANN001
+                                                          tmp_path) -> None:
     """render_preview = weighted block means of the feather blend, at the smallest tile-size divisor
     that fits max_side; after more frames (new tiles, a growing canvas, spilled tiles) it is again
     exact, though it only re-reads painted tiles."""

@@ -100,7 +100,7 @@ def test_image_accepts_plain_bytes_data() -> None:
     np.testing.assert_array_equal(ma.image_to_rgb_or_mono(msg), pixels[..., ::-1])
 
 
-def _valid_image(flavor: str):  # noqa: ANN202
+def _valid_image(flavor: str):
     return ma.numpy_to_image(sample_pixels('rgb8'), 'rgb8', flavor=flavor)
 
 

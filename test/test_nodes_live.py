@@ -111,7 +111,7 @@ def check_sr_tile_against_truth(tile_msg, registration_msgs) -> dict:
     tile = image_to_numpy(tile_msg).astype(np.float64)
     assert tile_msg.encoding == 'rgb8' and tile.shape == (place.height * s, place.width * s, 3)
     truth = load_truth(DEMO / 'ground_truth.json')
-    true_H = {f.stamp_ns: f.world_px_H_frame for f in truth.frames}  # noqa: N806
+    true_H = {f.stamp_ns: f.world_px_H_frame for f in truth.frames}
     regs = [r for r in map(decode_registration, registration_msgs) if r.ok and r.segment == place.segment]
     centre = place.plane_H_tile() @ np.array([(tile.shape[1] - 1) / 2, (tile.shape[0] - 1) / 2, 1.0])
 
@@ -121,7 +121,7 @@ def check_sr_tile_against_truth(tile_msg, registration_msgs) -> dict:
 
     stamp = tile_msg.header.stamp.sec * 1_000_000_000 + tile_msg.header.stamp.nanosec
     best = next((r for r in regs if r.stamp_ns == stamp), None) or min(regs, key=off_centre)
-    world_H_plane = true_H[best.stamp_ns] @ np.linalg.inv(best.seg_H_frame)  # noqa: N806
+    world_H_plane = true_H[best.stamp_ns] @ np.linalg.inv(best.seg_H_frame)
     world = np.ascontiguousarray(cv2.imread(str(ROOT / truth.world_path), cv2.IMREAD_COLOR)[:, :, ::-1])
     m = 8  # the border sees fewer frames
     errors = {}
@@ -151,7 +151,7 @@ def sr_tile_map_error_m(tile_msg, registration_msgs, raster_text: str) -> dict:
     centre = np.array([(place.width * s - 1) / 2, (place.height * s - 1) / 2])
     plane = apply_homography(place.plane_H_tile(), centre[None])
     truth = load_truth(DEMO / 'ground_truth.json')
-    true_H = {f.stamp_ns: f.world_px_H_frame for f in truth.frames}  # noqa: N806
+    true_H = {f.stamp_ns: f.world_px_H_frame for f in truth.frames}
     stamp = tile_msg.header.stamp.sec * 1_000_000_000 + tile_msg.header.stamp.nanosec
     reg = next(r for r in map(decode_registration, registration_msgs) if r.stamp_ns == stamp)
     world = apply_homography(true_H[stamp] @ np.linalg.inv(reg.seg_H_frame), plane)
@@ -258,7 +258,8 @@ def test_live_graph_matches_offline_process(ros_env, tmp_path):
             f"no SR tile: {listener.diag_value('tiles_published', SR)} published"
         for tile in listener.tiles:
             fit = check_sr_tile_against_truth(tile, listener.registrations)
-            print('TILE', tile.header.frame_id, tile.header.stamp.sec, tile.header.stamp.nanosec, round(fit['mae'], 3), fit['best_shift'], round(fit['errors'][fit['best_shift']], 3))
+            print('TILE', tile.header.frame_id, tile.header.stamp.sec, tile.header.stamp.nanosec, round(fit['mae'], 3),
+                  fit['best_shift'], round(fit['errors'][fit['best_shift']], 3))
         for tile in listener.tiles[:3]:
             fit = check_sr_tile_against_truth(tile, listener.registrations)
             assert max(abs(v) for v in fit['best_shift']) <= 1, fit
@@ -412,7 +413,7 @@ def test_sr_node_refreshes_a_tile_when_more_frames_cover_it(ros_env):
         origin = np.array([300.0, 200.0])
         for k in range(12):
             shift = np.array([10.0, 10.0]) + [0.37 * k % 2.0, 0.61 * k % 2.0]  # sub-pixel hovering
-            plane_H_frame = _translation(*shift)  # noqa: N806
+            plane_H_frame = _translation(*shift)
             frame = view(_translation(*(origin + shift)), 200, 140, noise=2.0, seed=k)
             stamp = 1_000_000_000 * (k + 1)
             images.publish(numpy_to_image(frame, 'rgb8', stamp_ns=stamp, frame_id='camera'))
@@ -420,7 +421,8 @@ def test_sr_node_refreshes_a_tile_when_more_frames_cover_it(ros_env):
             regs.publish(encode_registration(stamp, True, 100, 0.1, 0, plane_H_frame, np.eye(3), True, None))
             listener.wait_for(lambda: False, 0.6)
         assert listener.wait_for(lambda: int(listener.diag_value('tiles_refreshed', SR) or 0) >= 2, 30), \
-            {k: listener.diag_value(k, SR) for k in ('frames_received', 'frames_kept', 'images_waiting_for_registration', 'registrations_without_image', 'tiles_published', 'tiles_refreshed')}
+            {k: listener.diag_value(k, SR) for k in ('frames_received', 'frames_kept', 'images_waiting_for_registration',
+                                                    'registrations_without_image', 'tiles_published', 'tiles_refreshed')}
         placements = collections.Counter(t.header.frame_id for t in listener.tiles)
         assert set(placements) == {'srmosaic_segment_0;x0=64;y0=64;width=64;height=64;factor=2',
                                    'srmosaic_segment_0;x0=128;y0=64;width=64;height=64;factor=2'}, placements
@@ -430,7 +432,7 @@ def test_sr_node_refreshes_a_tile_when_more_frames_cover_it(ros_env):
         maes = collections.defaultdict(list)
         for tile in listener.tiles:
             place = SRTilePlacement.parse(tile.header.frame_id)
-            world_H_tile = _translation(*origin) @ place.plane_H_tile()  # noqa: N806
+            world_H_tile = _translation(*origin) @ place.plane_H_tile()
             got = image_to_numpy(tile).astype(float)
             mae = np.abs(got - view(world_H_tile, 128, 128))[8:-8, 8:-8].mean()
             misplaced = np.abs(got - view(world_H_tile @ _translation(2.0, 0.0), 128, 128))[8:-8, 8:-8].mean()
@@ -583,7 +585,7 @@ def tampered_demo(dst: Path, *, image: int, fix: int, shift_s: int = 10**6) -> P
     ``fix``-th fix moved ``shift_s`` seconds into the future (a driver's glitch)."""
     from demo_bags import rewrite_demo
 
-    def tamper(kind: str, index: int, msg: Any) -> None:  # noqa: ANN401
+    def tamper(kind: str, index: int, msg: Any) -> None:
         if index == {'image': image, 'fix': fix}.get(kind):
             msg.header.stamp.sec += shift_s
 

@@ -104,7 +104,7 @@ def test_oblique_flight_is_ortho_rectified_within_one_percent_of_the_slant_range
     assert figures["georef_error_max_m"] < 0.01 * nearest, figures
 
 
-def _ground_points(frame, cam, px):  # noqa: ANN001, ANN202
+def _ground_points(frame, cam, px):
     rays = (frame.R_enu_from_cam @ np.linalg.inv(cam.K) @ np.c_[px, np.ones(len(px))].T).T
     t = -frame.camera_enu_m[2] / rays[:, 2]
     return frame.camera_enu_m + t[:, None] * rays

@@ -19,7 +19,7 @@ APHILL = REAL / 'klv' / 'aphill_short.ts'
 
 
 @pytest.fixture(scope='module')
-def aphill_out(tmp_path_factory) -> Path:  # noqa: ANN001
+def aphill_out(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp('aphill')
     process_input(APHILL, out, PipelineConfig(), progress=False)
     return out

@@ -6,7 +6,7 @@ from pathlib import Path
 import pytest
 
 from srmosaic_ros.config import pipeline_config
-from srmosaic_ros.core.types import Frame, GeoFix
+from srmosaic_ros.core.types import GeoFix
 from srmosaic_ros.io.image_folder import ImageFolderReader, is_image_folder
 from srmosaic_ros.pipeline import Pipeline
 

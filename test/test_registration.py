@@ -12,13 +12,13 @@ from imagery import similarity, translation, view
 W, H = 320, 240
 
 
-def _pair(cur_H_world_delta: np.ndarray, noise: float = 2.0):  # noqa: N803
+def _pair(cur_H_world_delta: np.ndarray, noise: float = 2.0):
     """prev frame at world offset (200, 150); cur = prev moved by delta (frame->frame)."""
-    world_H_prev = translation(200.0, 150.0)  # noqa: N806
-    world_H_cur = world_H_prev @ cur_H_world_delta  # noqa: N806
+    world_H_prev = translation(200.0, 150.0)
+    world_H_cur = world_H_prev @ cur_H_world_delta
     prev = view(world_H_prev, W, H, noise=noise, seed=1)
     cur = view(world_H_cur, W, H, noise=noise, seed=2)
-    prev_H_cur = np.linalg.inv(world_H_prev) @ world_H_cur  # noqa: N806
+    prev_H_cur = np.linalg.inv(world_H_prev) @ world_H_cur
     return prev, cur, prev_H_cur
 
 
@@ -28,7 +28,7 @@ def _pair(cur_H_world_delta: np.ndarray, noise: float = 2.0):  # noqa: N803
     similarity(-4.0, 1.15, -15.0, 25.0, W / 2, H / 2),
 ])
 def test_registers_known_motion_subpixel(delta):
-    prev, cur, prev_H_cur = _pair(delta)  # noqa: N806
+    prev, cur, prev_H_cur = _pair(delta)
     reg_ = Registrar()
     reg = reg_.register(reg_.describe(prev), reg_.describe(cur))
     assert reg.ok, reg.reason

@@ -53,8 +53,8 @@ def _points(n: int, seed: int, width: float = 640.0, height: float = 480.0) -> t
 
 def _pair(delta: np.ndarray, *, noise: float = 2.0, width: int = W, height: int = H):
     """prev frame at world offset (200, 150); cur = prev moved by delta (cur pixels -> prev pixels)."""
-    world_H_prev = translation(200.0, 150.0)  # noqa: N806
-    world_H_cur = world_H_prev @ delta  # noqa: N806
+    world_H_prev = translation(200.0, 150.0)
+    world_H_cur = world_H_prev @ delta
     prev = view(world_H_prev, width, height, noise=noise, seed=1)
     cur = view(world_H_cur, width, height, noise=noise, seed=2)
     return prev, cur, np.linalg.inv(world_H_prev) @ world_H_cur
@@ -185,7 +185,7 @@ def test_keypoints_subpixel_on_a_blob(device):
 
 
 def test_descriptors_survive_rotation_and_scale():
-    prev, cur, prev_H_cur = _pair(similarity(25.0, 1.3, 10.0, -5.0, W / 2, H / 2))  # noqa: N806
+    prev, cur, prev_H_cur = _pair(similarity(25.0, 1.3, 10.0, -5.0, W / 2, H / 2))
     opts = FeatureOptions(detect_level=0)
     dev = torch.device('cpu')
     kp = detect_and_describe(image_to_gray_tensor(prev, dev), 0, opts)
@@ -214,7 +214,7 @@ def test_gray_conversion_matches_image_ops():
     similarity(-4.0, 1.15, -15.0, 25.0, W / 2, H / 2),
 ])
 def test_registers_known_motion_subpixel(cpu_registrar, delta):
-    prev, cur, prev_H_cur = _pair(delta)  # noqa: N806
+    prev, cur, prev_H_cur = _pair(delta)
     reg = cpu_registrar.register(cpu_registrar.describe(prev), cpu_registrar.describe(cur))
     assert reg.ok, reg.reason
     assert reg.inliers >= 30
@@ -228,7 +228,7 @@ def test_registers_known_motion_subpixel(cpu_registrar, delta):
 
 def test_large_motion_640x480(cpu_registrar):
     delta = similarity(10.0, 1.2, 60.0, -20.0, 320.0, 240.0)
-    prev, cur, prev_H_cur = _pair(delta, width=640, height=480)  # noqa: N806
+    prev, cur, prev_H_cur = _pair(delta, width=640, height=480)
     reg = cpu_registrar.register(cpu_registrar.describe(prev), cpu_registrar.describe(cur))
     assert reg.ok, reg.reason
     assert corner_error_px(reg.prev_H_cur, prev_H_cur, 640, 480) < 0.1
@@ -239,11 +239,11 @@ def test_scale_change_of_1_5_stays_subpixel():
     end of the detector's scale range, extrapolated); the converged photometric refinement, which
     still explains the feature inliers, is trusted beyond max_refine_shift_px and brings it back."""
     world = world_rgb(0.5)  # 1000 x 750: 640 x 480 frames at about the world's own resolution
-    world_H_prev = similarity(10.0, 1.0, 150.0, 200.0)  # noqa: N806
-    world_H_cur = world_H_prev @ similarity(-8.0, 1.5, 10.0, -5.0, 320.0, 240.0)  # noqa: N806
+    world_H_prev = similarity(10.0, 1.0, 150.0, 200.0)
+    world_H_cur = world_H_prev @ similarity(-8.0, 1.5, 10.0, -5.0, 320.0, 240.0)
     prev = view(world_H_prev, 640, 480, noise=2.0, seed=1, image=world)
     cur = view(world_H_cur, 640, 480, noise=2.0, seed=2, image=world)
-    prev_H_cur = np.linalg.inv(world_H_prev) @ world_H_cur  # noqa: N806
+    prev_H_cur = np.linalg.inv(world_H_prev) @ world_H_cur
     errors = {}
     for name, options in (('trusted', TorchRegistrarOptions()),
                           ('2 px cap, 8 iterations', TorchRegistrarOptions(
@@ -257,7 +257,7 @@ def test_scale_change_of_1_5_stays_subpixel():
 
 
 def test_ir_like_single_channel_with_gain_change(cpu_registrar):
-    prev, cur, prev_H_cur = _pair(similarity(3.0, 1.05, -8.0, 6.0, W / 2, H / 2), noise=0.0)  # noqa: N806
+    prev, cur, prev_H_cur = _pair(similarity(3.0, 1.05, -8.0, 6.0, W / 2, H / 2), noise=0.0)
 
     def ir(rgb: np.ndarray, gain: float, seed: int) -> np.ndarray:
         g = 1.0 - cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY).astype(np.float64) / 255.0
@@ -271,7 +271,7 @@ def test_ir_like_single_channel_with_gain_change(cpu_registrar):
 
 
 def test_registers_tensors_and_prev_features_are_reused(cpu_registrar):
-    prev, cur, prev_H_cur = _pair(translation(4.0, 3.0))  # noqa: N806
+    prev, cur, prev_H_cur = _pair(translation(4.0, 3.0))
     fp = cpu_registrar.describe(torch.from_numpy(prev).permute(2, 0, 1).float()[None] / 255.0)
     fc = cpu_registrar.describe(cur)
     first = cpu_registrar.register(fp, fc)
@@ -306,7 +306,7 @@ def test_unrelated_frames_fail(cpu_registrar):
 def test_feature_only_mode_and_config_honoured():
     reg_ = TorchRegistrar(RegistrationConfig(max_features=200), device='cpu',
                           options=TorchRegistrarOptions(photometric=None, covariance=False))
-    prev, cur, prev_H_cur = _pair(translation(7.5, -3.25))  # noqa: N806
+    prev, cur, prev_H_cur = _pair(translation(7.5, -3.25))
     fp, fc = reg_.describe(prev), reg_.describe(cur)
     assert len(fp) <= 200 and not fc.templates
     reg = reg_.register(fp, fc)
@@ -317,7 +317,7 @@ def test_feature_only_mode_and_config_honoured():
 def test_failed_pair_is_retried_with_more_keypoints():
     reg_ = TorchRegistrar(RegistrationConfig(max_features=300), device='cpu',
                           options=TorchRegistrarOptions(features=FeatureOptions(max_keypoints=8)))
-    prev, cur, prev_H_cur = _pair(translation(6.0, 4.0))  # noqa: N806
+    prev, cur, prev_H_cur = _pair(translation(6.0, 4.0))
     fp, fc = reg_.describe(prev), reg_.describe(cur)
     assert len(fp) == 8
     reg = reg_.register(fp, fc)
@@ -344,7 +344,7 @@ def test_refuses_foreign_features_and_bad_options():
 
 def test_runs_on_device(device):
     reg_ = TorchRegistrar(device=device)
-    prev, cur, prev_H_cur = _pair(similarity(2.0, 1.0, 5.0, 5.0, W / 2, H / 2))  # noqa: N806
+    prev, cur, prev_H_cur = _pair(similarity(2.0, 1.0, 5.0, 5.0, W / 2, H / 2))
     fp = reg_.describe(prev)
     assert fp.keypoints.xy.device.type == device.type
     assert fp.pyramid[0].device.type == device.type
@@ -356,7 +356,7 @@ def test_runs_on_device(device):
 def test_inverse_covariance_matches_monte_carlo():
     from srmosaic_ros.core.registration.torch_refine import inverse_covariance
 
-    H = H_TRUE.numpy()  # noqa: N806
+    H = H_TRUE.numpy()
     rng = np.random.default_rng(4)
     a = rng.normal(size=(8, 8)) * np.array([1e-4, 1e-4, 0.05, 1e-4, 1e-4, 0.05, 1e-7, 1e-7])[:, None]
     cov = a @ a.T
@@ -377,7 +377,7 @@ def test_refined_covariance_is_the_photometric_one_and_honest(cpu_registrar):
     feature_only = TorchRegistrar(device='cpu', options=TorchRegistrarOptions(photometric=None))
     errs, sig_ph, sig_feat = [], [], []
     for seed in range(12):
-        world_H_prev = translation(200.0, 150.0)  # noqa: N806
+        world_H_prev = translation(200.0, 150.0)
         prev = view(world_H_prev, W, H, noise=2.0, seed=100 + seed)
         cur = view(world_H_prev @ delta, W, H, noise=2.0, seed=200 + seed)
         reg = cpu_registrar.register(cpu_registrar.describe(prev), cpu_registrar.describe(cur))
@@ -385,7 +385,7 @@ def test_refined_covariance_is_the_photometric_one_and_honest(cpu_registrar):
         feat = feature_only.register(feature_only.describe(prev), feature_only.describe(cur))
         c = np.array([[0.0, 0.0], [W - 1.0, 0.0], [W - 1.0, H - 1.0], [0.0, H - 1.0]])
         for cov, out in ((reg.covariance, sig_ph), (feat.covariance, sig_feat)):
-            J = corner_jacobian(reg.prev_H_cur, c)  # noqa: N806
+            J = corner_jacobian(reg.prev_H_cur, c)
             out.append(math.sqrt(np.trace(J @ cov @ J.T) / 8.0))
         errs.append(corner_error_px(reg.prev_H_cur, delta, W, H) / math.sqrt(math.pi / 2.0))  # ~ sigma per coordinate
     sigma_ph, sigma_true = float(np.median(sig_ph)), float(np.sqrt(np.mean(np.square(errs))))
@@ -397,8 +397,8 @@ def test_refined_covariance_is_the_photometric_one_and_honest(cpu_registrar):
 
 def _textured_pair(seed: int = 0):
     world = world_rgb(0.5)
-    world_H_prev = similarity(10.0, 1.0, 150.0, 200.0)  # noqa: N806
-    world_H_cur = world_H_prev @ similarity(4.0, 1.1, 25.0, -10.0, 320.0, 240.0)  # noqa: N806
+    world_H_prev = similarity(10.0, 1.0, 150.0, 200.0)
+    world_H_cur = world_H_prev @ similarity(4.0, 1.1, 25.0, -10.0, 320.0, 240.0)
     return (view(world_H_prev, 640, 480, noise=2.0, seed=seed, image=world),
             view(world_H_cur, 640, 480, noise=2.0, seed=seed + 1, image=world),
             np.linalg.inv(world_H_prev) @ world_H_cur)
@@ -407,10 +407,10 @@ def _textured_pair(seed: int = 0):
 def test_static_shapes_describe_gives_the_data_dependent_features():
     """With fixed shapes (topk instead of nonzero, what a CUDA graph records) describe gives the same
     candidates, keypoints, descriptors and templates, hence the same registration."""
-    prev, cur, prev_H_cur = _textured_pair()  # noqa: N806
+    prev, cur, prev_H_cur = _textured_pair()
     plain = TorchRegistrar(device='cpu')
     fixed = TorchRegistrar(device='cpu', options=TorchRegistrarOptions(static_shapes=True))
-    assert plain._static is None and fixed._static is not None  # noqa: SLF001 (the CPU default: data-dependent)
+    assert plain._static is None and fixed._static is not None  # the CPU default: data-dependent
     a, b = plain.describe(cur), fixed.describe(cur)
     assert 100 < len(a.candidates) == len(b.candidates) < fixed.options.static_candidates
     np.testing.assert_array_equal(a.keypoints_px, b.keypoints_px)
@@ -452,12 +452,12 @@ def test_static_shapes_describe_has_a_single_host_synchronisation():
 def test_cuda_graph_describe_matches_eager_and_registers():
     """On a GPU describe is recorded as a CUDA graph (per frame size) and replayed: same features as
     running the fixed-shape operations one by one, and each frame's outputs survive the next replay."""
-    prev, cur, prev_H_cur = _textured_pair()  # noqa: N806
+    prev, cur, prev_H_cur = _textured_pair()
     graphed = TorchRegistrar(device='cuda', options=TorchRegistrarOptions(cuda_graphs=True))
     eager = TorchRegistrar(device='cuda')  # fixed shapes, operation by operation (the GPU default)
-    assert eager._static is not None and not eager._static.cuda_graphs  # noqa: SLF001
+    assert eager._static is not None and not eager._static.cuda_graphs
     fp, fc = graphed.describe(prev), graphed.describe(cur)
-    assert graphed._static.graph_failures == 0  # noqa: SLF001
+    assert graphed._static.graph_failures == 0
     ep, ec = eager.describe(prev), eager.describe(cur)
     np.testing.assert_allclose(fp.keypoints_px, ep.keypoints_px, atol=1e-4)
     np.testing.assert_allclose(fc.keypoints_px, ec.keypoints_px, atol=1e-4)

@@ -459,7 +459,7 @@ def test_idle_nodes_stop_on_sigint(ros_env, tmp_path):
             listener.node.get_node_names()
     finally:
         logs = {}
-        for name, proc in running.items():
+        for proc in running.values():
             proc.send_signal(signal.SIGINT)
         for name, proc in running.items():
             try:

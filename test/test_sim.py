@@ -36,14 +36,14 @@ def lk_shift(ref: np.ndarray, img: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return np.linalg.lstsq(a, (img - ref)[mask], rcond=None)[0]
 
 
-def warp_prev_from_cur(flight, k: int, images: list[np.ndarray] | None = None,  # noqa: ANN001
+def warp_prev_from_cur(flight, k: int, images: list[np.ndarray] | None = None,
                        interpolation: int = cv2.INTER_CUBIC) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(frame k-1, frame k warped into k-1 by the true prev_H_cur, overlap mask)."""
     cam = flight.camera
     images = [f.image for f in flight.frames] if images is None else images
     prev = images[k - 1].astype(np.float32)
     cur = images[k].astype(np.float32)
-    cur_H_prev = np.linalg.inv(flight.truth.frames[k].prev_H_cur)  # noqa: N806
+    cur_H_prev = np.linalg.inv(flight.truth.frames[k].prev_H_cur)
     size = (cam.width, cam.height)
     warped = cv2.warpPerspective(cur, cur_H_prev, size, flags=interpolation | cv2.WARP_INVERSE_MAP)
     valid = cv2.warpPerspective(np.ones((cam.height, cam.width), np.uint8), cur_H_prev, size,
@@ -167,7 +167,7 @@ def test_render_matches_world_warped_by_world_px_H_frame(decimate: int) -> None:
     flight = simulate(cfg)
     cam = flight.camera
     for k in (0, 2):
-        world_px_H_frame = flight.truth.frames[k].world_px_H_frame  # noqa: N806
+        world_px_H_frame = flight.truth.frames[k].world_px_H_frame
         centre = np.array([[(cam.width - 1) / 2, (cam.height - 1) / 2]])
         s = float(np.sqrt(np.prod(local_scales(world_px_H_frame, centre)[0])))  # world px per frame px
         sigma_world = effective_sigma_px(cfg.psf_sigma_px) * s / decimate
@@ -208,7 +208,7 @@ def test_truth_is_exact_to_a_few_thousandths_of_a_pixel(decimate: int, clean_rms
     """
     cfg = SimConfig(width=320, height=240, frames=4, noise_sigma=0.0, decimate=decimate, seed=5)
     flight = simulate(cfg)
-    sensor_H_frame = hr_H_lr(decimate)  # noqa: N806
+    sensor_H_frame = hr_H_lr(decimate)
     renders = [render_frame(flight.world.image, t.world_px_H_frame @ np.linalg.inv(sensor_H_frame), (320, 240),
                             decimate=decimate, psf_sigma_px=cfg.psf_sigma_px) for t in flight.truth.frames]
     for k in (1, 2, 3):
@@ -279,7 +279,7 @@ def test_telemetry_without_noise_equals_truth() -> None:
         assert fix.latitude_deg == pytest.approx(truth.latitude_deg, abs=1e-12)
         assert fix.longitude_deg == pytest.approx(truth.longitude_deg, abs=1e-12)
         assert fix.altitude_m == pytest.approx(truth.altitude_m, abs=1e-6)
-        R = matrix_from_quat_xyzw(imus[truth.stamp_ns].orientation_xyzw)  # noqa: N806
+        R = matrix_from_quat_xyzw(imus[truth.stamp_ns].orientation_xyzw)
         expected = R_enu_from_body(*np.radians([truth.roll_deg, truth.pitch_deg, truth.yaw_deg]))
         np.testing.assert_allclose(R, expected, atol=1e-12)
     # gyro agrees with the attitude's finite differences between IMU samples

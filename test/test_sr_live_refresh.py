@@ -28,7 +28,7 @@ def test_a_tile_is_refreshed_from_more_frames_and_gets_closer_to_the_truth():
     published: dict[tuple[int, int, int], int] = {}
     sizes: dict[int, tuple[int, int]] = {}
     results = []
-    for k, (frame, tile_H_frame) in enumerate(zip(st.frames, st.tile_H_frames, strict=True)):  # noqa: N806
+    for k, (frame, tile_H_frame) in enumerate(zip(st.frames, st.tile_H_frames, strict=True)):
         store.add_image(k, frame)
         store.add_registration(k, 0, tile_H_frame)   # the plane of the tile: tile (0, 0) is the truth's
         sizes[k] = size

@@ -23,7 +23,7 @@ CHAIN = pipeline_config({'survey.mode': 'chain'})
 
 
 @pytest.fixture(scope='module')
-def drone_survey(tmp_path_factory) -> Path:  # noqa: ANN001
+def drone_survey(tmp_path_factory) -> Path:
     """20 stills 2 s apart over two lawnmower legs, 2 deg gusts, gimbal angles with 0.5 deg noise."""
     flight = simulate(SimConfig(width=320, height=240, world_gsd_m=0.3, trajectory='lawnmower', legs=2,
                                 leg_length_m=160.0, leg_spacing_m=50.0, speed_m_s=10.0, rate_hz=0.5, gust_deg=2.0,

@@ -17,9 +17,9 @@ W, H, F = 1000, 750, 800.0
 K = np.array([[F, 0, (W - 1) / 2], [0, F, (H - 1) / 2], [0, 0, 1.0]])
 
 
-def _ground_H(east: float, north: float, agl: float, angle: float, tilt: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:  # noqa: N802
+def _ground_H(east: float, north: float, agl: float, angle: float, tilt: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
     c, s = math.cos(angle), math.sin(angle)
-    G = np.array([[agl * c, agl * s, east], [agl * s, -agl * c, north], [tilt[0], tilt[1], 1.0]])  # noqa: N806
+    G = np.array([[agl * c, agl * s, east], [agl * s, -agl * c, north], [tilt[0], tilt[1], 1.0]])
     return G
 
 
@@ -41,14 +41,14 @@ def _lawnmower(lines: int = 4, per_line: int = 10, spacing: float = 20.0, line_g
     return np.array(Gs), np.array(pos), np.array(track)
 
 
-def _pair(Gs: np.ndarray, i: int, j: int, rng: np.random.Generator, noise_px: float = 0.3,  # noqa: N803
+def _pair(Gs: np.ndarray, i: int, j: int, rng: np.random.Generator, noise_px: float = 0.3,
           wrong: bool = False, subtle: bool = False):
-    i_H_j = K @ np.linalg.inv(Gs[i]) @ Gs[j] @ np.linalg.inv(K)  # noqa: N806 - pixels j -> pixels i
+    i_H_j = K @ np.linalg.inv(Gs[i]) @ Gs[j] @ np.linalg.inv(K)  # pixels j -> pixels i
     if wrong or subtle:  # a wrong match: the pair registered 25 m (or 12 m) off
         shift = (300.0, -200.0) if wrong else (-120.0, -100.0)
-        i_H_j = np.array([[1.0, 0, shift[0]], [0, 1.0, shift[1]], [0, 0, 1]]) @ i_H_j  # noqa: N806
+        i_H_j = np.array([[1.0, 0, shift[0]], [0, 1.0, shift[1]], [0, 0, 1]]) @ i_H_j
     cov = np.diag([1e-6, 1e-6, noise_px**2, 1e-6, 1e-6, noise_px**2, 1e-12, 1e-12])
-    i_H_j = i_H_j / i_H_j[2, 2]  # noqa: N806
+    i_H_j = i_H_j / i_H_j[2, 2]
     i_H_j[:2, 2] += rng.normal(0.0, noise_px, 2)
     return pair_constraint(i, j, i_H_j, cov, K, K, (W, H), (W, H), inliers=200)
 
@@ -79,7 +79,7 @@ def _priors(pos: np.ndarray, track: np.ndarray, rng: np.random.Generator, sigma:
     return SurveyPriors(pos + rng.normal(0.0, sigma, pos.shape), np.full(len(pos), sigma), 60.0, track)
 
 
-def _corner_error_m(G_est: np.ndarray, G_true: np.ndarray) -> float:  # noqa: N803
+def _corner_error_m(G_est: np.ndarray, G_true: np.ndarray) -> float:
     corners = np.linalg.inv(K) @ np.array([[0, W - 1, W - 1, 0], [0, 0, H - 1, H - 1], [1, 1, 1, 1.0]])
     a, b = G_est @ corners, G_true @ corners
     return float(np.sqrt(np.mean(np.sum((a[:2] / a[2] - b[:2] / b[2]) ** 2, axis=0))))
@@ -87,7 +87,7 @@ def _corner_error_m(G_est: np.ndarray, G_true: np.ndarray) -> float:  # noqa: N8
 
 def test_global_solve_places_every_frame_within_its_gps_error_and_drops_planted_wrong_matches():
     rng = np.random.default_rng(0)
-    Gs, pos, track = _lawnmower()  # noqa: N806
+    Gs, pos, track = _lawnmower()
     wh = np.tile(_footprint_wh(60.0), (len(pos), 1))
     cand = predicted_pairs(pos, wh, min_overlap=0.2)
     gross, subtle = (3, 4), (12, 27)  # 25 m off (the GPS baselines refute it), 12 m off (only the solve can)
@@ -112,7 +112,7 @@ def test_global_solve_places_every_frame_within_its_gps_error_and_drops_planted_
 
 def test_frames_in_no_pair_are_placed_by_their_position_and_heading():
     rng = np.random.default_rng(1)
-    Gs, pos, track = _lawnmower()  # noqa: N806
+    Gs, pos, track = _lawnmower()
     wh = np.tile(_footprint_wh(60.0), (len(pos), 1))
     lonely = {5, 25}  # textureless: no pair registers
     pairs = [p for p in (_pair(Gs, i, j, rng) for i, j, _ in predicted_pairs(pos, wh, min_overlap=0.2)
@@ -120,7 +120,7 @@ def test_frames_in_no_pair_are_placed_by_their_position_and_heading():
     sol = solve_survey(len(pos), pairs, _priors(pos, track, rng))
     assert [sol.placed_by[k] for k in sorted(lonely)] == ['pose', 'pose']
     for k in lonely:
-        G = sol.ground_H_frame[k]  # noqa: N806
+        G = sol.ground_H_frame[k]
         assert np.hypot(G[0, 2] - pos[k, 0], G[1, 2] - pos[k, 1]) < 3 * 2.5 * math.sqrt(2)
         angle = math.atan2(G[1, 0], G[0, 0])
         true = math.atan2(Gs[k][1, 0], Gs[k][0, 0])
@@ -129,7 +129,7 @@ def test_frames_in_no_pair_are_placed_by_their_position_and_heading():
 
 def test_scale_and_gps_consistency_checks():
     rng = np.random.default_rng(2)
-    Gs, pos, _ = _lawnmower()  # noqa: N806
+    Gs, pos, _ = _lawnmower()
     pairs = [_pair(Gs, i, i + 1, rng) for i in range(9)] + [_pair(Gs, 3, 4, rng, wrong=True)]
     scale = estimate_scale(pairs, pos, min_baseline_m=5.0)
     assert scale == pytest.approx(60.0, rel=0.05)
@@ -139,7 +139,7 @@ def test_scale_and_gps_consistency_checks():
 
 def test_without_any_position_the_largest_component_is_solved_on_its_own_plane():
     rng = np.random.default_rng(4)
-    Gs, pos, _ = _lawnmower(lines=2)  # noqa: N806
+    Gs, pos, _ = _lawnmower(lines=2)
     wh = np.tile(_footprint_wh(60.0), (len(pos), 1))
     pairs = [p for p in (_pair(Gs, i, j, rng) for i, j, _ in predicted_pairs(pos, wh)) if p is not None]
     pri = SurveyPriors(np.full_like(pos, np.nan), np.full(len(pos), np.nan), 1.0, None)
@@ -166,9 +166,9 @@ def test_attitude_ground_H_of_a_nadir_camera_and_of_a_tilted_one():
     """Nadir, image top to the north: the reflected similarity of scale = height; tilted 10 deg
     forward, the principal ray still meets the ground at the given centre and the image top
     stretches away (a projective term)."""
-    G = attitude_ground_H(R_enu_from_cam_aviation(0.0, -90.0, 0.0), np.array([5.0, 7.0]), 60.0)  # noqa: N806
+    G = attitude_ground_H(R_enu_from_cam_aviation(0.0, -90.0, 0.0), np.array([5.0, 7.0]), 60.0)
     assert np.allclose(G, _ground_H(5.0, 7.0, 60.0, 0.0), atol=1e-9)
-    G = attitude_ground_H(R_enu_from_cam_aviation(0.0, -80.0, 0.0), np.array([5.0, 7.0]), 60.0)  # noqa: N806
+    G = attitude_ground_H(R_enu_from_cam_aviation(0.0, -80.0, 0.0), np.array([5.0, 7.0]), 60.0)
     c = G @ [0.0, 0.0, 1.0]
     assert np.allclose(c[:2] / c[2], [5.0, 7.0])
     top, bottom = G @ [0.0, -0.4, 1.0], G @ [0.0, 0.4, 1.0]

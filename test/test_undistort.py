@@ -70,9 +70,9 @@ def test_a_barrel_lens_flight_registers_like_a_pinhole_one() -> None:
     frames = [Frame(f.stamp_ns, cv2.remap(f.image, src[..., 0], src[..., 1], cv2.INTER_CUBIC), lens)
               for f in flight.frames]
     pinhole, _, _ = pinhole_of(lens)
-    A = pinhole.K @ np.linalg.inv(big.K)  # noqa: N806 - pinhole pixels -> undistorted pixels
+    A = pinhole.K @ np.linalg.inv(big.K)  # pinhole pixels -> undistorted pixels
     # distorted frames, read as if pinhole: the best a homography can do is the lens's own pinhole
-    B = lens.K @ np.linalg.inv(big.K)  # noqa: N806
+    B = lens.K @ np.linalg.inv(big.K)
 
     def errors(undistort: bool) -> list[float]:
         pipe = Pipeline(dataclasses.replace(pipeline_config(), undistort=undistort, georef_enabled=False))

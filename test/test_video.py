@@ -61,7 +61,7 @@ def test_overlap_selection_keeps_overlap_near_threshold(flight_video):
     # True overlap between successive selected frames, from the ground truth (translation part).
     truth = {f.stamp_ns - flight.truth.frames[0].stamp_ns: f for f in flight.truth.frames}
     for a, b in zip(frames, frames[1:]):
-        H = np.linalg.inv(truth[a.stamp_ns].world_px_H_frame) @ truth[b.stamp_ns].world_px_H_frame  # noqa: N806
+        H = np.linalg.inv(truth[a.stamp_ns].world_px_H_frame) @ truth[b.stamp_ns].world_px_H_frame
         c = H @ np.array([159.5, 119.5, 1.0])
         dx, dy = np.abs(c[:2] / c[2] - (159.5, 119.5))
         overlap = max(0, 320 - dx) * max(0, 240 - dy) / (320 * 240)

@@ -24,7 +24,7 @@ def _clock(ns: int) -> str:
 
 
 @pytest.fixture(scope='module')
-def dji_video(tmp_path_factory) -> Path:  # noqa: ANN001
+def dji_video(tmp_path_factory) -> Path:
     flight = simulate(SimConfig(width=320, height=240, world_gsd_m=0.3, trajectory='line', frames=24, rate_hz=4.0,
                                 fix_rate_hz=4.0, gust_deg=0.3, seed=5))  # a gimbal holds the camera nadir
     root = tmp_path_factory.mktemp('dji')

@@ -10,15 +10,15 @@ import numpy as np
 __all__ = ['apply_homography', 'corner_shift_px', 'project_points']
 
 
-def project_points(H: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # noqa: N803
+def project_points(H: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """((..., 2) mapped points, (...,) homogeneous w) of points (..., 2); w <= 0 means the point
     maps through the horizon (behind the camera, for a ground homography)."""
-    H = np.asarray(H, dtype=np.float64)  # noqa: N806
+    H = np.asarray(H, dtype=np.float64)
     hom = np.asarray(pts, dtype=np.float64) @ H[:, :2].T + H[:, 2]
     return hom[..., :2] / hom[..., 2:3], hom[..., 2]
 
 
-def apply_homography(H: np.ndarray, pts: np.ndarray) -> np.ndarray:  # noqa: N803
+def apply_homography(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
     """Points (..., 2) mapped by the homography H (3, 3); returns (..., 2) float64."""
     return project_points(H, pts)[0]
 

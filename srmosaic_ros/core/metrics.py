@@ -12,15 +12,15 @@ from .registration.validity import frame_corners
 __all__ = ['apply_homography', 'corner_error_px', 'mosaic_corner_errors']
 
 
-def corner_error_px(H_est: np.ndarray, H_true: np.ndarray, width: int, height: int) -> float:  # noqa: N803
+def corner_error_px(H_est: np.ndarray, H_true: np.ndarray, width: int, height: int) -> float:
     """Mean distance (px, in the target image) between the frame corners mapped by both homographies."""
     c = frame_corners(width, height)
     return float(np.linalg.norm(apply_homography(H_est, c) - apply_homography(H_true, c), axis=1).mean())
 
 
 def mosaic_corner_errors(
-    mosaic_H_frames: Sequence[np.ndarray],  # noqa: N803
-    world_H_frames: Sequence[np.ndarray],  # noqa: N803
+    mosaic_H_frames: Sequence[np.ndarray],
+    world_H_frames: Sequence[np.ndarray],
     width: int,
     height: int,
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -36,7 +36,7 @@ def mosaic_corner_errors(
     c = frame_corners(width, height)
     est = np.concatenate([apply_homography(H, c) for H in mosaic_H_frames])
     world = np.concatenate([apply_homography(H, c) for H in world_H_frames])
-    mosaic_H_world, _ = cv2.findHomography(world, est, 0)  # noqa: N806
+    mosaic_H_world, _ = cv2.findHomography(world, est, 0)
     if mosaic_H_world is None:
         msg = 'could not fit the mosaic plane to the ground truth (degenerate corners)'
         raise ValueError(msg)

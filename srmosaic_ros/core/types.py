@@ -33,7 +33,7 @@ class CameraIntrinsics:
     distortion: tuple[float, ...] = ()
 
     @property
-    def K(self) -> np.ndarray:  # noqa: N802 - the usual name of the matrix
+    def K(self) -> np.ndarray:  # the usual name of the matrix
         """(3, 3) float64 camera matrix."""
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
 
@@ -103,7 +103,7 @@ class CameraAttitude:
     """
 
     stamp_ns: int
-    R_enu_from_cam: np.ndarray  # noqa: N815 - the frames are in the name
+    R_enu_from_cam: np.ndarray  # the frames are in the name
     sigma_rad: float = float('nan')
 
 

@@ -50,13 +50,13 @@ def pinhole_of(camera: CameraIntrinsics) -> tuple[CameraIntrinsics, np.ndarray, 
     """(the pinhole camera of the undistorted image, remap tables map_x, map_y (H, W) float32)."""
     _check(camera)
     size = (camera.width, camera.height)
-    K = camera.K  # noqa: N806
-    D = np.asarray(camera.distortion, dtype=np.float64)  # noqa: N806
+    K = camera.K
+    D = np.asarray(camera.distortion, dtype=np.float64)
     if camera.distortion_model == 'equidistant':
-        K_new = cv2.fisheye.estimateNewCameraMatrixForUndistortRectify(K, D, size, np.eye(3), balance=0.0)  # noqa: N806
+        K_new = cv2.fisheye.estimateNewCameraMatrixForUndistortRectify(K, D, size, np.eye(3), balance=0.0)
         map_x, map_y = cv2.fisheye.initUndistortRectifyMap(K, D, np.eye(3), K_new, size, cv2.CV_32FC1)
     else:
-        K_new, _ = cv2.getOptimalNewCameraMatrix(K, D, size, 0.0, size)  # noqa: N806 - alpha 0: all pixels valid
+        K_new, _ = cv2.getOptimalNewCameraMatrix(K, D, size, 0.0, size)  # alpha 0: all pixels valid
         map_x, map_y = cv2.initUndistortRectifyMap(K, D, None, K_new, size, cv2.CV_32FC1)
     pinhole = CameraIntrinsics(camera.width, camera.height, float(K_new[0, 0]), float(K_new[1, 1]),
                                float(K_new[0, 2]), float(K_new[1, 2]))

@@ -69,7 +69,7 @@ def _storage_id(path: Path) -> str | None:
     if path.is_file():
         return _SUFFIX_STORAGE.get(path.suffix)
     try:
-        import yaml  # noqa: PLC0415
+        import yaml
 
         meta = yaml.safe_load((path / 'metadata.yaml').read_text())
         storage = meta['rosbag2_bagfile_information']['storage_identifier']
@@ -173,12 +173,12 @@ class _Metadata:
 
 def _read_metadata(path: Path) -> _Metadata:
     """metadata.yaml of the bag folder ``path``, checked, or BagError."""
-    import yaml  # noqa: PLC0415
+    import yaml
 
     where = f'Cannot open bag {str(path)!r}'
     loader = getattr(yaml, 'CSafeLoader', yaml.SafeLoader)  # libyaml's parser where built in
     try:
-        doc = yaml.load((path / 'metadata.yaml').read_text(), Loader=loader)  # noqa: S506 - a safe loader
+        doc = yaml.load((path / 'metadata.yaml').read_text(), Loader=loader)  # a safe loader
     except OSError as exc:
         msg = f'{where}: cannot read its metadata.yaml ({_describe(exc)}); check its permissions.'
         raise BagError(msg) from exc
@@ -272,11 +272,11 @@ def _check_metadata(path: Path, meta: _Metadata) -> None:
         raise BagError(msg)
 
 
-def _zstd() -> Any:  # noqa: ANN401 - the module itself
+def _zstd() -> Any:  # the module itself
     try:
-        from compression import zstd  # type: ignore[import-not-found]  # noqa: PLC0415
+        from compression import zstd  # type: ignore[import-not-found]
     except ImportError:
-        from backports import zstd  # type: ignore[no-redef]  # noqa: PLC0415
+        from backports import zstd  # type: ignore[no-redef]
     return zstd
 
 
@@ -370,8 +370,8 @@ class _Bag:
         return target
 
     def _open_file(self, path: Path, name: str) -> None:
-        from rosbags.rosbag1 import Reader as Reader1  # noqa: PLC0415
-        from rosbags.rosbag2 import Reader as Reader2  # noqa: PLC0415
+        from rosbags.rosbag1 import Reader as Reader1
+        from rosbags.rosbag2 import Reader as Reader2
 
         expected = {'sqlite3': '.db3', 'mcap': '.mcap', 'rosbag1': '.bag'}[self.storage]
         if path.suffix != expected:
@@ -461,8 +461,8 @@ class _Bag:
 
     def _compare_with_metadata(self) -> None:
         """Warnings where metadata.yaml and the storage files disagree, and ``missing``."""
-        from rosbags.interfaces import ConnectionExtRosbag2  # noqa: PLC0415
-        from rosbags.rosbag2.metadata import parse_qos  # noqa: PLC0415
+        from rosbags.interfaces import ConnectionExtRosbag2
+        from rosbags.rosbag2.metadata import parse_qos
 
         assert self.meta is not None
         where = f'Bag {str(self.path)!r}'
@@ -518,7 +518,7 @@ class _Bag:
     # -- types --------------------------------------------------------------------------------
 
     def _default_store(self) -> Typestore:
-        from rosbags.typesys import Stores, get_typestore  # noqa: PLC0415
+        from rosbags.typesys import Stores, get_typestore
 
         if self._default is None:
             self._default = get_typestore(
@@ -533,7 +533,7 @@ class _Bag:
         one gets a typestore of its own); without a usable definition, ROS 2 Jazzy's (ROS 1
         Noetic's) type is used, and where a definition failed that is noted in ``type_notes``.
         """
-        from rosbags.interfaces import MessageDefinitionFormat  # noqa: PLC0415
+        from rosbags.interfaces import MessageDefinitionFormat
 
         problems: dict[str, str] = {}
         failed: dict[str, str] = {}
@@ -573,7 +573,7 @@ class _Bag:
 
     def _register(self, types: dict[str, Any], msgtype: str) -> Typestore:
         """A store holding ``types``: the bag's shared one, or a store of their own on a conflict."""
-        from rosbags.typesys import Stores, get_typestore  # noqa: PLC0415
+        from rosbags.typesys import Stores, get_typestore
 
         if msgtype not in types:
             msg = f'the definition does not define {msgtype}'
@@ -588,7 +588,7 @@ class _Bag:
             return own
         return self._shared
 
-    def deserialize(self, raw: bytes, msgtype: str) -> Any:  # noqa: ANN401
+    def deserialize(self, raw: bytes, msgtype: str) -> Any:
         store = self._stores[msgtype]
         if self.storage == 'rosbag1':
             return store.deserialize_ros1(raw, msgtype)
@@ -601,7 +601,7 @@ class _Bag:
         frame_id) only when its typestore holds ROS 2's Header, so the conversion types are the
         bag's with ROS 2 Jazzy's Header (and builtin_interfaces/Time) in its place.
         """
-        from rosbags.typesys import Stores, get_typestore  # noqa: PLC0415
+        from rosbags.typesys import Stores, get_typestore
 
         connections = list(connections)
         problems = self.prepare_types(connections)
@@ -674,8 +674,8 @@ class _Bag:
 
 def _parse_definition(connection: Connection) -> dict[str, Any]:
     """Types of a connection's own message definition (as rosbags' AnyReader parses them)."""
-    from rosbags.interfaces import MessageDefinitionFormat  # noqa: PLC0415
-    from rosbags.typesys import get_types_from_idl, get_types_from_msg  # noqa: PLC0415
+    from rosbags.interfaces import MessageDefinitionFormat
+    from rosbags.typesys import get_types_from_idl, get_types_from_msg
 
     data = connection.msgdef.data
     if connection.msgdef.format == MessageDefinitionFormat.MSG:

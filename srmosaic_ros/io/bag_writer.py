@@ -22,7 +22,7 @@ __all__ = ['BagWriter']
 # Writing
 
 
-def _rclpy_msgtype(msg: Any) -> str | None:  # noqa: ANN401
+def _rclpy_msgtype(msg: Any) -> str | None:
     """'pkg/msg/Name' of an rclpy message instance, else None."""
     cls = type(msg)
     parts = cls.__module__.split('.')
@@ -47,7 +47,7 @@ class BagWriter:
     def __init__(
         self, path: str | Path, *, storage: str = 'sqlite3', overwrite: bool = False
     ) -> None:
-        from rosbags.rosbag2 import StoragePlugin  # noqa: PLC0415
+        from rosbags.rosbag2 import StoragePlugin
 
         self.path = Path(path)
         plugins = {'sqlite3': StoragePlugin.SQLITE3, 'mcap': StoragePlugin.MCAP}
@@ -68,9 +68,9 @@ class BagWriter:
         self.counts: dict[str, int] = {}
 
     def open(self) -> None:
-        from rosbags.rosbag2 import Writer  # noqa: PLC0415
+        from rosbags.rosbag2 import Writer
 
-        from msg_adapters._flavor import rosbags_typestore  # noqa: PLC0415
+        from msg_adapters._flavor import rosbags_typestore
 
         if self._writer is not None:
             msg = f'BagWriter on {str(self.path)!r} is already open.'
@@ -100,14 +100,14 @@ class BagWriter:
         self._typestore = rosbags_typestore()
         self._writer = writer
 
-    def _serialize(self, topic: str, msg: Any) -> tuple[str, bytes]:  # noqa: ANN401
+    def _serialize(self, topic: str, msg: Any) -> tuple[str, bytes]:
         msgtype = getattr(msg, '__msgtype__', None)
         try:
             if isinstance(msgtype, str):
                 return msgtype, bytes(self._typestore.serialize_cdr(msg, msgtype))
             msgtype = _rclpy_msgtype(msg)
             if msgtype is not None:
-                from rclpy.serialization import serialize_message  # noqa: PLC0415
+                from rclpy.serialization import serialize_message
 
                 return msgtype, serialize_message(msg)
         except Exception as exc:
@@ -122,7 +122,7 @@ class BagWriter:
         )
         raise BagError(text)
 
-    def write(self, topic: str, msg: Any, stamp_ns: int) -> None:  # noqa: ANN401
+    def write(self, topic: str, msg: Any, stamp_ns: int) -> None:
         """Append ``msg`` to ``topic`` with log time ``stamp_ns`` (integer nanoseconds)."""
         if self._writer is None:
             text = f'BagWriter on {str(self.path)!r} is not open; use it as a context manager.'

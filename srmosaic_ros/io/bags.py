@@ -352,7 +352,7 @@ class FlightReader:
 
     def _deserialize(
         self, bag: _Bag, connection: Connection, raw: bytes
-    ) -> Any | None:  # noqa: ANN401
+    ) -> Any | None:
         try:
             return bag.deserialize(raw, connection.msgtype)
         except Exception as exc:  # noqa: BLE001 - one bad message must not stop the flight
@@ -360,7 +360,7 @@ class FlightReader:
             self._skip(connection.topic, reason)
             return None
 
-    def _camera_for(self, topic: str, camera: CameraIntrinsics | None, image: Any) -> CameraIntrinsics | None:  # noqa: ANN401
+    def _camera_for(self, topic: str, camera: CameraIntrinsics | None, image: Any) -> CameraIntrinsics | None:
         """``camera`` for ``image`` (H, W[, C]): scaled when the CameraInfo is of another size of the
         same aspect ratio (said once per pair of sizes); MessageError when the aspect differs."""
         if camera is None or image.size == 0:

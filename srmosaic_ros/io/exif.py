@@ -40,7 +40,7 @@ from __future__ import annotations
 import calendar
 import math
 import re
-import xml.etree.ElementTree as ET  # noqa: N817 - the usual alias
+import xml.etree.ElementTree as ET  # the usual alias
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
@@ -312,7 +312,7 @@ def _parse_datetime_s(text: str) -> int | None:
     if not m:
         return None
     try:
-        dt = datetime(*(int(g) for g in m.groups()))  # noqa: DTZ001 - naive on purpose, see callers
+        dt = datetime(*(int(g) for g in m.groups()))  # naive on purpose, see callers
     except ValueError:
         return None  # '0000:00:00 00:00:00', month 13...
     return calendar.timegm(dt.timetuple())
@@ -383,7 +383,7 @@ def _gps_stamp(gps: dict) -> int | None:
     if not m or any(p is None or p < 0 for p in parts):
         return None
     try:
-        day_s = calendar.timegm(datetime(int(m[1]), int(m[2]), int(m[3])).timetuple())  # noqa: DTZ001
+        day_s = calendar.timegm(datetime(int(m[1]), int(m[2]), int(m[3])).timetuple())
     except ValueError:
         return None
     h, mi, s = parts

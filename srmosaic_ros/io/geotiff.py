@@ -211,7 +211,7 @@ def _gdal_errors(path: str | os.PathLike[str]) -> Iterator[_GdalErrors]:
         logger.setLevel(level)
 
 
-def _write_strips(dst: Any, first: tuple[int, np.ndarray], strips: Iterator[Strip],  # noqa: ANN401
+def _write_strips(dst: Any, first: tuple[int, np.ndarray], strips: Iterator[Strip],
                   height: int, width: int, coverage_given: bool) -> None:
     """Write band strips (count, rows, W) in order; check that they tile rows 0 .. height exactly."""
     from rasterio.windows import Window

@@ -215,7 +215,7 @@ class ImageFolderReader:
         return fixed if abs(fixed - stamp) <= GPS_TAG_MAX_LAG_S * 1e9 else stamp
 
     @staticmethod
-    def _fix_covariance(meta) -> np.ndarray:  # noqa: ANN001
+    def _fix_covariance(meta) -> np.ndarray:
         """ENU covariance (m^2) of a still's GPS tag: a consumer receiver horizontally; vertically the
         same when the XMP's height above take-off vouches for the altitude, else CAMERA_GPS_SIGMA_V_M
         (cameras with their own GPS drift in altitude: the caliterra survey's climbs 114 m while the
@@ -223,7 +223,7 @@ class ImageFolderReader:
         sigma_v = STILLS_GPS_SIGMA_H_M * 2.0 if math.isfinite(meta.relative_altitude_m) else CAMERA_GPS_SIGMA_V_M
         return np.diag([STILLS_GPS_SIGMA_H_M**2, STILLS_GPS_SIGMA_H_M**2, sigma_v**2])
 
-    def camera(self, meta, width: int, height: int) -> CameraIntrinsics | None:  # noqa: ANN001
+    def camera(self, meta, width: int, height: int) -> CameraIntrinsics | None:
         """The still's intrinsics from its EXIF, for the image as decoded (None when unknown)."""
         from .exif import intrinsics_from_metadata
 

@@ -193,14 +193,14 @@ def split_klv(data: bytes) -> list[tuple[bytes, bytes]]:
 # MISB ST0601 UAS Datalink Local Set
 
 
-def _map_unsigned(lo: float, hi: float):  # noqa: ANN202
+def _map_unsigned(lo: float, hi: float):
     """ST0601 fixed mapping of an unsigned integer onto [lo, hi]: lo + v * (hi - lo) / (2^n - 1)."""
     def convert(raw: bytes) -> float:
         return lo + int.from_bytes(raw, 'big') * (hi - lo) / float((1 << (8 * len(raw))) - 1)
     return convert
 
 
-def _map_signed(half: float):  # noqa: ANN202
+def _map_signed(half: float):
     """ST0601 fixed mapping of a signed integer onto [-half, half]: v * 2 half / (2^n - 2).
 
     The most negative value (0x80.., "out of range", "error" or "N/A off-earth") becomes NaN.
@@ -469,7 +469,7 @@ def decode_eg0104(value: bytes) -> dict:
 # Demultiplexing
 
 
-def _find_klv_stream(container):  # noqa: ANN001, ANN202
+def _find_klv_stream(container):
     """The KLV data stream and whether FFmpeg labelled it, or (None, False)."""
     data_streams = list(container.streams.data)
     for stream in data_streams:
@@ -578,7 +578,7 @@ class _TrackBuilder:
         self.track.records.append(KlvRecord(pts_ns, 'EG0104', fields, None))
 
 
-def _open(path: Path):  # noqa: ANN202
+def _open(path: Path):
     import av
 
     try:
@@ -589,7 +589,7 @@ def _open(path: Path):  # noqa: ANN202
         raise MetadataError(msg) from None
 
 
-def _read_stream(path: Path, container, stream, builder: _TrackBuilder) -> int:  # noqa: ANN001
+def _read_stream(path: Path, container, stream, builder: _TrackBuilder) -> int:
     """Demultiplex the KLV stream into the builder; returns how many packets carried a PTS."""
     import av
 

@@ -111,7 +111,7 @@ def klv_camera_attitude(fields: dict[str, Any], *, ground_altitude_m: float = fl
     azimuth by 1.47 deg, the UTM grid convergence there). Otherwise the angles as sent.
     """
     f = fields
-    R = _klv_angles_attitude(f)  # noqa: N806
+    R = _klv_angles_attitude(f)
     names = ('sensor_latitude_deg', 'sensor_longitude_deg', 'sensor_altitude_m',
              'frame_center_latitude_deg', 'frame_center_longitude_deg')
     vals = [f.get(n) for n in names]
@@ -153,7 +153,7 @@ class KlvVideoSource:
     Wraps a VideoReader (``frame_count``, ``skipped`` and the video attributes pass through).
     """
 
-    def __init__(self, reader: Any, track: Any, *, use_fov: bool = True) -> None:  # noqa: ANN401
+    def __init__(self, reader: Any, track: Any, *, use_fov: bool = True) -> None:
         self.reader = reader
         self.track = track
         self.use_fov = use_fov and reader.camera is None
@@ -177,14 +177,14 @@ class KlvVideoSource:
         for rec in self._recs[:1]:
             klv_ground_hint(rec.fields, self.summary)
 
-    def __getattr__(self, name: str) -> Any:  # noqa: ANN401 - the reader's counters and video attributes
+    def __getattr__(self, name: str) -> Any:  # the reader's counters and video attributes
         return getattr(self.__dict__['reader'], name)
 
     @property
     def frame_count(self) -> int | None:
         return self.reader.frame_count
 
-    def _record_for(self, stamp_ns: int) -> Any:  # noqa: ANN401
+    def _record_for(self, stamp_ns: int) -> Any:
         if not self._pts:
             return None
         i = bisect.bisect_left(self._pts, stamp_ns)
@@ -231,7 +231,7 @@ def klv_items(fields: dict[str, Any], stamp_ns: int, summary: MetadataSummary, *
         summary.use('sensor position')
     else:
         summary.problem('klv_no_position', 'a KLV packet lacks the sensor latitude, longitude or altitude')
-    R = klv_camera_attitude(f, ground_altitude_m=ground_altitude_m)  # noqa: N806
+    R = klv_camera_attitude(f, ground_altitude_m=ground_altitude_m)
     if R is not None:
         out.append(CameraAttitude(stamp_ns, R, math.radians(RECORDED_ATTITUDE_SIGMA_DEG)))
         summary.frames_with_attitude += 1
@@ -251,7 +251,7 @@ def klv_ground_hint(fields: dict[str, Any], summary: MetadataSummary) -> None:
         return
     f = fields
     alt, elev, slant = f.get('sensor_altitude_m'), f.get('frame_center_elevation_m'), f.get('slant_range_m')
-    R = _klv_angles_attitude(f)  # noqa: N806
+    R = _klv_angles_attitude(f)
     if _finite(elev) and _finite(alt):
         # the ground plane at the frame centre, in the sensor altitude's datum (MSL)
         summary.use('frame centre elevation')
@@ -268,7 +268,7 @@ def klv_ground_hint(fields: dict[str, Any], summary: MetadataSummary) -> None:
 
 
 # -- DJI SRT ------------------------------------------------------------------------------------
-def srt_items(track: Any, summary: MetadataSummary) -> list[GeoFix | CameraAttitude]:  # noqa: ANN401
+def srt_items(track: Any, summary: MetadataSummary) -> list[GeoFix | CameraAttitude]:
     """Fixes (and gimbal attitudes when the SRT has them) of a DJI SRT track, on the video's clock."""
     out: list[GeoFix | CameraAttitude] = []
     summary.source = f'DJI SRT ({track.format})'
@@ -311,7 +311,7 @@ GPMF_UERE_M = 2.5
 GPMF_MAX_DOP = 5.0
 
 
-def gpmf_items(track: Any, summary: MetadataSummary) -> list[GeoFix]:  # noqa: ANN401
+def gpmf_items(track: Any, summary: MetadataSummary) -> list[GeoFix]:
     """Fixes of a GoPro GPMF track (3D fixes with a usable DOP), with their DOP as covariance."""
     summary.source = f'GoPro GPMF ({track.device or "unknown camera"})'
     for kind, n in track.skipped.items():

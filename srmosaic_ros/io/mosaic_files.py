@@ -94,7 +94,7 @@ def write_frames_csv(path: str | os.PathLike[str], rows: Iterable[dict[str, Any]
         writer = csv.writer(handle)
         writer.writerow([*FRAMES_CSV_HEADER, *FRAMES_CSV_META, FRAMES_CSV_PLACED_BY])
         for row in rows:
-            H = row.get('mosaic_H_frame')  # noqa: N806
+            H = row.get('mosaic_H_frame')
             h = [float('nan')] * 9 if H is None else [float(v) for v in np.asarray(H, dtype=np.float64).ravel()]
             rms = row.get('rms_px', float('nan'))
             meta = row.get('meta_latlon') or (float('nan'), float('nan'))
@@ -114,7 +114,7 @@ def read_frames_csv(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
             raise InputError(msg)
         for rec in reader:
             try:  # a row cut short has None (missing fields) or a cut number
-                H = np.array([float(rec[f'h{r}{c}']) for r in range(3) for c in range(3)]).reshape(3, 3)  # noqa: N806
+                H = np.array([float(rec[f'h{r}{c}']) for r in range(3) for c in range(3)]).reshape(3, 3)
                 rows.append({'stamp_ns': int(rec['stamp_ns']), 'ok': rec['ok'] == '1', 'inliers': int(rec['inliers']),
                              'rms_px': float(rec['rms_px']), 'mosaic_H_frame': H,
                              'placed_by': rec.get(FRAMES_CSV_PLACED_BY) or ('registration' if rec['ok'] == '1'

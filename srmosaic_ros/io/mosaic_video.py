@@ -29,7 +29,7 @@ class MosaicVideoRecorder:
         self.frame_scale = frame_scale
         self._items: list[tuple[int, np.ndarray, np.ndarray, tuple[int, int]]] = []
 
-    def add(self, segment: int, image01: np.ndarray, seg_H_frame: np.ndarray) -> None:  # noqa: N803
+    def add(self, segment: int, image01: np.ndarray, seg_H_frame: np.ndarray) -> None:
         """Keep frame (float32 (H, W, C) in [0, 1]) painted into `segment` at seg_H_frame."""
         s = self.frame_scale
         h, w = image01.shape[:2]
@@ -37,7 +37,7 @@ class MosaicVideoRecorder:
         if small.ndim == 2:
             small = small[:, :, None]
         # small pixel p -> full frame pixel (p + 0.5) / s - 0.5 (pixel centres at integers)
-        frame_H_small = np.array([[1 / s, 0, 0.5 / s - 0.5], [0, 1 / s, 0.5 / s - 0.5], [0, 0, 1]])  # noqa: N806
+        frame_H_small = np.array([[1 / s, 0, 0.5 / s - 0.5], [0, 1 / s, 0.5 / s - 0.5], [0, 0, 1]])
         self._items.append((segment, small, seg_H_frame @ frame_H_small, (w, h)))
 
     def write(self, path: Path, segment: int, bounds: tuple[int, int, int, int], *, fps: float = 10.0,
@@ -47,7 +47,7 @@ class MosaicVideoRecorder:
         side = max(x1 - x0, y1 - y0, 1)
         s = min(1.0, max_side / side)
         # video pixel = s * (segment pixel - origin): pixel-centre convention as above
-        video_H_seg = np.array([[s, 0, -s * x0 + 0.5 * s - 0.5], [0, s, -s * y0 + 0.5 * s - 0.5], [0, 0, 1]])  # noqa: N806
+        video_H_seg = np.array([[s, 0, -s * x0 + 0.5 * s - 0.5], [0, s, -s * y0 + 0.5 * s - 0.5], [0, 0, 1]])
         width, height = max(2, int(np.ceil((x1 - x0) * s))), max(2, int(np.ceil((y1 - y0) * s)))
         items = [it for it in self._items if it[0] == segment]
         if not items:
@@ -55,7 +55,7 @@ class MosaicVideoRecorder:
         canvas = TiledCanvas(items[0][1].shape[2], tile_size=256)
 
         def frames():
-            for _, small, seg_H_small, (w, h) in items:  # noqa: N806
+            for _, small, seg_H_small, (w, h) in items:
                 canvas.paint(small, video_H_seg @ seg_H_small)
                 image, covered = canvas.render((0, 0, width, height))
                 if image.ndim == 2:

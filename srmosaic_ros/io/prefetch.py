@@ -33,7 +33,7 @@ def prefetched(items: Iterable[Any], depth: int = 8) -> Iterator[Any]:
     q: queue.Queue[Any] = queue.Queue(maxsize=depth)
     stop = threading.Event()
 
-    def put(value: Any) -> bool:  # noqa: ANN401
+    def put(value: Any) -> bool:
         while not stop.is_set():
             try:
                 q.put(value, timeout=0.1)

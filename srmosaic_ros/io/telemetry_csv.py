@@ -26,7 +26,7 @@ def read_telemetry_csv(path: str | Path) -> list[GeoFix | ImuSample]:
     """Fixes and IMU orientations of a sidecar, in time order (InputError naming the row when bad)."""
     path = Path(path)
     try:
-        handle = open(path, newline='')  # noqa: SIM115
+        handle = open(path, newline='')
     except FileNotFoundError:
         msg = f'--telemetry {path} does not exist.'
         raise InputError(msg) from None
@@ -47,7 +47,7 @@ def read_telemetry_csv(path: str | Path) -> list[GeoFix | ImuSample]:
                 continue  # a gap in the log: no sample, not a crash
             stamp = round(vals['time_s'] * 1e9)
             out.append(GeoFix(stamp, vals['latitude'], vals['longitude'], vals['altitude'], status=0))
-            R = R_enu_from_body(*np.radians([vals['roll'], vals['pitch'], vals['yaw']]))  # noqa: N806
+            R = R_enu_from_body(*np.radians([vals['roll'], vals['pitch'], vals['yaw']]))
             # a flight log has no rates: NaN (not provided), never zeros (a gyro saying "no rotation")
             out.append(ImuSample(stamp, quat_xyzw_from_matrix(R), np.full(3, np.nan), np.full(3, np.nan)))
     out.sort(key=lambda item: item.stamp_ns)

@@ -177,7 +177,7 @@ class VideoReader:
                     self.duration_declared_s = float('nan')
         except VideoError:
             raise
-        except Exception as exc:  # av.error.* : unsupported container or codec, corrupt header
+        except Exception as exc:  # noqa: BLE001 - av.error.*: unsupported container or codec, corrupt header
             msg = (f'cannot open video {str(self.path)!r}: {exc}. The file is corrupt, truncated or uses a codec '
                    'FFmpeg does not decode; re-encode it (e.g. to H.264 MP4) or check the copy.')
             raise VideoError(msg) from None
@@ -247,7 +247,7 @@ class VideoReader:
                     yield Frame(stamp_ns, image, self.camera, 'video')
             except VideoError:
                 raise
-            except Exception as exc:  # av.error.InvalidDataError etc.: damage mid-stream
+            except Exception as exc:  # noqa: BLE001 - av.error.InvalidDataError etc.: damage mid-stream
                 msg = (f'{str(self.path)!r} is damaged: decoding stopped after {self.decoded} frames ({exc}). '
                        'The frames before the damage were processed.')
                 raise VideoError(msg) from None

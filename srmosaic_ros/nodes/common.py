@@ -20,8 +20,9 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from ..errors import SrMosaicError
 
-__all__ = ['TOPICS', 'DIAGNOSTICS_TOPICS', 'REGISTRATION_LAYOUT', 'DiagnosticsPublisher', 'diagnostic_array', 'RegistrationMsg', 'decode_registration', 'encode_registration',
-           'pose_messages', 'PosePublisher', 'frame_ids', 'WarnOnce', 'camera_image', 'subscribe_input', 'input_qos', 'IMAGE_QOS_DEPTH', 'TELEMETRY_QOS_DEPTH', 'check_range']
+__all__ = ['TOPICS', 'DIAGNOSTICS_TOPICS', 'REGISTRATION_LAYOUT', 'DiagnosticsPublisher', 'diagnostic_array', 'RegistrationMsg',
+           'decode_registration', 'encode_registration', 'pose_messages', 'PosePublisher', 'frame_ids', 'WarnOnce', 'camera_image',
+           'subscribe_input', 'input_qos', 'IMAGE_QOS_DEPTH', 'TELEMETRY_QOS_DEPTH', 'check_range']
 
 IMAGE_QOS_DEPTH = 20
 TELEMETRY_QOS_DEPTH = 500
@@ -70,14 +71,14 @@ class RegistrationMsg:
                  'covariance')
 
     def __init__(self, stamp_ns: int, ok: bool, inliers: int, rms_px: float, segment: int,
-                 seg_H_frame: np.ndarray | None, prev_H_cur: np.ndarray | None, reg_ok: bool,  # noqa: N803
+                 seg_H_frame: np.ndarray | None, prev_H_cur: np.ndarray | None, reg_ok: bool,
                  covariance: np.ndarray | None) -> None:
         self.stamp_ns, self.ok, self.inliers, self.rms_px, self.segment = stamp_ns, ok, inliers, rms_px, segment
         self.seg_H_frame, self.prev_H_cur, self.reg_ok, self.covariance = seg_H_frame, prev_H_cur, reg_ok, covariance
 
 
 def encode_registration(stamp_ns: int, painted: bool, inliers: int, rms_px: float, segment: int,
-                        seg_H_frame: np.ndarray | None, prev_H_cur: np.ndarray | None, reg_ok: bool,  # noqa: N803
+                        seg_H_frame: np.ndarray | None, prev_H_cur: np.ndarray | None, reg_ok: bool,
                         covariance: np.ndarray | None) -> Float64MultiArray:
     nan9, nan64 = np.full(9, np.nan), np.full(64, np.nan)
     cov = np.asarray(covariance, dtype=float).ravel() if covariance is not None else nan64
@@ -99,8 +100,8 @@ def decode_registration(msg: Float64MultiArray) -> RegistrationMsg:
         msg_ = (f'/srmosaic/registration message with {d.size} fields (expected >= {_BASE_FIELDS}, see '
                 'REGISTRATION_LAYOUT); publisher and subscriber versions differ?')
         raise SrMosaicError(msg_)
-    seg_H = d[6:15].reshape(3, 3)  # noqa: N806
-    prev_H = d[15:24].reshape(3, 3)  # noqa: N806
+    seg_H = d[6:15].reshape(3, 3)
+    prev_H = d[15:24].reshape(3, 3)
     has_ext = d.size >= len(REGISTRATION_LAYOUT)
     reg_ok = bool(d[24] > 0.5) if has_ext else bool(d[2] > 0.5 and np.all(np.isfinite(prev_H)))
     cov = d[25:89].reshape(8, 8) if has_ext else None
@@ -113,7 +114,7 @@ def decode_registration(msg: Float64MultiArray) -> RegistrationMsg:
         covariance=cov if cov is not None and np.all(np.isfinite(cov)) else None)
 
 
-def pose_messages(stamp_ns: int, pose: Any, map_frame: str = 'srmosaic_enu',  # noqa: ANN401
+def pose_messages(stamp_ns: int, pose: Any, map_frame: str = 'srmosaic_enu',
                   body_frame: str = 'srmosaic') -> tuple[PoseWithCovarianceStamped, NavSatFix, Odometry] | None:
     """(srmosaic/pose, srmosaic/fix, srmosaic/odom) messages of a fused FramePose, or None when it is not valid.
 
@@ -163,7 +164,7 @@ class PosePublisher:
                             node.create_publisher(NavSatFix, TOPICS['fused_fix'], 50),
                             node.create_publisher(Odometry, TOPICS['odom'], 50)]
 
-    def publish(self, stamp_ns: int, pose: Any) -> bool:  # noqa: ANN401
+    def publish(self, stamp_ns: int, pose: Any) -> bool:
         """Publish the pose of the frame at `stamp_ns`; False (nothing sent) when it is not valid."""
         msgs = pose_messages(stamp_ns, pose, *self.frames)
         if msgs is None:
@@ -256,8 +257,8 @@ class StreamOrder:
         return True
 
 
-def subscribe_input(node: Node, msg_type: type, key: str, callback: Any, qos: QoSProfile,  # noqa: ANN401
-                    group: Any) -> Any:  # noqa: ANN401
+def subscribe_input(node: Node, msg_type: type, key: str, callback: Any, qos: QoSProfile,
+                    group: Any) -> Any:
     """A subscription to TOPICS[key] whose history, depth and reliability the standard parameters
     qos_overrides.<resolved topic>.subscription.{history,depth,reliability} override (given at start:
     `-p qos_overrides./uav1/camera/image_raw.subscription.reliability:=reliable`); `qos` is the default."""
@@ -266,7 +267,7 @@ def subscribe_input(node: Node, msg_type: type, key: str, callback: Any, qos: Qo
                                     qos_overriding_options=QoSOverridingOptions.with_default_policies())
 
 
-def camera_image(msg: Any, camera: Any, warn: WarnOnce) -> tuple[np.ndarray, Any] | None:  # noqa: ANN401
+def camera_image(msg: Any, camera: Any, warn: WarnOnce) -> tuple[np.ndarray, Any] | None:
     """A camera Image / CompressedImage as an (H, W, 3) RGB or (H, W) mono uint8/uint16 array, with the
     camera's intrinsics at its size; None (warned once per kind, counted) when it cannot be used.
 
@@ -306,7 +307,7 @@ def input_qos(reliable: bool, depth: int) -> QoSProfile:
                       durability=DurabilityPolicy.VOLATILE)
 
 
-def check_range(node: Node, name: str, lo: float, hi: float) -> Any:  # noqa: ANN401
+def check_range(node: Node, name: str, lo: float, hi: float) -> Any:
     """The value of parameter `name`, refused (SrMosaicError) outside lo..hi."""
     value = node.get_parameter(name).value
     if isinstance(value, bool) or not isinstance(value, int | float) or not lo <= value <= hi:

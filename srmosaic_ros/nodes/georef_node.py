@@ -63,7 +63,7 @@ class GeorefNode(ManagedNode):
     configures and activates itself at start.
     """
 
-    def __init__(self, **kwargs: Any) -> None:  # noqa: ANN401
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__('srmosaic_georef', **kwargs)
         self._defaults = declare_pipeline_parameters(self, GEOREF_PARAMETERS,
                                                      changeable=('live.preview_period_s',))
@@ -111,7 +111,7 @@ class GeorefNode(ManagedNode):
     def _in_order(self, stream: str, stamp_ns: int) -> bool:
         return self._order.accept(stream, stamp_ns)
 
-    def _telemetry(self, kind: str, convert: Any, msg: Any) -> None:  # noqa: ANN401
+    def _telemetry(self, kind: str, convert: Any, msg: Any) -> None:
         if not self.active:
             self.warn.count('inputs_while_inactive')
             return

@@ -206,7 +206,7 @@ def _supervise(commands: list[tuple[str, list[str]]]) -> int:
         print(f"srmosaic launch: starting {label}: {' '.join(cmd[3:])}", file=sys.stderr)
         children.append(subprocess.Popen(cmd))
 
-    def forward(signum: int, frame: Any) -> None:  # noqa: ARG001, ANN401
+    def forward(signum: int, frame: Any) -> None:
         for child in children:
             if child.poll() is None:
                 child.send_signal(signal.SIGINT)

@@ -21,13 +21,13 @@ from ..errors import SrMosaicError
 __all__ = ['ManagedNode', 'autostart', 'configure_with', 'release']
 
 
-def _entities(node: Any) -> list[tuple[Callable[[Any], Any], Any]]:  # noqa: ANN401
+def _entities(node: Any) -> list[tuple[Callable[[Any], Any], Any]]:
     return ([(node.destroy_publisher, e) for e in node.publishers]
             + [(node.destroy_subscription, e) for e in node.subscriptions]
             + [(node.destroy_timer, e) for e in node.timers])
 
 
-def configure_with(node: Any, build: Callable[[], None]) -> TransitionCallbackReturn:  # noqa: ANN401
+def configure_with(node: Any, build: Callable[[], None]) -> TransitionCallbackReturn:
     """Run `build` (on_configure's work); node._entities gets what it created. SUCCESS, or FAILURE
     with the error kept in node.configure_error (and what it had created freed)."""
     before = {id(e) for _, e in _entities(node)}
@@ -49,7 +49,7 @@ def release(items: list[tuple[Callable[[Any], Any], Any]]) -> None:
         destroy(entity)
 
 
-def autostart(node: Any) -> None:  # noqa: ANN401
+def autostart(node: Any) -> None:
     """With live.autostart: configure and activate now; a refused configure raises its error."""
     if not node.get_parameter('live.autostart').value:
         return
@@ -68,7 +68,7 @@ class ManagedNode(LifecycleNode):
     calls :func:`autostart` at the end of its constructor.
     """
 
-    def __init__(self, name: str, **kwargs: Any) -> None:  # noqa: ANN401
+    def __init__(self, name: str, **kwargs: Any) -> None:
         super().__init__(name, **kwargs)
         self.active = False
         self.configured = False

@@ -198,7 +198,7 @@ class MosaicNode(ManagedNode):
         except SrMosaicError as exc:
             self.warn('camera_info', f'camera info skipped: {exc}')
 
-    def _on_telemetry(self, kind: str, convert: Any, msg: Any) -> None:  # noqa: ANN401
+    def _on_telemetry(self, kind: str, convert: Any, msg: Any) -> None:
         """Convert a fix or IMU message, check its time order, queue it for the worker."""
         if not self.active:
             return

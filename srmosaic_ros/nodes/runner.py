@@ -15,7 +15,7 @@ from ..errors import ConfigError, SrMosaicError
 __all__ = ['init_rclpy', 'run_nodes']
 
 
-def init_rclpy(args: list[str] | None, **kwargs: Any) -> None:  # noqa: ANN401
+def init_rclpy(args: list[str] | None, **kwargs: Any) -> None:
     """rclpy.init, with rcl's refusal of the command line (a parameter file it cannot parse, a
     malformed remapping) as a ConfigError of one line rather than an RCLError traceback."""
     from rclpy.impl.implementation_singleton import rclpy_implementation
@@ -35,7 +35,7 @@ class _Stop(BaseException):
     _Stop()' and went on, and the graph never stopped."""
 
 
-def _raise_stop(signum: int, frame: Any) -> None:  # noqa: ARG001, ANN401
+def _raise_stop(signum: int, frame: Any) -> None:
     raise _Stop
 
 

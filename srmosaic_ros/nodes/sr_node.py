@@ -30,8 +30,9 @@ reconstructs up to `live.sr_tiles_per_round` of them (core/sr/reconstruct_tile, 
 publishes them. A published tile is reconstructed and published again (same placement: a consumer
 keeps the latest it received) once it can be made from `live.sr_refresh_growth` times as many
 frames as its last publication (frames that arrived later, a revisit), counted as
-`tiles_refreshed`; tiles never published go first. The node remembers the published tiles of the newest segment only. The executor never waits for a reconstruction; a round that is still running when
-the timer fires is skipped (counted as `rounds_skipped_busy`).
+`tiles_refreshed`; tiles never published go first. The node remembers the published tiles of the
+newest segment only. The executor never waits for a reconstruction; a round that is still running
+when the timer fires is skipped (counted as `rounds_skipped_busy`).
 
 Where the reconstruction runs (`live.sr_worker`): `process` (default) hands each tile to a worker
 process (spawned at start, niceness 10, `live.torch_threads` threads), so that SR in the mosaic
@@ -96,7 +97,7 @@ __all__ = ['SRNode', 'main']
 class SRNode(Node):
     """Live SR stage (see module docstring)."""
 
-    def __init__(self, **kwargs: Any) -> None:  # noqa: ANN401
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__('srmosaic_sr', **kwargs)
         defaults = declare_pipeline_parameters(self, SR_PARAMETERS, changeable=CHANGEABLE)
         self.config = read_pipeline_config(self, defaults)  # ConfigError refuses bad sr / sr_tiles values
@@ -213,7 +214,7 @@ class SRNode(Node):
         pool.submit(sr_worker_ready)  # start it now, not at the first tile
         return pool
 
-    def _reconstruct(self, plan, images, seg_H_frames, segment) -> tuple[np.ndarray, Any, str]:  # noqa: ANN001, N803
+    def _reconstruct(self, plan, images, seg_H_frames, segment) -> tuple[np.ndarray, Any, str]:
         """(tile, placement, stop reason) in the worker process or, with live.sr_worker thread, here."""
         if self._pool is None:
             image, placement, res = reconstruct_live_tile(plan, images, seg_H_frames, self.factor, self.config.sr,

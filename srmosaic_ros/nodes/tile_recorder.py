@@ -43,7 +43,7 @@ __all__ = ['TileRecorderNode', 'main']
 class TileRecorderNode(Node):
     """Writes /srmosaic/sr_tile (and /srmosaic/mosaic_preview) into a folder (module docstring)."""
 
-    def __init__(self, out_dir: str | Path, *, previews: bool = False, **kwargs: Any) -> None:  # noqa: ANN401
+    def __init__(self, out_dir: str | Path, *, previews: bool = False, **kwargs: Any) -> None:
         super().__init__('srmosaic_tile_recorder', **kwargs)
         self.out = Path(out_dir)
         (self.out / 'sr_tiles').mkdir(parents=True, exist_ok=True)

@@ -129,7 +129,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _write_video_and_sidecar(flight: Any, path: Path, gop: int) -> None:  # noqa: ANN401
+def _write_video_and_sidecar(flight: Any, path: Path, gop: int) -> None:
     """H.264 video of the frames (I-frame every `gop`) and its telemetry CSV beside it."""
     import numpy as np
 

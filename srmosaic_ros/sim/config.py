@@ -58,7 +58,9 @@ class SimConfig:
     leg_spacing_m: float = 60.0  # legs step to the right of the first leg's heading
     orbit_radius_m: float = 60.0  # orbit: a counter-clockwise circle about the start point (--start) or the world centre
     laps: float = 1.0  # orbit: how far round it flies (1.25: a quarter of the ground seen again)
-    orbit_look_at: bool = True  # orbit: the camera looks at the circle's centre (gimbal 90 deg left, below the horizon by atan(altitude / radius)), the gimbal options ignored
+    # orbit: the camera looks at the circle's centre (gimbal 90 deg left, below the horizon by
+    # atan(altitude / radius)), the gimbal options ignored
+    orbit_look_at: bool = True
     turn_bank: bool = False  # True: coordinated-turn bank atan(v^2 kappa / g), eased in over 1 s
     gust_deg: float = 2.0  # RMS of each of the roll, pitch, yaw disturbances
     gust_pos_m: float = 1.0  # RMS of the east, north, up position wander
@@ -151,5 +153,5 @@ class SimConfig:
             kwargs['lever_arm_m'] = tuple(kwargs['lever_arm_m'])
         return cls(**kwargs)
 
-    def replace(self, **changes: Any) -> SimConfig:  # noqa: ANN401
+    def replace(self, **changes: Any) -> SimConfig:
         return dataclasses.replace(self, **changes)

@@ -56,7 +56,7 @@ def sensor_intrinsics(config: SimConfig) -> CameraIntrinsics:
 def frame_intrinsics(config: SimConfig) -> CameraIntrinsics:
     """Intrinsics of the published frames: the sensor's, through lr_H_hr of the decimation (no distortion)."""
     hr = sensor_intrinsics(config)
-    K = np.linalg.inv(hr_H_lr(config.decimate)) @ hr.K  # noqa: N806
+    K = np.linalg.inv(hr_H_lr(config.decimate)) @ hr.K
     return CameraIntrinsics(width=config.width // config.decimate, height=config.height // config.decimate,
                             fx=float(K[0, 0]), fy=float(K[1, 1]), cx=float(K[0, 2]), cy=float(K[1, 2]),
                             distortion_model='plumb_bob', distortion=(0.0, 0.0, 0.0, 0.0, 0.0))
@@ -119,8 +119,8 @@ def gimbal_deg(config: SimConfig) -> tuple[float, float]:
     return config.gimbal_azimuth_deg, config.gimbal_elevation_deg
 
 
-def _footprint(config: SimConfig, k: int, world_px_H_hr: np.ndarray, R_enu_from_cam: np.ndarray,  # noqa: N803
-               K_hr: np.ndarray) -> np.ndarray:  # noqa: N803
+def _footprint(config: SimConfig, k: int, world_px_H_hr: np.ndarray, R_enu_from_cam: np.ndarray,
+               K_hr: np.ndarray) -> np.ndarray:
     """World-pixel corners (4, 2) of frame k's footprint; SimulationError if a corner misses the ground."""
     w, h = config.width, config.height
     corners = np.array([[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5], [-0.5, h - 0.5]])
@@ -169,7 +169,7 @@ def simulate(config: SimConfig, *, progress: bool = False) -> SimulatedFlight:
                        origin_lon_deg=config.origin_lon_deg, origin_alt_m=config.origin_alt_m)
     hr = sensor_intrinsics(config)
     cam = frame_intrinsics(config)
-    K_hr = hr.K  # noqa: N806
+    K_hr = hr.K
     hr_from_lr = hr_H_lr(config.decimate)
     traj, n_frames = build_trajectory(config)
     t0 = int(config.start_stamp_ns)
@@ -186,14 +186,14 @@ def simulate(config: SimConfig, *, progress: bool = False) -> SimulatedFlight:
         pose = camera_pose(st.position_enu_m, st.roll_rad, st.pitch_rad, st.yaw_rad,
                            gimbal_azimuth_rad=math.radians(azimuth_deg), gimbal_elevation_rad=math.radians(elevation_deg),
                            lever_arm_body_m=config.lever_arm_m)
-        enu_H_hr = ground_H_image(K_hr, pose.R_enu_from_cam, pose.center_enu_m)  # noqa: N806
-        world_px_H_hr = normalize_H(world.world_px_H_enu @ enu_H_hr)  # noqa: N806
+        enu_H_hr = ground_H_image(K_hr, pose.R_enu_from_cam, pose.center_enu_m)
+        world_px_H_hr = normalize_H(world.world_px_H_enu @ enu_H_hr)
         corners_all.append(_footprint(config, k, world_px_H_hr, pose.R_enu_from_cam, K_hr))
-        enu_H_frame = enu_H_hr @ hr_from_lr  # noqa: N806
-        world_px_H_frame = normalize_H(world.world_px_H_enu @ enu_H_frame)  # noqa: N806
-        prev_H_cur = (None if prev_ground_H is None  # noqa: N806
+        enu_H_frame = enu_H_hr @ hr_from_lr
+        world_px_H_frame = normalize_H(world.world_px_H_enu @ enu_H_frame)
+        prev_H_cur = (None if prev_ground_H is None
                       else normalize_H(np.linalg.inv(prev_ground_H) @ enu_H_frame))
-        prev_ground_H = enu_H_frame  # noqa: N806
+        prev_ground_H = enu_H_frame
         lat, lon, alt = world.origin.geodetic_from_enu(st.position_enu_m)
         truths.append(FrameTruth(
             index=k, stamp_ns=stamp, position_enu_m=st.position_enu_m.copy(), camera_enu_m=pose.center_enu_m.copy(),

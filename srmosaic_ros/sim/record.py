@@ -46,7 +46,7 @@ _Item = tuple[int, int, str, 'Callable[[], Any]']
 
 def _messages(flight: SimulatedFlight, transport: str, jpeg_quality: int) -> list[_Item]:
     """(stamp_ns, tie-break order, topic, builder) of every message, sorted by time."""
-    import msg_adapters as ma  # noqa: PLC0415 - ROS message code only when writing bags
+    import msg_adapters as ma  # ROS message code only when writing bags
 
     flavor = 'rosbags'
     items: list[_Item] = []
@@ -93,7 +93,7 @@ def write_flight(flight: SimulatedFlight, out_dir: str | os.PathLike[str], *, st
             overwrite) or the bag cannot be written.
 
     """
-    from ..io.bags import BagWriter  # noqa: PLC0415 - bag code only when writing bags
+    from ..io.bags import BagWriter  # bag code only when writing bags
 
     if storage not in STORAGES:
         raise ConfigError(f'storage {storage!r} is not supported; use one of {STORAGES} (--storage).')
@@ -206,7 +206,7 @@ def write_drone_stills(flight: SimulatedFlight, folder: str | os.PathLike[str], 
         gps[1], gps[3] = ('N' if fix.latitude_deg >= 0 else 'S'), ('E' if fix.longitude_deg >= 0 else 'W')
         gps[2], gps[4] = _dms(fix.latitude_deg), _dms(fix.longitude_deg)
         gps[5], gps[6] = (0 if fix.altitude_m >= 0 else 1), abs(fix.altitude_m)
-        R = matrix_from_rotvec(rng.normal(0.0, np.radians(gimbal_sigma_deg), 3)) @ truth.R_enu_from_cam  # noqa: N806
+        R = matrix_from_rotvec(rng.normal(0.0, np.radians(gimbal_sigma_deg), 3)) @ truth.R_enu_from_cam
         gyaw, gpitch, groll = aviation_angles_from_R_enu_from_cam(R)
         xmp = _DJI_XMP.format(abs=fix.altitude_m, rel=float(truth.camera_enu_m[2]) + rng.normal(0.0, baro_sigma_m),
                               gyaw=gyaw, gpitch=gpitch, groll=groll, froll=truth.roll_deg, fpitch=-truth.pitch_deg,

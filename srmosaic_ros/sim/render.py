@@ -47,20 +47,20 @@ def frame_blur_px(psf_sigma_px: float, decimate: int = 1) -> float:
     return effective_sigma_px(psf_sigma_px) / int(decimate)
 
 
-def hr_H_lr(decimate: int) -> np.ndarray:  # noqa: N802
+def hr_H_lr(decimate: int) -> np.ndarray:
     """(3, 3) low-resolution (decimated) pixel -> sensor pixel: x_hr = d x_lr + (d - 1) / 2."""
     d = float(decimate)
     o = (d - 1.0) / 2.0
     return np.array([[d, 0.0, o], [0.0, d, o], [0.0, 0.0, 1.0]])
 
 
-def local_scales(world_px_H_img: np.ndarray, pts: np.ndarray) -> np.ndarray:  # noqa: N803
+def local_scales(world_px_H_img: np.ndarray, pts: np.ndarray) -> np.ndarray:
     """Singular values (N, 2) of the Jacobian of the homography at image points (N, 2).
 
     They are the local magnification, world pixels per image pixel, along the two principal
     directions.
     """
-    H = np.asarray(world_px_H_img, dtype=np.float64)  # noqa: N806
+    H = np.asarray(world_px_H_img, dtype=np.float64)
     pts = np.asarray(pts, dtype=np.float64)
     w = pts @ H[2, :2] + H[2, 2]
     xy = (pts @ H[:2, :2].T + H[:2, 2]) / w[:, None]
@@ -112,7 +112,7 @@ def _crop(world: np.ndarray, x: np.ndarray, y: np.ndarray, pad: int) -> tuple[np
     return world[y0:y1, x0:x1], x0, y0
 
 
-def render_frame(world: np.ndarray, world_px_H_hr: np.ndarray, hr_size: tuple[int, int], *,  # noqa: N803
+def render_frame(world: np.ndarray, world_px_H_hr: np.ndarray, hr_size: tuple[int, int], *,
                  decimate: int = 1, psf_sigma_px: float = 0.7, max_supersample: int = 4) -> np.ndarray:
     """Noise-free frame, float32 in 0..255, (h, w, C) for an (H, W, C) world or (h, w) for a mono one.
 
@@ -127,7 +127,7 @@ def render_frame(world: np.ndarray, world_px_H_hr: np.ndarray, hr_size: tuple[in
     Convention: pixel centres at integer coordinates; output pixel (u, v) is the sensor point
     (d u + (d - 1) / 2, d v + (d - 1) / 2) (see :func:`hr_H_lr`).
     """
-    H = np.asarray(world_px_H_hr, dtype=np.float64)  # noqa: N806
+    H = np.asarray(world_px_H_hr, dtype=np.float64)
     w_hr, h_hr = int(hr_size[0]), int(hr_size[1])
     d = int(decimate)
     w_lr, h_lr = w_hr // d, h_hr // d
@@ -183,14 +183,14 @@ def quantize(image: np.ndarray, noise_sigma: float, rng: np.random.Generator | N
     return np.clip(np.rint(img), 0, 255).astype(np.uint8)
 
 
-def reference_render(world: np.ndarray, world_px_H_frame: np.ndarray, size: tuple[int, int],  # noqa: N803
+def reference_render(world: np.ndarray, world_px_H_frame: np.ndarray, size: tuple[int, int],
                      sigma_world_px: float) -> np.ndarray:
     """Check renderer: blur the world by ``sigma_world_px`` then sample it at the frame's pixels.
 
     A different route to the same image for near-uniform scale (blur in the world instead of on the
     sensor; no supersampling): float32 (h, w[, C]) in 0..255. ``size`` is (width, height).
     """
-    H = np.asarray(world_px_H_frame, dtype=np.float64)  # noqa: N806
+    H = np.asarray(world_px_H_frame, dtype=np.float64)
     w, h = int(size[0]), int(size[1])
     gx = np.arange(w, dtype=np.float64)
     gy = np.arange(h, dtype=np.float64)

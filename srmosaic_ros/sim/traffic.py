@@ -103,12 +103,12 @@ def restore_world(world: np.ndarray, saved: Saved) -> None:
         world[by0:by0 + patch.shape[0], bx0:bx0 + patch.shape[1]] = patch
 
 
-def vehicle_mask(vehicles: list[Vehicle], t_s: float, world_px_H_frame: np.ndarray,  # noqa: N803
+def vehicle_mask(vehicles: list[Vehicle], t_s: float, world_px_H_frame: np.ndarray,
                  size: tuple[int, int]) -> np.ndarray:
     """bool (height, width): the frame pixels whose centre lies on a vehicle at ``t_s``; size = (width, height)."""
     w, h = size
     mask = np.zeros((h, w), np.uint8)
-    frame_H_world = np.linalg.inv(world_px_H_frame)  # noqa: N806
+    frame_H_world = np.linalg.inv(world_px_H_frame)
     for v in vehicles:
         p = np.c_[v.polygon(t_s), np.ones(4)] @ frame_H_world.T
         if np.any(p[:, 2] <= 0):

@@ -187,7 +187,7 @@ class BodyState:
     yaw_rad: float
 
     @property
-    def R_enu_from_body(self) -> np.ndarray:  # noqa: N802
+    def R_enu_from_body(self) -> np.ndarray:
         return R_enu_from_body(self.roll_rad, self.pitch_rad, self.yaw_rad)
 
 

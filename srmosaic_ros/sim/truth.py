@@ -56,9 +56,9 @@ class FrameTruth:
     roll_deg: float
     pitch_deg: float
     yaw_deg: float
-    R_enu_from_cam: np.ndarray  # noqa: N815
-    world_px_H_frame: np.ndarray  # noqa: N815
-    prev_H_cur: np.ndarray | None  # noqa: N815
+    R_enu_from_cam: np.ndarray
+    world_px_H_frame: np.ndarray
+    prev_H_cur: np.ndarray | None
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -119,7 +119,7 @@ class Truth:
         return vehicle_mask(self.vehicles, t_s, f.world_px_H_frame, (self.camera.width, self.camera.height))
 
     @property
-    def enu_H_world_px(self) -> np.ndarray:  # noqa: N802
+    def enu_H_world_px(self) -> np.ndarray:
         """(3, 3) world pixel -> ground (east, north) in metres."""
         g = self.world_gsd_m
         cx, cy = (self.world_size_px[0] - 1) / 2.0, (self.world_size_px[1] - 1) / 2.0

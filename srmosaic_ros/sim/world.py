@@ -65,7 +65,7 @@ def ir_from_rgb(rgb: np.ndarray) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=4)
-def _read_image(path: str, mtime_ns: int, mode: str) -> np.ndarray:  # noqa: ARG001 - mtime keys the cache
+def _read_image(path: str, mtime_ns: int, mode: str) -> np.ndarray:  # mtime keys the cache
     bgr = cv2.imread(path, cv2.IMREAD_COLOR)
     if bgr is None:
         msg = f'cannot read world image {path!r} (not an image OpenCV can decode); pass another --world.'
@@ -99,14 +99,14 @@ class World:
         return self.width * self.gsd_m, self.height * self.gsd_m
 
     @property
-    def enu_H_world_px(self) -> np.ndarray:  # noqa: N802
+    def enu_H_world_px(self) -> np.ndarray:
         """(3, 3) world pixel (x, y, 1) -> ground (east, north, 1) in metres."""
         g = self.gsd_m
         cx, cy = (self.width - 1) / 2.0, (self.height - 1) / 2.0
         return np.array([[g, 0.0, -g * cx], [0.0, -g, g * cy], [0.0, 0.0, 1.0]])
 
     @property
-    def world_px_H_enu(self) -> np.ndarray:  # noqa: N802
+    def world_px_H_enu(self) -> np.ndarray:
         """(3, 3) ground (east, north, 1) in metres -> world pixel (x, y, 1)."""
         return np.linalg.inv(self.enu_H_world_px)
 

@@ -49,7 +49,7 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str) -> Any:  # noqa: ANN401 - PEP 562 lazy attributes
+def __getattr__(name: str) -> Any:  # PEP 562 lazy attributes
     if name in _LAZY:
         return getattr(importlib.import_module(f'.{_LAZY[name]}', __name__), name)
     msg = f'module {__name__!r} has no attribute {name!r}'

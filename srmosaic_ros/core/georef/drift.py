@@ -170,9 +170,9 @@ class InformationRate:
         return self._sum / max(span_ns * 1e-9, 1e-9)
 
 
-def _sqrt_psd(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # noqa: N803
+def _sqrt_psd(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(P^1/2, P^-1/2) of a symmetric positive semi-definite matrix (pseudo-inverse on null directions)."""
-    w, V = np.linalg.eigh(0.5 * (P + P.T))  # noqa: N806
+    w, V = np.linalg.eigh(0.5 * (P + P.T))
     w = np.clip(w, 0.0, None)
     keep = w > max(float(w.max()), 0.0) * 1e-14
     root = np.sqrt(w)
@@ -180,7 +180,7 @@ def _sqrt_psd(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # noqa: N803
     return (V * root) @ V.T, (V * inv_root) @ V.T
 
 
-def pose_error_transition(P_prev: np.ndarray, P_cur: np.ndarray, dt_s: float, *,  # noqa: N803
+def pose_error_transition(P_prev: np.ndarray, P_cur: np.ndarray, dt_s: float, *,
                           info_rate: np.ndarray | None = None,
                           time_constant_s: float = float('nan')) -> tuple[np.ndarray, np.ndarray]:
     """(A, Q): the Gauss-Markov step y_k = A y_(k-1) + v, Cov(v) = Q, of the pose error between two
@@ -197,21 +197,21 @@ def pose_error_transition(P_prev: np.ndarray, P_cur: np.ndarray, dt_s: float, *,
     dt = max(float(dt_s), 0.0)
     if math.isfinite(time_constant_s):
         decay = 0.0 if time_constant_s <= 0.0 else math.exp(-dt / time_constant_s)
-        E, E2 = decay * np.eye(dim), decay**2 * np.eye(dim)  # noqa: N806
+        E, E2 = decay * np.eye(dim), decay**2 * np.eye(dim)
     else:
         lam = np.zeros((dim, dim)) if info_rate is None else np.asarray(info_rate, dtype=np.float64)
         lam = 0.5 * (lam + lam.T)
         if dt > 0.0:
             gained = (s_cur_inv @ s_cur_inv - s_prev_inv @ s_prev_inv) / dt
-            w, V = np.linalg.eigh(0.5 * (gained - lam + (gained - lam).T))  # noqa: N806
+            w, V = np.linalg.eigh(0.5 * (gained - lam + (gained - lam).T))
             lam = lam + (V * np.clip(w, 0.0, None)) @ V.T
-        M = s_cur @ lam @ s_cur  # noqa: N806
-        w, V = np.linalg.eigh(0.5 * (M + M.T))  # noqa: N806
+        M = s_cur @ lam @ s_cur
+        w, V = np.linalg.eigh(0.5 * (M + M.T))
         w = np.clip(w, 0.0, None)
-        E = (V * np.exp(-w * dt)) @ V.T  # noqa: N806
-        E2 = (V * np.exp(-2.0 * w * dt)) @ V.T  # noqa: N806
-    A = s_cur @ E @ s_prev_inv  # noqa: N806
-    Q = s_cur @ (np.eye(dim) - E2) @ s_cur  # noqa: N806
+        E = (V * np.exp(-w * dt)) @ V.T
+        E2 = (V * np.exp(-2.0 * w * dt)) @ V.T
+    A = s_cur @ E @ s_prev_inv
+    Q = s_cur @ (np.eye(dim) - E2) @ s_cur
     return A, 0.5 * (Q + Q.T)
 
 
@@ -221,13 +221,13 @@ def _homography_from_corners(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     return homography_from_corners(src, dst)
 
 
-def chain_jacobian(placed_prev: np.ndarray, prev_H_cur: np.ndarray, corners: np.ndarray,  # noqa: N803
+def chain_jacobian(placed_prev: np.ndarray, prev_H_cur: np.ndarray, corners: np.ndarray,
                    step_px: float = 0.5) -> np.ndarray:
     """(8, 8) d corners_k / d corners_(k-1): how an error of the previous placement's corners moves the
     corners of ``placed_prev @ prev_H_cur`` (central differences; the map is smooth)."""
     base = apply_H(placed_prev, corners).ravel()
     q = apply_H(prev_H_cur, corners)
-    F = np.empty((_CORNERS, _CORNERS))  # noqa: N806
+    F = np.empty((_CORNERS, _CORNERS))
     for i in range(_CORNERS):
         d = np.zeros(_CORNERS)
         d[i] = step_px
@@ -237,7 +237,7 @@ def chain_jacobian(placed_prev: np.ndarray, prev_H_cur: np.ndarray, corners: np.
     return F
 
 
-def _local_jacobians(H: np.ndarray, points: np.ndarray) -> np.ndarray:  # noqa: N803
+def _local_jacobians(H: np.ndarray, points: np.ndarray) -> np.ndarray:
     """(N, 2, 2) Jacobians of the homography H at points (N, 2)."""
     p = np.c_[points, np.ones(len(points))] @ H.T
     w = p[:, 2:3]
@@ -250,7 +250,7 @@ def similarity_jacobian(corners_flat: np.ndarray, origin: np.ndarray) -> np.ndar
     at s = 0, for corners (8,) flattened x0, y0, x1, ...: a point p moves by
     (tx - theta (p - o)_y + sigma (p - o)_x, ty + theta (p - o)_x + sigma (p - o)_y)."""
     p = np.asarray(corners_flat, dtype=np.float64).reshape(-1, 2) - np.asarray(origin, dtype=np.float64)
-    G = np.zeros((2 * len(p), 4))  # noqa: N806
+    G = np.zeros((2 * len(p), 4))
     G[0::2, 0] = 1.0
     G[1::2, 1] = 1.0
     G[0::2, 2], G[1::2, 2] = -p[:, 1], p[:, 0]
@@ -266,7 +266,7 @@ def similarity_homography(sim: np.ndarray, origin: np.ndarray) -> np.ndarray:
     return np.array([[a, -b, ox + tx - a * ox + b * oy], [b, a, oy + ty - b * ox - a * oy], [0.0, 0.0, 1.0]])
 
 
-def drift_init(placed: np.ndarray, stamp_ns: int, pose_cov: np.ndarray, J: np.ndarray, corners: np.ndarray,  # noqa: N803
+def drift_init(placed: np.ndarray, stamp_ns: int, pose_cov: np.ndarray, J: np.ndarray, corners: np.ndarray,
                canvas: CanvasSimilarity | None = None) -> tuple[DriftState, np.ndarray]:
     """(state, placement) of a chain anchored at ``placed`` by a pose with covariance pose_cov (d, d)
     and corner Jacobian J (8, d).
@@ -275,23 +275,23 @@ def drift_init(placed: np.ndarray, stamp_ns: int, pose_cov: np.ndarray, J: np.nd
     the pose's, J y_0 = G s + r_0 (the similarity s it puts into the canvas, the rest r_0 the chain's
     error delta_0 = -r_0), and ``placed`` is returned unchanged. On an existing canvas the chain is
     placed in the canvas frame, E(s_hat) placed, with delta_0 = G (s - s_hat) - J y_0."""
-    P = 0.5 * (pose_cov + pose_cov.T)  # noqa: N806
+    P = 0.5 * (pose_cov + pose_cov.T)
     dim = len(P)
     placed = np.asarray(placed, dtype=np.float64)
     if canvas is None:
         c = apply_H(placed, corners).ravel()
         origin = c.reshape(-1, 2).mean(axis=0)
-        G = similarity_jacobian(c, origin)  # noqa: N806
-        L = np.linalg.solve(G.T @ G, G.T)  # noqa: N806 - least-squares similarity of a corner error
-        T = np.vstack([-(np.eye(_CORNERS) - G @ L) @ J, L @ J, np.eye(dim)])  # noqa: N806 - state = T y_0
+        G = similarity_jacobian(c, origin)
+        L = np.linalg.solve(G.T @ G, G.T)  # least-squares similarity of a corner error
+        T = np.vstack([-(np.eye(_CORNERS) - G @ L) @ J, L @ J, np.eye(dim)])  # state = T y_0
         cov = T @ P @ T.T
         sim = np.zeros(4)
     else:
         origin, sim = canvas.origin.copy(), canvas.sim.copy()
         placed = canvas.homography @ placed
         placed = placed / placed[2, 2]
-        G = similarity_jacobian(apply_H(placed, corners).ravel(), origin)  # noqa: N806
-        T = np.block([[G, -J], [np.eye(4), np.zeros((4, dim))], [np.zeros((dim, 4)), np.eye(dim)]])  # noqa: N806
+        G = similarity_jacobian(apply_H(placed, corners).ravel(), origin)
+        T = np.block([[G, -J], [np.eye(4), np.zeros((4, dim))], [np.zeros((dim, 4)), np.eye(dim)]])
         base = np.zeros((4 + dim, 4 + dim))
         base[:4, :4], base[4:, 4:] = canvas.cov, P
         cov = T @ base @ T.T
@@ -299,7 +299,7 @@ def drift_init(placed: np.ndarray, stamp_ns: int, pose_cov: np.ndarray, J: np.nd
     return state, placed
 
 
-def drift_step(state: DriftState, chained: np.ndarray, corners: np.ndarray, chain_sigma_px: float,  # noqa: PLR0913
+def drift_step(state: DriftState, chained: np.ndarray, corners: np.ndarray, chain_sigma_px: float,
                pose: tuple[int, np.ndarray, np.ndarray, np.ndarray] | None, *, model_sigma_px: float,
                info_rate: np.ndarray | None, time_constant_s: float) -> np.ndarray:
     """One frame of drift control: predict with the chained placement (3, 3), update with the pose
@@ -308,13 +308,13 @@ def drift_step(state: DriftState, chained: np.ndarray, corners: np.ndarray, chai
     from .georeferencer import homography_from_corners
 
     chained = np.asarray(chained, dtype=np.float64)
-    prev_H_cur = np.linalg.solve(state.placed, chained)  # noqa: N806 - includes any outside correction
-    F = chain_jacobian(state.placed, prev_H_cur, corners)  # noqa: N806
-    D = _local_jacobians(state.placed, apply_H(prev_H_cur, corners))  # noqa: N806
+    prev_H_cur = np.linalg.solve(state.placed, chained)  # includes any outside correction
+    F = chain_jacobian(state.placed, prev_H_cur, corners)
+    D = _local_jacobians(state.placed, apply_H(prev_H_cur, corners))
     n = len(state.cov)
-    Phi = np.eye(n)  # noqa: N806 - the similarity is constant
+    Phi = np.eye(n)  # the similarity is constant
     Phi[:_CORNERS, :_CORNERS] = F
-    Q = np.zeros_like(Phi)  # noqa: N806
+    Q = np.zeros_like(Phi)
     for i in range(4):
         Q[2 * i:2 * i + 2, 2 * i:2 * i + 2] = chain_sigma_px**2 * D[i] @ D[i].T
     c = apply_H(chained, corners).ravel()
@@ -322,21 +322,21 @@ def drift_step(state: DriftState, chained: np.ndarray, corners: np.ndarray, chai
         state.cov = Phi @ state.cov @ Phi.T + Q
         state.placed = chained
         return chained
-    stamp_ns, z, J, P = pose  # noqa: N806
-    A, Qy = pose_error_transition(state.pose_cov, P, (int(stamp_ns) - state.stamp_ns) * 1e-9,  # noqa: N806
+    stamp_ns, z, J, P = pose
+    A, Qy = pose_error_transition(state.pose_cov, P, (int(stamp_ns) - state.stamp_ns) * 1e-9,
                                   info_rate=info_rate, time_constant_s=time_constant_s)
     Phi[_POSE, _POSE] = A
     Q[_POSE, _POSE] = Qy
     cov = Phi @ state.cov @ Phi.T + Q
     y = A @ state.pose_error
-    G = similarity_jacobian(c, state.origin)  # noqa: N806
-    H = np.hstack([np.eye(_CORNERS), -G, J])  # noqa: N806 - z - c = delta - G s + J y + n
-    R = max(model_sigma_px, 1e-3) ** 2 * np.eye(_CORNERS)  # noqa: N806
-    S = H @ cov @ H.T + R  # noqa: N806
-    K = np.linalg.solve(S, H @ cov).T  # noqa: N806 - cov H^T S^-1 (S and cov symmetric)
+    G = similarity_jacobian(c, state.origin)
+    H = np.hstack([np.eye(_CORNERS), -G, J])  # z - c = delta - G s + J y + n
+    R = max(model_sigma_px, 1e-3) ** 2 * np.eye(_CORNERS)
+    S = H @ cov @ H.T + R
+    K = np.linalg.solve(S, H @ cov).T  # cov H^T S^-1 (S and cov symmetric)
     dx = K @ (np.asarray(z, dtype=np.float64) - c + G @ state.sim - J @ y)
     c = c + dx[:_CORNERS]
-    IKH = np.eye(n) - K @ H  # noqa: N806
+    IKH = np.eye(n) - K @ H
     cov = IKH @ cov @ IKH.T + K @ R @ K.T
     out = homography_from_corners(corners, c.reshape(4, 2))
     state.placed, state.stamp_ns, state.pose_cov = out, int(stamp_ns), 0.5 * (P + P.T)

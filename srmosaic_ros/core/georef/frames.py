@@ -77,7 +77,7 @@ def rot_z(angle_rad: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
-def R_enu_from_body(roll_rad: float, pitch_rad: float, yaw_rad: float) -> np.ndarray:  # noqa: N802
+def R_enu_from_body(roll_rad: float, pitch_rad: float, yaw_rad: float) -> np.ndarray:
     """(3, 3) attitude of the body (x fwd, y left, z up) in ENU: Rz(yaw) Ry(pitch) Rx(roll).
 
     REP 103 fixed-axis roll/pitch/yaw; the ENU/FLU counterpart of the dissertation's 4.16
@@ -86,16 +86,16 @@ def R_enu_from_body(roll_rad: float, pitch_rad: float, yaw_rad: float) -> np.nda
     return rot_z(yaw_rad) @ rot_y(pitch_rad) @ rot_x(roll_rad)
 
 
-def rpy_from_R_enu_from_body(R: np.ndarray) -> tuple[float, float, float]:  # noqa: N802, N803
+def rpy_from_R_enu_from_body(R: np.ndarray) -> tuple[float, float, float]:
     """(roll, pitch, yaw) in radians of ``R_enu_from_body``; pitch in [-pi/2, pi/2], yaw in (-pi, pi]."""
-    R = np.asarray(R, dtype=np.float64)  # noqa: N806
+    R = np.asarray(R, dtype=np.float64)
     pitch = float(np.arcsin(np.clip(-R[2, 0], -1.0, 1.0)))
     roll = float(np.arctan2(R[2, 1], R[2, 2]))
     yaw = float(np.arctan2(R[1, 0], R[0, 0]))
     return roll, pitch, yaw
 
 
-def R_body_from_gimbal(azimuth_rad: float = 0.0, elevation_rad: float = 0.0) -> np.ndarray:  # noqa: N802
+def R_body_from_gimbal(azimuth_rad: float = 0.0, elevation_rad: float = 0.0) -> np.ndarray:
     """(3, 3) gimbal axes in the body frame: Rz(azimuth) Ry(-elevation) (cf. 4.17, 4.18).
 
     azimuth: counter-clockwise seen from above (toward the left wing); elevation: positive above the
@@ -104,7 +104,7 @@ def R_body_from_gimbal(azimuth_rad: float = 0.0, elevation_rad: float = 0.0) -> 
     return rot_z(azimuth_rad) @ rot_y(-elevation_rad)
 
 
-def R_body_from_cam(azimuth_rad: float = 0.0, elevation_rad: float = NADIR_ELEVATION_RAD) -> np.ndarray:  # noqa: N802
+def R_body_from_cam(azimuth_rad: float = 0.0, elevation_rad: float = NADIR_ELEVATION_RAD) -> np.ndarray:
     """(3, 3) camera optical axes in the body frame for the given gimbal angles (default nadir)."""
     return R_body_from_gimbal(azimuth_rad, elevation_rad) @ R_GIMBAL_FROM_CAM
 
@@ -116,7 +116,7 @@ R_BODY_FROM_CAM_NADIR = R_body_from_cam(0.0, NADIR_ELEVATION_RAD)
 class CameraPose(NamedTuple):
     """Pose of the camera optical frame in ENU: ``X_enu = R_enu_from_cam @ X_cam + center_enu_m``."""
 
-    R_enu_from_cam: np.ndarray  # noqa: N815
+    R_enu_from_cam: np.ndarray
     center_enu_m: np.ndarray
 
 
@@ -130,15 +130,15 @@ def camera_pose(position_enu_m: np.ndarray, roll_rad: float, pitch_rad: float, y
     (the lever arm, body frame, from the body origin, e.g. the GNSS antenna, to the optical centre;
     the dissertation's d_b^g and d_g^c together).
     """
-    R_eb = R_enu_from_body(roll_rad, pitch_rad, yaw_rad)  # noqa: N806
-    R_ec = R_eb @ R_body_from_cam(gimbal_azimuth_rad, gimbal_elevation_rad)  # noqa: N806
+    R_eb = R_enu_from_body(roll_rad, pitch_rad, yaw_rad)
+    R_ec = R_eb @ R_body_from_cam(gimbal_azimuth_rad, gimbal_elevation_rad)
     center = np.asarray(position_enu_m, dtype=np.float64) + R_eb @ np.asarray(lever_arm_body_m, dtype=np.float64)
     return CameraPose(R_ec, center)
 
 
-def quat_xyzw_from_matrix(R: np.ndarray) -> np.ndarray:  # noqa: N803
+def quat_xyzw_from_matrix(R: np.ndarray) -> np.ndarray:
     """(4,) unit quaternion (x, y, z, w), w >= 0, of a (3, 3) rotation matrix (Shepperd's method)."""
-    R = np.asarray(R, dtype=np.float64)  # noqa: N806
+    R = np.asarray(R, dtype=np.float64)
     tr = np.trace(R)
     diag = np.array([R[0, 0], R[1, 1], R[2, 2]])
     k = int(np.argmax(np.r_[diag, tr]))
@@ -177,7 +177,7 @@ def matrix_from_rotvec(v: np.ndarray) -> np.ndarray:
     return np.eye(3) + np.sin(theta) / theta * k + (1.0 - np.cos(theta)) / theta**2 * k @ k
 
 
-def rotvec_from_matrix(R: np.ndarray) -> np.ndarray:  # noqa: N803
+def rotvec_from_matrix(R: np.ndarray) -> np.ndarray:
     """(3,) rotation vector (axis * angle, angle in [0, pi]) of a rotation matrix."""
     q = quat_xyzw_from_matrix(R)
     s = float(np.linalg.norm(q[:3]))
@@ -186,20 +186,20 @@ def rotvec_from_matrix(R: np.ndarray) -> np.ndarray:  # noqa: N803
     return 2.0 * np.arctan2(s, q[3]) * q[:3] / s
 
 
-def make_T(R_a_from_b: np.ndarray, t_a_b: np.ndarray) -> np.ndarray:  # noqa: N802, N803
+def make_T(R_a_from_b: np.ndarray, t_a_b: np.ndarray) -> np.ndarray:
     """(4, 4) ``a_T_b`` mapping homogeneous points of frame b into frame a: [[R, t], [0, 1]] (4.11).
 
     ``t_a_b`` is the origin of b expressed in a (the dissertation writes -d for it).
     """
-    T = np.eye(4)  # noqa: N806
+    T = np.eye(4)
     T[:3, :3] = R_a_from_b
     T[:3, 3] = t_a_b
     return T
 
 
-def invert_T(a_T_b: np.ndarray) -> np.ndarray:  # noqa: N802, N803
+def invert_T(a_T_b: np.ndarray) -> np.ndarray:
     """(4, 4) ``b_T_a`` of a rigid ``a_T_b``: [[R^T, -R^T t], [0, 1]] (4.12)."""
-    R, t = a_T_b[:3, :3], a_T_b[:3, 3]  # noqa: N806
+    R, t = a_T_b[:3, :3], a_T_b[:3, 3]
     return make_T(R.T, -R.T @ t)
 
 
@@ -209,13 +209,13 @@ R_ENU_FROM_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 R_LOOK_FROM_CAM = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 
 
-def _R_ned_from_ypr(yaw_deg: float, pitch_deg: float, roll_deg: float) -> np.ndarray:  # noqa: N802
+def _R_ned_from_ypr(yaw_deg: float, pitch_deg: float, roll_deg: float) -> np.ndarray:
     """Aviation Euler angles (Z-Y-X, NED): yaw clockwise from north, pitch up positive, roll right down positive."""
     y, p, r = np.radians([yaw_deg, pitch_deg, roll_deg])
     return rot_z(y) @ rot_y(p) @ rot_x(r)
 
 
-def R_enu_from_cam_aviation(yaw_deg: float, pitch_deg: float, roll_deg: float) -> np.ndarray:  # noqa: N802
+def R_enu_from_cam_aviation(yaw_deg: float, pitch_deg: float, roll_deg: float) -> np.ndarray:
     """(3, 3) optical frame in ENU of a camera whose line of sight has the absolute aviation angles given.
 
     The angles of a gimbal as drones record them (DJI XMP GimbalYaw/Pitch/RollDegree, SRT gimbal
@@ -226,7 +226,7 @@ def R_enu_from_cam_aviation(yaw_deg: float, pitch_deg: float, roll_deg: float) -
     return R_ENU_FROM_NED @ _R_ned_from_ypr(yaw_deg, pitch_deg, roll_deg) @ R_LOOK_FROM_CAM
 
 
-def R_enu_from_cam_platform_sensor(heading_deg: float, pitch_deg: float, roll_deg: float,  # noqa: N802
+def R_enu_from_cam_platform_sensor(heading_deg: float, pitch_deg: float, roll_deg: float,
                                    rel_azimuth_deg: float, rel_elevation_deg: float,
                                    rel_roll_deg: float = 0.0) -> np.ndarray:
     """(3, 3) optical frame in ENU of a turret camera (MISB ST0601 / EG0104 angles).
@@ -236,18 +236,18 @@ def R_enu_from_cam_platform_sensor(heading_deg: float, pitch_deg: float, roll_de
     nose, elevation negative below the platform's horizontal plane, roll about the line of sight),
     applied in that order about the platform axes (ST0601 tags 5-7 and 18-20).
     """
-    R_ned_from_body = _R_ned_from_ypr(heading_deg, pitch_deg, roll_deg)  # noqa: N806
-    R_body_from_look = _R_ned_from_ypr(rel_azimuth_deg, rel_elevation_deg, rel_roll_deg)  # noqa: N806
+    R_ned_from_body = _R_ned_from_ypr(heading_deg, pitch_deg, roll_deg)
+    R_body_from_look = _R_ned_from_ypr(rel_azimuth_deg, rel_elevation_deg, rel_roll_deg)
     return R_ENU_FROM_NED @ R_ned_from_body @ R_body_from_look @ R_LOOK_FROM_CAM
 
 
-def aviation_angles_from_R_enu_from_cam(R_enu_from_cam: np.ndarray) -> tuple[float, float, float]:  # noqa: N802, N803
+def aviation_angles_from_R_enu_from_cam(R_enu_from_cam: np.ndarray) -> tuple[float, float, float]:
     """(yaw, pitch, roll) in degrees of a camera's line of sight, the inverse of R_enu_from_cam_aviation.
 
     Pitch in [-90, 90]; at nadir exactly, yaw and roll turn about the same axis and the split
     returned puts it all in yaw.
     """
-    R = R_ENU_FROM_NED.T @ np.asarray(R_enu_from_cam, dtype=np.float64) @ R_LOOK_FROM_CAM.T  # noqa: N806
+    R = R_ENU_FROM_NED.T @ np.asarray(R_enu_from_cam, dtype=np.float64) @ R_LOOK_FROM_CAM.T
     pitch = float(np.arcsin(np.clip(-R[2, 0], -1.0, 1.0)))
     if abs(abs(pitch) - np.pi / 2) < 1e-9:
         yaw, roll = float(np.arctan2(-R[0, 1], R[1, 1])), 0.0

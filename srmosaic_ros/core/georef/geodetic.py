@@ -70,7 +70,7 @@ class LocalTangentPlane:
     alt0_m: float = 0.0
 
     @property
-    def R_enu_from_ecef(self) -> np.ndarray:  # noqa: N802 - rotation name carries its frames
+    def R_enu_from_ecef(self) -> np.ndarray:  # rotation name carries its frames
         """(3, 3) rotation taking ECEF vectors to ENU vectors at the origin."""
         lat, lon = np.radians(self.lat0_deg), np.radians(self.lon0_deg)
         sl, cl, so, co = np.sin(lat), np.cos(lat), np.sin(lon), np.cos(lon)

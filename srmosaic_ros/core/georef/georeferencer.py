@@ -237,7 +237,7 @@ def utm_epsg(latitude_deg: float, longitude_deg: float) -> int:
 
 
 @functools.lru_cache(maxsize=8)
-def _transformers(epsg: int):  # noqa: ANN202 - pyproj types stay lazy
+def _transformers(epsg: int):  # pyproj types stay lazy
     from pyproj import Transformer
 
     return (Transformer.from_crs(4326, epsg, always_xy=True), Transformer.from_crs(epsg, 4326, always_xy=True))
@@ -261,14 +261,14 @@ class GeoRaster:
     rotation_rad: float = 0.0
 
     @property
-    def utm_H_raster(self) -> np.ndarray:  # noqa: N802
+    def utm_H_raster(self) -> np.ndarray:
         """(3, 3) raster pixel (x, y, 1) -> (easting, northing, 1) in metres:
         [[g c, g s, e0], [g s, -g c, n0]] with c, s the cosine and sine of rotation_rad."""
         g, c, s = self.gsd_m_per_px, math.cos(self.rotation_rad), math.sin(self.rotation_rad)
         return np.array([[g * c, g * s, self.origin_easting_m], [g * s, -g * c, self.origin_northing_m], [0.0, 0.0, 1.0]])
 
     @property
-    def raster_H_utm(self) -> np.ndarray:  # noqa: N802
+    def raster_H_utm(self) -> np.ndarray:
         return np.linalg.inv(self.utm_H_raster)
 
     @property
@@ -290,7 +290,7 @@ class GeoRaster:
         e, n = self.utm_H_raster[:2] @ np.array([dx_px, dy_px, 1.0])
         return GeoRaster(self.epsg, self.gsd_m_per_px, float(e), float(n), self.rotation_rad)
 
-    def transformed(self, raster_H_new: np.ndarray) -> GeoRaster:  # noqa: N803
+    def transformed(self, raster_H_new: np.ndarray) -> GeoRaster:
         """The grid whose pixel p is this grid's pixel raster_H_new @ p; raster_H_new must be a
         similarity without reflection (scale, rotation, translation), e.g. from anchoring.py."""
         m = self.utm_H_raster @ np.asarray(raster_H_new, dtype=np.float64)
@@ -325,7 +325,7 @@ class GeoRaster:
 
 def homography_from_corners(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     """(3, 3) dst_H_src (h22 = 1) exactly mapping 4 points src (4, 2) to dst (4, 2), float64."""
-    A = np.zeros((8, 8))  # noqa: N806
+    A = np.zeros((8, 8))
     b = np.zeros(8)
     for i, ((x, y), (u, v)) in enumerate(zip(np.asarray(src, float), np.asarray(dst, float))):
         A[2 * i] = (x, y, 1.0, 0.0, 0.0, 0.0, -u * x, -u * y)
@@ -335,7 +335,7 @@ def homography_from_corners(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     return np.r_[h, 1.0].reshape(3, 3)
 
 
-def camera_pose_from_enu_H_image(K: np.ndarray, enu_H_image: np.ndarray, *,  # noqa: N802, N803
+def camera_pose_from_enu_H_image(K: np.ndarray, enu_H_image: np.ndarray, *,
                                  ground_z_m: float = 0.0) -> CameraPose:
     """Camera pose of a flat-ground homography: the inverse of :func:`ground_H_image`.
 
@@ -343,18 +343,18 @@ def camera_pose_from_enu_H_image(K: np.ndarray, enu_H_image: np.ndarray, *,  # n
     columns give R (orthonormalised by SVD), the third the centre, with the sign that puts the
     camera above the ground.
     """
-    K_inv = np.linalg.inv(np.asarray(K, dtype=np.float64))  # noqa: N806
-    A = K_inv @ np.linalg.inv(np.asarray(enu_H_image, dtype=np.float64))  # noqa: N806 - K^-1 image_H_ground
+    K_inv = np.linalg.inv(np.asarray(K, dtype=np.float64))
+    A = K_inv @ np.linalg.inv(np.asarray(enu_H_image, dtype=np.float64))  # K^-1 image_H_ground
     lam = 0.5 * (np.linalg.norm(A[:, 0]) + np.linalg.norm(A[:, 1]))
     best = None
     for sign in (1.0, -1.0):
-        B = sign * A / lam  # noqa: N806
-        M = np.c_[B[:, 0], B[:, 1], np.cross(B[:, 0], B[:, 1])]  # noqa: N806 - columns: R^T e1, R^T e2, R^T e3
+        B = sign * A / lam
+        M = np.c_[B[:, 0], B[:, 1], np.cross(B[:, 0], B[:, 1])]  # columns: R^T e1, R^T e2, R^T e3
         u, _, vt = np.linalg.svd(M)
-        Rt = u @ vt  # noqa: N806 - R_cam_from_enu
+        Rt = u @ vt  # R_cam_from_enu
         if np.linalg.det(Rt) < 0:
             continue
-        R = Rt.T  # noqa: N806 - R_enu_from_cam
+        R = Rt.T  # R_enu_from_cam
         center = np.array([0.0, 0.0, ground_z_m]) - R @ B[:, 2]
         if center[2] > ground_z_m and best is None:
             best = CameraPose(R, center)
@@ -416,7 +416,7 @@ class Georeferencer:
             return
         if not self._in_order('fix', fix.stamp_ns):
             return
-        R = self._fix_covariance(fix)  # noqa: N806
+        R = self._fix_covariance(fix)
         if self.origin is None:
             self._set_origin(fix)
         assert self.origin is not None
@@ -470,7 +470,7 @@ class Georeferencer:
         """
         if not self._in_order('camera_attitude', attitude.stamp_ns):
             return
-        R_ec = np.asarray(attitude.R_enu_from_cam, dtype=np.float64)  # noqa: N806
+        R_ec = np.asarray(attitude.R_enu_from_cam, dtype=np.float64)
         if R_ec.shape != (3, 3) or not np.all(np.isfinite(R_ec)) or abs(np.linalg.det(R_ec) - 1.0) > 1e-3:
             self._skip('camera_attitude_nan', 'camera attitude with NaN fields or not a rotation ignored')
             return
@@ -480,13 +480,13 @@ class Georeferencer:
             return
         sigma = attitude.sigma_rad if math.isfinite(attitude.sigma_rad) and attitude.sigma_rad > 0 \
             else math.radians(self.config.imu_sigma_deg)
-        R_cb = R_body_from_cam(self.mount.gimbal_azimuth_rad, self.mount.gimbal_elevation_rad).T  # noqa: N806
+        R_cb = R_body_from_cam(self.mount.gimbal_azimuth_rad, self.mount.gimbal_elevation_rad).T
 
         def rpy_of(dv: np.ndarray) -> np.ndarray:
             return np.array(rpy_from_R_enu_from_body(matrix_from_rotvec(dv) @ R_ec @ R_cb))
 
         rpy = rpy_of(np.zeros(3))
-        J = np.empty((3, 3))  # noqa: N806 - d rpy / d small rotation of the camera (ENU rotation vector)
+        J = np.empty((3, 3))  # d rpy / d small rotation of the camera (ENU rotation vector)
         for i in range(3):
             d = np.zeros(3)
             d[i] = 1e-6
@@ -496,7 +496,7 @@ class Georeferencer:
         self._telemetry('imu', int(attitude.stamp_ns), rpy, 0.5 * (cov + cov.T) + 1e-10 * np.eye(3))
 
     # -- frames --------------------------------------------------------------------------------
-    def feed_frame(self, stamp_ns: int, prev_H_cur: np.ndarray | None = None,  # noqa: N803
+    def feed_frame(self, stamp_ns: int, prev_H_cur: np.ndarray | None = None,
                    covariance: np.ndarray | None = None, *, rms_px: float = float('nan'), inliers: int = 0,
                    camera: CameraIntrinsics | None = None, ref_stamp_ns: int | None = None) -> FramePose:
         """Fuse one frame and return its pose.
@@ -575,7 +575,7 @@ class Georeferencer:
             return out
         self._close_record()
         steps = [(h[1], h[2], h[3], h[4], h[5]) for h in self._history]
-        for h, (x, P) in zip(self._history, rts_smooth(steps)):  # noqa: N806
+        for h, (x, P) in zip(self._history, rts_smooth(steps)):
             if h[0] is None:  # a filter-only step across a gap
                 continue
             old = self.poses[h[0]]
@@ -616,24 +616,24 @@ class Georeferencer:
             gsd = float(f'{raw:.2g}')
             self._raster_agl_m = float(agl)  # checked against the filter's later estimate (_check_raster_agl)
         epsg = utm_epsg(self.origin.lat0_deg, self.origin.lon0_deg)
-        utm_A_enu = self._utm_affine(epsg)  # noqa: N806
-        enu_H_frame = self._enu_H_frame(pose, cam)  # noqa: N806
+        utm_A_enu = self._utm_affine(epsg)
+        enu_H_frame = self._enu_H_frame(pose, cam)
         centre_en = apply_H(utm_A_enu @ enu_H_frame, np.array([[cam.cx, cam.cy]]))[0]
         e0, n0 = (round(float(v) / gsd) * gsd for v in centre_en)
         self.raster = GeoRaster(epsg, gsd, e0, n0)
         return self.raster
 
-    def raster_H_enu(self, raster: GeoRaster | None = None) -> np.ndarray:  # noqa: N802
+    def raster_H_enu(self, raster: GeoRaster | None = None) -> np.ndarray:
         """(3, 3) ENU ground (east, north, 1) -> raster pixel (x, y, 1) (affine)."""
         raster = self._raster(raster)
         return raster.raster_H_utm @ self._utm_affine(raster.epsg)
 
-    def raster_H_frame(self, pose: FramePose, camera: CameraIntrinsics | None = None,  # noqa: N802
+    def raster_H_frame(self, pose: FramePose, camera: CameraIntrinsics | None = None,
                        raster: GeoRaster | None = None) -> np.ndarray:
         """(3, 3) frame pixels -> raster pixels of the flat ground seen from ``pose`` (normalised)."""
         return normalize_H(self.raster_H_enu(raster) @ self._enu_H_frame(pose, self._camera(camera)))
 
-    def correct(self, raster_H_frame_chained: np.ndarray, pose: FramePose,  # noqa: N803
+    def correct(self, raster_H_frame_chained: np.ndarray, pose: FramePose,
                 camera: CameraIntrinsics | None = None, raster: GeoRaster | None = None, *,
                 chain_sigma_px: float | None = None) -> np.ndarray:
         """Drift control: fuse a chained frame -> raster homography with the pose-predicted one.
@@ -666,7 +666,7 @@ class Georeferencer:
         cfg = self.config
         measured = None
         if pose.valid and np.all(np.isfinite(pose.covariance)):
-            z, J = self._corner_prediction(pose, cam, corners, raster)  # noqa: N806
+            z, J = self._corner_prediction(pose, cam, corners, raster)
             measured = (pose.stamp_ns, z.ravel(), J, pose.pose_ground_covariance)
         if self._drift is None:
             if measured is None:
@@ -683,14 +683,14 @@ class Georeferencer:
         self._canvas = self._drift.canvas
         return out
 
-    def corner_sigma_px(self, prev_H_cur: np.ndarray, covariance: np.ndarray | None,  # noqa: N803
+    def corner_sigma_px(self, prev_H_cur: np.ndarray, covariance: np.ndarray | None,
                         camera: CameraIntrinsics | None = None) -> float:
         """RMS standard deviation (px) of the frame corners under a registration's (8, 8) covariance of
         h (:func:`corner_jacobian`), or ``drift_chain_sigma_px`` when there is none."""
         if covariance is None:
             return self.config.drift_chain_sigma_px
-        H = np.asarray(prev_H_cur, dtype=np.float64)  # noqa: N806
-        J = corner_jacobian(H / H[2, 2], _frame_corners(self._camera(camera)))  # noqa: N806
+        H = np.asarray(prev_H_cur, dtype=np.float64)
+        J = corner_jacobian(H / H[2, 2], _frame_corners(self._camera(camera)))
         return float(math.sqrt(max(np.trace(J @ np.asarray(covariance, dtype=np.float64) @ J.T) / 8.0, 0.0)))
 
     def reset_drift(self, *, new_canvas: bool = False) -> None:
@@ -767,7 +767,7 @@ class Georeferencer:
         self.ground_altitude_m = float(ground)
         self.origin = LocalTangentPlane(fix.latitude_deg, fix.longitude_deg, self.ground_altitude_m)
 
-    def _telemetry(self, kind: str, stamp_ns: int, z: np.ndarray, R: np.ndarray) -> None:  # noqa: N803
+    def _telemetry(self, kind: str, stamp_ns: int, z: np.ndarray, R: np.ndarray) -> None:
         ukf = self.ukf
         if ukf.initialized:
             assert ukf.t_prev_ns is not None and ukf.t_cur_ns is not None
@@ -798,7 +798,7 @@ class Georeferencer:
             self._update_gyro()
             self._apply_pending()
 
-    def _apply(self, kind: str, stamp_ns: int, z: np.ndarray, R: np.ndarray) -> bool:  # noqa: N803
+    def _apply(self, kind: str, stamp_ns: int, z: np.ndarray, R: np.ndarray) -> bool:
         if kind == 'fix':
             res = self.ukf.update_position(stamp_ns, z, R)
         else:
@@ -813,7 +813,7 @@ class Georeferencer:
             self._add_information(kind, stamp_ns, R)
         return res.accepted
 
-    def _add_information(self, kind: str, stamp_ns: int, R: np.ndarray) -> None:  # noqa: N803
+    def _add_information(self, kind: str, stamp_ns: int, R: np.ndarray) -> None:
         """Count an absolute measurement fused (a fix: position block; an attitude: attitude block)."""
         try:
             info = np.linalg.inv(0.5 * (R + R.T))
@@ -837,7 +837,7 @@ class Georeferencer:
         self._pending.sort(key=lambda p: (p[0], p[1]))
         keep, n_fix, n_imu = [], 0, 0
         for item in self._pending:
-            stamp, _, kind, z, R = item  # noqa: N806
+            stamp, _, kind, z, R = item
             if stamp > ukf.t_cur_ns:
                 keep.append(item)
             elif stamp < ukf.t_prev_ns:
@@ -916,9 +916,9 @@ class Georeferencer:
         grid = np.unique(np.r_[a, ts[(ts > a) & (ts < b)], b]).astype(np.float64)
         mids = 0.5 * (grid[1:] + grid[:-1])
         w_mid = np.stack([np.interp(mids, ts.astype(np.float64), ws[:, i]) for i in range(3)], axis=1)
-        R = np.eye(3)  # noqa: N806
+        R = np.eye(3)
         for dt, w in zip(np.diff(grid) * 1e-9, w_mid):
-            R = R @ matrix_from_rotvec(w * dt)  # noqa: N806
+            R = R @ matrix_from_rotvec(w * dt)
         span = (b - a) * 1e-9
         dt_sample = float(np.median(np.diff(ts))) * 1e-9 if len(ts) > 1 else span
         var = cfg.gyro_sigma_rad_s**2 * span * min(dt_sample, span) + (cfg.gyro_bias_sigma_rad_s * span) ** 2
@@ -929,33 +929,33 @@ class Georeferencer:
                        f'fused attitudes (squared Mahalanobis distance {res.mahalanobis2:.1f}) and was not fused')
         return res.accepted
 
-    def _update_homography(self, prev_H_cur: np.ndarray, covariance: np.ndarray | None, rms_px: float,  # noqa: N803
-                           inliers: int) -> bool:  # noqa: ARG002 - kept for a future rms/inlier model
+    def _update_homography(self, prev_H_cur: np.ndarray, covariance: np.ndarray | None, rms_px: float,
+                           inliers: int) -> bool:  # kept for a future rms/inlier model
         cfg = self.config
-        H = np.asarray(prev_H_cur, dtype=np.float64)  # noqa: N806
+        H = np.asarray(prev_H_cur, dtype=np.float64)
         if H.shape != (3, 3) or not np.all(np.isfinite(H)) or abs(H[2, 2]) < 1e-12:
             self._skip('homography_invalid', 'registration homography with NaN entries or h22 = 0 ignored')
             return False
-        H = H / H[2, 2]  # noqa: N806
+        H = H / H[2, 2]
         agl = self.mount.camera_pose(self.ukf.x[SLOT_CUR]).center_enu_m[2] - self.ground_z_m
         if agl < cfg.min_agl_m:
             self._skip('homography_low', f'camera {agl:.1f} m above the ground plane (< min_agl_m '
                        f'{cfg.min_agl_m}): registrations are not fused')
             return False
         corners = _frame_corners(self.camera)
-        R = None  # noqa: N806
+        R = None
         if covariance is not None:
-            C = np.asarray(covariance, dtype=np.float64)  # noqa: N806
+            C = np.asarray(covariance, dtype=np.float64)
             if C.shape == (8, 8) and np.all(np.isfinite(C)):
-                J = corner_jacobian(H, corners)  # noqa: N806
-                R = J @ (0.5 * (C + C.T)) @ J.T  # noqa: N806
+                J = corner_jacobian(H, corners)
+                R = J @ (0.5 * (C + C.T)) @ J.T
             else:
                 self._skip('homography_covariance_invalid', 'registration covariance not an (8, 8) finite matrix: '
                            'the default from the inlier rms is used')
         if R is None:
             rms = rms_px if (rms_px is not None and math.isfinite(rms_px) and rms_px > 0) else 1.0
-            R = (cfg.homography_sigma_gain * rms) ** 2 * np.eye(8)  # noqa: N806
-        R = R + cfg.homography_min_sigma_px**2 * np.eye(8)  # noqa: N806
+            R = (cfg.homography_sigma_gain * rms) ** 2 * np.eye(8)
+        R = R + cfg.homography_min_sigma_px**2 * np.eye(8)
         res = self.ukf.update_homography(H, R, self.camera.K, self.mount, corners)
         self.updates[f'homography_{res.status}'] += 1
         if res.status == 'gated':
@@ -969,13 +969,13 @@ class Georeferencer:
         x = self.ukf.x.copy()
         if slot == SLOT_PREV:
             x[SLOT_CUR] = x[SLOT_PREV]
-            P = self.ukf.P.copy()  # noqa: N806
+            P = self.ukf.P.copy()
             P[SLOT_CUR, SLOT_CUR] = P[SLOT_PREV, SLOT_PREV]
             return self._pose_from(x, P, stamp_ns, used_h, n_fix, n_imu, self._last_info_rate)
         self._last_info_rate = self.information_rate(stamp_ns)
         return self._pose_from(x, self.ukf.P, stamp_ns, used_h, n_fix, n_imu, self._last_info_rate)
 
-    def _pose_from(self, x: np.ndarray, P: np.ndarray, stamp_ns: int, used_h: bool, n_fix: int,  # noqa: N803
+    def _pose_from(self, x: np.ndarray, P: np.ndarray, stamp_ns: int, used_h: bool, n_fix: int,
                    n_imu: int, info_rate: np.ndarray | None = None) -> FramePose:
         """FramePose of the current slot of a state (13,) and covariance (13, 13)."""
         assert self.origin is not None
@@ -987,7 +987,7 @@ class Georeferencer:
                          homography_used=used_h, fixes_used=n_fix, imu_used=n_imu, info_rate=info_rate,
                          ground_covariance=np.r_[P[GROUND, SLOT_CUR], P[GROUND, GROUND]])
 
-    def _record(self, F: np.ndarray | None, *, virtual: bool = False) -> None:  # noqa: N803
+    def _record(self, F: np.ndarray | None, *, virtual: bool = False) -> None:
         """Moments right after the predict to a new frame (the pose appended next is that frame's;
         ``virtual``: a filter-only step, no pose)."""
         if self.config.history_frames <= 0:
@@ -1018,7 +1018,7 @@ class Georeferencer:
             raise ValueError(msg)
         return raster
 
-    def _enu_H_frame(self, pose: FramePose, cam: CameraIntrinsics) -> np.ndarray:  # noqa: N802
+    def _enu_H_frame(self, pose: FramePose, cam: CameraIntrinsics) -> np.ndarray:
         if not pose.valid or pose.camera is None:
             msg = f'the pose of frame {pose.stamp_ns} is not valid ({pose.reason}); it cannot place the frame.'
             raise ValueError(msg)
@@ -1036,9 +1036,9 @@ class Georeferencer:
         enu = np.stack([e.ravel(), n.ravel(), np.zeros(e.size)], axis=1)
         lat, lon, _ = self.origin.geodetic_from_enu(enu)
         east, north = _transformers(epsg)[0].transform(lon, lat)
-        X = np.c_[enu[:, :2], np.ones(len(enu))]  # noqa: N806
+        X = np.c_[enu[:, :2], np.ones(len(enu))]
         coef, *_ = np.linalg.lstsq(X, np.c_[east, north], rcond=None)
-        A = np.eye(3)  # noqa: N806
+        A = np.eye(3)
         A[:2, :] = coef.T
         self._utm_affines[epsg] = A
         return A
@@ -1047,18 +1047,18 @@ class Georeferencer:
                            raster: GeoRaster | None) -> tuple[np.ndarray, np.ndarray]:
         """Raster corners (4, 2) of the frame placed by ``pose`` and their Jacobian (8, 7) with respect
         to (east, north, up, roll, pitch, yaw, ground_z_m) (numerical), corners flattened x0, y0, x1, ..."""
-        raster_H_enu = self.raster_H_enu(raster)  # noqa: N806
+        raster_H_enu = self.raster_H_enu(raster)
 
         def corners_of(yg: np.ndarray) -> np.ndarray:
             cp = self.mount.camera_pose(yg[:6])
-            H = raster_H_enu @ ground_H_image(cam.K, cp.R_enu_from_cam, cp.center_enu_m,  # noqa: N806
+            H = raster_H_enu @ ground_H_image(cam.K, cp.R_enu_from_cam, cp.center_enu_m,
                                               ground_z_m=float(yg[6]))
             return apply_H(H, corners).ravel()
 
         y0 = np.r_[pose.pose6, _ground(pose)]
         c0 = corners_of(y0)
         steps = np.array([0.1, 0.1, 0.1, 1e-4, 1e-4, 1e-4, 0.1])
-        J = np.empty((8, 7))  # noqa: N806
+        J = np.empty((8, 7))
         for i, h in enumerate(steps):
             dy = np.zeros(7)
             dy[i] = h

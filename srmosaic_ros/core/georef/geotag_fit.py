@@ -80,11 +80,11 @@ def _fit(src: np.ndarray, utm: np.ndarray, offsets: np.ndarray | None) -> tuple[
     jointly with the height h when ``offsets`` (N, 2) are given, as the linear least squares
     a x - b y + tx - h dx = e, b x + a y + ty - h dy = n (S = [[a, -b, tx], [b, a, ty]]). h is
     kept only when it is determined (positive, standard error under half of it); else None."""
-    S = fit_similarity(src, utm)  # noqa: N806
+    S = fit_similarity(src, utm)
     if offsets is None or len(src) < 4:
         return S, None
     n = len(src)
-    A = np.zeros((2 * n, 5))  # noqa: N806
+    A = np.zeros((2 * n, 5))
     A[0::2] = np.c_[src[:, 0], -src[:, 1], np.ones(n), np.zeros(n), -offsets[:, 0]]
     A[1::2] = np.c_[src[:, 1], src[:, 0], np.zeros(n), np.ones(n), -offsets[:, 1]]
     b = utm.reshape(-1)
@@ -148,7 +148,7 @@ def fit_mosaic_to_geotags(centres_px: np.ndarray, lonlat_deg: np.ndarray,
             msg = (f'the geotags of the {int(used.sum())} frames lie within {extent:.1f} m RMS of each other: too '
                    'close to fix the mosaic\'s scale and rotation (hovering, or one position repeated).')
             raise ValueError(msg)
-        S, h = _fit(src[used], utm[used], None if offsets is None else offsets[used])  # noqa: N806 - utm ~ S @ (x, -y)
+        S, h = _fit(src[used], utm[used], None if offsets is None else offsets[used])  # utm ~ S @ (x, -y)
         target = utm if h is None else utm + h * offsets
         res = np.linalg.norm(src @ S[:2, :2].T + S[:2, 2] - target, axis=1)
         sigma = max(1.4826 * float(np.median(res[used])), MIN_SIGMA_M)

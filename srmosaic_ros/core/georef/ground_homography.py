@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..homography import apply_homography as apply_H  # noqa: N812 - the georef modules' name
+from ..homography import apply_homography as apply_H  # the georef modules' name
 
 __all__ = [
     'image_H_ground',
@@ -21,13 +21,13 @@ __all__ = [
 ]
 
 
-def normalize_H(H: np.ndarray) -> np.ndarray:  # noqa: N802, N803
+def normalize_H(H: np.ndarray) -> np.ndarray:
     """H / h33 (4.29)."""
-    H = np.asarray(H, dtype=np.float64)  # noqa: N806
+    H = np.asarray(H, dtype=np.float64)
     return H / H[2, 2]
 
 
-def image_H_ground(K: np.ndarray, R_enu_from_cam: np.ndarray, C_enu: np.ndarray, *,  # noqa: N802, N803
+def image_H_ground(K: np.ndarray, R_enu_from_cam: np.ndarray, C_enu: np.ndarray, *,
                    ground_z_m: float = 0.0) -> np.ndarray:
     """(3, 3) homography from ground (east, north, 1) to image pixels (x, y, 1).
 
@@ -35,12 +35,12 @@ def image_H_ground(K: np.ndarray, R_enu_from_cam: np.ndarray, C_enu: np.ndarray,
     X - C = M (e, n, 1), M = [[1, 0, -Cx], [0, 1, -Cy], [0, 0, z0 - Cz]]:
     image_H_ground = K R_enu_from_cam^T M.
     """
-    C = np.asarray(C_enu, dtype=np.float64)  # noqa: N806
-    M = np.array([[1.0, 0.0, -C[0]], [0.0, 1.0, -C[1]], [0.0, 0.0, ground_z_m - C[2]]])  # noqa: N806
+    C = np.asarray(C_enu, dtype=np.float64)
+    M = np.array([[1.0, 0.0, -C[0]], [0.0, 1.0, -C[1]], [0.0, 0.0, ground_z_m - C[2]]])
     return normalize_H(np.asarray(K, dtype=np.float64) @ np.asarray(R_enu_from_cam, dtype=np.float64).T @ M)
 
 
-def ground_H_image(K: np.ndarray, R_enu_from_cam: np.ndarray, C_enu: np.ndarray, *,  # noqa: N802, N803
+def ground_H_image(K: np.ndarray, R_enu_from_cam: np.ndarray, C_enu: np.ndarray, *,
                    ground_z_m: float = 0.0) -> np.ndarray:
     """(3, 3) homography from image pixels (x, y, 1) to ground (east, north, 1) in metres.
 
@@ -50,8 +50,8 @@ def ground_H_image(K: np.ndarray, R_enu_from_cam: np.ndarray, C_enu: np.ndarray,
     return normalize_H(np.linalg.inv(image_H_ground(K, R_enu_from_cam, C_enu, ground_z_m=ground_z_m)))
 
 
-def frame2_H_frame1(K: np.ndarray, R1_enu_from_cam: np.ndarray, C1_enu: np.ndarray,  # noqa: N802, N803
-                    R2_enu_from_cam: np.ndarray, C2_enu: np.ndarray, *, K2: np.ndarray | None = None,  # noqa: N803
+def frame2_H_frame1(K: np.ndarray, R1_enu_from_cam: np.ndarray, C1_enu: np.ndarray,
+                    R2_enu_from_cam: np.ndarray, C2_enu: np.ndarray, *, K2: np.ndarray | None = None,
                     ground_z_m: float = 0.0) -> np.ndarray:
     """(3, 3) homography from frame-1 pixels to frame-2 pixels induced by the ground plane.
 
@@ -60,16 +60,16 @@ def frame2_H_frame1(K: np.ndarray, R1_enu_from_cam: np.ndarray, C1_enu: np.ndarr
     H = K2 R_2 (I - (C1 - C2) N_w^T / d) R_1^T K^-1, then normalised (4.29). K2 defaults to K
     (one camera, 4.24).
     """
-    K1 = np.asarray(K, dtype=np.float64)  # noqa: N806
-    K2 = K1 if K2 is None else np.asarray(K2, dtype=np.float64)  # noqa: N806
-    R1 = np.asarray(R1_enu_from_cam, dtype=np.float64).T  # noqa: N806
-    R2 = np.asarray(R2_enu_from_cam, dtype=np.float64).T  # noqa: N806
-    C1 = np.asarray(C1_enu, dtype=np.float64)  # noqa: N806
-    C2 = np.asarray(C2_enu, dtype=np.float64)  # noqa: N806
+    K1 = np.asarray(K, dtype=np.float64)
+    K2 = K1 if K2 is None else np.asarray(K2, dtype=np.float64)
+    R1 = np.asarray(R1_enu_from_cam, dtype=np.float64).T
+    R2 = np.asarray(R2_enu_from_cam, dtype=np.float64).T
+    C1 = np.asarray(C1_enu, dtype=np.float64)
+    C2 = np.asarray(C2_enu, dtype=np.float64)
     d = C1[2] - ground_z_m
     if abs(d) < 1e-12:
         msg = 'camera 1 lies on the ground plane; the plane-induced homography is undefined.'
         raise ValueError(msg)
     n_w = np.array([0.0, 0.0, 1.0])
-    H = K2 @ R2 @ (np.eye(3) - np.outer(C1 - C2, n_w) / d) @ R1.T @ np.linalg.inv(K1)  # noqa: N806
+    H = K2 @ R2 @ (np.eye(3) - np.outer(C1 - C2, n_w) / d) @ R1.T @ np.linalg.inv(K1)
     return normalize_H(H)

@@ -146,7 +146,7 @@ class CameraMount:
 
     def body_pose(self, camera: CameraPose) -> np.ndarray:
         """(6,) body pose (east, north, up, roll, pitch, yaw) of a camera pose: the inverse of camera_pose."""
-        R_enu_from_body = camera.R_enu_from_cam @ R_body_from_cam(self.gimbal_azimuth_rad,  # noqa: N806
+        R_enu_from_body = camera.R_enu_from_cam @ R_body_from_cam(self.gimbal_azimuth_rad,
                                                                   self.gimbal_elevation_rad).T
         position = np.asarray(camera.center_enu_m, dtype=np.float64) - R_enu_from_body @ np.asarray(
             self.lever_arm_body_m, dtype=np.float64)
@@ -185,13 +185,13 @@ class UpdateResult:
         return self.status in ('accepted', 'reacquired')
 
 
-def corner_jacobian(H: np.ndarray, corners: np.ndarray) -> np.ndarray:  # noqa: N803
+def corner_jacobian(H: np.ndarray, corners: np.ndarray) -> np.ndarray:
     """(2N, 8) Jacobian of the mapped corners (u1, v1, u2, v2, ...) w.r.t. (h00 .. h21), h22 = 1.
 
     H (3, 3) normalised to h22 = 1; corners (N, 2). u = (h00 x + h01 y + h02) / w,
     v = (h10 x + h11 y + h12) / w, w = h20 x + h21 y + 1.
     """
-    H = np.asarray(H, dtype=np.float64) / H[2, 2]  # noqa: N806
+    H = np.asarray(H, dtype=np.float64) / H[2, 2]
     out = np.zeros((2 * len(corners), 8))
     for i, (x, y) in enumerate(np.asarray(corners, dtype=np.float64)):
         w = H[2, 0] * x + H[2, 1] * y + 1.0
@@ -220,7 +220,7 @@ class PoseUkf:
         self.t_prev_ns: int | None = None
         self.t_cur_ns: int | None = None
         self._rate_known = False
-        self.last_F: np.ndarray | None = None  # noqa: N815 - the transition of the latest advance
+        self.last_F: np.ndarray | None = None  # the transition of the latest advance
         self._gated_in_a_row: dict[str, int] = {}
         self._gate_cache: dict[int, float] = {}
 
@@ -234,7 +234,7 @@ class PoseUkf:
         return self.ukf.x
 
     @property
-    def P(self) -> np.ndarray:  # noqa: N802
+    def P(self) -> np.ndarray:
         return self.ukf.P
 
     def pose(self, slot: slice = SLOT_CUR) -> tuple[np.ndarray, np.ndarray]:
@@ -269,7 +269,7 @@ class PoseUkf:
         shrink[3:] = np.minimum(1.0, self.angle_sd_limit_rad / np.maximum(sd, 1e-300))
         cov6 = cov6 * np.outer(shrink, shrink)
         self.ukf.x = np.r_[pose6, pose6, ground_z_m]
-        P = np.zeros((STATE_DIM, STATE_DIM))  # noqa: N806
+        P = np.zeros((STATE_DIM, STATE_DIM))
         P[SLOT_PREV, SLOT_PREV] = P[SLOT_PREV, SLOT_CUR] = P[SLOT_CUR, SLOT_PREV] = cov6
         P[SLOT_CUR, SLOT_CUR] = cov6 + _EPS_VAR * np.eye(POSE_DIM)
         P[GROUND, GROUND] = max(float(ground_var_m2), _EPS_VAR)
@@ -302,7 +302,7 @@ class PoseUkf:
         # and sigma points at +-3.6 such sigmas make the homography and gyro models meaningless (the
         # filter diverged on stills 2 s apart). Bounded per step; inactive below 1 s at the defaults.
         q[3:6] = np.minimum(q[3:6], p.max_attitude_step_sigma_rad**2)
-        Q = np.zeros((STATE_DIM, STATE_DIM))  # noqa: N806
+        Q = np.zeros((STATE_DIM, STATE_DIM))
         Q[SLOT_PREV, SLOT_PREV] = _EPS_VAR * np.eye(POSE_DIM)
         Q[SLOT_CUR, SLOT_CUR] = np.diag(q)
         Q[GROUND, GROUND] = p.ground_walk_m_per_sqrt_s**2 * dt + _EPS_VAR
@@ -330,7 +330,7 @@ class PoseUkf:
         return float(np.clip((stamp_ns - self.t_prev_ns) / span, 0.0, 1.0))
 
     # -- updates -------------------------------------------------------------------------------
-    def update_position(self, stamp_ns: int, enu_m: np.ndarray, R: np.ndarray) -> UpdateResult:  # noqa: N803
+    def update_position(self, stamp_ns: int, enu_m: np.ndarray, R: np.ndarray) -> UpdateResult:
         """GNSS position (ENU, m) at ``stamp_ns`` in [t_prev, t_cur] with covariance R (3, 3) m^2."""
         a = self.interpolation_weight(stamp_ns)
 
@@ -340,12 +340,12 @@ class PoseUkf:
         bow = self._chord_error_s2(stamp_ns)
         p = self.params
         accel = np.array([p.accel_sigma_h_m_s2, p.accel_sigma_h_m_s2, p.accel_sigma_v_m_s2])
-        R_chord = np.diag((accel * bow) ** 2)  # noqa: N806
-        R_total = np.asarray(R, dtype=np.float64) + R_chord  # noqa: N806
+        R_chord = np.diag((accel * bow) ** 2)
+        R_total = np.asarray(R, dtype=np.float64) + R_chord
         return self._update('position', np.asarray(enu_m, dtype=np.float64), R_total, hx, inflate=(0, 1, 2),
                             linear=_interpolation_matrix(0, a))
 
-    def update_attitude(self, stamp_ns: int, rpy_rad: np.ndarray, R: np.ndarray) -> UpdateResult:  # noqa: N803
+    def update_attitude(self, stamp_ns: int, rpy_rad: np.ndarray, R: np.ndarray) -> UpdateResult:
         """Body attitude (roll, pitch, yaw; rad) at ``stamp_ns`` with covariance R (3, 3) rad^2."""
         a = self.interpolation_weight(stamp_ns)
 
@@ -355,7 +355,7 @@ class PoseUkf:
         pred = hx(self.ukf.x)
         z = pred + wrap_angle(np.asarray(rpy_rad, dtype=np.float64) - pred)
         bow = self._chord_error_s2(stamp_ns)
-        R_chord = (self.params.angular_accel_sigma_rad_s2 * bow) ** 2 * np.eye(3)  # noqa: N806
+        R_chord = (self.params.angular_accel_sigma_rad_s2 * bow) ** 2 * np.eye(3)
         return self._update('attitude', z, np.asarray(R, dtype=np.float64) + R_chord, hx, inflate=(3, 4, 5),
                             linear=_interpolation_matrix(3, a))
 
@@ -367,7 +367,7 @@ class PoseUkf:
         b = max(0.0, (self.t_cur_ns - stamp_ns) * 1e-9)
         return 0.5 * a * b
 
-    def update_relative_rotation(self, rotvec_body: np.ndarray, R: np.ndarray) -> UpdateResult:  # noqa: N803
+    def update_relative_rotation(self, rotvec_body: np.ndarray, R: np.ndarray) -> UpdateResult:
         """Rotation of the body from t_prev to t_cur, integrated from the gyro (rotation vector, body
         frame of t_prev, rad), with covariance R (3, 3) rad^2: R_prev^T R_cur = exp(rotvec)."""
 
@@ -383,33 +383,33 @@ class PoseUkf:
         return self._update('rotation', np.asarray(rotvec_body, dtype=np.float64), np.asarray(R, dtype=np.float64),
                             hx, inflate=None, hx_batch=hx_batch)
 
-    def homography_model(self, K: np.ndarray, mount: CameraMount,  # noqa: N803
+    def homography_model(self, K: np.ndarray, mount: CameraMount,
                          corners: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
         """hx(x) -> (2N,): the current frame's ``corners`` (N, 2) mapped into the previous frame by
         the flat-ground homography of the two camera poses of state x (4.28, 4.29), ground at x[12]."""
-        K = np.asarray(K, dtype=np.float64)  # noqa: N806
+        K = np.asarray(K, dtype=np.float64)
         corners = np.asarray(corners, dtype=np.float64)
 
         def hx(x: np.ndarray) -> np.ndarray:
             prev = mount.camera_pose(x[SLOT_PREV])
             cur = mount.camera_pose(x[SLOT_CUR])
-            prev_H_cur = frame2_H_frame1(K, cur.R_enu_from_cam, cur.center_enu_m, prev.R_enu_from_cam,  # noqa: N806
+            prev_H_cur = frame2_H_frame1(K, cur.R_enu_from_cam, cur.center_enu_m, prev.R_enu_from_cam,
                                          prev.center_enu_m, ground_z_m=x[GROUND])
             return apply_H(prev_H_cur, corners).ravel()
 
         return hx
 
-    def homography_model_batch(self, K: np.ndarray, mount: CameraMount,  # noqa: N803
+    def homography_model_batch(self, K: np.ndarray, mount: CameraMount,
                                corners: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
         """:meth:`homography_model` for every row of xs (N, STATE_DIM) at once -> (N, 2 corners).
 
         The same 4.28: prev_H_cur = K R_prev^T (I - (C_cur - C_prev) n^T / d) R_cur K^-1 with
         R = R_enu_from_cam, d = C_cur,z - g, n = (0, 0, 1) (scale left out: the corners are
         dehomogenised)."""
-        K = np.asarray(K, dtype=np.float64)  # noqa: N806
-        K_inv = np.linalg.inv(K)  # noqa: N806
+        K = np.asarray(K, dtype=np.float64)
+        K_inv = np.linalg.inv(K)
         pts = np.c_[np.asarray(corners, dtype=np.float64), np.ones(len(corners))]          # (M, 3)
-        R_bc = R_body_from_cam(mount.gimbal_azimuth_rad, mount.gimbal_elevation_rad)  # noqa: N806
+        R_bc = R_body_from_cam(mount.gimbal_azimuth_rad, mount.gimbal_elevation_rad)
         lever = np.asarray(mount.lever_arm_body_m, dtype=np.float64)
 
         def hx_batch(xs: np.ndarray) -> np.ndarray:
@@ -422,13 +422,13 @@ class PoseUkf:
                 raise ValueError(msg)
             plane = np.broadcast_to(np.eye(3), (len(xs), 3, 3)).copy()
             plane[:, :, 2] -= (c_cur - c_prev) / d[:, None]                # I - (C1 - C2) n^T / d
-            H = K @ np.swapaxes(r_eb_prev @ R_bc, 1, 2) @ plane @ (r_eb_cur @ R_bc) @ K_inv  # noqa: N806
+            H = K @ np.swapaxes(r_eb_prev @ R_bc, 1, 2) @ plane @ (r_eb_cur @ R_bc) @ K_inv
             q = pts @ np.swapaxes(H, 1, 2)                                  # (N, M, 3)
             return (q[:, :, :2] / q[:, :, 2:3]).reshape(len(xs), -1)
 
         return hx_batch
 
-    def update_homography(self, prev_H_cur: np.ndarray, R_corners: np.ndarray, K: np.ndarray,  # noqa: N803
+    def update_homography(self, prev_H_cur: np.ndarray, R_corners: np.ndarray, K: np.ndarray,
                           mount: CameraMount, corners: np.ndarray) -> UpdateResult:
         """A registration prev_H_cur (current -> previous frame pixels) of the two frames in the state.
 
@@ -445,7 +445,7 @@ class PoseUkf:
             self._gate_cache[dof] = float(chdtri(dof, 1.0 - self.params.gate_probability))
         return self._gate_cache[dof]
 
-    def _update(self, kind: str, z: np.ndarray, R: np.ndarray, hx: Callable[[np.ndarray], np.ndarray],  # noqa: N803
+    def _update(self, kind: str, z: np.ndarray, R: np.ndarray, hx: Callable[[np.ndarray], np.ndarray],
                 *, inflate: tuple[int, ...] | None, linear: np.ndarray | None = None,
                 hx_batch: Callable[[np.ndarray], np.ndarray] | None = None) -> UpdateResult:
         """Fuse z ~ hx(x) + N(0, R), gated; ``linear``: the matrix M when hx(x) = M x exactly.
@@ -459,7 +459,7 @@ class PoseUkf:
         Python loop (the homography and gyro models, once per frame each).
         """
         ukf = self.ukf
-        x0, P0 = ukf.x.copy(), ukf.P.copy()  # noqa: N806
+        x0, P0 = ukf.x.copy(), ukf.P.copy()
         try:
             if linear is None and hx_batch is not None:
                 ukf.sigmas_f = ukf.points_fn.sigma_points(ukf.x, ukf.P)
@@ -502,7 +502,7 @@ class PoseUkf:
         return UpdateResult('reacquired' if res.accepted else res.status, res.mahalanobis2)
 
 
-def _sym(P: np.ndarray) -> np.ndarray:  # noqa: N803
+def _sym(P: np.ndarray) -> np.ndarray:
     return 0.5 * (P + P.T)
 
 
@@ -515,7 +515,7 @@ def _interpolation_matrix(first: int, a: float) -> np.ndarray:
     return m
 
 
-def _R_enu_from_body_batch(rpy: np.ndarray) -> np.ndarray:  # noqa: N802
+def _R_enu_from_body_batch(rpy: np.ndarray) -> np.ndarray:
     """(N, 3, 3) frames.R_enu_from_body of each row (roll, pitch, yaw) of rpy (N, 3): Rz Ry Rx."""
     cr, cp, cy = np.cos(rpy).T
     sr, sp, sy = np.sin(rpy).T
@@ -532,7 +532,7 @@ def _R_enu_from_body_batch(rpy: np.ndarray) -> np.ndarray:  # noqa: N802
     return out
 
 
-def _batch_update(ukf: UnscentedKalmanFilter, z: np.ndarray, R: np.ndarray,  # noqa: N803
+def _batch_update(ukf: UnscentedKalmanFilter, z: np.ndarray, R: np.ndarray,
                   hx_batch: Callable[[np.ndarray], np.ndarray], iterations: int = 1,
                   tolerance_sigma: float = 1e-3) -> float:
     """filterpy's UnscentedKalmanFilter.update with the sigma points mapped by hx_batch in one call
@@ -555,7 +555,7 @@ def _batch_update(ukf: UnscentedKalmanFilter, z: np.ndarray, R: np.ndarray,  # n
     after 2 s from 3.4 m to 1.5 m (see test_georef_ukf). Stops when the estimate moves by less than
     ``tolerance_sigma`` prior standard deviations in every component.
     """
-    x0, P0 = ukf.x.copy(), ukf.P.copy()  # noqa: N806
+    x0, P0 = ukf.x.copy(), ukf.P.copy()
     ukf.sigmas_h = np.atleast_2d(hx_batch(ukf.sigmas_f))
     zp, ukf.S = unscented_transform(ukf.sigmas_h, ukf.Wm, ukf.Wc, R, ukf.z_mean, ukf.residual_z)
     ukf.SI = ukf.inv(ukf.S)
@@ -568,7 +568,7 @@ def _batch_update(ukf: UnscentedKalmanFilter, z: np.ndarray, R: np.ndarray,  # n
     ukf.P = ukf.P - ukf.K @ ukf.S @ ukf.K.T
     prior_sd = np.sqrt(np.maximum(np.diag(P0), _EPS_VAR))
     for _ in range(iterations - 1):
-        x_i, P_i = ukf.x, _sym(ukf.P)  # noqa: N806
+        x_i, P_i = ukf.x, _sym(ukf.P)
         try:
             sig = ukf.points_fn.sigma_points(x_i, P_i)
             zs = np.atleast_2d(hx_batch(sig))
@@ -576,13 +576,13 @@ def _batch_update(ukf: UnscentedKalmanFilter, z: np.ndarray, R: np.ndarray,  # n
             dz = zs - z_bar
             psi = (ukf.Wc[:, None] * (sig - x_i)).T @ dz                    # (n, m)
             phi = (ukf.Wc[:, None] * dz).T @ dz                             # (m, m)
-            A = scipy.linalg.solve(P_i, psi, assume_a='pos').T              # noqa: N806 - (m, n)
+            A = scipy.linalg.solve(P_i, psi, assume_a='pos').T  # (m, n)
             omega = nearest_positive_definite(phi - A @ P_i @ A.T, floor=0.0)
-            S = A @ P0 @ A.T + omega + R                                    # noqa: N806
-            SI = ukf.inv(S)                                                 # noqa: N806
-            K = P0 @ A.T @ SI                                               # noqa: N806
+            S = A @ P0 @ A.T + omega + R
+            SI = ukf.inv(S)
+            K = P0 @ A.T @ SI
             y = z - (A @ x0 + (z_bar - A @ x_i))
-            x_new, P_new = x0 + K @ y, P0 - K @ S @ K.T                     # noqa: N806
+            x_new, P_new = x0 + K @ y, P0 - K @ S @ K.T
         except (np.linalg.LinAlgError, ValueError, scipy.linalg.LinAlgError):
             break  # keep the last good pass
         if not np.all(np.isfinite(x_new)) or not np.all(np.isfinite(P_new)):
@@ -596,14 +596,14 @@ def _batch_update(ukf: UnscentedKalmanFilter, z: np.ndarray, R: np.ndarray,  # n
     return d2
 
 
-def _linear_update(ukf: UnscentedKalmanFilter, z: np.ndarray, R: np.ndarray, M: np.ndarray) -> float:  # noqa: N803
+def _linear_update(ukf: UnscentedKalmanFilter, z: np.ndarray, R: np.ndarray, M: np.ndarray) -> float:
     """Kalman update of ukf.x, ukf.P by z = M x + N(0, R), written where filterpy's update writes it
     (x, P, y, S, SI, K, z); returns the squared Mahalanobis distance of the innovation."""
     y = z - M @ ukf.x
-    PMt = ukf.P @ M.T  # noqa: N806
-    S = M @ PMt + R  # noqa: N806
-    SI = np.linalg.inv(S)  # noqa: N806
-    K = PMt @ SI  # noqa: N806
+    PMt = ukf.P @ M.T
+    S = M @ PMt + R
+    SI = np.linalg.inv(S)
+    K = PMt @ SI
     ukf.x = ukf.x + K @ y
     ukf.P = ukf.P - K @ S @ K.T
     ukf.y, ukf.S, ukf.SI, ukf.K, ukf.z = y, S, SI, K, np.array(z, copy=True)
@@ -615,7 +615,7 @@ def _slot_cur_position(x: np.ndarray) -> np.ndarray:
     return x[6:9]
 
 
-def nearest_positive_definite(P: np.ndarray, floor: float = 1e-9) -> np.ndarray:  # noqa: N803
+def nearest_positive_definite(P: np.ndarray, floor: float = 1e-9) -> np.ndarray:
     """P symmetrised with its eigenvalues clipped to >= ``floor`` (a numerical repair)."""
     w, v = np.linalg.eigh(_sym(P))
     return _sym((v * np.maximum(w, floor)) @ v.T)
@@ -623,7 +623,7 @@ def nearest_positive_definite(P: np.ndarray, floor: float = 1e-9) -> np.ndarray:
 
 def transition_matrix(ratio: float) -> np.ndarray:
     """(13, 13) F of the motion model: [y_prev, y_cur, g] -> [y_cur, (1 + r) y_cur - r y_prev, g]."""
-    F = np.zeros((STATE_DIM, STATE_DIM))  # noqa: N806
+    F = np.zeros((STATE_DIM, STATE_DIM))
     F[SLOT_PREV, SLOT_CUR] = np.eye(POSE_DIM)
     F[SLOT_CUR, SLOT_PREV] = -ratio * np.eye(POSE_DIM)
     F[SLOT_CUR, SLOT_CUR] = (1.0 + ratio) * np.eye(POSE_DIM)
@@ -644,19 +644,19 @@ def rts_smooth(steps: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
     out: list[tuple[np.ndarray, np.ndarray]] = [(np.empty(0), np.empty(0))] * len(steps)
     if not steps:
         return out
-    x_s, P_s = steps[-1][2], steps[-1][3]  # noqa: N806
+    x_s, P_s = steps[-1][2], steps[-1][3]
     out[-1] = (x_s.copy(), P_s.copy())
     for k in range(len(steps) - 2, -1, -1):
-        _, _, x_post, P_post, _ = steps[k]  # noqa: N806
-        x_pred, P_pred, _, _, F = steps[k + 1]  # noqa: N806
-        C = np.linalg.solve(P_pred, F @ P_post).T  # noqa: N806 - P_post F^T P_pred^-1 (P symmetric)
+        _, _, x_post, P_post, _ = steps[k]
+        x_pred, P_pred, _, _, F = steps[k + 1]
+        C = np.linalg.solve(P_pred, F @ P_post).T  # P_post F^T P_pred^-1 (P symmetric)
         x_s = x_post + C @ (x_s - x_pred)
-        P_s = _sym(P_post + C @ (P_s - P_pred) @ C.T)  # noqa: N806
+        P_s = _sym(P_post + C @ (P_s - P_pred) @ C.T)
         out[k] = (x_s.copy(), P_s.copy())
     return out
 
 
-def _constant_velocity(x: np.ndarray, dt: float, ratio: float = 0.0) -> np.ndarray:  # noqa: ARG001
+def _constant_velocity(x: np.ndarray, dt: float, ratio: float = 0.0) -> np.ndarray:
     """Shift and extrapolate: [y_prev, y_cur, g] -> [y_cur, y_cur + ratio (y_cur - y_prev), g]."""
     y_prev, y_cur = x[SLOT_PREV], x[SLOT_CUR]
     return np.r_[y_cur, y_cur + ratio * (y_cur - y_prev), x[GROUND]]

@@ -114,7 +114,8 @@ def update_best(tile: object, loc: tuple[slice, slice], colour: np.ndarray, q: n
     colour (h, w, C) and q (h, w) the frame's warped colour and quality there (q 0: not seen);
     index: the frame's label and paint count; recency_frames: n of the score (0: no recency term);
     agree: the consensus threshold (intensity; 0: none). Where the frame's pixels are within ``agree``
-    of the winner's (the largest channel of the difference averaged over AGREE_BOX^2 pixels), it joins the winner's consensus (its quality-weighted mean) and
+    of the winner's (the largest channel of the difference averaged over AGREE_BOX^2 pixels), it joins
+    the winner's consensus (its quality-weighted mean) and
     takes the lead label if its score is higher; where it disagrees and scores higher, it replaces
     the winner (which becomes the runner-up); where it disagrees and scores lower, it becomes the
     runner-up if it beats that one. moving: the vote of three views (0: none), the frame, the winner

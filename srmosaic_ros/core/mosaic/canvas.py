@@ -423,7 +423,7 @@ class TiledCanvas:
             raise CanvasError(msg)
         return m
 
-    def check_placement(self, mosaic_H_frame: np.ndarray, width: int, height: int) -> None:  # noqa: N803
+    def check_placement(self, mosaic_H_frame: np.ndarray, width: int, height: int) -> None:
         """Raise CanvasError where :meth:`paint` would refuse a width x height frame at mosaic_H_frame
         (an absurd homography, or a canvas beyond max_canvas_side_px), without painting it."""
         self._placement(self._as_homography(mosaic_H_frame, width, height), width, height)
@@ -459,7 +459,7 @@ class TiledCanvas:
     def paint(
         self,
         image: np.ndarray,
-        mosaic_H_frame: np.ndarray,  # noqa: N803 - frames in the name
+        mosaic_H_frame: np.ndarray,  # frames in the name
         *,
         mask: np.ndarray | None = None,
     ) -> PaintResult:

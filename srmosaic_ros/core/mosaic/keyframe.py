@@ -48,7 +48,7 @@ class KeyframeResult:
     reason: str = ''
 
 
-def render_view(canvas: TiledCanvas, seg_H_frame: np.ndarray, width: int, height: int, *,  # noqa: N803
+def render_view(canvas: TiledCanvas, seg_H_frame: np.ndarray, width: int, height: int, *,
                 gray: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """The mosaic's feather composite (TiledCanvas.render_reference, whatever the blend) as the frame
     would see it under seg_H_frame.

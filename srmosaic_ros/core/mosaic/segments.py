@@ -38,12 +38,12 @@ class Segment:
                                       max_tiles_in_memory=config.max_tiles_in_memory, spill_dir=config.spill_dir,
                                       max_stretch=config.max_stretch, recency_frames=config.recency_frames, agree=config.agree, moving=config.moving))
 
-    def add(self, frame_index: int, image: np.ndarray, seg_H_frame: np.ndarray) -> None:  # noqa: N803
+    def add(self, frame_index: int, image: np.ndarray, seg_H_frame: np.ndarray) -> None:
         """Paint a frame (float32 (H, W, C) in [0, 1]) into the segment at seg_H_frame."""
         self.canvas.paint(image, seg_H_frame)
         self.place(frame_index, seg_H_frame)
 
-    def place(self, frame_index: int, seg_H_frame: np.ndarray) -> None:  # noqa: N803
+    def place(self, frame_index: int, seg_H_frame: np.ndarray) -> None:
         """Record a frame as part of the segment at seg_H_frame (its paint is the caller's: add() does both)."""
         self.frames.append(frame_index)
         self.seg_H_frames[frame_index] = seg_H_frame

@@ -385,7 +385,7 @@ class TileStore:
             self._rx = {'head': []}
             self.trim()
 
-    def extend(self, items: Any) -> None:  # noqa: ANN401 - unpickling only
+    def extend(self, items: Any) -> None:  # unpickling only
         for item in items:
             self.append(item)
 
@@ -398,5 +398,5 @@ def _restore_store(layout: tuple[int, ...], max_in_memory: int, spill_root: str,
                    writes: int) -> TileStore:
     store = TileStore(TileLayout(*layout), max_in_memory=max_in_memory, spill_dir=spill_root)
     store.loads, store.writes = loads, writes
-    store._rx = {'head': []}  # noqa: SLF001
+    store._rx = {'head': []}
     return store

@@ -47,7 +47,7 @@ class HomographyCovariance:
 
 
 def homography_covariance_ut(
-    dst_H_src: torch.Tensor,  # noqa: N803
+    dst_H_src: torch.Tensor,
     src: torch.Tensor,
     dst: torch.Tensor,
     *,
@@ -69,8 +69,8 @@ def homography_covariance_ut(
     if n < 5:
         msg = f'the homography covariance needs at least 5 inliers, got {n}.'
         raise ValueError(msg)
-    H = dst_H_src.to(_F64)  # noqa: N806
-    H = H / H[2, 2]  # noqa: N806
+    H = dst_H_src.to(_F64)
+    H = H / H[2, 2]
     s64, d64 = src.to(_F64), dst.to(_F64)
     sn, ts = normalize_points(s64)
     dn, td = normalize_points(d64)
@@ -84,11 +84,11 @@ def homography_covariance_ut(
         # One Gauss-Newton step from H for every sigma point: delta_i = (J^T J)^-1 J^T r_i, with
         # r_{j+-} = r_0 +- c e_j (state = dst coordinates ordered (x_1, y_1, x_2, ...) like r).
         jt = J[0].T
-        K = torch.linalg.solve(jt @ J[0], jt)               # noqa: N806  (8, 2n)
+        K = torch.linalg.solve(jt @ J[0], jt)  # 8, 2n
         d0 = K @ r[0]
         dj = (c * scale_d) * K.T                            # (2n, 8)
         deltas = torch.cat([d0[None], d0[None] + dj, d0[None] - dj], 0)
-        Hn_all = _H3(hn + deltas)                           # noqa: N806  (4n + 1, 3, 3)
+        Hn_all = _H3(hn + deltas)  # 4n + 1, 3, 3
         gammas = _h8(_denormalize(Hn_all, ts[None], td[None]))
     else:
         eye = torch.eye(m, dtype=_F64, device=s64.device) * c
@@ -98,7 +98,7 @@ def homography_covariance_ut(
             o = offsets[a:a + chunk]
             chi = d64[None] + o.view(-1, n, 2)                            # (b, n, 2)
             b = chi.shape[0]
-            Hs = refine_lm(s64[None].expand(b, n, 2), chi, H[None].expand(b, 3, 3), iterations=iterations)  # noqa: N806
+            Hs = refine_lm(s64[None].expand(b, n, 2), chi, H[None].expand(b, 3, 3), iterations=iterations)
             out.append(_h8(Hs))
         gammas = torch.cat(out, 0)
     dev = gammas[1:] - gammas[:1]

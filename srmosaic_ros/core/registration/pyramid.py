@@ -57,7 +57,7 @@ def _h8(h: np.ndarray) -> np.ndarray:
     return h.ravel()[:8]
 
 
-def _H(h8: np.ndarray) -> np.ndarray:  # noqa: N802
+def _H(h8: np.ndarray) -> np.ndarray:
     return np.append(h8, 1.0).reshape(3, 3)
 
 
@@ -105,7 +105,7 @@ class PyramidRegistrar:
     """A registrar (torch, OpenCV or with fallback) run on the pyramid level that brings frames to
     ``max_width`` pixels or less; homographies, covariances and RMS in full-size pixels."""
 
-    def __init__(self, inner: Any, max_width: int) -> None:  # noqa: ANN401
+    def __init__(self, inner: Any, max_width: int) -> None:
         self.inner = inner
         self.max_width = max_width
         self.config = inner.config
@@ -118,7 +118,7 @@ class PyramidRegistrar:
         level = level_for_width(w, self.max_width)
         return LevelFeatures(self.inner.describe(reduce_image(image, level)), level, (w, h))
 
-    def register(self, prev: LevelFeatures, cur: LevelFeatures, **kwargs: Any) -> Registration:  # noqa: ANN401
+    def register(self, prev: LevelFeatures, cur: LevelFeatures, **kwargs: Any) -> Registration:
         """prev_H_cur of the full-size frames (kwargs: the inner registrar's, e.g. second_opinion)."""
         if prev.level != cur.level:
             return Registration(False, None, reason=f'frames described on pyramid levels {prev.level} and {cur.level} '

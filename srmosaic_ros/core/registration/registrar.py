@@ -165,7 +165,7 @@ class Registrar:
                 pi.append(best.trainIdx)
         return np.asarray(pi, int), np.asarray(ci, int)
 
-    def _guided(self, prev: Features, cur: Features, prev_H_cur: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # noqa: N803
+    def _guided(self, prev: Features, cur: Features, prev_H_cur: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Guided matching (Table 1, step 5): nearest descriptor among prev keypoints within a radius of the transfer."""
         from scipy.spatial import cKDTree
 
@@ -199,7 +199,7 @@ class Registrar:
                                 'textureless frame or too little overlap', time_s=time.perf_counter() - t0)
         src = cur.keypoints_px[ci].astype(np.float64)
         dst = prev.keypoints_px[pi].astype(np.float64)
-        H, mask = cv2.findHomography(src, dst, cv2.USAC_MAGSAC, cfg.ransac_threshold_px,  # noqa: N806
+        H, mask = cv2.findHomography(src, dst, cv2.USAC_MAGSAC, cfg.ransac_threshold_px,
                                      maxIters=cfg.ransac_max_iterations, confidence=cfg.ransac_confidence)
         if H is None or mask is None:
             return Registration(False, None, n_matches, 0, reason='robust estimation found no consensus',
@@ -210,9 +210,9 @@ class Registrar:
         for _ in range(3):
             if inl.sum() < 4:
                 break
-            H_ls, _ = cv2.findHomography(src[inl], dst[inl], 0)  # noqa: N806
+            H_ls, _ = cv2.findHomography(src[inl], dst[inl], 0)
             if H_ls is not None:
-                H = H_ls  # noqa: N806
+                H = H_ls
             if cfg.guided_radius_px <= 0:
                 break
             gpi, gci = self._guided(prev, cur, H)
@@ -226,7 +226,7 @@ class Registrar:
                 break
             src, dst, inl = gsrc, gdst, ginl
             n_matches = max(n_matches, len(gpi))
-        H = H / H[2, 2]  # noqa: N806
+        H = H / H[2, 2]
         err = np.linalg.norm(apply_homography(H, src[inl]) - dst[inl], axis=1)
         n_inl = int(inl.sum())
         rms = float(np.sqrt(np.mean(err ** 2))) if n_inl else float('nan')

@@ -23,7 +23,7 @@ from functools import lru_cache
 
 import numpy as np
 import torch
-import torch.nn.functional as F  # noqa: N812
+import torch.nn.functional as F
 
 from ..image_ops import to_gray_float01
 
@@ -482,7 +482,7 @@ def detect(level_image: torch.Tensor, level: int, opts: FeatureOptions, *,
         sizes.append((w, h))
         h, w = h // 2, w // 2
     rows = [0]
-    for w_o, h_o in sizes:
+    for _, h_o in sizes:
         rows.append(rows[-1] + n_lv * h_o)
     tall = level_image.new_zeros(1, 2, max(rows[-1], 1), w0)
     octs: list[_Octave] = []

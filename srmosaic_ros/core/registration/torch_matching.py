@@ -54,9 +54,9 @@ def mutual_ratio_matches(
     return pi[order], ci[order], dist[order]
 
 
-def transfer_points(prev_H_cur: torch.Tensor, pts: torch.Tensor) -> torch.Tensor:  # noqa: N803
+def transfer_points(prev_H_cur: torch.Tensor, pts: torch.Tensor) -> torch.Tensor:
     """Map (..., N, 2) points by (..., 3, 3) homographies -> (..., N, 2) (in the dtype of pts)."""
-    H = prev_H_cur.to(pts.dtype)  # noqa: N806
+    H = prev_H_cur.to(pts.dtype)
     p = torch.baddbmm(H[..., None, :, 2], pts, H[..., :, :2].transpose(-1, -2)) if pts.ndim == 3 and H.ndim == 3 else \
         torch.matmul(pts, H[..., :, :2].transpose(-1, -2)) + H[..., None, :, 2]      # (..., N, 3)
     return p[..., :2] / p[..., 2:3]
@@ -67,7 +67,7 @@ def guided_matches(
     xy_cur: torch.Tensor,
     desc_prev: torch.Tensor,
     desc_cur: torch.Tensor,
-    prev_H_cur: torch.Tensor,  # noqa: N803
+    prev_H_cur: torch.Tensor,
     *,
     radius_px: float,
     sq_dist: torch.Tensor | None = None,

@@ -41,14 +41,14 @@ def normalize_points(pts: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     pn = d * s
     t = -c * s                                                      # (..., 1, 2)
     z = torch.zeros_like(s)
-    T = torch.cat([torch.cat([s, z, t[..., 0:1]], -1), torch.cat([z, s, t[..., 1:2]], -1),  # noqa: N806
+    T = torch.cat([torch.cat([s, z, t[..., 0:1]], -1), torch.cat([z, s, t[..., 1:2]], -1),
                    torch.cat([z, z, torch.ones_like(s)], -1)], -2)
     return pn, T
 
 
 def _denormalize(hn: torch.Tensor, t_src: torch.Tensor, t_dst: torch.Tensor) -> torch.Tensor:
     """H = T_dst^-1 @ Hn @ T_src, scaled to h22 = 1."""
-    H = torch.linalg.solve(t_dst, hn @ t_src)  # noqa: N806
+    H = torch.linalg.solve(t_dst, hn @ t_src)
     return H / H[..., 2:3, 2:3]
 
 
@@ -68,7 +68,7 @@ def dlt_homography(src: torch.Tensor, dst: torch.Tensor) -> torch.Tensor:
     z, o = torch.zeros_like(x), torch.ones_like(x)
     r1 = torch.stack([-x, -y, -o, z, z, z, u * x, u * y, u], -1)
     r2 = torch.stack([z, z, z, -x, -y, -o, v * x, v * y, v], -1)
-    A = torch.cat([r1, r2], -2)  # noqa: N806  (..., 2N, 9)
+    A = torch.cat([r1, r2], -2)  # ..., 2N, 9
     _, _, vh = torch.linalg.svd(A, full_matrices=False)
     hn = vh[..., -1, :].reshape(*A.shape[:-2], 3, 3)
     return _denormalize(hn, ts, td)
@@ -92,7 +92,7 @@ def homography_from_4(src: torch.Tensor, dst: torch.Tensor) -> tuple[torch.Tenso
     sn, ts = normalize_points(src)
     dn, td = normalize_points(dst)
     hn, info = _solve_4(sn[..., 0], sn[..., 1], dn[..., 0], dn[..., 1])
-    H = _denormalize(hn, ts, td)  # noqa: N806
+    H = _denormalize(hn, ts, td)
     ok = (info == 0) & torch.isfinite(H).all(-1).all(-1)
     return torch.where(ok[:, None, None], H, torch.eye(3, dtype=_F64, device=H.device)), ok
 
@@ -206,7 +206,7 @@ def _jacobian(src_h: torch.Tensor, uv: torch.Tensor, iw: torch.Tensor) -> torch.
     du/dh = [x, y, 1, 0, 0, 0, -u x, -u y] / w,  dv/dh = [0, 0, 0, x, y, 1, -v x, -v y] / w.
     """
     xw = src_h * iw                                                   # (B, N, 3)
-    J = src_h.new_zeros(*src_h.shape[:-1], 2, 8)  # noqa: N806
+    J = src_h.new_zeros(*src_h.shape[:-1], 2, 8)
     J[..., 0, 0:3] = xw
     J[..., 1, 3:6] = xw
     J[..., 6:8] = -uv[..., :, None] * xw[..., None, :2]
@@ -227,19 +227,19 @@ def _residuals_jacobian(h: torch.Tensor, src: torch.Tensor, dst: torch.Tensor) -
     return (dst - uv).flatten(-2), _jacobian(src_h, uv, iw)
 
 
-def _h8(H: torch.Tensor) -> torch.Tensor:  # noqa: N803
-    Hn = H / H[..., 2:3, 2:3]  # noqa: N806
+def _h8(H: torch.Tensor) -> torch.Tensor:
+    Hn = H / H[..., 2:3, 2:3]
     return Hn.reshape(*H.shape[:-2], 9)[..., :8]
 
 
-def _H3(h: torch.Tensor) -> torch.Tensor:  # noqa: N802
+def _H3(h: torch.Tensor) -> torch.Tensor:
     return torch.cat([h, torch.ones_like(h[..., :1])], -1).reshape(*h.shape[:-1], 3, 3)
 
 
 def refine_lm(
     src: torch.Tensor,
     dst: torch.Tensor,
-    dst_H_src: torch.Tensor,  # noqa: N803
+    dst_H_src: torch.Tensor,
     *,
     iterations: int = 10,
     weights: torch.Tensor | None = None,
@@ -276,11 +276,11 @@ def refine_lm(
         return c, r, uv, iw
 
     cost, r, uv, iw = residual(h)
-    J = _jacobian(sh, uv, iw)  # noqa: N806
+    J = _jacobian(sh, uv, iw)
     lam = torch.full((b,), 1e-3, dtype=_F64, device=h.device)
     for _ in range(iterations):
-        Jw = J if wt is None else J * wt[..., None]  # noqa: N806
-        A = Jw.transpose(1, 2) @ J  # noqa: N806
+        Jw = J if wt is None else J * wt[..., None]
+        A = Jw.transpose(1, 2) @ J
         g = Jw.transpose(1, 2) @ r[..., None]
         A.diagonal(dim1=1, dim2=2).mul_(1.0 + lam[:, None])
         delta = torch.linalg.solve_ex(A, g)[0][..., 0]
@@ -292,18 +292,18 @@ def refine_lm(
         if single:
             if bool(better[0]):
                 h, r, cost = h_new, r_new, c_new
-                J = _jacobian(sh, uv, iw)  # noqa: N806
+                J = _jacobian(sh, uv, iw)
                 lam = lam * 0.1
             else:
                 lam = lam * 10.0
         else:
             h = torch.where(better[:, None], h_new, h)
             r = torch.where(better[:, None], r_new, r)
-            J = torch.where(better[:, None, None], _jacobian(sh, uv, iw), J)  # noqa: N806
+            J = torch.where(better[:, None, None], _jacobian(sh, uv, iw), J)
             cost = torch.where(better, c_new, cost)
             lam = torch.where(better, lam * 0.1, lam * 10.0)
         lam = lam.clamp(1e-12, 1e8)
         if bool(((better & (rel < tol)) | small).all()):
             break
-    H = _denormalize(_H3(h), ts, td)  # noqa: N806
+    H = _denormalize(_H3(h), ts, td)
     return H[0] if single else H

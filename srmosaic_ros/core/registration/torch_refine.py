@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-import torch.nn.functional as F  # noqa: N812
+import torch.nn.functional as F
 
 __all__ = ['PhotometricOptions', 'PhotometricResult', 'PhotometricTemplate', 'make_template', 'refine_photometric']
 
@@ -68,7 +68,8 @@ class PhotometricTemplate:
 
     level: pyramid level; size: (w, h) of the level; xn: (3, P) float32 homogeneous normalised
     coordinates of the template pixels (one column per pixel); values: (P,) intensities;
-    sd: (8, P) steepest-descent images (feature-major, for fast weighted products); norm_from_full: (3, 3) float64 numpy, full-resolution pixels -> normalised level
+    sd: (8, P) steepest-descent images (feature-major, for fast weighted products); norm_from_full:
+    (3, 3) float64 numpy, full-resolution pixels -> normalised level
     coordinates; grid_from_norm: (3, 3) normalised coordinates -> grid_sample coordinates.
     """
 
@@ -99,15 +100,15 @@ class PhotometricResult:
 RESIDUAL_CORRELATION_VARIANCE_FACTOR = 2.0
 
 
-def _h8(H: np.ndarray) -> np.ndarray:  # noqa: N803
+def _h8(H: np.ndarray) -> np.ndarray:
     return (H / H[2, 2]).reshape(-1)[:8]
 
 
-def inverse_covariance(H: np.ndarray, covariance: np.ndarray) -> np.ndarray:  # noqa: N803
+def inverse_covariance(H: np.ndarray, covariance: np.ndarray) -> np.ndarray:
     """(8, 8) covariance of h of H^-1, given that of h of H (h22 = 1), by a central-difference Jacobian."""
     h0 = _h8(H)
     eps = 1e-7 * max(1.0, float(np.abs(h0).max()))
-    J = np.zeros((8, 8))  # noqa: N806
+    J = np.zeros((8, 8))
     for k in range(8):
         d = np.zeros(8)
         d[k] = eps
@@ -116,7 +117,7 @@ def inverse_covariance(H: np.ndarray, covariance: np.ndarray) -> np.ndarray:  # 
     return J @ covariance @ J.T
 
 
-def _gauss_newton_covariance(hess: torch.Tensor, scale2: float, Hn: np.ndarray, M: np.ndarray) -> np.ndarray | None:  # noqa: N803
+def _gauss_newton_covariance(hess: torch.Tensor, scale2: float, Hn: np.ndarray, M: np.ndarray) -> np.ndarray | None:
     """(8, 8) covariance of h (h22 = 1) of H = M^-1 Hn M at the end of the inverse-compositional
     fit: cov(dp) = s^2 (J^T W J)^-1 (the Gauss-Newton normal matrix `hess` of the last step, s^2
     the robust residual variance), carried to h through H(dp) = M^-1 Hn D(dp)^-1 M by a central-
@@ -130,9 +131,9 @@ def _gauss_newton_covariance(hess: torch.Tensor, scale2: float, Hn: np.ndarray, 
         return None
     if not np.all(np.isfinite(cov_dp)):
         return None
-    Mi = np.linalg.inv(M)  # noqa: N806
+    Mi = np.linalg.inv(M)
     eps = 1e-7
-    J = np.zeros((8, 8))  # noqa: N806
+    J = np.zeros((8, 8))
     for k in range(8):
         d = np.zeros(8)
         d[k] = eps
@@ -210,7 +211,7 @@ def _warp_from_params(dp: np.ndarray) -> np.ndarray:
     return np.array([[1.0 + dp[0], dp[1], dp[2]], [dp[3], 1.0 + dp[4], dp[5]], [dp[6], dp[7], 1.0]])
 
 
-def _corner_motion(D: np.ndarray, half_w: float, half_h: float) -> float:  # noqa: N803
+def _corner_motion(D: np.ndarray, half_w: float, half_h: float) -> float:
     """Largest displacement of the normalised frame corners under D, in normalised units."""
     c = np.array([[-half_w, -half_h, 1.0], [half_w, -half_h, 1.0], [half_w, half_h, 1.0], [-half_w, half_h, 1.0]])
     m = c @ D.T
@@ -220,7 +221,7 @@ def _corner_motion(D: np.ndarray, half_w: float, half_h: float) -> float:  # noq
 def refine_photometric(
     image_pyramid: list[torch.Tensor],
     templates: list[PhotometricTemplate],
-    image_H_template: np.ndarray,  # noqa: N803
+    image_H_template: np.ndarray,
     opts: PhotometricOptions,
 ) -> PhotometricResult:
     """Refine image_H_template (3, 3) float64 by inverse-compositional LK, coarse to fine.
@@ -228,8 +229,8 @@ def refine_photometric(
     image_pyramid: levels of the image frame (1, 1, h_l, w_l); templates: of the template frame
     (same size), coarse to fine (as make_template built them for opts.levels).
     """
-    H = np.asarray(image_H_template, dtype=np.float64)  # noqa: N806
-    H = H / H[2, 2]  # noqa: N806
+    H = np.asarray(image_H_template, dtype=np.float64)
+    H = H / H[2, 2]
     total = 0
     rms = float('nan')
     converged = False
@@ -238,8 +239,8 @@ def refine_photometric(
     for tpl in templates:
         img = image_pyramid[tpl.level]
         dev = img.device
-        M = tpl.norm_from_full  # noqa: N806
-        Hn = M @ H @ np.linalg.inv(M)  # noqa: N806
+        M = tpl.norm_from_full
+        Hn = M @ H @ np.linalg.inv(M)
         w, h = tpl.size
         s = max(w, h) / 2.0
         half_w, half_h = (w - 1) / (2.0 * s), (h - 1) / (2.0 * s)
@@ -249,7 +250,7 @@ def refine_photometric(
         converged = False
         for _ in range(opts.max_iterations):
             total += 1
-            C = tpl.grid_from_norm @ Hn  # noqa: N806
+            C = tpl.grid_from_norm @ Hn
             g = torch.from_numpy(C.astype(np.float32)).to(dev) @ tpl.xn                  # (3, P)
             grid = (g[:2] / g[2:3]).T
             inside = grid.abs().amax(1) <= lim
@@ -275,15 +276,15 @@ def refine_photometric(
             dp = torch.linalg.solve_ex(hess.to(torch.float64), rhs.to(torch.float64))[0].cpu().numpy()
             if not np.all(np.isfinite(dp)):
                 break
-            D = _warp_from_params(dp)  # noqa: N806
-            Hn = Hn @ np.linalg.inv(D)  # noqa: N806
-            Hn = Hn / Hn[2, 2]  # noqa: N806
+            D = _warp_from_params(dp)
+            Hn = Hn @ np.linalg.inv(D)
+            Hn = Hn / Hn[2, 2]
             if _corner_motion(D, half_w, half_h) * s < opts.tol_px:
                 converged = True
                 break
         rms = float(torch.sqrt(scale2))
         valid_fraction = float(inside.float().mean())
-        H = np.linalg.inv(M) @ Hn @ M  # noqa: N806
-        H = H / H[2, 2]  # noqa: N806
+        H = np.linalg.inv(M) @ Hn @ M
+        H = H / H[2, 2]
         cov = _gauss_newton_covariance(hess, float(scale2), Hn, M)
     return PhotometricResult(H, total, rms, converged, valid_fraction, cov)

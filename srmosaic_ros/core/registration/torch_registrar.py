@@ -168,7 +168,7 @@ class TorchFeatures(Features):
         return True
 
 
-def _fail(reason: str, t0: float, matches: int = 0, inliers: int = 0, H: np.ndarray | None = None,  # noqa: N803
+def _fail(reason: str, t0: float, matches: int = 0, inliers: int = 0, H: np.ndarray | None = None,
           extras: Mapping[str, float] | None = None) -> Registration:
     return Registration(False, H, matches, inliers, reason=reason, time_s=time.perf_counter() - t0,
                         extras=dict(extras or {}))
@@ -244,7 +244,7 @@ class TorchRegistrar:
                 reg.extras['retry_keypoints'] = float(min(len(prev.keypoints), len(cur.keypoints)))
         return reg
 
-    def _refinement_trusted(self, shift: float, converged: bool, H_ref: np.ndarray, src: torch.Tensor,  # noqa: N803
+    def _refinement_trusted(self, shift: float, converged: bool, H_ref: np.ndarray, src: torch.Tensor,
                             dst: torch.Tensor, rms_feat: float) -> bool:
         """Whether the photometric estimate replaces the feature one (module docstring, step 7)."""
         opt = self.options
@@ -283,7 +283,7 @@ class TorchRegistrar:
         # the maximum-likelihood re-estimation (step 4, Levenberg-Marquardt), again while inliers grow.
         t2 = cfg.ransac_threshold_px**2
         src, dst = src[rs.inliers].to(torch.float64), dst[rs.inliers].to(torch.float64)
-        H = dlt_homography(src, dst)  # noqa: N806
+        H = dlt_homography(src, dst)
         lm_done = False
         for _ in range(opt.guided_rounds if cfg.guided_radius_px > 0 else 0):
             gp, gc, gdist = guided_matches(kp.xy, kc.xy, kp.descriptors, kc.descriptors, H.to(self.device),
@@ -296,17 +296,17 @@ class TorchRegistrar:
             n_matches = max(n_matches, int(gp.numel()))
             src = kc.xy[gc[ginl]].to(device=edev, dtype=torch.float64)
             dst = kp.xy[gp[ginl]].to(device=edev, dtype=torch.float64)
-            H = refine_lm(src, dst, H, iterations=opt.lm_iterations, tol=_LM_TOL)  # noqa: N806
+            H = refine_lm(src, dst, H, iterations=opt.lm_iterations, tol=_LM_TOL)
             lm_done = True
             if not grew:
                 break
         if not lm_done:
-            H = refine_lm(src, dst, H, iterations=opt.lm_iterations, tol=_LM_TOL)  # noqa: N806
+            H = refine_lm(src, dst, H, iterations=opt.lm_iterations, tol=_LM_TOL)
         err2 = ((transfer_points(H, src) - dst) ** 2).sum(-1)
         keep = err2 <= t2
         src, dst = src[keep], dst[keep]
         n_inl = int(keep.sum())
-        H_feat = (H / H[2, 2]).cpu().numpy()  # noqa: N806
+        H_feat = (H / H[2, 2]).cpu().numpy()
         rms_feat = float(err2[keep].mean().sqrt()) if n_inl else float('nan')
         extras['feature_rms_px'] = rms_feat
         w, h = cur.size
@@ -324,7 +324,7 @@ class TorchRegistrar:
             return Registration(False, H_feat, n_matches, n_inl, rms_feat, reason, None, time.perf_counter() - t0,
                                 extras)
         cov = None
-        H_out = H_feat  # noqa: N806
+        H_out = H_feat
         extras['refined'] = 0.0
         ph = opt.photometric
         if ph is not None and prev.size == cur.size and cur.templates and prev.templates:
@@ -332,18 +332,18 @@ class TorchRegistrar:
             scale = float(np.sqrt(abs(np.linalg.det(H_feat[:2, :2]))))
             if scale > 1.0:
                 res = refine_photometric(cur.pyramid, prev.templates, np.linalg.inv(H_feat), ph)
-                H_ref = np.linalg.inv(res.image_H_template)  # noqa: N806
+                H_ref = np.linalg.inv(res.image_H_template)
             else:
                 res = refine_photometric(prev.pyramid, cur.templates, H_feat, ph)
-                H_ref = res.image_H_template  # noqa: N806
-            H_ref = H_ref / H_ref[2, 2]  # noqa: N806
+                H_ref = res.image_H_template
+            H_ref = H_ref / H_ref[2, 2]
             shift = corner_shift_px(H_ref, H_feat, w, h) if np.all(np.isfinite(H_ref)) else float('inf')
             extras.update(photometric_iterations=float(res.iterations), photometric_rms=res.rms,
                           photometric_valid=res.valid_fraction, refine_shift_px=shift,
                           photometric_template_prev=float(scale > 1.0))
             if self._refinement_trusted(shift, res.converged, H_ref, src, dst, rms_feat) and not check_homography(
                     H_ref, w, h, max_scale_change=cfg.max_scale_change, max_perspective=cfg.max_perspective):
-                H_out = H_ref  # noqa: N806
+                H_out = H_ref
                 extras['refined'] = 1.0
                 if opt.covariance and res.covariance is not None:
                     # The returned estimate is the photometric one: its Gauss-Newton covariance
@@ -358,6 +358,6 @@ class TorchRegistrar:
             c = homography_covariance_ut(H, src, dst, iterations=opt.covariance_iterations)
             cov = c.covariance.cpu().numpy()
             extras['sigma_px'] = c.sigma_px
-        Ht = torch.as_tensor(H_out, dtype=torch.float64, device=src.device)  # noqa: N806
+        Ht = torch.as_tensor(H_out, dtype=torch.float64, device=src.device)
         rms = float(((transfer_points(Ht, src) - dst) ** 2).sum(-1).mean().sqrt())
         return Registration(True, H_out, n_matches, n_inl, rms, '', cov, time.perf_counter() - t0, extras)

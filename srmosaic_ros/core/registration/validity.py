@@ -10,7 +10,6 @@ import math
 
 import numpy as np
 
-from ..homography import apply_homography
 
 __all__ = ['check_homography', 'frame_corners']
 
@@ -23,7 +22,7 @@ def frame_corners(width: int, height: int) -> np.ndarray:
 
 
 def check_homography(
-    prev_H_cur: np.ndarray,  # noqa: N803
+    prev_H_cur: np.ndarray,
     width: int,
     height: int,
     *,
@@ -39,7 +38,7 @@ def check_homography(
         max_perspective: largest accepted relative change of the projective depth w = h20 x + h21 y + h22
             over the frame (0.3 means w varies by at most 30% between corners).
     """
-    H = np.asarray(prev_H_cur, dtype=np.float64)  # noqa: N806
+    H = np.asarray(prev_H_cur, dtype=np.float64)
     if H.shape != (3, 3) or not np.all(np.isfinite(H)) or abs(H[2, 2]) < 1e-12:
         return 'homography is not finite or has h22 = 0'
     # Plain floats on the four corners: this runs twice per registered pair, and numpy's per-call

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-import torch.nn.functional as F  # noqa: N812
+import torch.nn.functional as F
 
 from .observation import FrameStack
 from .operators import lr_H_hr
@@ -52,7 +52,7 @@ def anchor_to_frame(x: torch.Tensor, y: torch.Tensor, stack: FrameStack, k: int,
     hc, wc = r.shape[-2:]
     hs, ws = x.shape[-2:]
     # HR tile pixel -> LR tile point -> LR window point, normalised for grid_sample(align_corners=True)
-    norm_H_window = np.array([[2.0 / max(wc - 1, 1), 0.0, -1.0], [0.0, 2.0 / max(hc - 1, 1), -1.0], [0.0, 0.0, 1.0]])  # noqa: N806
+    norm_H_window = np.array([[2.0 / max(wc - 1, 1), 0.0, -1.0], [0.0, 2.0 / max(hc - 1, 1), -1.0], [0.0, 0.0, 1.0]])
     m = norm_H_window @ np.linalg.inv(stack.tile_H_windows[k]) @ lr_H_hr(factor)
     vs, us = np.mgrid[0:hs, 0:ws].astype(np.float64)
     q = m @ np.stack([us.ravel(), vs.ravel(), np.ones(us.size)])

@@ -30,7 +30,7 @@ import math
 
 import numpy as np
 import torch
-import torch.nn.functional as F  # noqa: N812
+import torch.nn.functional as F
 
 __all__ = ['consistent_frames', 'noise_sigma']
 

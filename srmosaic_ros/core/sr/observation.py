@@ -25,7 +25,7 @@ from .operators import BlurDecimate, LinearOperator, Warp, hr_H_lr
 __all__ = ['FrameStack', 'ObservationOperator', 'build_frame_stack', 'frame_window']
 
 
-def frame_window(tile_H_frame: np.ndarray, frame_shape: tuple[int, int], tile_shape: tuple[int, int],  # noqa: N803
+def frame_window(tile_H_frame: np.ndarray, frame_shape: tuple[int, int], tile_shape: tuple[int, int],
                  pad: int = 1) -> tuple[int, int, int, int] | None:
     """LR window ``(y0, x0, h, w)`` of a frame that holds every pixel whose centre maps into the tile.
 
@@ -84,12 +84,12 @@ class FrameStack:
     mask: torch.Tensor
     windows: list[tuple[int, int, int, int]]
     index: list[int]
-    tile_H_windows: np.ndarray  # noqa: N815
+    tile_H_windows: np.ndarray
     operator: ObservationOperator
     counts: torch.Tensor
 
 
-def build_frame_stack(frames: Sequence[torch.Tensor], tile_H_frames: Sequence[np.ndarray],  # noqa: N803
+def build_frame_stack(frames: Sequence[torch.Tensor], tile_H_frames: Sequence[np.ndarray],
                       tile_shape: tuple[int, int], factor: int, psf: torch.Tensor, *,
                       min_observed: int = 16) -> FrameStack | None:
     """Crop, pad and batch the frames that observe the tile; None when none does.
@@ -116,13 +116,13 @@ def build_frame_stack(frames: Sequence[torch.Tensor], tile_H_frames: Sequence[np
     mats = []
     win_mats = []
     for i, (y0, x0, _, _) in cand:
-        tile_H_frame = np.asarray(tile_H_frames[i], dtype=np.float64)  # noqa: N806
-        frame_H_window = np.array([[1.0, 0, x0], [0, 1.0, y0], [0, 0, 1]])  # noqa: N806
+        tile_H_frame = np.asarray(tile_H_frames[i], dtype=np.float64)
+        frame_H_window = np.array([[1.0, 0, x0], [0, 1.0, y0], [0, 0, 1]])
         # HR grid index j -> LR window coordinate j / s + (1 - k) / (2 s): LR pixel i's PSF taps are
         # the HR samples s i .. s i + k - 1, centred on the LR pixel centre.
-        window_H_grid = np.array([[1.0 / s, 0, (1.0 - kw) / (2 * s)],  # noqa: N806
+        window_H_grid = np.array([[1.0 / s, 0, (1.0 - kw) / (2 * s)],
                                   [0, 1.0 / s, (1.0 - kh) / (2 * s)], [0, 0, 1]])
-        tile_H_window = tile_H_frame @ frame_H_window  # noqa: N806
+        tile_H_window = tile_H_frame @ frame_H_window
         win_mats.append(tile_H_window)
         mats.append(hr_H_lr(s) @ tile_H_window @ window_H_grid)
     warp = Warp(np.stack(mats), hr_tile, (hg, wg), device=device, dtype=dtype)

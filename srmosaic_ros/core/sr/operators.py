@@ -29,7 +29,7 @@ from collections.abc import Sequence
 
 import numpy as np
 import torch
-import torch.nn.functional as F  # noqa: N812
+import torch.nn.functional as F
 
 __all__ = [
     'LinearOperator',
@@ -53,13 +53,13 @@ def dot(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return torch.sum(a.double() * b.double())
 
 
-def lr_H_hr(factor: int) -> np.ndarray:  # noqa: N802
+def lr_H_hr(factor: int) -> np.ndarray:
     """(3, 3) map from HR pixel coordinates to LR pixel coordinates: lr = (hr + 0.5) / s - 0.5."""
     s = float(factor)
     return np.array([[1.0 / s, 0.0, 0.5 / s - 0.5], [0.0, 1.0 / s, 0.5 / s - 0.5], [0.0, 0.0, 1.0]])
 
 
-def hr_H_lr(factor: int) -> np.ndarray:  # noqa: N802
+def hr_H_lr(factor: int) -> np.ndarray:
     """(3, 3) map from LR pixel coordinates to HR pixel coordinates: hr = s (lr + 0.5) - 0.5."""
     s = float(factor)
     return np.array([[s, 0.0, 0.5 * s - 0.5], [0.0, s, 0.5 * s - 0.5], [0.0, 0.0, 1.0]])
@@ -116,7 +116,7 @@ class Warp(LinearOperator):
     ``(K, C, H, W)``: the scatter-add of the same bilinear weights, hence exact.
     """
 
-    def __init__(self, src_H_dst: np.ndarray, src_shape: tuple[int, int], dst_shape: tuple[int, int],  # noqa: N803
+    def __init__(self, src_H_dst: np.ndarray, src_shape: tuple[int, int], dst_shape: tuple[int, int],
                  *, device: torch.device | str = 'cpu', dtype: torch.dtype = torch.float32,
                  shared: bool = True) -> None:
         mats = np.asarray(src_H_dst, dtype=np.float64)
@@ -138,7 +138,7 @@ class Warp(LinearOperator):
         # source pixels. The normalisation is folded into the matrix (norm_H_src @ src_H_dst), the
         # sums of the separable row and column terms are broadcast, and the projective division
         # writes straight into the grid.
-        norm_H_src = np.array([[2.0 / (src_w - 1), 0.0, -1.0], [0.0, 2.0 / (src_h - 1), -1.0], [0.0, 0.0, 1.0]])  # noqa: N806
+        norm_H_src = np.array([[2.0 / (src_w - 1), 0.0, -1.0], [0.0, 2.0 / (src_h - 1), -1.0], [0.0, 0.0, 1.0]])
         m = torch.as_tensor(norm_H_src @ mats, dtype=torch.float64).view(-1, 3, 3, 1, 1)
         gdt = torch.float64 if dtype == torch.float64 else torch.float32
         ys = torch.arange(h, dtype=torch.float64).view(1, h, 1)
@@ -365,8 +365,8 @@ class BlurDecimate(LinearOperator):
     def _weights(self, dtype: torch.dtype) -> tuple[list[float], list[float]]:
         """Correlation taps (the flipped factors) as Python floats rounded to ``dtype``."""
         if dtype not in self._taps:
-            col = torch.flip(self.conv._col, (0,)).to(dtype)  # noqa: SLF001
-            row = torch.flip(self.conv._row, (0,)).to(dtype)  # noqa: SLF001
+            col = torch.flip(self.conv._col, (0,)).to(dtype)
+            row = torch.flip(self.conv._row, (0,)).to(dtype)
             self._taps[dtype] = ([float(v) for v in col], [float(v) for v in row])
         return self._taps[dtype]
 

@@ -32,7 +32,7 @@ class TileFrames:
     frame LR pixels -> LR tile pixels, and the tile's (H, W) in LR pixels."""
 
     frames: Sequence[np.ndarray]
-    tile_H_frames: Sequence[np.ndarray]  # noqa: N815
+    tile_H_frames: Sequence[np.ndarray]
     tile_shape: tuple[int, int]
 
 

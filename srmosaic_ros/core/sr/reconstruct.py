@@ -36,7 +36,7 @@ from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 import torch
-import torch.nn.functional as F  # noqa: N812
+import torch.nn.functional as F
 
 from ...errors import SrMosaicError
 from ..device import resolve_device
@@ -310,7 +310,7 @@ def warp_frames_to_tile(stack: FrameStack, tile_shape: tuple[int, int]) -> tuple
 
     ``covered`` is 1 where the frame has all four bilinear neighbours on real frame pixels.
     """
-    windows_H_tile = np.linalg.inv(stack.tile_H_windows)  # noqa: N806
+    windows_H_tile = np.linalg.inv(stack.tile_H_windows)
     hc, wc = stack.crops.shape[-2:]
     warp = Warp(windows_H_tile, (hc, wc), tile_shape, device=stack.crops.device, dtype=stack.crops.dtype,
                 shared=False)
@@ -351,7 +351,7 @@ def _median_rms(warped: torch.Tensor, covered: torch.Tensor) -> torch.Tensor:
     return torch.sqrt((d.double() ** 2).reshape(d.shape[0], -1).sum(dim=1) / n)
 
 
-def _nearest_frame(index: Sequence[int], tile_H_frames: Sequence[np.ndarray], frames: Sequence[torch.Tensor],  # noqa: N803
+def _nearest_frame(index: Sequence[int], tile_H_frames: Sequence[np.ndarray], frames: Sequence[torch.Tensor],
                    tile_shape: tuple[int, int]) -> int:
     """Position in ``index`` of the frame whose centre lands nearest the tile's centre (the frame the
     mosaic shows there, as the SR scheduler ranks frames)."""
@@ -364,7 +364,7 @@ def _nearest_frame(index: Sequence[int], tile_H_frames: Sequence[np.ndarray], fr
 TileCallback = Callable[[int, torch.Tensor], None]
 
 
-def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames: Sequence[np.ndarray],  # noqa: N803, PLR0915
+def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames: Sequence[np.ndarray],
                      tile_shape: tuple[int, int], factor: int, *, psf: torch.Tensor | None = None,
                      config: SRConfig | None = None, callback: TileCallback | None = None,
                      **settings: object) -> SRResult:
@@ -414,7 +414,7 @@ def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames:
     m = cfg.margin
     hm, wm = h_t + 2 * m, w_t + 2 * m
     shift = np.array([[1.0, 0.0, m], [0.0, 1.0, m], [0.0, 0.0, 1.0]])
-    tilem_H_frames = [shift @ np.asarray(h, dtype=np.float64) for h in tile_H_frames]  # noqa: N806
+    tilem_H_frames = [shift @ np.asarray(h, dtype=np.float64) for h in tile_H_frames]
     if psf is None:
         kernel = gaussian_psf(cfg.psf_sigma * s, s, device=device)
     else:

@@ -53,7 +53,7 @@ class TilePlan:
     frames_covering: int
 
 
-def frame_centres(plane_H_frames: list[np.ndarray], frame_sizes: list[tuple[int, int]]) -> np.ndarray:  # noqa: N803
+def frame_centres(plane_H_frames: list[np.ndarray], frame_sizes: list[tuple[int, int]]) -> np.ndarray:
     """(N, 2) plane points of the frames' centres; frame_sizes (width, height), pixel centres at integers.
 
     "The frame nearest a tile" (nearest centre) is the one the scheduler prefers, the mosaic shows
@@ -63,7 +63,7 @@ def frame_centres(plane_H_frames: list[np.ndarray], frame_sizes: list[tuple[int,
                      for H, (w, h) in zip(plane_H_frames, frame_sizes, strict=True)]).reshape(-1, 2)
 
 
-def frame_holds_rect(frame_H_mosaic: np.ndarray, frame_size: tuple[int, int],  # noqa: N803
+def frame_holds_rect(frame_H_mosaic: np.ndarray, frame_size: tuple[int, int],
                      rect: tuple[int, int, int, int]) -> bool:
     """True when the frame of ``frame_size`` (width, height) holds the corner pixels of the mosaic
     rectangle ``rect = (x0, y0, width, height)``; frame_H_mosaic maps mosaic pixels to frame pixels."""
@@ -74,7 +74,7 @@ def frame_holds_rect(frame_H_mosaic: np.ndarray, frame_size: tuple[int, int],  #
     return bool(np.all((p[:, 0] >= 0) & (p[:, 0] <= fw - 1) & (p[:, 1] >= 0) & (p[:, 1] <= fh - 1)))
 
 
-def plan_tiles(mosaic_H_frames: dict[int, np.ndarray], frame_sizes: dict[int, tuple[int, int]],  # noqa: N803
+def plan_tiles(mosaic_H_frames: dict[int, np.ndarray], frame_sizes: dict[int, tuple[int, int]],
                coverage: np.ndarray, config: SRTileConfig) -> list[TilePlan]:
     """Tiles to reconstruct. mosaic_H_frames: frame index -> (3, 3) frame pixels -> mosaic pixels;
     frame_sizes: index -> (width, height); coverage: (H, W) bool of the mosaic."""
@@ -89,7 +89,7 @@ def plan_tiles(mosaic_H_frames: dict[int, np.ndarray], frame_sizes: dict[int, tu
         for x0 in range(0, w - t + 1, t):
             if coverage[y0:y0 + t, x0:x0 + t].mean() < config.min_coverage:
                 continue
-            covering = [k for k, frame_H_mosaic in inverse.items()  # noqa: N806
+            covering = [k for k, frame_H_mosaic in inverse.items()
                         if frame_holds_rect(frame_H_mosaic, frame_sizes[k], (x0, y0, t, t))]
             if len(covering) < config.min_frames:
                 continue

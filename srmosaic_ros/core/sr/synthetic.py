@@ -28,7 +28,7 @@ class SyntheticTile:
 
     truth: np.ndarray
     frames: list[np.ndarray]
-    tile_H_frames: list[np.ndarray]  # noqa: N815
+    tile_H_frames: list[np.ndarray]
     tile_shape: tuple[int, int]
     factor: int
 
@@ -37,7 +37,7 @@ def _translation(dx: float, dy: float) -> np.ndarray:
     return np.array([[1.0, 0.0, dx], [0.0, 1.0, dy], [0.0, 0.0, 1.0]])
 
 
-def random_tile_H_frame(rng: np.random.Generator, tile_shape: tuple[int, int], frame_shape: tuple[int, int], *,  # noqa: N802
+def random_tile_H_frame(rng: np.random.Generator, tile_shape: tuple[int, int], frame_shape: tuple[int, int], *,
                         max_shift: float = 3.0, max_rot_deg: float = 3.0, max_scale: float = 0.03,
                         perspective: float = 0.01) -> np.ndarray:
     """A small random homography frame LR pixels -> tile LR pixels, frame centre near the tile centre.
@@ -59,7 +59,7 @@ def random_tile_H_frame(rng: np.random.Generator, tile_shape: tuple[int, int], f
     return h / h[2, 2]
 
 
-def perturb_homography(tile_H_frame: np.ndarray, frame_shape: tuple[int, int], corner_sigma_px: float,  # noqa: N803
+def perturb_homography(tile_H_frame: np.ndarray, frame_shape: tuple[int, int], corner_sigma_px: float,
                        rng: np.random.Generator) -> np.ndarray:
     """A homography whose four frame corners land ``N(0, corner_sigma_px^2)`` (tile px) off the given one.
 
@@ -96,7 +96,7 @@ def make_synthetic_tile(world: np.ndarray, origin: tuple[int, int], tile_shape: 
         msg = f'the tile at {origin} of {ht * s}x{wt * s} HR px leaves the {world.shape[:2]} world.'
         raise ValueError(msg)
     rng = np.random.default_rng(seed)
-    world_H_hrtile = _translation(x0, y0)  # noqa: N806
+    world_H_hrtile = _translation(x0, y0)
     mats = [random_tile_H_frame(rng, (ht, wt), (hf, wf), max_shift=max_shift, max_rot_deg=max_rot_deg,
                                 max_scale=max_scale, perspective=perspective) for _ in range(n_frames)]
     corners = np.array([[0, 0, 1], [wf - 1, 0, 1], [wf - 1, hf - 1, 1], [0, hf - 1, 1]], dtype=np.float64).T
@@ -120,7 +120,7 @@ def make_synthetic_tile(world: np.ndarray, origin: tuple[int, int], tile_shape: 
         region = region[:, :, None]
     frames = []
     for m in mats:
-        region_H_frame = _translation(-bx0, -by0) @ world_H_hrtile @ hr_H_lr(s) @ m  # noqa: N806
+        region_H_frame = _translation(-bx0, -by0) @ world_H_hrtile @ hr_H_lr(s) @ m
         f = cv2.warpPerspective(region, region_H_frame, (wf, hf),
                                 flags=cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REFLECT)
         if f.ndim == 2:

@@ -38,7 +38,6 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from ..georef.anchoring import fit_similarity
 
 __all__ = ['PairConstraint', 'SurveyPriors', 'SurveySolution', 'check_pairs_against_positions', 'estimate_scale',
            'pair_constraint', 'solve_survey']
@@ -54,7 +53,7 @@ class PairConstraint:
 
     i: int
     j: int
-    i_H_j: np.ndarray  # noqa: N815
+    i_H_j: np.ndarray
     points_j: np.ndarray
     sigma: np.ndarray
     inliers: int = 0
@@ -129,30 +128,30 @@ def _scale_jac(h: np.ndarray) -> np.ndarray:
 _SHAPE_POINTS = np.array([[-0.5, -0.4], [0.5, -0.4], [0.5, 0.4], [-0.5, 0.4]])
 
 
-def attitude_ground_H(R_enu_from_cam: np.ndarray, centre_m: np.ndarray, height_m: float) -> np.ndarray:  # noqa: N802, N803
+def attitude_ground_H(R_enu_from_cam: np.ndarray, centre_m: np.ndarray, height_m: float) -> np.ndarray:
     """(3, 3) ground_H_frame of a camera (normalised coordinates -> ground metres) whose optical centre
     is ``height_m`` above the flat ground and whose principal ray meets it at ``centre_m`` (east,
     north), looking along R_enu_from_cam's z axis (eqs. 4.23-4.29 for a single pose). A ray
     d = R (x, y, 1) from C meets the ground at C_xy - C_z d_xy / d_z, i.e. the homography rows
     (C_xy R_2 - C_z R_01) over R_2, normalised to g22 = 1."""
-    R = np.asarray(R_enu_from_cam, dtype=np.float64)  # noqa: N806
+    R = np.asarray(R_enu_from_cam, dtype=np.float64)
     axis = R[:, 2]
-    C = np.array([centre_m[0] + height_m * axis[0] / axis[2], centre_m[1] + height_m * axis[1] / axis[2], height_m])  # noqa: N806
-    G = np.vstack([C[0] * R[2] - C[2] * R[0], C[1] * R[2] - C[2] * R[1], R[2]])  # noqa: N806
+    C = np.array([centre_m[0] + height_m * axis[0] / axis[2], centre_m[1] + height_m * axis[1] / axis[2], height_m])
+    G = np.vstack([C[0] * R[2] - C[2] * R[0], C[1] * R[2] - C[2] * R[1], R[2]])
     return G / G[2, 2]
 
 
-def _h8(H: np.ndarray) -> np.ndarray:  # noqa: N803
-    H = H / H[2, 2]  # noqa: N806
+def _h8(H: np.ndarray) -> np.ndarray:
+    H = H / H[2, 2]
     return H.ravel()[:8].copy()
 
 
-def _H(h: np.ndarray) -> np.ndarray:  # noqa: N802
+def _H(h: np.ndarray) -> np.ndarray:
     return np.append(h, 1.0).reshape(3, 3)
 
 
-def pair_constraint(i: int, j: int, i_H_j_px: np.ndarray, covariance_px: np.ndarray | None,  # noqa: N803
-                    K_i: np.ndarray, K_j: np.ndarray, size_i: tuple[int, int], size_j: tuple[int, int], *,  # noqa: N803
+def pair_constraint(i: int, j: int, i_H_j_px: np.ndarray, covariance_px: np.ndarray | None,
+                    K_i: np.ndarray, K_j: np.ndarray, size_i: tuple[int, int], size_j: tuple[int, int], *,
                     grid: int = 4, inliers: int = 0, model_px: float = 1.0) -> PairConstraint | None:
     """PairConstraint, in normalised coordinates, of a registration in pixels.
 
@@ -167,8 +166,8 @@ def pair_constraint(i: int, j: int, i_H_j_px: np.ndarray, covariance_px: np.ndar
     wi, hi = size_i
     u = (np.arange(grid) + 0.5) / grid
     pts = np.array([[a * (wj - 1), b * (hj - 1)] for b in u for a in u])
-    H = np.asarray(i_H_j_px, dtype=np.float64)  # noqa: N806
-    H = H / H[2, 2]  # noqa: N806
+    H = np.asarray(i_H_j_px, dtype=np.float64)
+    H = H / H[2, 2]
     q = (H @ np.c_[pts, np.ones(len(pts))].T).T
     q = q[:, :2] / q[:, 2:3]
     inside = (q[:, 0] >= 0) & (q[:, 0] <= wi - 1) & (q[:, 1] >= 0) & (q[:, 1] <= hi - 1) & np.isfinite(q).all(axis=1)
@@ -180,8 +179,8 @@ def pair_constraint(i: int, j: int, i_H_j_px: np.ndarray, covariance_px: np.ndar
         je, jn = _point_jac(np.tile(_h8(H), (len(pts), 1)), pts)
         cov = np.asarray(covariance_px, dtype=np.float64)
         var += 0.5 * np.maximum(np.einsum('pk,kl,pl->p', je, cov, je) + np.einsum('pk,kl,pl->p', jn, cov, jn), 0.0)
-    Ki, Kj = np.asarray(K_i, dtype=np.float64), np.asarray(K_j, dtype=np.float64)  # noqa: N806
-    i_H_j = np.linalg.inv(Ki) @ H @ Kj  # noqa: N806 - normalised j -> normalised i
+    Ki, Kj = np.asarray(K_i, dtype=np.float64), np.asarray(K_j, dtype=np.float64)
+    i_H_j = np.linalg.inv(Ki) @ H @ Kj  # normalised j -> normalised i
     pts_n = (pts - Kj[:2, 2]) / np.diag(Kj)[:2]
     return PairConstraint(i, j, i_H_j / i_H_j[2, 2], pts_n, np.sqrt(var) / float(Ki[0, 0]), int(inliers))
 
@@ -253,7 +252,7 @@ def _chain_component(comp: list[int], pairs: list[PairConstraint], used: np.ndar
     frontier = [(w, root, k, H) for k, H, w in adj[root]]
     while frontier:
         frontier.sort(key=lambda t: t[0])
-        _, a, b, a_H_b = frontier.pop()  # noqa: N806
+        _, a, b, a_H_b = frontier.pop()
         if b in placed:
             continue
         placed[b] = placed[a] @ a_H_b
@@ -271,12 +270,12 @@ def _circular_median(angles: np.ndarray) -> float:
     return mean + float(np.median(np.angle(np.exp(1j * (a - mean)))))
 
 
-def _similarity_G(scale: float, angle: float, east: float, north: float) -> np.ndarray:  # noqa: N802
+def _similarity_G(scale: float, angle: float, east: float, north: float) -> np.ndarray:
     c, s = math.cos(angle), math.sin(angle)
     return np.array([[scale * c, scale * s, east], [scale * s, -scale * c, north], [0.0, 0.0, 1.0]])
 
 
-def _angle_scale(G: np.ndarray) -> tuple[float, float]:  # noqa: N803
+def _angle_scale(G: np.ndarray) -> tuple[float, float]:
     """(angle of the image x axis on the ground, scale) of a ground homography's linear part."""
     a = G[:2, :2] / G[2, 2]
     return math.atan2(a[1, 0], a[0, 0]), math.sqrt(abs(float(np.linalg.det(a))))
@@ -295,7 +294,7 @@ def _pair_angles(pairs: list[PairConstraint], used: np.ndarray, pos: np.ndarray,
         if not (np.isfinite(d).all() and np.hypot(*d) >= min_baseline_m):
             continue
         phi = math.atan2(d[1], d[0])
-        for k, H, sign in ((p.i, p.i_H_j, 1.0), (p.j, np.linalg.inv(p.i_H_j), -1.0)):  # noqa: N806
+        for k, H, sign in ((p.i, p.i_H_j, 1.0), (p.j, np.linalg.inv(p.i_H_j), -1.0)):
             q = H @ np.array([0.0, 0.0, 1.0])
             qx, qy = q[0] / q[2], q[1] / q[2]
             out[k].append(phi + (0.0 if sign > 0 else math.pi) - math.atan2(-qy, qx))
@@ -314,7 +313,7 @@ def _initial(n: int, pairs: list[PairConstraint], used: np.ndarray, pri: SurveyP
     largest component is chained along its spanning tree on its root frame's plane.
     """
     pos = np.asarray(pri.position_m, dtype=np.float64)
-    G = np.full((n, 3, 3), np.nan)  # noqa: N806
+    G = np.full((n, 3, 3), np.nan)
     placed_by = [''] * n
     comps = _components(n, pairs, used)
     if not np.isfinite(pos).all(axis=1).any():
@@ -383,13 +382,13 @@ class _Problem:
         self.scale = scale
         self.pri = pri
         self.anchor = [(self.col[k], _h8(H)) for k, H in anchor.items() if k in self.col]
-        shp = [(self.col[k], G, sd) for k, (G, sd) in pri.shape.items() if k in self.col]  # noqa: N806
+        shp = [(self.col[k], G, sd) for k, (G, sd) in pri.shape.items() if k in self.col]
         if shp:
             m = len(_SHAPE_POINTS)
             self.shape_col = np.repeat([c for c, _, _ in shp], m)
             self.shape_pts = np.tile(_SHAPE_POINTS, (len(shp), 1))
             tgt = []
-            for _, G, _ in shp:  # noqa: N806
+            for _, G, _ in shp:
                 hp = np.tile(_h8(G), (m, 1))
                 e, nn, _ = _apply(hp, _SHAPE_POINTS)
                 e0, n0, _ = _apply(hp[:1], np.zeros((1, 2)))
@@ -403,10 +402,10 @@ class _Problem:
         """Transfer error of every pair point in frame i's normalised coordinates: the ground point
         of frame j's point p, G_j p, taken back through G_i^-1, minus i_H_j p. Returns ((ry, rx),
         d r / d h_i (P, 2, 8), d r / d h_j (P, 2, 8)); rows of r are (x, y)."""
-        Gi = np.concatenate([h, np.ones((self.n, 1))], axis=1).reshape(self.n, 3, 3)  # noqa: N806
-        Mi = np.linalg.inv(Gi)[self.ci]  # noqa: N806 - (P, 3, 3)
+        Gi = np.concatenate([h, np.ones((self.n, 1))], axis=1).reshape(self.n, 3, 3)
+        Mi = np.linalg.inv(Gi)[self.ci]  # (P, 3, 3)
         e, n, _ = _apply(h[self.cj], self.pj)
-        X = np.stack([e, n, np.ones_like(e)], axis=1)  # noqa: N806
+        X = np.stack([e, n, np.ones_like(e)], axis=1)
         y = np.einsum('pab,pb->pa', Mi, X)
         rx, ry = y[:, 0] / y[:, 2] - self.qi[:, 0], y[:, 1] / y[:, 2] - self.qi[:, 1]
         if not jacobian:
@@ -416,7 +415,7 @@ class _Problem:
         dr_dy[:, 0, 0] = dr_dy[:, 1, 1] = 1.0 / z
         dr_dy[:, 0, 2], dr_dy[:, 1, 2] = -y[:, 0] / z**2, -y[:, 1] / z**2
         je, jn = _point_jac(h[self.cj], self.pj)
-        dX = np.stack([je, jn], axis=1)  # noqa: N806 - (P, 2, 8)
+        dX = np.stack([je, jn], axis=1)  # (P, 2, 8)
         dr_dhj = np.einsum('pay,pyx,pxk->pak', dr_dy, Mi[:, :, :2], dX)
         # d(G^-1) = -G^-1 dG G^-1: entry k of G (row a, column b) moves y by -M[:, a] y[b]
         dy_dhi = np.zeros((len(z), 3, 8))
@@ -544,11 +543,11 @@ def _levenberg_marquardt(prob: _Problem, x0: np.ndarray, huber: float, *, max_it
     cost = _huber_cost(r, huber)
     mu = 1e-4
     for it in range(1, max_iterations + 1):
-        J = prob.jacobian(x)  # noqa: N806
+        J = prob.jacobian(x)
         a = np.abs(r)
         w = np.where(a <= huber, 1.0, huber / np.maximum(a, 1e-300))
-        JtW = J.T @ sp.diags(w)  # noqa: N806
-        A = (JtW @ J).tocsc()  # noqa: N806
+        JtW = J.T @ sp.diags(w)
+        A = (JtW @ J).tocsc()
         g = JtW @ r
         d = A.diagonal() + 1e-12
         while True:
@@ -604,7 +603,7 @@ def solve_survey(n: int, pairs: list[PairConstraint], priors: SurveyPriors, *, m
             ok = check_pairs_against_positions(pairs, pos, sd, priors.scale_m)
         use &= ok
         gross = int((~use).sum())
-    G, placed_by = _initial(n, pairs, use, priors, min_extent_m)  # noqa: N806
+    G, placed_by = _initial(n, pairs, use, priors, min_extent_m)
     free = [k for k in range(n) if placed_by[k] == 'registration']
     rms = np.full(len(pairs), np.nan)
     scale = float(np.median([_angle_scale(G[k])[1] for k in free])) if free else priors.scale_m
