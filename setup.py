@@ -55,8 +55,8 @@ setup(
             'mosaic_node = srmosaic_ros.nodes.mosaic_node:main',
             'georef_node = srmosaic_ros.nodes.georef_node:main',
             'sr_node = srmosaic_ros.nodes.sr_node:main',
-            'tile_recorder = srmosaic_ros.nodes.tile_recorder:main',
-            'player = srmosaic_ros.nodes.player:main',
+            'tile_recorder = srmosaic_ros.nodes.executables:tile_recorder_main',
+            'player = srmosaic_ros.nodes.executables:player_main',
         ],
     },
 )

@@ -37,7 +37,7 @@ from .core.types import CameraIntrinsics, Frame
 from .core.undistort import Undistorter
 from .io.geotiff import MOSAIC_BLOCK_PX, read_raster, write_geotiff, write_geotiff_blocks
 from .io.mosaic_files import read_frames_csv, write_json, write_png
-from .offline import StripPreview
+from .io.outputs import StripPreview
 from .sr_live import SRTilePlacement
 
 __all__ = ['sr_mosaic_strips', 'super_resolve_mosaic']

@@ -393,7 +393,7 @@ def _paint_and_write(out: Path, config: PipelineConfig, stills: list[SurveyStill
     frames.csv; returns (the report without the survey entry, the frames.csv rows)."""
     from .io.kml import write_kml_for_raster
     from .io.mosaic_files import write_frames_csv, write_png
-    from .offline import StripPreview, _write_canvas
+    from .io.outputs import StripPreview, write_canvas
 
     scfg = config.survey
     n = len(stills)
@@ -450,7 +450,7 @@ def _paint_and_write(out: Path, config: PipelineConfig, stills: list[SurveyStill
         mosaic_raster = raster.shifted(x0, y0)
         preview = StripPreview(y1 - y0, x1 - x0, canvas.channels, config.mosaic.preview_max_side_px)
         tif = out / 'mosaic.tif' if has_gps else None
-        _write_canvas(canvas, tif, out / 'mosaic.png', mosaic_raster if has_gps else None, preview)
+        write_canvas(canvas, tif, out / 'mosaic.png', mosaic_raster if has_gps else None, preview)
         write_png(out / 'preview.png', preview.image())
         canvas_stats = canvas.tile_stats()
     if has_gps:

@@ -24,7 +24,8 @@ from srmosaic_ros.core.types import Frame
 from srmosaic_ros.io.geotiff import (MOSAIC_BLOCK_PX, overview_factors, png_from_geotiff, write_geotiff,
                                      write_geotiff_blocks)
 from srmosaic_ros.io.mosaic_files import write_png
-from srmosaic_ros.offline import StripPreview, _write_canvas, open_source, preview_image, write_outputs
+from srmosaic_ros.io.outputs import StripPreview, preview_image, write_canvas
+from srmosaic_ros.offline import open_source, write_outputs
 from srmosaic_ros.pipeline import Pipeline
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -64,7 +65,7 @@ def test_mosaic_tif_written_in_strips_equals_the_whole_render(channels: int, ble
     h, w = covered.shape
     assert h > 512 and w > 1024 and not covered.all() and covered.mean() > 0.7  # several strips, some holes
     preview = StripPreview(h, w, channels, 300)
-    _write_canvas(canvas, tmp_path / 'mosaic.tif', tmp_path / 'mosaic.png', RASTER, preview)
+    write_canvas(canvas, tmp_path / 'mosaic.tif', tmp_path / 'mosaic.png', RASTER, preview)
     write_geotiff(tmp_path / 'whole.tif', image, RASTER, coverage=covered)  # the whole-image writer
     with rasterio.open(tmp_path / 'mosaic.tif') as ds, rasterio.open(tmp_path / 'whole.tif') as whole:
         np.testing.assert_array_equal(ds.read(), whole.read())

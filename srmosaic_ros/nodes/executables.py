@@ -16,15 +16,15 @@ from pathlib import Path
 from ..errors import SrMosaicError
 
 __all__ = ['EXECUTABLES', 'split_ros_args', 'run_executable', 'node_main', 'record_tiles_arguments', 'run_record_tiles',
-           'play_arguments', 'run_play', 'main']
+           'play_arguments', 'run_play', 'player_main', 'tile_recorder_main', 'main']
 
 #: name -> 'module:function'; setup.py's console_scripts list the same (a test compares them).
 EXECUTABLES = {
     'mosaic_node': 'srmosaic_ros.nodes.mosaic_node:main',
     'georef_node': 'srmosaic_ros.nodes.georef_node:main',
     'sr_node': 'srmosaic_ros.nodes.sr_node:main',
-    'tile_recorder': 'srmosaic_ros.nodes.tile_recorder:main',
-    'player': 'srmosaic_ros.nodes.player:main',
+    'tile_recorder': 'srmosaic_ros.nodes.executables:tile_recorder_main',
+    'player': 'srmosaic_ros.nodes.executables:player_main',
 }
 
 
@@ -111,6 +111,18 @@ def run_play(args: argparse.Namespace) -> int:
                  args=['player', *args.ros_args])
     print(f'published {n} messages from {args.bag}')
     return 0
+
+
+def tile_recorder_main(argv: list[str] | None = None) -> int:
+    """`ros2 run srmosaic_ros tile_recorder DIR [--preview] [--ros-args ...]`."""
+    return run_executable('tile_recorder', record_tiles_arguments, run_record_tiles, argv,
+                          description='write the live SR tiles (and the preview) into a folder as GeoTIFFs')
+
+
+def player_main(argv: list[str] | None = None) -> int:
+    """`ros2 run srmosaic_ros player BAG [--rate R] [--ros-args ...]`."""
+    return run_executable('player', play_arguments, run_play, argv,
+                          description='publish a bag on its topics (the stand-in for ros2 bag play)')
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -56,7 +56,8 @@ from ..errors import SrMosaicError
 from ..live_raster import ImagePlacement, LiveRaster
 from ..core.types import Frame
 from ..io.mosaic_files import write_json
-from ..offline import peak_rss_mb, preview_image, write_outputs
+from ..io.outputs import peak_rss_mb, preview_image
+from ..offline import write_outputs
 from ..pipeline import FrameRecord, Pipeline
 from .common import (IMAGE_QOS_DEPTH, REGISTRATION_LAYOUT, TELEMETRY_QOS_DEPTH, TOPICS, DiagnosticsPublisher,
                      PosePublisher, StreamOrder, WarnOnce, camera_image, encode_registration, frame_ids, input_qos,

@@ -20,7 +20,7 @@ from ..errors import BagError
 from ..io.bags import inspect_bag, iter_raw
 from .runner import init_rclpy
 
-__all__ = ['play_bag', 'main']
+__all__ = ['play_bag']
 
 
 def _message_class(msgtype: str) -> type:
@@ -88,11 +88,3 @@ def play_bag(path: Path, *, rate: float = 1.0, topics: list[str] | None = None, 
         node.destroy_node()
         rclpy.try_shutdown()
     return count
-
-
-def main(argv: list[str] | None = None) -> int:
-    """`ros2 run srmosaic_ros player BAG [--rate R] [--ros-args ...]`."""
-    from .executables import play_arguments, run_executable, run_play
-
-    return run_executable('player', play_arguments, run_play, argv,
-                          description='publish a bag on its topics (the stand-in for ros2 bag play)')

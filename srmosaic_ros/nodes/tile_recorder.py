@@ -37,7 +37,7 @@ from ..io.mosaic_files import write_json, write_png
 from ..live_raster import ImagePlacement, LiveRaster
 from .common import TOPICS, WarnOnce
 
-__all__ = ['TileRecorderNode', 'main']
+__all__ = ['TileRecorderNode']
 
 
 class TileRecorderNode(Node):
@@ -125,11 +125,3 @@ class TileRecorderNode(Node):
     def finish(self) -> None:
         self.get_logger().info(f"wrote {self.written['tiles']} SR tiles and {self.written['previews']} previews "
                                f'into {self.out}')
-
-
-def main(argv: list[str] | None = None) -> int:
-    """`ros2 run srmosaic_ros tile_recorder DIR [--preview] [--ros-args ...]`."""
-    from .executables import record_tiles_arguments, run_executable, run_record_tiles
-
-    return run_executable('tile_recorder', record_tiles_arguments, run_record_tiles, argv,
-                          description='write the live SR tiles (and the preview) into a folder as GeoTIFFs')

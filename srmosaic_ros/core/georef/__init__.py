@@ -15,9 +15,9 @@ if TYPE_CHECKING:
         GeorefConfig,
         Georeferencer,
         camera_pose_from_enu_H_image,
-        homography_from_corners,
         utm_epsg,
     )
+    from .ground_homography import homography_from_corners
     from .ukf import CameraMount, PoseUkf, UkfParams, UpdateResult
 
 _LAZY = {
@@ -26,7 +26,7 @@ _LAZY = {
     'GeorefConfig': 'georeferencer',
     'Georeferencer': 'georeferencer',
     'camera_pose_from_enu_H_image': 'georeferencer',
-    'homography_from_corners': 'georeferencer',
+    'homography_from_corners': 'ground_homography',
     'utm_epsg': 'georeferencer',
     'CameraMount': 'ukf',
     'PoseUkf': 'ukf',

@@ -84,7 +84,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .ground_homography import apply_H
+from .ground_homography import apply_H, homography_from_corners
 
 __all__ = ['CanvasSimilarity', 'DriftState', 'InformationRate', 'chain_jacobian', 'drift_init', 'drift_step',
            'pose_error_transition', 'similarity_homography', 'similarity_jacobian']
@@ -215,12 +215,6 @@ def pose_error_transition(P_prev: np.ndarray, P_cur: np.ndarray, dt_s: float, *,
     return A, 0.5 * (Q + Q.T)
 
 
-def _homography_from_corners(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    from .georeferencer import homography_from_corners
-
-    return homography_from_corners(src, dst)
-
-
 def chain_jacobian(placed_prev: np.ndarray, prev_H_cur: np.ndarray, corners: np.ndarray,
                    step_px: float = 0.5) -> np.ndarray:
     """(8, 8) d corners_k / d corners_(k-1): how an error of the previous placement's corners moves the
@@ -231,8 +225,8 @@ def chain_jacobian(placed_prev: np.ndarray, prev_H_cur: np.ndarray, corners: np.
     for i in range(_CORNERS):
         d = np.zeros(_CORNERS)
         d[i] = step_px
-        plus = apply_H(_homography_from_corners(corners, (base + d).reshape(4, 2)), q).ravel()
-        minus = apply_H(_homography_from_corners(corners, (base - d).reshape(4, 2)), q).ravel()
+        plus = apply_H(homography_from_corners(corners, (base + d).reshape(4, 2)), q).ravel()
+        minus = apply_H(homography_from_corners(corners, (base - d).reshape(4, 2)), q).ravel()
         F[:, i] = (plus - minus) / (2.0 * step_px)
     return F
 
@@ -305,7 +299,6 @@ def drift_step(state: DriftState, chained: np.ndarray, corners: np.ndarray, chai
     """One frame of drift control: predict with the chained placement (3, 3), update with the pose
     ``(stamp_ns, predicted corners (8,), J (8, d), covariance (d, d))`` when there is one. Updates
     ``state`` in place and returns the corrected placement (3, 3) (the chained one without a pose)."""
-    from .georeferencer import homography_from_corners
 
     chained = np.asarray(chained, dtype=np.float64)
     prev_H_cur = np.linalg.solve(state.placed, chained)  # includes any outside correction

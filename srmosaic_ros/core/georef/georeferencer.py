@@ -53,7 +53,6 @@ __all__ = [
     'Georeferencer',
     'utm_epsg',
     'camera_pose_from_enu_H_image',
-    'homography_from_corners',
 ]
 
 _LOG = logging.getLogger(__name__)
@@ -321,18 +320,6 @@ class GeoRaster:
         upper-right, lower-right, lower-left (pixel edges, i.e. centres -0.5 / +0.5)."""
         c = np.array([[-0.5, -0.5], [width - 0.5, -0.5], [width - 0.5, height - 0.5], [-0.5, height - 0.5]])
         return self.lonlat_from_pixels(c)
-
-
-def homography_from_corners(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    """(3, 3) dst_H_src (h22 = 1) exactly mapping 4 points src (4, 2) to dst (4, 2), float64."""
-    A = np.zeros((8, 8))
-    b = np.zeros(8)
-    for i, ((x, y), (u, v)) in enumerate(zip(np.asarray(src, float), np.asarray(dst, float))):
-        A[2 * i] = (x, y, 1.0, 0.0, 0.0, 0.0, -u * x, -u * y)
-        A[2 * i + 1] = (0.0, 0.0, 0.0, x, y, 1.0, -v * x, -v * y)
-        b[2 * i], b[2 * i + 1] = u, v
-    h = np.linalg.solve(A, b)
-    return np.r_[h, 1.0].reshape(3, 3)
 
 
 def camera_pose_from_enu_H_image(K: np.ndarray, enu_H_image: np.ndarray, *,

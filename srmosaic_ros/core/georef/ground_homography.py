@@ -18,6 +18,7 @@ __all__ = [
     'frame2_H_frame1',
     'apply_H',
     'normalize_H',
+    'homography_from_corners',
 ]
 
 
@@ -73,3 +74,15 @@ def frame2_H_frame1(K: np.ndarray, R1_enu_from_cam: np.ndarray, C1_enu: np.ndarr
     n_w = np.array([0.0, 0.0, 1.0])
     H = K2 @ R2 @ (np.eye(3) - np.outer(C1 - C2, n_w) / d) @ R1.T @ np.linalg.inv(K1)
     return normalize_H(H)
+
+
+def homography_from_corners(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """(3, 3) dst_H_src (h22 = 1) exactly mapping 4 points src (4, 2) to dst (4, 2), float64."""
+    A = np.zeros((8, 8))
+    b = np.zeros(8)
+    for i, ((x, y), (u, v)) in enumerate(zip(np.asarray(src, float), np.asarray(dst, float))):
+        A[2 * i] = (x, y, 1.0, 0.0, 0.0, 0.0, -u * x, -u * y)
+        A[2 * i + 1] = (0.0, 0.0, 0.0, x, y, 1.0, -v * x, -v * y)
+        b[2 * i], b[2 * i + 1] = u, v
+    h = np.linalg.solve(A, b)
+    return np.r_[h, 1.0].reshape(3, 3)
