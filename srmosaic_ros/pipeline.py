@@ -39,7 +39,9 @@ from .malloc_tuning import HeapTrimmer
 from .core.image_ops import to_float01
 from .core.mosaic.canvas import CanvasError
 from .core.mosaic.segments import Segment
+from .core.mosaic.best_view import clip_depth
 from .core.mosaic.keyframe import KeyframeResult, corner_shift_px, render_view
+from .core.mosaic.minify import area_factor, area_reduce, finest_stretch
 from .core.registration import Features, Registration, make_registrar
 from .core.registration.pyramid import PyramidRegistrar
 from .core.georef.georeferencer import FramePose, Georeferencer
@@ -103,14 +105,13 @@ class PipelineResult:
 
 @dataclass
 class _Held:
-    """A frame kept for registration: its features, float image (None while held for settling, then
-    `raw`, the input image, is converted when it is painted) and record."""
+    """A frame kept for registration and painting: its features, record, camera and ``raw``, the
+    input image (converted for the canvas when it is painted: _paint_input)."""
 
     features: Features
-    image: np.ndarray | None
     record: FrameRecord
-    camera: CameraIntrinsics | None = None
-    raw: np.ndarray | None = None
+    camera: CameraIntrinsics | None
+    raw: np.ndarray
 
 
 class Pipeline:
@@ -220,6 +221,20 @@ class Pipeline:
                 break
             decided += self._process(self._waiting.pop(0))
         return decided
+
+    def _paint_input(self, raw: np.ndarray, seg_H_frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(float32 image, seg_H_image) to paint for a frame: a frame much finer than the mosaic is
+        averaged down to the mosaic's sampling first, on its integer pixels (minify.area_reduce)."""
+        h, w = raw.shape[:2]
+        cfg = self.config.mosaic
+        k = area_factor(finest_stretch(seg_H_frame, w, h, clip_depth(seg_H_frame, w, h, cfg.max_stretch)))
+        if k == 1:
+            return self._as_canvas_image(raw), seg_H_frame
+        if raw.dtype == np.uint8:
+            small, seg_H_small = area_reduce(raw, seg_H_frame, k)
+            return self._as_canvas_image(small), seg_H_small
+        small, seg_H_small = area_reduce(self._as_canvas_image(raw), seg_H_frame, k)
+        return np.ascontiguousarray(small, dtype=np.float32), seg_H_small
 
     def _as_canvas_image(self, image: np.ndarray) -> np.ndarray:
         """Edge image -> float32 (H, W, C) in [0, 1] with the channel count of the first frame."""
@@ -356,12 +371,13 @@ class Pipeline:
         if self._painter is not None:
             return self._paint_later(seg, held, seg_H_frame)
         with self.clock.stage('paint'):
-            image = held.image if held.image is not None else self._as_canvas_image(held.raw)
             try:
-                seg.add(held.record.index, image, seg_H_frame)
+                seg.canvas.check_placement(seg_H_frame, *held.record.size)
+                seg.canvas.paint(*self._paint_input(held.raw, seg_H_frame))
             except CanvasError as exc:  # absurd footprint: refuse, never allocate a giant canvas
                 held.record.reason = f'not painted: {exc}'
                 return False
+            seg.place(held.record.index, seg_H_frame)
         held.record.segment = seg.index
         held.record.seg_H_frame = seg_H_frame
         return True
@@ -377,12 +393,12 @@ class Pipeline:
         seg.place(record.index, seg_H_frame)
         record.segment = seg.index
         record.seg_H_frame = seg_H_frame
-        image, raw = held.image, held.raw
+        raw = held.raw
 
         def paint() -> None:
             with self.clock.stage('paint'):
                 try:
-                    seg.canvas.paint(image if image is not None else self._as_canvas_image(raw), seg_H_frame)
+                    seg.canvas.paint(*self._paint_input(raw, seg_H_frame))
                 except CanvasError as exc:  # refused after all (the canvas grew meanwhile): as if never placed
                     seg.unplace(record.index)
                     record.segment, record.seg_H_frame = -1, None
@@ -425,14 +441,9 @@ class Pipeline:
             return [record]
         with self.clock.stage('describe'):
             features = self.registrar.describe(frame.image)
-        if self._painter is not None:  # converted on the painter thread
-            image = None
-            if self._channels is None:
-                self._channels = 1 if frame.image.ndim == 2 else frame.image.shape[2]
-        else:
-            with self.clock.stage('paint'):  # the float image the canvas paints
-                image = self._as_canvas_image(frame.image)
-        held = _Held(features, image, record, frame.camera or self.camera, raw=frame.image)
+        if self._channels is None:  # the canvas's, from the first frame (later ones are converted to it)
+            self._channels = 1 if frame.image.ndim == 2 else frame.image.shape[2]
+        held = _Held(features, record, frame.camera or self.camera, frame.image)
         decided = [record]
         if self._last_good is None:
             self._fuse(held, None, None)
@@ -527,7 +538,6 @@ class Pipeline:
             held.record.reason = f'not painted: {exc}'
             return False
         held.record.seg_H_frame = seg_H_frame  # provisional: drift control chains the next frame from it
-        held.image = None                       # the input image is kept instead (held.raw)
         self._settling.append(held)
         cfg = self.config.mosaic
         span_s = (held.record.stamp_ns - self._settling[0].record.stamp_ns) * 1e-9

@@ -215,3 +215,19 @@ def test_wide_frames_are_painted_at_max_width():
         assert all(r.painted for r in res.records)
         x0, y0, x1, y1 = res.segments[0].canvas.bounds()
         assert x1 - x0 == pytest.approx(side + 24 * side / w, abs=4)
+
+
+def test_frames_much_finer_than_the_mosaic_are_averaged_down_first():
+    """area_reduce: k x k block means on the integer pixels, the homography following the block
+    centres; area_factor: k only where every block still covers a mosaic pixel or more."""
+    from srmosaic_ros.core.mosaic.minify import area_factor, area_reduce, finest_stretch
+
+    rng = np.random.default_rng(0)
+    image = rng.integers(0, 256, (30, 45, 3), dtype=np.uint8)
+    small, m = area_reduce(image, np.eye(3), 3)
+    assert small.shape == (10, 15, 3)
+    block = image[6:9, 12:15].reshape(-1, 3).mean(axis=0)
+    np.testing.assert_allclose(small[2, 4], block, atol=0.51)  # rounded to uint8
+    np.testing.assert_allclose(m @ [4.0, 2.0, 1.0], [13.0, 7.0, 1.0])  # the block's centre pixel
+    assert area_factor(1.0) == area_factor(0.6) == 1 and area_factor(0.5) == 2 and area_factor(1 / 3) == 3
+    assert finest_stretch(np.diag([0.25, 0.25, 1.0]), 100, 80) == pytest.approx(0.25)

@@ -9,6 +9,11 @@ geometric mean of its least and largest over the part of the frame that is paint
 down ``cv2.pyrDown`` (the Burt kernel, eq. 4.8), which keeps s >= 1/2 after reduction, and the
 homography follows: level-L pixel (u', v') is frame pixel (2**L u', 2**L v') (pyrDown keeps the
 even rows and columns).
+
+A frame two or more times finer than the mosaic everywhere (4K video painted at mosaic.max_width)
+is first averaged over k x k blocks (:func:`area_reduce`, on its integer pixels, before any float
+copy), k the largest that keeps its finest part at one mosaic pixel per block or more: nothing the
+mosaic can show is lost, and conversion, weights and warp run on the smaller image.
 """
 from __future__ import annotations
 
@@ -17,7 +22,7 @@ import math
 import cv2
 import numpy as np
 
-__all__ = ['MAX_LEVELS', 'minify_level', 'reduce_frame']
+__all__ = ['MAX_LEVELS', 'area_factor', 'area_reduce', 'finest_stretch', 'minify_level', 'reduce_frame']
 
 #: Most pyramid levels a frame is reduced by (1/64 linear).
 MAX_LEVELS = 6
@@ -57,3 +62,35 @@ def reduce_frame(img: np.ndarray, valid: np.ndarray | None, m: np.ndarray, level
     scale = float(2**level)
     m_red = m @ np.diag([scale, scale, 1.0])
     return img, (None if mask is None else mask > 0.999), m_red
+
+
+def finest_stretch(m: np.ndarray, w: int, h: int, d_min: float | None = None) -> float:
+    """The largest linear stretch sqrt(det J) of a (w, h) frame's pixels on the mosaic through
+    mosaic_H_frame ``m`` (3, 3), over the part painted (depth >= ``d_min``; the nearest ground, where
+    depth is least); 0 when the frame does not face the mosaic."""
+    corners = np.array([[-0.5, -0.5, 1.0], [w - 0.5, -0.5, 1.0], [w - 0.5, h - 0.5, 1.0], [-0.5, h - 0.5, 1.0]])
+    depth = corners @ m[2]
+    det = abs(float(np.linalg.det(m)))
+    lo = float(depth.min()) if d_min is None else max(float(depth.min()), d_min)
+    if not (det > 0 and lo > 0):
+        return 0.0
+    return math.sqrt(det / lo ** 3)
+
+
+def area_factor(stretch: float) -> int:
+    """The integer k >= 2 a frame whose finest part lands at ``stretch`` mosaic px per frame px is
+    averaged down by (k x k blocks: each block still at least one mosaic pixel), or 1: none."""
+    return int(1.0 / stretch) if 0.0 < stretch <= 0.5 else 1
+
+
+def area_reduce(image: np.ndarray, m: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """(the image averaged over k x k blocks, cropped to a multiple of k; mosaic_H_reduced (3, 3));
+    ``image`` (h, w) or (h, w, C) uint8 or float32. Pixel centres stay at integers: reduced pixel u'
+    covers frame pixels k u' .. k u' + k - 1, centre k u' + (k - 1) / 2."""
+    h, w = (image.shape[0] // k) * k, (image.shape[1] // k) * k
+    out = cv2.resize(image[:h, :w], (w // k, h // k), interpolation=cv2.INTER_AREA)
+    if image.ndim == 3 and out.ndim == 2:  # OpenCV drops a single channel
+        out = out[:, :, None]
+    o = (k - 1) / 2.0
+    frame_from_reduced = np.array([[float(k), 0.0, o], [0.0, float(k), o], [0.0, 0.0, 1.0]])
+    return out, m @ frame_from_reduced
