@@ -16,11 +16,12 @@ __all__ = ['FallbackFeatures', 'FallbackRegistrar', 'make_registrar']
 
 @dataclass
 class FallbackFeatures:
-    """Features of one frame for FallbackRegistrar: the primary (torch) features, the frame's
-    grey levels (H, W) uint8 and, once a pair needed it, the OpenCV features (described lazily)."""
+    """Features of one frame for FallbackRegistrar: the primary (torch) features, the frame's image
+    (kept for the fallback: its grey levels are made only if a pair fails) and, once a pair needed
+    it, the OpenCV features (described lazily)."""
 
     primary: TorchFeatures
-    gray: np.ndarray
+    image: np.ndarray
     fallback: Features | None = None
 
     def __len__(self) -> int:
@@ -49,12 +50,12 @@ class FallbackRegistrar:
         self.device = primary.device
 
     def describe(self, image: np.ndarray) -> FallbackFeatures:
-        """Torch features of a frame ((H, W) or (H, W, 3), uint8/uint16/float) and its grey levels."""
-        return FallbackFeatures(self.primary.describe(image), to_gray_u8(image))
+        """Torch features of a frame ((H, W) or (H, W, 3), uint8/uint16/float), the frame kept."""
+        return FallbackFeatures(self.primary.describe(image), image)
 
     def _fallback_features(self, features: FallbackFeatures) -> Features:
         if features.fallback is None:
-            features.fallback = self.fallback.describe(features.gray)
+            features.fallback = self.fallback.describe(to_gray_u8(features.image))
         return features.fallback
 
     def register(self, prev: FallbackFeatures, cur: FallbackFeatures, *, second_opinion: bool = True) -> Registration:
