@@ -399,8 +399,9 @@ def test_georef_node_lifecycle(ros_env):
     listener = Listener({'diagnostics': (DiagnosticArray, '/glc/srmosaic/diagnostics'),
                          'pose': (PoseWithCovarianceStamped, '/glc/srmosaic/pose')})
     start = [sys.executable, '-m', 'srmosaic_ros.nodes.executables']
+    # (a queue for every frame: under load the mosaic node must not drop frames this test counts)
     common = ['--ros-args', '-r', '__ns:=/glc', '-p', 'live.autostart:=false', '-p', 'live.georef_standalone:=true',
-              '-p', 'live.reliable_inputs:=true', '-p', 'live.preview_period_s:=0.3']
+              '-p', 'live.reliable_inputs:=true', '-p', 'live.preview_period_s:=0.3', '-p', 'live.queue_size:=100']
     procs = {name: subprocess.Popen([*start, executable, *common], env=ros_env, stdout=subprocess.PIPE,
                                     stderr=subprocess.STDOUT, text=True)
              for name, executable in (('georef', 'georef_node'), ('mosaic', 'mosaic_node'))}
