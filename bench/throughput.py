@@ -12,7 +12,7 @@ checkpoints) runs on each in a fresh process, as a user runs it; with --baseline
 command of the code at git REF (a temporary worktree, the same virtual environment) runs beside
 it, the two taking turns flight by flight so that load on a shared machine hits both alike.
 Printed per run: frames/s end to end (frames over the process's wall time, start-up included)
-beside the video's own rate, the median per-frame time of each stage (report.json's
+beside the video's own rate, the mean per-frame time of each stage (report.json's
 stage_times; a baseline without them shows the total only), the mean corner error over the
 registered frames in full-size frame pixels (srmosaic_ros.evaluate against the truth), the frames
 in the main mosaic and the peak memory. The figures go to --work/throughput.json.
@@ -86,7 +86,7 @@ def row(name: str, size: str, report: dict[str, Any], truth: Path, out: Path) ->
     stages = report.get('stage_times', {})
     return {'code': name, 'size': size, 'video_fps': SIZES[size][2], 'frames': frames,
             'fps': frames / report['process_wall_s'], 'fps_loop': report.get('frames_per_s'),
-            'stage_ms': {s: stages[s]['median_ms'] for s in STAGES if s in stages},
+            'stage_ms': {s: round(stages[s]['total_s'] / max(stages[s]['frames'], 1) * 1e3, 2) for s in STAGES if s in stages},
             'stage_p95_ms': {s: stages[s]['p95_ms'] for s in STAGES if s in stages},
             'corner_error_mean_px': ev['corner_error_mean_px'], 'pair_error_mean_px': ev['pair_corner_error_mean_px'],
             'frames_registered': report['frames_registered'], 'segments': len(report['segments']),
@@ -105,8 +105,9 @@ def print_table(rows: list[dict[str, Any]]) -> None:
               f"{r['corner_error_mean_px']:7.3f} {(pair if pair is not None else float('nan')):7.4f} "
               f"{r['frames_registered']:>3}/{r['frames']:<3}{r['peak_rss_mb'] or 0:7.0f}")
     print('fps: frames per second end to end (process start-up included); run fps: report.json\'s (from the '
-          'input opened to report.json written: start-up of Python and torch left out); stage columns: median ms per '
-          'input frame; err px: mean corner error of the mosaic placement, pair px: of consecutive frames, in '
+          'input opened to report.json written: start-up of Python and torch left out); stage columns: mean ms per '
+          'input frame, on whichever thread (decode: the reader\'s wait; paint: the painter\'s work); '
+          'err px: mean corner error of the mosaic placement, pair px: of consecutive frames, in '
           'full-size frame pixels; in mos: frames in the main mosaic; MB: peak memory')
 
 

@@ -4,7 +4,7 @@
     with clock.stage('describe'):
         ...
     clock.end_frame()          # after each input frame: its stages become one sample each
-    clock.summary()            # {stage: {'median_ms', 'p95_ms', 'total_s', 'frames'}}
+    clock.summary()            # {stage: {'median_ms', 'p95_ms', 'mean_ms', 'total_s', 'frames'}}
 
 A frame's sample holds the work done between its arrival and the next frame's, whichever frame
 that work was for (a frame held for telemetry or settling is painted during a later one), so the
@@ -80,9 +80,11 @@ class StageClock:
         self._lock = threading.Lock()
 
     def summary(self) -> dict[str, dict[str, float | int]]:
-        """{stage: {'median_ms', 'p95_ms' (per input frame), 'total_s', 'frames'}} plus 'total' (the
-        sum of the stages per frame); stages that never ran are left out. 'outputs' runs once per
-        run: its total counts, its per-frame figures are its total spread over the frames."""
+        """{stage: {'median_ms', 'p95_ms', 'mean_ms' (per input frame), 'total_s', 'frames'}} plus
+        'total' (the sum of the stages per frame); stages that never ran are left out. 'outputs' runs
+        once per run: its total counts, its per-frame figures are its total spread over the frames.
+        A stage on another thread (the painter) lands on the frame during which it ended: its mean
+        is its share of each frame, its median and p95 say little."""
         out: dict[str, dict[str, float | int]] = {}
         per_frame = np.zeros(len(self._samples['decode']))
         for name in STAGES:
@@ -103,4 +105,5 @@ class StageClock:
 def _figures(samples: np.ndarray, total: float, frames: int) -> dict[str, float | int]:
     return {'median_ms': round(float(np.median(samples)) * 1e3, 3),
             'p95_ms': round(float(np.percentile(samples, 95)) * 1e3, 3),
+            'mean_ms': round(total / max(frames, 1) * 1e3, 3),
             'total_s': round(total, 3), 'frames': frames}
