@@ -44,7 +44,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-__all__ = ['clip_depth', 'clipped_polygon', 'depth_map', 'resolution_factor', 'transition_image', 'update_best']
+__all__ = ['clip_depth', 'clipped_polygon', 'depth_map', 'magnified_somewhere', 'resolution_factor', 'transition_image',
+           'update_best']
 
 
 def depth_map(m: np.ndarray, h: int, w: int) -> np.ndarray:
@@ -97,6 +98,19 @@ def resolution_factor(m: np.ndarray, depth: np.ndarray) -> np.ndarray:
     d = np.maximum(depth, np.float32(0.0))
     r = np.sqrt(d * d * d / np.float32(det)) if det > 0 else np.ones_like(depth)
     return np.minimum(r, np.float32(1.0), out=r)
+
+
+def magnified_somewhere(m: np.ndarray, w: int, h: int) -> bool:
+    """Whether :func:`resolution_factor` is below 1 anywhere over a (w, h) frame through mosaic_H_frame
+    ``m``: some pixel lands larger than a mosaic pixel. Depth is linear over the frame, so its least
+    value is at a corner; False (the factor is 1 everywhere: nothing to compute) only with a margin
+    that float32 rounding cannot cross."""
+    det = abs(float(np.linalg.det(m)))
+    if not det > 0:
+        return False  # resolution_factor is 1 everywhere then
+    corners = np.array([[-0.5, -0.5, 1.0], [w - 0.5, -0.5, 1.0], [w - 0.5, h - 0.5, 1.0], [-0.5, h - 0.5, 1.0]])
+    d = max(float((corners @ m[2]).min()), 0.0)
+    return d ** 3 / det < 1.001
 
 
 def _disagreement(a: np.ndarray, b: np.ndarray) -> np.ndarray:

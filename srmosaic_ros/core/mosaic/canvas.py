@@ -52,7 +52,8 @@ import numpy as np
 from srmosaic_ros.errors import SrMosaicError
 
 from ..homography import project_points
-from .best_view import clip_depth, clipped_polygon, depth_map, resolution_factor, transition_image, update_best
+from .best_view import (clip_depth, clipped_polygon, depth_map, magnified_somewhere, resolution_factor, transition_image,
+                        update_best)
 from .minify import minify_level, reduce_frame
 from .blend import FEATHER_PROFILES, auto_bands, feather_weight, multiband_blend
 from .config import BLEND_MODES
@@ -495,13 +496,16 @@ class TiledCanvas:
             h, w = img.shape[:2]
         best_view = self._blend == 'bestview'
         d_min = clip_depth(m, w, h, self._max_stretch)
-        depth = depth_map(m, h, w) if (best_view or d_min is not None) else None
+        # view quality's resolution factor: 1 everywhere (not computed) unless a frame pixel lands
+        # larger than a mosaic pixel somewhere
+        coarse = best_view and magnified_somewhere(m, w, h)
+        depth = depth_map(m, h, w) if (coarse or d_min is not None) else None
         if d_min is not None and depth is not None:  # the far field and sky of an oblique view stay out
             kept = depth >= np.float32(d_min)
             valid = kept if valid is None else valid & kept
 
         weight = feather_weight(h, w, profile=self._profile, power=self._power, mask=valid)
-        if best_view and depth is not None:  # view quality: closeness to the centre x resolution
+        if coarse and depth is not None:  # view quality: closeness to the centre x resolution
             weight = weight * resolution_factor(m, depth)
         if valid is not None:
             img = _fill_invalid(img, valid)
