@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 
+from srmosaic_ros.errors import RegistrationError
 from srmosaic_ros.core.metrics import corner_error_px
 from srmosaic_ros.core.registration import Registrar, RegistrationConfig
 from srmosaic_ros.core.registration.covariance import homography_covariance_ut
@@ -330,7 +331,7 @@ def test_failed_pair_is_retried_with_more_keypoints():
 def test_refuses_foreign_features_and_bad_options():
     ocv = Registrar()
     feats = ocv.describe(view(translation(0, 0), W, H))
-    with pytest.raises(TypeError, match='TorchRegistrar.describe'):
+    with pytest.raises(RegistrationError, match='TorchRegistrar.describe'):
         TorchRegistrar(device='cpu').register(feats, feats)
     with pytest.raises(ValueError, match='ransac_batch'):
         TorchRegistrarOptions(ransac_batch=1)

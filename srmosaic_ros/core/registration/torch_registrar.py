@@ -45,6 +45,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
+from ...errors import RegistrationError
 from ..device import resolve_device
 from ..homography import corner_shift_px
 from .covariance import homography_covariance_ut
@@ -233,8 +234,9 @@ class TorchRegistrar:
         """
         t0 = time.perf_counter()
         if not isinstance(prev, TorchFeatures) or not isinstance(cur, TorchFeatures):
-            msg = 'TorchRegistrar.register needs Features from TorchRegistrar.describe (not from another registrar).'
-            raise TypeError(msg)
+            msg = ('TorchRegistrar.register needs Features from TorchRegistrar.describe (not from another registrar): '
+                   'describe both frames with the registrar that registers them.')
+            raise RegistrationError(msg)
         reg = self._register_once(prev, cur, t0)
         if not reg.ok and reg.reason.startswith('too few') and len(prev.keypoints) >= 4 and len(cur.keypoints) >= 4:
             grew_prev = prev.extend(self.config.max_features)
