@@ -28,17 +28,24 @@ __all__ = ['MAX_LEVELS', 'area_factor', 'area_reduce', 'finest_stretch', 'minify
 MAX_LEVELS = 6
 
 
+def _depth_extremes(m: np.ndarray, w: int, h: int, d_min: float | None) -> tuple[float, float, float]:
+    """(|det m|, least depth, largest depth) of a (w, h) frame's corners through mosaic_H_frame ``m``
+    (3, 3); the least depth raised to ``d_min`` (the part painted) when given. The stretch at depth d
+    is sqrt(|det m| / d**3)."""
+    corners = np.array([[-0.5, -0.5, 1.0], [w - 0.5, -0.5, 1.0], [w - 0.5, h - 0.5, 1.0], [-0.5, h - 0.5, 1.0]])
+    depth = corners @ m[2]
+    lo = float(depth.min()) if d_min is None else max(float(depth.min()), d_min)
+    return abs(float(np.linalg.det(m))), lo, float(depth.max())
+
+
 def minify_level(m: np.ndarray, w: int, h: int, d_min: float | None = None) -> int:
     """Pyramid levels to reduce a (w, h) frame by before warping it through mosaic_H_frame ``m`` (3, 3)
     (positive depth over the part painted: depth >= ``d_min``, the cut of best_view.clip_depth, or the
     whole frame for None); 0 when that part does not shrink by 2 or more."""
-    corners = np.array([[-0.5, -0.5, 1.0], [w - 0.5, -0.5, 1.0], [w - 0.5, h - 0.5, 1.0], [-0.5, h - 0.5, 1.0]])
-    depth = corners @ m[2]
-    det = abs(float(np.linalg.det(m)))
-    lo = float(depth.min()) if d_min is None else max(float(depth.min()), d_min)
+    det, lo, hi = _depth_extremes(m, w, h, d_min)
     if not (det > 0 and lo > 0):
         return 0
-    s = math.sqrt(det / (lo * float(depth.max())) ** 1.5)  # geometric mean of the extreme stretches
+    s = math.sqrt(det / (lo * hi) ** 1.5)  # geometric mean of the extreme stretches
     if not s < 0.5:
         return 0
     level = min(int(math.floor(math.log2(1.0 / s))), MAX_LEVELS)
@@ -68,10 +75,7 @@ def finest_stretch(m: np.ndarray, w: int, h: int, d_min: float | None = None) ->
     """The largest linear stretch sqrt(det J) of a (w, h) frame's pixels on the mosaic through
     mosaic_H_frame ``m`` (3, 3), over the part painted (depth >= ``d_min``; the nearest ground, where
     depth is least); 0 when the frame does not face the mosaic."""
-    corners = np.array([[-0.5, -0.5, 1.0], [w - 0.5, -0.5, 1.0], [w - 0.5, h - 0.5, 1.0], [-0.5, h - 0.5, 1.0]])
-    depth = corners @ m[2]
-    det = abs(float(np.linalg.det(m)))
-    lo = float(depth.min()) if d_min is None else max(float(depth.min()), d_min)
+    det, lo, _ = _depth_extremes(m, w, h, d_min)
     if not (det > 0 and lo > 0):
         return 0.0
     return math.sqrt(det / lo ** 3)
