@@ -54,7 +54,12 @@ def test_launch_file_nodes_and_namespaces(tmp_path):
     nodes = read_launch_xml(LAUNCH, {'namespace': 'uav1', 'georef_standalone': 'true', 'sr': 'false'})
     assert [(n.executable, n.namespace, n.name) for n in nodes] == [
         ('mosaic_node', '/uav1', 'srmosaic_mosaic'), ('georef_node', '/uav1', 'srmosaic_georef')]
-    assert nodes[0].parameters == {'live.georef_standalone': 'true'}
+    assert nodes[0].parameters == {'live.georef_standalone': 'true', 'live.autostart': 'false'}
+    # the managed nodes are brought up by the launcher (launch_ros's <lifecycle_node autostart>)
+    assert [(n.managed, n.autostart) for n in nodes] == [(True, True), (True, True)]
+    assert [(n.managed, n.autostart) for n in default] == [(True, True), (False, False)]
+    manual = read_launch_xml(LAUNCH, {'autostart': 'false', 'sr': 'false'})
+    assert [(n.executable, n.managed, n.autostart) for n in manual] == [('mosaic_node', True, False)]
     cmd = xml_node_command(nodes[0], [], ['--params-file', str(tmp_path / 'cli.yaml')], tmp_path)
     assert cmd[1:4] == ['-m', 'srmosaic_ros.nodes.executables', 'mosaic_node']
     assert ['-r', '__ns:=/uav1'] == cmd[5:7] and ['-r', '__node:=srmosaic_mosaic'] == cmd[7:9]
@@ -82,6 +87,10 @@ def test_launch_file_nodes_and_namespaces(tmp_path):
      'no such parameter file'),
     ('<arg name="sr" default="false"/><node pkg="srmosaic_ros" exec="sr_node" if="$(var sr)"/>', {},
      'starts no node'),
+    ('<lifecycle_node pkg="srmosaic_ros" exec="mosaic_node" autostart="true"/>', {}, 'needs the attribute name'),
+    ('<lifecycle_node pkg="srmosaic_ros" exec="mosaic_node" name="m" autostart="yes"/>', {},
+     "autostart='yes' must be true, false, 1 or 0"),
+    ('<node pkg="srmosaic_ros" exec="mosaic_node" name="m" autostart="true"/>', {}, "attributes ['autostart']"),
 ])
 def test_launch_file_refusals_name_the_problem(tmp_path, body, args, says):
     path = tmp_path / 'bad.launch.xml'
@@ -442,6 +451,40 @@ def test_georef_node_lifecycle(ros_env):
         assert listener.wait_for(lambda: 'inactive' in listener.statuses()['glc/srmosaic: georeferencing'].message, 10)
         transition('georef', Transition.TRANSITION_CLEANUP)
         assert state('georef') == State.PRIMARY_STATE_UNCONFIGURED
+
+
+@pytest.mark.ros
+def test_launcher_brings_the_managed_nodes_up(ros_env):
+    """`srmosaic launch` of the launch file drives the managed nodes' transitions (the nodes do not
+    start themselves): every node configured before any is activated; both end active. A node that
+    refuses to configure ends the launch with status 2 and says which."""
+    from lifecycle_msgs.msg import State
+    from lifecycle_msgs.srv import GetState
+
+    listener = Listener({})
+    launch = [sys.executable, '-m', 'srmosaic_ros.cli', 'launch', str(LAUNCH), 'sr:=false']
+    graph = subprocess.Popen([*launch, 'namespace:=up', 'georef_standalone:=true'], env=ros_env,
+                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    clients = {name: listener.node.create_client(GetState, f'/up/srmosaic_{name}/get_state')
+               for name in ('mosaic', 'georef')}
+
+    def active(name: str) -> bool:
+        if not clients[name].service_is_ready():
+            return False
+        return _call(listener, clients[name].call_async(GetState.Request())).current_state.id == State.PRIMARY_STATE_ACTIVE
+
+    with supervised_processes({'launch': graph}, listener.close) as logs:
+        assert listener.wait_for(lambda: active('mosaic') and active('georef'), 120)
+    lines = [line.split('srmosaic launch: ')[-1] for line in logs['launch'].splitlines() if 'srmosaic launch: /up/' in line
+             and line.endswith(('configured', 'activated'))]
+    assert lines == ['/up/srmosaic_mosaic: configured', '/up/srmosaic_georef: configured',
+                     '/up/srmosaic_mosaic: activated', '/up/srmosaic_georef: activated'], logs['launch']
+    assert graph.returncode == 0, logs['launch']
+    refused = subprocess.run([*launch, 'namespace:=bad', '--ros-args', '-p', 'mosaic.blend:=bogus'], env=ros_env,
+                             capture_output=True, text=True, timeout=180)
+    assert refused.returncode == 2, refused.stderr
+    assert '/bad/srmosaic_mosaic refused to configure' in refused.stderr, refused.stderr
+    assert "mosaic.blend must be one of" in refused.stderr
 
 
 @pytest.mark.ros

@@ -7,6 +7,9 @@
 - ``<group>`` (scoped, with ``if``/``unless``) and ``<push-ros-namespace namespace>`` in it;
 - ``<node pkg exec name namespace args output if unless>`` of this package's executables, with
   ``<param from="FILE"/>``, ``<param name value/>`` and ``<remap from to/>``;
+- ``<lifecycle_node>`` (launch_ros's element for managed nodes: the same, with ``name`` required and
+  ``autostart``): with autostart true the launcher configures, then activates, every such node
+  (lifecycle_driver.py), as ros2 launch does;
 - substitutions ``$(var NAME)``, ``$(env NAME [default])``, ``$(find-pkg-share srmosaic_ros)``.
 
 Anything else is refused with its name, rather than skipped (a node that silently did not start
@@ -41,6 +44,8 @@ class LaunchNode:
     param_files: list[str] = field(default_factory=list)
     parameters: dict[str, str] = field(default_factory=dict)  # name -> value text (read as YAML, as rcl reads -p)
     remappings: list[tuple[str, str]] = field(default_factory=list)
+    managed: bool = False  # a <lifecycle_node>
+    autostart: bool = False  # the launcher brings it up (configure, activate)
 
     @property
     def label(self) -> str:
@@ -170,18 +175,28 @@ class _Reader:
             elif element.tag == 'push-ros-namespace':
                 self.check_attributes(element, {'namespace'})
                 namespace = _join(namespace, self.attribute(element, 'namespace', scope, required=True))
-            elif element.tag == 'node':
+            elif element.tag in ('node', 'lifecycle_node'):
                 self.node(element, scope, namespace)
             else:
                 raise self.fail(element, 'is not understood by srmosaic launch (known: arg, let, group, '
-                                'push-ros-namespace, node with param and remap); use ros2 launch for the full language.')
+                                'push-ros-namespace, node and lifecycle_node with param and remap); use ros2 launch '
+                                'for the full language.')
 
     def node(self, element: ET.Element, scope: dict[str, str], namespace: str) -> None:
         from .executables import EXECUTABLES
 
-        self.check_attributes(element, {'pkg', 'exec', 'name', 'namespace', 'args', 'output', 'if', 'unless'})
+        managed = element.tag == 'lifecycle_node'
+        self.check_attributes(element, {'pkg', 'exec', 'name', 'namespace', 'args', 'output', 'if', 'unless',
+                                        *(('autostart',) if managed else ())})
         if not self.condition(element, scope):
             return
+        autostart = False
+        if managed:
+            self.attribute(element, 'name', scope, required=True)  # the launcher finds its services by it
+            text = self.attribute(element, 'autostart', scope, default='false').strip().lower()
+            if text not in _TRUE | _FALSE:
+                raise self.fail(element, f'autostart={text!r} must be true, false, 1 or 0.')
+            autostart = text in _TRUE
         pkg = self.attribute(element, 'pkg', scope, required=True)
         executable = self.attribute(element, 'exec', scope, required=True)
         if pkg != PACKAGE or executable not in EXECUTABLES:
@@ -189,7 +204,8 @@ class _Reader:
                             f'{PACKAGE} ({sorted(EXECUTABLES)}).')
         node = LaunchNode(executable, name=self.attribute(element, 'name', scope) or None,
                           namespace=_join(namespace, self.attribute(element, 'namespace', scope, default='')),
-                          arguments=shlex.split(self.attribute(element, 'args', scope, default='')))
+                          arguments=shlex.split(self.attribute(element, 'args', scope, default='')),
+                          managed=managed, autostart=autostart)
         for child in element:
             if not isinstance(child.tag, str):
                 continue
@@ -208,7 +224,7 @@ class _Reader:
                 node.remappings.append((self.attribute(child, 'from', scope, required=True),
                                         self.attribute(child, 'to', scope, required=True)))
             else:
-                raise self.fail(child, 'inside <node> is not understood by srmosaic launch (known: param, remap).')
+                raise self.fail(child, f'inside <{element.tag}> is not understood by srmosaic launch (known: param, remap).')
         self.nodes.append(node)
 
 

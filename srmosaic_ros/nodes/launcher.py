@@ -190,6 +190,11 @@ def launch(description: Path | None, extra_params: list[str], extra_ros_args: li
         if is_xml:
             nodes = read_launch_xml(description, parse_launch_arguments(launch_arguments or []))
             children = [(node.label, xml_node_command(node, extra_params, extra_ros_args, Path(tmp))) for node in nodes]
+            managed = [node.label for node in nodes if node.managed and node.autostart]
+            if managed:
+                from .lifecycle_driver import LifecycleDriver
+
+                return _supervise(children, LifecycleDriver(managed, log=_say))
         else:
             procs = load_description(description)
             children = [(proc.get('name', '+'.join(proc['nodes'])),
@@ -199,12 +204,20 @@ def launch(description: Path | None, extra_params: list[str], extra_ros_args: li
         return _supervise(children)
 
 
-def _supervise(commands: list[tuple[str, list[str]]]) -> int:
-    """Start the children, forward SIGINT/SIGTERM to them, stop all when one fails; their status."""
+def _say(text: str) -> None:
+    print(f'srmosaic launch: {text}', file=sys.stderr)
+
+
+def _supervise(commands: list[tuple[str, list[str]]], driver: Any = None) -> int:
+    """Start the children, forward SIGINT/SIGTERM to them, stop all when one fails; their status.
+    ``driver`` (a LifecycleDriver) brings the managed nodes up meanwhile; when it fails, the graph
+    is stopped and the status is 2."""
     children = []
     for label, cmd in commands:
-        print(f"srmosaic launch: starting {label}: {' '.join(cmd[3:])}", file=sys.stderr)
+        _say(f"starting {label}: {' '.join(cmd[3:])}")
         children.append(subprocess.Popen(cmd))
+    if driver is not None:
+        driver.start()
 
     def forward(signum: int, frame: Any) -> None:
         for child in children:
@@ -216,15 +229,22 @@ def _supervise(commands: list[tuple[str, list[str]]]) -> int:
     status = 0
     try:
         while any(c.poll() is None for c in children):
+            if driver is not None and driver.failure:
+                _say(f'{driver.failure}; stopping the graph')
+                status = 2
+                forward(signal.SIGINT, None)
+                break
             failed = [(label, c.returncode) for (label, _), c in zip(commands, children) if c.poll() not in (None, 0)]
             if failed:  # one failed: say which, stop the others
                 label, code = failed[0]
                 how = f'was killed by {signal.Signals(-code).name}' if code < 0 else f'exited with status {code}'
-                print(f'srmosaic launch: {label} {how}; stopping the others', file=sys.stderr)
+                _say(f'{label} {how}; stopping the others')
                 forward(signal.SIGINT, None)
                 break
             time.sleep(0.2)
     finally:
+        if driver is not None:
+            driver.stop()
         deadline = time.monotonic() + 30
         for child in children:
             try:
