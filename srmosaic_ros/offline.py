@@ -3,19 +3,20 @@ from __future__ import annotations
 
 import collections
 import errno
-import json
 import logging
 import math
-import os
 import shutil
 import time
 from pathlib import Path
 from collections.abc import Iterable, Iterator
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from tqdm import tqdm
 
+from .core.homography import translation as _translation
+from .mosaic_georeference import anchored_raster, geotag_fit_of_main
+from .io.output_dir import OutputTransaction, check_output_dir
 from .checkpoint import Checkpoint, checkpoint_path, fingerprint, load_checkpoint, save_checkpoint
 from .config import PipelineConfig
 from .io.bags import TopicConfig, read_flight
@@ -26,30 +27,14 @@ from .io.outputs import StripPreview, peak_rss_mb, write_canvas
 from .errors import InputError, OutputError, SrMosaicError
 from .io.mosaic_video import MosaicVideoRecorder
 from .pipeline import Pipeline, PipelineResult
-from .core.georef.geotag_fit import GEOTAG_MIN_EXTENT_M
 from .core.device import cores_left_for_torch
 from .core.image_ops import to_float01
 from .core.stage_clock import StageClock
 from .core.types import Frame
 
-if TYPE_CHECKING:
-    from .core.georef import GeoRaster
-
 _LOG = logging.getLogger(__name__)
 
-#: Offline re-anchoring fits frame corners unless the height above ground is known worse than this
-#: (relative standard deviation, median over the frames): then the frame centres only.
-ANCHOR_CORNERS_MAX_REL_AGL_SD = 0.02
-#: The fit of a mosaic to its geotags needs them to span GEOTAG_MIN_EXTENT_M (geotag_fit.py) ...
-#: ... and fits only the offset when the similarity's rotation is known worse than the poses' heading,
-#: and than this (deg).
-ANCHOR_MIN_ROTATION_SD_DEG = 0.5
-
 __all__ = ['open_source', 'process_input', 'write_outputs']
-
-
-def _translation(dx: float, dy: float) -> np.ndarray:
-    return np.array([[1.0, 0.0, dx], [0.0, 1.0, dy], [0.0, 0.0, 1.0]])
 
 
 #: Input items read ahead by a background thread while the pipeline works (io/prefetch.py).
@@ -210,7 +195,7 @@ def _write_main_mosaic(out: Path, result: PipelineResult, config: PipelineConfig
     from .io.kml import write_kml_for_raster
 
     if not (main.georeferenced and georef is not None and georef.raster is not None):
-        fit = _geotag_fit(result, (x0, y0), config) if config.georef_enabled else None
+        fit = geotag_fit_of_main(result, (x0, y0), config) if config.georef_enabled else None
         write_canvas(canvas, out / 'mosaic.tif' if fit else None, out / 'mosaic.png', fit.raster if fit else None,
                       preview)
         write_png(out / 'preview.png', preview.image())
@@ -222,7 +207,7 @@ def _write_main_mosaic(out: Path, result: PipelineResult, config: PipelineConfig
     from .io.poses_csv import write_poses_csv
 
     poses = georef.smoothed_poses()
-    raster, anchoring = _mosaic_raster(result, poses, (x0, y0))
+    raster, anchoring = anchored_raster(result, poses, (x0, y0))
     write_canvas(canvas, out / 'mosaic.tif', out / 'mosaic.png', raster, preview)
     write_png(out / 'preview.png', preview.image())
     write_kml_for_raster(out / 'mosaic.kml', 'mosaic.png', raster, x1 - x0, y1 - y0)
@@ -230,225 +215,6 @@ def _write_main_mosaic(out: Path, result: PipelineResult, config: PipelineConfig
     return {'method': 'filter', 'epsg': raster.epsg, 'gsd_m_per_px': raster.gsd_m_per_px,
             'geotransform': list(raster.geotransform), **anchoring, 'poses': len(poses),
             'skipped_telemetry': dict(georef.skipped)}
-
-
-def _mosaic_raster(result: PipelineResult, poses: list[Any], origin: tuple[int, int]) -> tuple[GeoRaster, dict[str, Any]]:
-    """(GeoRaster of mosaic.png's pixel (0, 0), the anchoring figures) from the smoothed poses.
-
-    The mosaic plane was anchored by the first frame's (early, filtered) pose. With the smoothed
-    poses of every frame, re-anchor it (core/georef/anchoring.py): the least-squares similarity
-    between each frame's chained corners and its pose-predicted corners (offset, rotation and
-    scale, estimated from the whole flight) goes into the geotransform. The mosaic's pixels do
-    not move: mosaic.png and mosaic.tif stay one grid.
-    """
-    from .core.georef.anchoring import fit_similarity
-    from .core.metrics import apply_homography
-
-    georef = result.georef
-    chained, by_poses = [], []
-    main_canvas = result.main_segment.canvas
-    seg_of = {seg.index: seg for seg in result.segments}
-    # A pose-predicted footprint is as large as its height above the ground says. Where the filter
-    # never learnt the ground (registrations not fused: stills further apart than georef.max_step_s,
-    # the nominal AGL prior left at +-30 m), the corners would carry that error into the scale
-    # (stills 2 s apart: 2.7 m RMS); the frame centres do not depend on it (1.5 m).
-    rel_sd = [math.sqrt(max(float(p.ground_covariance[-1]), 0.0)) / max(p.camera.center_enu_m[2] - p.ground_z_m, 1.0)
-              for p in poses if p.valid and p.ground_covariance is not None and p.camera is not None]
-    centres_only = bool(rel_sd) and float(np.median(rel_sd)) > ANCHOR_CORNERS_MAX_REL_AGL_SD
-    by_stamp = {p.stamp_ns: p for p in poses}  # records and poses need not align one to one
-    for rec in result.records:
-        seg, pose = seg_of.get(rec.segment), by_stamp.get(rec.stamp_ns)
-        if seg is None or seg.canvas is not main_canvas or pose is None or not pose.valid or rec.seg_H_frame is None:
-            continue
-        w_f, h_f = rec.size
-        corners = np.array([[0, 0], [w_f - 1, 0], [w_f - 1, h_f - 1], [0, h_f - 1]], dtype=float)
-        if centres_only:
-            corners = np.array([[(w_f - 1) / 2.0, (h_f - 1) / 2.0]])
-        by_poses.append(apply_homography(georef.raster_H_frame(pose), corners))
-        chained.append(apply_homography(rec.seg_H_frame, corners))
-    translation_only = False
-    if chained:
-        src, dst = np.concatenate(chained), np.concatenate(by_poses)
-        # raster pixel by the poses ~ fix @ chained raster pixel
-        fix = fit_similarity(src, dst)
-        # Points that stay within their own noise of each other (a stare at a site from kilometres)
-        # cannot tell a rotation or a scale: the fit's angle is uncertain by about residual /
-        # (spread sqrt(n)) rad; when that is worse than the poses' own heading (their yaw std, median),
-        # the fit would add error, and only the offset is re-anchored.
-        residual = float(np.sqrt(np.mean(np.sum((apply_homography(fix, src) - dst) ** 2, axis=1))))
-        spread = float(np.sqrt(np.mean(np.sum((src - src.mean(axis=0)) ** 2, axis=1))))
-        rotation_sd = residual / max(spread * math.sqrt(len(src)), 1e-9)
-        yaw_sd = [float(p.std_rpy_rad[2]) for p in poses if p.valid]
-        translation_only = bool(yaw_sd) and rotation_sd > max(float(np.median(yaw_sd)),
-                                                              math.radians(ANCHOR_MIN_ROTATION_SD_DEG))
-        if translation_only:
-            fix = np.eye(3)
-            fix[:2, 2] = (dst - src).mean(axis=0)
-    else:
-        fix = np.eye(3)
-    # mosaic pixel m is chained raster pixel m + origin, truly at raster pixel fix @ (m + origin).
-    raster = georef.raster.transformed(fix).shifted(origin[0], origin[1])
-    figures = {'anchor_shift_px': [float(fix[0, 2]), float(fix[1, 2])],
-               'anchor_scale': float(np.hypot(fix[0, 0], fix[1, 0])),
-               'anchor_rotation_deg': float(np.degrees(np.arctan2(fix[1, 0], fix[0, 0]))),
-               'anchor_frames': len(chained), 'anchor_points': 'centres' if centres_only else 'corners',
-               'anchor_model': 'translation' if translation_only else 'similarity'}
-    return raster, figures
-
-
-def _ground_offsets(result: PipelineResult, stamps_ns: np.ndarray, config: PipelineConfig,
-                    max_gap_s: float = 0.5) -> np.ndarray:
-    """(M, 2) east, north offset per metre of height of where each frame's optical axis meets the
-    ground (-r_xy / r_z), from the Imu orientation nearest its stamp (within max_gap_s) and the
-    camera mount (georef.gimbal_*); NaN without an orientation or for an axis near the horizon."""
-    from .core.georef.frames import R_body_from_cam, matrix_from_quat_xyzw
-
-    imus = [i for i in result.imus if i.orientation_xyzw is not None]
-    out = np.full((len(stamps_ns), 2), np.nan)
-    if not imus:
-        return out
-    t = np.array([i.stamp_ns for i in imus], dtype=np.int64)
-    order = np.argsort(t)
-    t = t[order]
-    mount = config.georef.mount
-    R_bc = R_body_from_cam(mount.gimbal_azimuth_rad, mount.gimbal_elevation_rad)
-    for k, stamp in enumerate(stamps_ns):
-        j = int(np.clip(np.searchsorted(t, stamp), 1, len(t) - 1)) if len(t) > 1 else 0
-        j = j - 1 if len(t) > 1 and abs(t[j - 1] - stamp) < abs(t[j] - stamp) else j
-        if abs(int(t[j]) - int(stamp)) > max_gap_s * 1e9:
-            continue
-        axis = matrix_from_quat_xyzw(np.asarray(imus[order[j]].orientation_xyzw)) @ R_bc @ np.array([0.0, 0.0, 1.0])
-        if axis[2] < -0.2:  # looking down, not near the horizon
-            out[k] = -axis[:2] / axis[2]
-    return out
-
-
-def _geotag_fit(result: PipelineResult, origin: tuple[int, int], config: PipelineConfig) -> Any:
-    """GeotagFit of mosaic.png's grid (pixel (0, 0) = canvas pixel ``origin``) from the frames of the
-    main canvas and the fixes at their stamps (core/georef/geotag_fit.py), or None (with the reason
-    logged) when there are no fixes or they cannot place the mosaic."""
-    from .core.georef.geotag_fit import fit_mosaic_to_geotags, geotags_at
-    from .core.metrics import apply_homography
-
-    fixes = [f for f in result.fixes if f.status >= 0]
-    if not fixes:
-        return None
-    main_canvas = result.main_segment.canvas
-    on_main = {seg.index for seg in result.segments if seg.canvas is main_canvas}
-    recs = [r for r in result.records if r.segment in on_main and r.painted and r.seg_H_frame is not None]
-    centres = np.array([apply_homography(r.seg_H_frame, np.array([[(r.size[0] - 1) / 2.0, (r.size[1] - 1) / 2.0]]))[0]
-                        for r in recs]).reshape(-1, 2) - np.asarray(origin, dtype=np.float64)
-    fixes.sort(key=lambda f: f.stamp_ns)
-    tags = geotags_at(np.array([f.stamp_ns for f in fixes]), np.array([[f.longitude_deg, f.latitude_deg] for f in fixes]),
-                      np.array([r.stamp_ns for r in recs], dtype=np.int64))
-    offsets = _ground_offsets(result, np.array([r.stamp_ns for r in recs], dtype=np.int64), config) \
-        if result.imus else None
-    try:
-        fit = fit_mosaic_to_geotags(centres, tags, offsets)
-        if fit.extent_m < GEOTAG_MIN_EXTENT_M:
-            msg = (f'the geotags of the main mosaic span {fit.extent_m:.1f} m RMS, less than {GEOTAG_MIN_EXTENT_M:g} m: '
-                   'their GNSS noise, not the flight, would set its scale and rotation (a hover, a pan)')
-            raise ValueError(msg)
-    except ValueError as exc:
-        _LOG.warning('the mosaic is not georeferenced: the filter did not place it (no camera intrinsics, or no fix '
-                     'before its first frame) and its geotags cannot: %s', exc)
-        result.georef_note = f'its geotags cannot place it: {exc}'
-        return None
-    _LOG.info('mosaic not placed by the filter: georeferenced by its %d geotagged frames (residual RMS %.2f m, '
-              '%d left out, tilt %s)', int(fit.used.sum()), fit.rms_m, int((~fit.used).sum()),
-              'corrected' if fit.height_m is not None else 'not corrected')
-    return fit
-
-
-#: What `process` writes into --out (and report.json); an earlier run's copy that this run did not write is removed.
-RUN_OUTPUTS = ('mosaic.png', 'preview.png', 'mosaic.tif', 'mosaic.kml', 'poses.csv', 'frames.csv', 'mosaic.mp4',
-               'segments', 'sr')
-
-
-class OutputTransaction:
-    """A run's outputs written into ``out``/.staging-PID and moved into ``out`` when the run ends.
-
-    Entering takes ``out``/.srmosaic.lock (fcntl.flock): a second writer is refused with the other's
-    pid. On a normal exit each of RUN_OUTPUTS and report.json is moved in (os.replace, report.json
-    last); those that this run did not write are removed from ``out`` (``removed``). When the run
-    raises with outputs in the staging folder (a damaged input: what was processed so far), they are
-    moved in the same way unless ``out`` holds an earlier complete run (a report.json without an
-    error): then they go to ``out``/failed_run/ and the earlier run stays. Files of other programs in
-    ``out`` are never touched.
-    """
-
-    def __init__(self, out: Path) -> None:
-        self.out = Path(out)
-        self.stage = self.out / f'.staging-{os.getpid()}'
-        self.removed: list[str] = []
-        self._lock: Any = None
-
-    def __enter__(self) -> OutputTransaction:
-        import fcntl
-
-        self._lock = open(self.out / '.srmosaic.lock', 'a+')  # held for the run
-        try:
-            fcntl.flock(self._lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            self._lock.seek(0)
-            other = self._lock.read().strip() or 'unknown'
-            self._lock.close()
-            msg = (f'another srmosaic process (pid {other}) is writing {self.out}; wait for it to end or give '
-                   'another --out.')
-            raise OutputError(msg) from None
-        self._lock.seek(0)
-        self._lock.truncate()
-        self._lock.write(str(os.getpid()))
-        self._lock.flush()
-        for left in self.out.glob('.staging-*'):  # of a run killed (kill -9): the lock says none is writing
-            shutil.rmtree(left, ignore_errors=True)
-        self.stage.mkdir()
-        return self
-
-    def __exit__(self, exc_type: type | None, exc: BaseException | None, tb: Any) -> None:
-        try:
-            if exc_type is None:
-                self.removed = self._publish(self.out)
-            elif isinstance(exc, SrMosaicError) and (self.stage / 'report.json').is_file():
-                if self._earlier_complete_run():
-                    failed = self.out / 'failed_run'
-                    shutil.rmtree(failed, ignore_errors=True)
-                    failed.mkdir()
-                    self._publish(failed)
-                    _LOG.warning('the earlier complete run in %s is kept; this run\'s partial outputs are in %s',
-                                 self.out, failed)
-                else:
-                    self.removed = self._publish(self.out)
-        finally:
-            shutil.rmtree(self.stage, ignore_errors=True)
-            (self.out / '.srmosaic.lock').unlink(missing_ok=True)  # still held: no other writer is inside
-            self._lock.close()
-
-    def _earlier_complete_run(self) -> bool:
-        try:
-            return 'error' not in json.loads((self.out / 'report.json').read_text())
-        except (OSError, ValueError):
-            return False
-
-    def _publish(self, dst: Path) -> list[str]:
-        """Move the staged outputs into ``dst``; remove there what this run did not write."""
-        removed = []
-        for name in (*RUN_OUTPUTS, 'report.json'):
-            src, target = self.stage / name, dst / name
-            if src.exists():
-                if target.is_dir() and not target.is_symlink():
-                    old = self.stage / f'.old-{name}'
-                    os.replace(target, old)
-                os.replace(src, target)
-            elif target.is_dir() and not target.is_symlink():
-                shutil.rmtree(target)
-                removed.append(name)
-            elif target.exists():
-                target.unlink()
-                removed.append(name)
-        if removed:
-            _LOG.info('removed the outputs of an earlier run that this one did not write: %s', ', '.join(removed))
-        return removed
 
 
 def skipped_kinds(skipped: dict[str, int]) -> dict[str, int]:
@@ -460,35 +226,6 @@ def skipped_kinds(skipped: dict[str, int]) -> dict[str, int]:
         what = key if head.startswith('/') or not reason else reason
         out[what] = out.get(what, 0) + count
     return out
-
-
-def check_output_dir(out: Path, what: str = '--out') -> None:
-    """Make sure ``out`` can take a run's files before any work is done: it is (or is created as) a
-    directory one can write into. Raises OutputError naming the problem and the way out."""
-    import tempfile
-
-    out = Path(out)
-    too_long = [part for part in out.parts if len(os.fsencode(part)) > 255]
-    if too_long:
-        msg = f'{what} {out}: the name {too_long[0][:40]}... is longer than 255 bytes; give a shorter directory name.'
-        raise OutputError(msg)
-    if out.exists() and not out.is_dir():
-        msg = f'{what} {out} is a file, not a directory; give a directory (it is created if missing).'
-        raise OutputError(msg)
-    parent = out
-    while not parent.exists():
-        parent = parent.parent
-    if not parent.is_dir():
-        msg = f'{what} {out} lies under {parent}, which is a file; give a directory elsewhere.'
-        raise OutputError(msg)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        fd, probe = tempfile.mkstemp(prefix='.write-test.', dir=out)
-        os.close(fd)
-        os.unlink(probe)
-    except OSError as exc:
-        msg = f'{what} {out} cannot be written ({exc.strerror or exc}); give a directory you may write to.'
-        raise OutputError(msg) from None
 
 
 def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: TopicConfig | None = None,

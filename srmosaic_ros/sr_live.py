@@ -31,6 +31,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from .core.homography import translation as _translation
 from .core.metrics import apply_homography
 from .core.sr.reconstruct import SRConfig, SRError, reconstruct_tile
 from .core.sr.scheduler import SRTileConfig, TilePlan, plan_tiles
@@ -189,10 +190,6 @@ class LiveFrameStore:
     @property
     def pending(self) -> int:
         return len(self._pending)
-
-
-def _translation(dx: float, dy: float) -> np.ndarray:
-    return np.array([[1.0, 0.0, dx], [0.0, 1.0, dy], [0.0, 0.0, 1.0]])
 
 
 def plan_live_tiles(frames: Sequence[LiveFrame], sizes: dict[int, tuple[int, int]], config: SRTileConfig,

@@ -29,6 +29,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from .core.homography import translation as _translation
 from .config import PipelineConfig
 from .core.sr.psf_select import TileFrames, choose_psf_sigma
 from .core.sr.reconstruct import SRError, SRFramesDisagree, reconstruct_tile
@@ -46,10 +47,6 @@ __all__ = ['sr_mosaic_strips', 'super_resolve_mosaic']
 SR_STRIP_ROWS = 128
 _LOG = logging.getLogger(__name__)
 _CUBIC_MARGIN = 3  # mosaic rows of context above and below a strip (bicubic reads 2)
-
-
-def _translation(dx: float, dy: float) -> np.ndarray:
-    return np.array([[1.0, 0.0, dx], [0.0, 1.0, dy], [0.0, 0.0, 1.0]])
 
 
 def super_resolve_mosaic(out: Path, items: Iterable[Any], config: PipelineConfig, *, factor: int,

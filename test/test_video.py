@@ -270,7 +270,7 @@ def test_a_failed_run_keeps_the_earlier_complete_run(flight_video, tmp_path):
 
 
 def test_a_second_writer_of_the_same_out_is_refused(tmp_path):
-    from srmosaic_ros.offline import OutputTransaction
+    from srmosaic_ros.io.output_dir import OutputTransaction
 
     out = tmp_path / 'out'
     (out / '.staging-99999999').mkdir(parents=True)  # what a run killed with kill -9 leaves

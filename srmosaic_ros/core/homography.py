@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ['apply_homography', 'corner_shift_px', 'project_points']
+__all__ = ['apply_homography', 'corner_shift_px', 'project_points', 'translation']
 
 
 def project_points(H: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -28,3 +28,8 @@ def corner_shift_px(a: np.ndarray, b: np.ndarray, width: int, height: int) -> fl
     frame (pixel centres at integers) under the homographies a and b (3, 3)."""
     c = np.array([[0.0, 0.0], [width - 1.0, 0.0], [width - 1.0, height - 1.0], [0.0, height - 1.0]])
     return float(np.linalg.norm(apply_homography(a, c) - apply_homography(b, c), axis=1).max())
+
+
+def translation(dx: float, dy: float) -> np.ndarray:
+    """(3, 3) homography of a shift by (dx, dy) px."""
+    return np.array([[1.0, 0.0, dx], [0.0, 1.0, dy], [0.0, 0.0, 1.0]])

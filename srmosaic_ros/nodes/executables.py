@@ -71,7 +71,7 @@ def record_tiles_arguments(parser: argparse.ArgumentParser) -> None:
 def run_record_tiles(args: argparse.Namespace) -> int:
     import functools
 
-    from ..offline import check_output_dir
+    from ..io.output_dir import check_output_dir
     from .runner import run_nodes
     from .tile_recorder import TileRecorderNode
 

@@ -106,7 +106,7 @@ class MosaicNode(ManagedNode):
         self.output_dir = str(self.get_parameter('live.output_dir').value)
         frame_ids(self)  # refused at start when not frame ids (PosePublisher uses them)
         if self.output_dir:
-            from ..offline import check_output_dir
+            from ..io.output_dir import check_output_dir
 
             check_output_dir(Path(self.output_dir), 'live.output_dir')  # at start, not at shutdown with the mosaic in hand
         # frames painted on a thread of their own while the next ones register (the preview syncs first)

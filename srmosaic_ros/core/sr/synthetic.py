@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from ..homography import translation as _translation
 from .operators import hr_H_lr
 
 __all__ = ['SyntheticTile', 'make_synthetic_tile', 'random_tile_H_frame', 'perturb_homography']
@@ -31,10 +32,6 @@ class SyntheticTile:
     tile_H_frames: list[np.ndarray]
     tile_shape: tuple[int, int]
     factor: int
-
-
-def _translation(dx: float, dy: float) -> np.ndarray:
-    return np.array([[1.0, 0.0, dx], [0.0, 1.0, dy], [0.0, 0.0, 1.0]])
 
 
 def random_tile_H_frame(rng: np.random.Generator, tile_shape: tuple[int, int], frame_shape: tuple[int, int], *,
