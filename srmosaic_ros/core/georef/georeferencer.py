@@ -24,15 +24,14 @@ filter's window, gated outliers) are skipped with one logged warning per kind an
 """
 from __future__ import annotations
 
-import functools
 import logging
 import math
 from collections import Counter
-from dataclasses import dataclass, field, fields
 
 import numpy as np
 
 from ..types import FIX_STATUS_NO_FIX, CameraAttitude, CameraIntrinsics, GeoFix, ImuSample
+from .frame_pose import FramePose
 from .frames import (
     CameraPose,
     R_body_from_cam,
@@ -43,8 +42,10 @@ from .frames import (
 )
 from .drift import CanvasSimilarity, DriftState, InformationRate, drift_init, drift_step
 from .geodetic import LocalTangentPlane
+from .georef_config import GeorefConfig
 from .ground_homography import apply_H, ground_H_image, normalize_H
-from .ukf import GROUND, SLOT_CUR, SLOT_PREV, CameraMount, PoseUkf, UkfParams, corner_jacobian, rts_smooth, wrap_angle
+from .raster import GeoRaster, _transformers, utm_epsg
+from .ukf import GROUND, SLOT_CUR, SLOT_PREV, PoseUkf, corner_jacobian, rts_smooth, wrap_angle
 
 __all__ = [
     'GeorefConfig',
@@ -59,267 +60,6 @@ _LOG = logging.getLogger(__name__)
 _AFFINE_FIT_HALF_SPAN_M = 3000.0
 #: Span over which the information rate of the absolute measurements is averaged (FramePose.info_rate).
 INFO_RATE_WINDOW_S = 10.0
-
-
-@dataclass(frozen=True)
-class GeorefConfig:
-    """Georeferencing settings; the field names are the keys under ``georef.`` in params/*.yaml.
-
-    Angles in degrees, lengths in metres, NaN means "not set" (ROS parameters have no None).
-    """
-
-    ground_altitude_m: float = float('nan')  # ellipsoidal height of the ground plane; NaN: first fix - nominal_agl_m
-    ground_altitude_sigma_m: float = 1.0     # prior uncertainty of ground_altitude_m when it is given
-    nominal_agl_m: float = 100.0             # height of the first fix above the ground, when ground_altitude_m is NaN
-    nominal_agl_sigma_m: float = 30.0        # prior uncertainty of nominal_agl_m
-    ground_walk_m_per_sqrt_s: float = 0.05   # random walk of the ground plane height (terrain is not flat)
-    gimbal_azimuth_deg: float = 0.0
-    gimbal_elevation_deg: float = -90.0      # nadir
-    lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  # body frame, GNSS antenna -> optical centre
-    gps_sigma_h_m: float = 2.5               # used when a fix's covariance is unknown
-    gps_sigma_v_m: float = 5.0
-    imu_sigma_deg: float = 0.5               # used when an Imu orientation covariance is unknown
-    gyro_sigma_rad_s: float = 0.005          # white noise of one angular velocity sample
-    gyro_bias_sigma_rad_s: float = 0.002     # allowance for an uncalibrated gyro bias
-    gyro_max_gap_s: float = 0.1              # longer gaps between Imu samples: no gyro update for that frame
-    accel_sigma_m_s2: float = 2.0            # motion model: horizontal acceleration noise
-    vertical_accel_sigma_m_s2: float = 1.0
-    angular_accel_sigma_deg_s2: float = 20.0
-    initial_speed_sigma_m_s: float = 15.0    # velocity prior at the first frame
-    initial_rate_sigma_deg_s: float = 30.0
-    homography_sigma_gain: float = 1.0       # no covariance: corner sigma = gain * inlier rms (px)
-    homography_min_sigma_px: float = 0.2     # model-error floor added to every homography measurement
-    min_agl_m: float = 5.0                   # below this height the flat-ground model is not used
-    gate_probability: float = 0.99999        # chi-square gate of every update
-    max_gated_in_a_row: int = 5              # then the filter re-acquires (fixes, attitude)
-    telemetry_buffer_s: float = 10.0         # telemetry kept while waiting for frames
-    max_step_s: float = 10.0                 # longer gaps between frames are bridged by filter-only steps
-    #                                          (their registration not fused)
-    max_attitude_step_sigma_deg: float = 20.0  # bound of the motion model's attitude noise per step
-    ut_alpha: float = 1.0                    # sigma points: Merwe scaled (alpha, beta, kappa); see ukf.py
-    ut_beta: float = 2.0
-    ut_kappa: float = 0.0
-    ut_iterations: int = 5                   # passes of the homography and gyro updates (posterior
-    #                                          linearisation, see ukf._batch_update); 1: plain UKF update
-    gsd_m_per_px: float = float('nan')       # raster ground sampling; NaN: the first frame's GSD
-    drift_chain_sigma_px: float = 0.3        # drift control: random walk of chained corners per frame
-    drift_pose_time_constant_s: float = float('nan')  # drift control: pose-error correlation time (s, >= 0; 0:
-    #                                                  independent poses); NaN: from the filter, see drift.py
-    history_frames: int = 20000              # filter moments kept for smoothed_poses() (0: none)
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, 'lever_arm_m', tuple(float(v) for v in self.lever_arm_m))
-        pos = ('nominal_agl_m', 'ground_altitude_sigma_m', 'nominal_agl_sigma_m', 'gps_sigma_h_m', 'gps_sigma_v_m',
-               'imu_sigma_deg', 'accel_sigma_m_s2', 'vertical_accel_sigma_m_s2', 'angular_accel_sigma_deg_s2',
-               'initial_speed_sigma_m_s', 'initial_rate_sigma_deg_s', 'homography_sigma_gain', 'telemetry_buffer_s',
-               'ut_alpha')
-        checks = {name: math.isfinite(getattr(self, name)) and getattr(self, name) > 0 for name in pos}
-        checks.update({
-            'homography_min_sigma_px': self.homography_min_sigma_px >= 0,
-            'min_agl_m': self.min_agl_m >= 0,
-            'drift_chain_sigma_px': self.drift_chain_sigma_px >= 0,
-            'drift_pose_time_constant_s': math.isnan(self.drift_pose_time_constant_s)
-            or 0.0 <= self.drift_pose_time_constant_s < math.inf,
-            'ground_walk_m_per_sqrt_s': self.ground_walk_m_per_sqrt_s >= 0,
-            'gyro_sigma_rad_s': self.gyro_sigma_rad_s > 0,
-            'gyro_bias_sigma_rad_s': self.gyro_bias_sigma_rad_s >= 0,
-            'gyro_max_gap_s': self.gyro_max_gap_s > 0,
-            'gate_probability': 0.0 < self.gate_probability < 1.0,
-            'max_gated_in_a_row': self.max_gated_in_a_row >= 1,
-            'history_frames': self.history_frames >= 0,
-            'gimbal_elevation_deg': -90.0 <= self.gimbal_elevation_deg < 0.0,
-            'lever_arm_m': len(self.lever_arm_m) == 3 and all(map(math.isfinite, self.lever_arm_m)),
-            'gsd_m_per_px': math.isnan(self.gsd_m_per_px) or self.gsd_m_per_px > 0,
-            'ut_kappa': 13 + self.ut_kappa > 0,
-            'max_step_s': 0.0 < self.max_step_s <= 10.0,
-            'max_attitude_step_sigma_deg': 0.0 < self.max_attitude_step_sigma_deg <= 90.0,
-            'ut_iterations': self.ut_iterations == int(self.ut_iterations) and 1 <= self.ut_iterations <= 50,
-        })
-        bad = [name for name, ok in checks.items() if not ok]
-        if bad:
-            values = ', '.join(f'{name}={getattr(self, name)!r}' for name in bad)
-            msg = f'invalid georef settings: {values}; see params/default.yaml for the valid ranges.'
-            raise ValueError(msg)
-
-    @classmethod
-    def keys(cls) -> list[str]:
-        return [f.name for f in fields(cls)]
-
-    @property
-    def mount(self) -> CameraMount:
-        return CameraMount(math.radians(self.gimbal_azimuth_deg), math.radians(self.gimbal_elevation_deg),
-                           self.lever_arm_m)
-
-    @property
-    def ukf_params(self) -> UkfParams:
-        return UkfParams(
-            accel_sigma_h_m_s2=self.accel_sigma_m_s2, accel_sigma_v_m_s2=self.vertical_accel_sigma_m_s2,
-            angular_accel_sigma_rad_s2=math.radians(self.angular_accel_sigma_deg_s2),
-            initial_speed_sigma_m_s=self.initial_speed_sigma_m_s,
-            initial_rate_sigma_rad_s=math.radians(self.initial_rate_sigma_deg_s),
-            ground_walk_m_per_sqrt_s=self.ground_walk_m_per_sqrt_s,
-            max_attitude_step_sigma_rad=math.radians(self.max_attitude_step_sigma_deg),
-            gate_probability=self.gate_probability, max_gated_in_a_row=self.max_gated_in_a_row,
-            alpha=self.ut_alpha, beta=self.ut_beta, kappa=self.ut_kappa, iterations=int(self.ut_iterations))
-
-
-@dataclass(frozen=True)
-class FramePose:
-    """The fused pose of the body at one frame.
-
-    position_enu_m (3,): body origin in the georeferencer's ENU plane; rpy_rad (3,): roll, pitch,
-    yaw of the body in ENU (REP 103); covariance (6, 6) of (east, north, up, roll, pitch, yaw) in
-    m^2 / rad^2; ground_z_m: the ground plane's height in the ENU plane as estimated with this
-    pose (the frame's footprint lies on it); camera: the camera pose (mounting applied).
-    latitude/longitude in degrees, altitude in metres above the WGS84 ellipsoid. ``valid`` False
-    (no fix yet, frame out of order): NaN pose. info_rate (6, 6): information per second of the
-    absolute measurements fused before this frame (GNSS positions in the position block, IMU
-    attitudes in the attitude block: the sum of their R^-1 over the last ``INFO_RATE_WINDOW_S``,
-    divided by that span), in the order of ``covariance``; drift control takes the correlation
-    time of the pose errors from it (drift.py). None: not known. ground_covariance (7,): the
-    covariance of ground_z_m with (east, north, up, roll, pitch, yaw) and, last, its variance (the
-    footprint scales with the height above the ground, whose uncertainty is mostly the ground's at
-    first); None: the ground is taken as exact. :attr:`pose_ground_covariance` assembles the two.
-    """
-
-    stamp_ns: int
-    valid: bool
-    position_enu_m: np.ndarray
-    rpy_rad: np.ndarray
-    covariance: np.ndarray
-    latitude_deg: float = float('nan')
-    longitude_deg: float = float('nan')
-    altitude_m: float = float('nan')
-    camera: CameraPose | None = field(default=None, repr=False)
-    ground_z_m: float = float('nan')
-    homography_used: bool = False
-    fixes_used: int = 0
-    imu_used: int = 0
-    reason: str = ''
-    info_rate: np.ndarray | None = field(default=None, repr=False)
-    ground_covariance: np.ndarray | None = field(default=None, repr=False)
-
-    @property
-    def std_enu_m(self) -> np.ndarray:
-        """(3,) standard deviations of east, north, up (m)."""
-        return np.sqrt(np.clip(np.diag(self.covariance)[:3], 0.0, None))
-
-    @property
-    def std_rpy_rad(self) -> np.ndarray:
-        return np.sqrt(np.clip(np.diag(self.covariance)[3:], 0.0, None))
-
-    @property
-    def pose6(self) -> np.ndarray:
-        return np.r_[self.position_enu_m, self.rpy_rad]
-
-    @property
-    def pose_ground_covariance(self) -> np.ndarray:
-        """(7, 7) joint covariance of (east, north, up, roll, pitch, yaw, ground_z_m); the ground row
-        and column are zero when ground_covariance is not known."""
-        out = np.zeros((7, 7))
-        out[:6, :6] = self.covariance
-        g = self.ground_covariance
-        if g is not None and np.shape(g) == (7,) and np.all(np.isfinite(g)):
-            out[6, :] = out[:, 6] = g
-        return out
-
-    @classmethod
-    def invalid(cls, stamp_ns: int, reason: str) -> FramePose:
-        nan3 = np.full(3, np.nan)
-        return cls(int(stamp_ns), False, nan3, nan3.copy(), np.full((6, 6), np.nan), reason=reason)
-
-
-def utm_epsg(latitude_deg: float, longitude_deg: float) -> int:
-    """EPSG code of the WGS84 UTM zone of a point: 326zz north of the equator, 327zz south."""
-    zone = int(math.floor((longitude_deg + 180.0) / 6.0)) % 60 + 1
-    return (32600 if latitude_deg >= 0.0 else 32700) + zone
-
-
-@functools.lru_cache(maxsize=8)
-def _transformers(epsg: int):  # pyproj types stay lazy
-    from pyproj import Transformer
-
-    return (Transformer.from_crs(4326, epsg, always_xy=True), Transformer.from_crs(epsg, 4326, always_xy=True))
-
-
-@dataclass(frozen=True)
-class GeoRaster:
-    """A raster grid in a UTM zone: north-up, or turned by a small angle after re-anchoring.
-
-    epsg: the CRS (WGS84 / UTM); gsd_m_per_px: pixel size; origin_easting_m / origin_northing_m:
-    the map coordinates of the *centre* of pixel (0, 0); rotation_rad: angle of the pixel axes,
-    counter-clockwise on the map from east for the x axis (0: north-up, the live raster; the
-    offline outputs may be re-anchored by a similarity, see anchoring.py). Convention: pixel
-    (x, y), x right, y down, centres at integers, as every homography of the package.
-    """
-
-    epsg: int
-    gsd_m_per_px: float
-    origin_easting_m: float
-    origin_northing_m: float
-    rotation_rad: float = 0.0
-
-    @property
-    def utm_H_raster(self) -> np.ndarray:
-        """(3, 3) raster pixel (x, y, 1) -> (easting, northing, 1) in metres:
-        [[g c, g s, e0], [g s, -g c, n0]] with c, s the cosine and sine of rotation_rad."""
-        g, c, s = self.gsd_m_per_px, math.cos(self.rotation_rad), math.sin(self.rotation_rad)
-        return np.array([[g * c, g * s, self.origin_easting_m], [g * s, -g * c, self.origin_northing_m], [0.0, 0.0, 1.0]])
-
-    @property
-    def raster_H_utm(self) -> np.ndarray:
-        return np.linalg.inv(self.utm_H_raster)
-
-    @property
-    def geotransform(self) -> tuple[float, float, float, float, float, float]:
-        """GDAL geotransform (pixel *corner* convention) of pixel (0, 0)'s outer corner:
-        (x_min, gsd, 0, y_max, 0, -gsd) when north-up, with the rotation terms otherwise."""
-        m = self.utm_H_raster
-        return (float(m[0, 2] - 0.5 * (m[0, 0] + m[0, 1])), float(m[0, 0]), float(m[0, 1]),
-                float(m[1, 2] - 0.5 * (m[1, 0] + m[1, 1])), float(m[1, 0]), float(m[1, 1]))
-
-    @property
-    def crs_wkt(self) -> str:
-        from pyproj import CRS
-
-        return CRS.from_epsg(self.epsg).to_wkt()
-
-    def shifted(self, dx_px: float, dy_px: float) -> GeoRaster:
-        """The same grid with pixel (dx_px, dy_px) of this one as its pixel (0, 0) (a crop's origin)."""
-        e, n = self.utm_H_raster[:2] @ np.array([dx_px, dy_px, 1.0])
-        return GeoRaster(self.epsg, self.gsd_m_per_px, float(e), float(n), self.rotation_rad)
-
-    def transformed(self, raster_H_new: np.ndarray) -> GeoRaster:
-        """The grid whose pixel p is this grid's pixel raster_H_new @ p; raster_H_new must be a
-        similarity without reflection (scale, rotation, translation), e.g. from anchoring.py."""
-        m = self.utm_H_raster @ np.asarray(raster_H_new, dtype=np.float64)
-        g = math.hypot(m[0, 0], m[1, 0])
-        if not (g > 0 and np.allclose([m[0, 1], m[1, 1]], [m[1, 0], -m[0, 0]], rtol=1e-6, atol=1e-9 * g)):
-            msg = f'GeoRaster.transformed needs a similarity without reflection, got\n{raster_H_new}'
-            raise ValueError(msg)
-        return GeoRaster(self.epsg, float(g), float(m[0, 2]), float(m[1, 2]), math.atan2(m[1, 0], m[0, 0]))
-
-    def utm_from_pixels(self, xy: np.ndarray) -> np.ndarray:
-        """(..., 2) easting, northing (m) of raster pixels (..., 2)."""
-        return apply_H(self.utm_H_raster, xy)
-
-    def lonlat_from_pixels(self, xy: np.ndarray) -> np.ndarray:
-        """(..., 2) longitude, latitude (deg) of raster pixels (..., 2)."""
-        en = self.utm_from_pixels(xy)
-        lon, lat = _transformers(self.epsg)[1].transform(en[..., 0], en[..., 1])
-        return np.stack([np.asarray(lon), np.asarray(lat)], axis=-1)
-
-    def pixels_from_lonlat(self, lonlat: np.ndarray) -> np.ndarray:
-        """(..., 2) raster pixels of longitude, latitude (deg) points (..., 2)."""
-        lonlat = np.asarray(lonlat, dtype=np.float64)
-        e, n = _transformers(self.epsg)[0].transform(lonlat[..., 0], lonlat[..., 1])
-        return apply_H(self.raster_H_utm, np.stack([np.asarray(e), np.asarray(n)], axis=-1))
-
-    def corners_lonlat(self, width: int, height: int) -> np.ndarray:
-        """(4, 2) longitude, latitude of the outer corners of a width x height raster: upper-left,
-        upper-right, lower-right, lower-left (pixel edges, i.e. centres -0.5 / +0.5)."""
-        c = np.array([[-0.5, -0.5], [width - 0.5, -0.5], [width - 0.5, height - 0.5], [-0.5, height - 0.5]])
-        return self.lonlat_from_pixels(c)
 
 
 def camera_pose_from_enu_H_image(K: np.ndarray, enu_H_image: np.ndarray, *,
