@@ -40,22 +40,34 @@ grows as ``2**l``). The coarsest level always comes from ``F``. Consequences:
 Since the pyramids are linear, this is computed as
 ``out = F + sum_{l < N} GR_l * L_l(S - F)`` (expanded and summed), which is also what makes
 uncovered pixels harmless: ``S - F`` is zero there.
+
+The canvas's per-tile arithmetic for both composites lives here too: ``feather_divide`` (F from the
+tile sums), ``update_max_weight`` (S, eq. 4.7, frame by frame) and ``pyramid_region`` (the grid the
+pyramids of a render run on).
 """
 from __future__ import annotations
 
 from functools import lru_cache
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 
+if TYPE_CHECKING:
+    from .tile_store import Tile
+
 __all__ = [
     'FEATHER_PROFILES',
+    'MULTIBAND_MARGIN',
     'SEAM_NEAR',
     'SEAM_RAMP',
     'auto_bands',
+    'feather_divide',
     'feather_weight',
     'multiband_blend',
+    'pyramid_region',
     'seam_distance',
+    'update_max_weight',
 ]
 
 FEATHER_PROFILES = ('distance', 'separable')
@@ -67,6 +79,9 @@ SEAM_RAMP = 2.0
 
 #: Most pyramid levels chosen automatically (coarsest band spacing 2**MAX_AUTO_BANDS pixels).
 MAX_AUTO_BANDS = 6
+
+#: Multiband renders read this many times 2**bands pixels around the region (pyramid support).
+MULTIBAND_MARGIN = 2
 
 
 def _profile_norm(h: int, w: int) -> np.float32:
@@ -206,3 +221,42 @@ def multiband_blend(
         acc = band if acc is None else band + _pyr_up(acc, g.shape)
     assert acc is not None
     return feather + acc
+
+
+def feather_divide(acc: np.ndarray, wsum: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """The feather composite ``acc / wsum`` (acc (h, w, C), wsum (h, w)) written into ``out`` (h, w, C)
+    where ``wsum > 0``, ``out`` left as it is elsewhere; returns that coverage, bool (h, w)."""
+    covered = wsum > 0
+    np.divide(acc, wsum[..., None], out=out, where=covered[..., None])
+    return covered
+
+
+def update_max_weight(tile: Tile, loc: tuple[slice, slice], colour: np.ndarray, weight: np.ndarray, index: int) -> None:
+    """Offer a frame's warped pixels to the max-weight composite of a multiband tile (eq. 4.7).
+
+    loc: the tile slices written; colour (h, w, C) and weight (h, w) the frame's warped colour and
+    feather weight there; index: the frame's label. Where ``weight`` exceeds the tile's ``best_w``
+    the frame wins: ``best``, ``best_w`` and ``best_id`` take its colour, weight and index.
+    """
+    assert tile.best is not None and tile.best_w is not None and tile.best_id is not None
+    best_w = tile.best_w[loc]
+    upd = weight > best_w  # eq. 4.7: the frame of largest weight wins; ties keep the first
+    if upd.any():
+        np.copyto(tile.best[loc], colour, where=upd[..., None])
+        np.copyto(best_w, weight, where=upd)
+        tile.best_id[loc][upd] = index
+
+
+def pyramid_region(region: tuple[int, int, int, int], bands: int) -> tuple[int, int, int, int]:
+    """The region (x0, y0, x1, y1) the pyramids of a ``bands``-level render of ``region`` run over.
+
+    ``region`` grown by MULTIBAND_MARGIN * 2**bands pixels and snapped to multiples of 2**bands in
+    mosaic coordinates, so every render samples the same pyramid grid and a region renders the same
+    (to ~1e-5) alone, inside a larger region or in blocks.
+    """
+    x0, y0, x1, y1 = region
+    step = 2**bands
+    margin = MULTIBAND_MARGIN * step
+    ex0, ey0 = (x0 - margin) // step * step, (y0 - margin) // step * step
+    ex1, ey1 = -((-(x1 + margin)) // step) * step, -((-(y1 + margin)) // step) * step
+    return ex0, ey0, ex1, ey1

@@ -25,7 +25,8 @@ does not fade to black, only its weight fades to zero.
 Rendering (``render``) divides ``acc`` by ``wsum`` (feather blending) or, in multiband mode,
 blends the max-weight composite over the feather composite band by band (see :mod:`.blend`).
 ``render_blocks`` yields the same pixels in strips of rows, for writers of mosaics too large to
-hold whole.
+hold whole. The per-pixel arithmetic of painting and rendering the composites is in :mod:`.blend`,
+the downscaling of ``render_preview`` in :mod:`.preview`, the argument checks in :mod:`.canvas_settings`.
 
 Bounded memory: with ``max_tiles_in_memory`` > 0 the tiles live in a :class:`.tile_store.TileStore`
 that keeps at most that many in memory and spills the least recently painted ones to disk
@@ -55,16 +56,16 @@ from ..homography import project_points
 from .best_view import (clip_depth, clipped_polygon, depth_map, magnified_somewhere, resolution_factor, transition_image,
                         update_best)
 from .minify import minify_level, reduce_frame
-from .blend import FEATHER_PROFILES, auto_bands, feather_weight, multiband_blend
-from .config import BLEND_MODES
+from .blend import MULTIBAND_MARGIN as MULTIBAND_MARGIN  # importable from here as before it moved
+from .blend import auto_bands, feather_divide, feather_weight, multiband_blend, pyramid_region, update_max_weight
+from .canvas_settings import settings_problem
+from .preview import assemble, block_sums, preview_factor
 from .tile_store import TileKey, TileLayout, TileStore, TileStoreError
 
 __all__ = ['CanvasError', 'PaintResult', 'TileKey', 'TileStoreError', 'TiledCanvas']
 
 #: Largest side (px) rendered in one piece in multiband mode; larger regions go in blocks.
 RENDER_BLOCK_PX = 2048
-#: Multiband renders read this many times 2**bands pixels around the region (pyramid support).
-MULTIBAND_MARGIN = 2
 
 
 class CanvasError(SrMosaicError, ValueError):
@@ -167,48 +168,15 @@ class TiledCanvas:
         agree: float = 0.0,
         moving: float = 0.0,
     ) -> None:
-        if int(channels) != channels or channels < 1:
-            msg = f'channels must be a positive integer, got {channels!r}.'
-            raise CanvasError(msg)
-        if int(tile_size) != tile_size or not 16 <= tile_size <= 4096:
-            msg = f'tile_size must be an integer in 16..4096, got {tile_size!r}.'
-            raise CanvasError(msg)
-        if blend not in BLEND_MODES:
-            msg = f"blend must be one of {', '.join(BLEND_MODES)}, got {blend!r}."
-            raise CanvasError(msg)
-        if feather_profile not in FEATHER_PROFILES:
-            msg = f"feather_profile must be one of {', '.join(FEATHER_PROFILES)}, got {feather_profile!r}."
-            raise CanvasError(msg)
-        if not (math.isfinite(feather_power) and feather_power > 0):
-            msg = f'feather_power must be a positive number, got {feather_power!r}.'
-            raise CanvasError(msg)
-        if max_canvas_side_px < 16:
-            msg = f'max_canvas_side_px must be >= 16, got {max_canvas_side_px!r}.'
-            raise CanvasError(msg)
-        if not max_area_ratio > 1.0:
-            msg = f'max_area_ratio must be > 1, got {max_area_ratio!r}.'
-            raise CanvasError(msg)
-        if int(bands) != bands or not 0 <= bands <= 12:
-            msg = f'bands must be an integer in 0..12 (0: automatic), got {bands!r}.'
-            raise CanvasError(msg)
-        if int(max_tiles_in_memory) != max_tiles_in_memory or max_tiles_in_memory < 0:
-            msg = f'max_tiles_in_memory must be an integer >= 0 (0: no bound), got {max_tiles_in_memory!r}.'
-            raise CanvasError(msg)
-        if not (math.isfinite(max_stretch) and max_stretch >= 0) or 0 < max_stretch <= 1:
-            msg = f'max_stretch must be 0 (no cut) or a number > 1, got {max_stretch!r}.'
-            raise CanvasError(msg)
-        if isinstance(recency_frames, bool) or int(recency_frames) != recency_frames or recency_frames < 0:
-            msg = f'recency_frames must be an integer >= 0 (0: no preference for newer frames), got {recency_frames!r}.'
+        msg = settings_problem(channels, tile_size, blend=blend, feather_profile=feather_profile, feather_power=feather_power,
+                               max_canvas_side_px=max_canvas_side_px, max_area_ratio=max_area_ratio, bands=bands,
+                               max_tiles_in_memory=max_tiles_in_memory, max_stretch=max_stretch,
+                               recency_frames=recency_frames, agree=agree, moving=moving)
+        if msg is not None:
             raise CanvasError(msg)
         self._max_stretch = float(max_stretch)
         self._recency_frames = int(recency_frames)
-        if not (math.isfinite(agree) and 0.0 <= agree < 1.0):
-            msg = f'agree must be in [0, 1) (intensity; 0: no consensus), got {agree!r}.'
-            raise CanvasError(msg)
         self._agree = float(agree)
-        if not (math.isfinite(moving) and 0.0 <= moving < 1.0):
-            msg = f'moving must be in [0, 1) (intensity; 0: no vote), got {moving!r}.'
-            raise CanvasError(msg)
         self._moving = float(moving)
         self._channels = int(channels)
         self._tile_size = int(tile_size)
@@ -550,13 +518,7 @@ class TiledCanvas:
             if best_view:
                 update_best(tile, loc, img_w[box], sub_w, index, self._recency_frames, self._agree, self._moving)
             if multiband:
-                assert tile.best is not None and tile.best_w is not None and tile.best_id is not None
-                best_w = tile.best_w[loc]
-                upd = sub_w > best_w  # eq. 4.7: the frame of largest weight wins; ties keep the first
-                if upd.any():
-                    np.copyto(tile.best[loc], img_w[box], where=upd[..., None])
-                    np.copyto(best_w, sub_w, where=upd)
-                    tile.best_id[loc][upd] = index
+                update_max_weight(tile, loc, img_w[box], sub_w, index)
             self._tile_frames[key] = self._tile_frames.get(key, 0) + 1
             touched.append(key)
         del tiles
@@ -687,43 +649,21 @@ class TiledCanvas:
         if self._bounds is None:
             empty = np.zeros((0, 0, c) if c > 1 else (0, 0), np.float32)
             return empty, np.zeros((0, 0), bool)
-        x0, y0, x1, y1 = self._bounds
-        t = self._tile_size
-        need = max(x1 - x0, y1 - y0) / int(max_side)
-        f = next((d for d in range(1, t + 1) if t % d == 0 and d >= need), t)
+        f = preview_factor(self._bounds, self._tile_size, max_side)
         if f != self._preview_factor:
             self._preview_factor = f
             self._preview_sums.clear()
             dirty = set(self._tile_frames)
         else:
             dirty = self._preview_dirty
-        n = t // f
         for key in dirty:
             tile = self._store.peek(key)
             if tile is None:
                 continue
-            if tile.best_view_tile:  # best view: the block means of the winners' pixels
-                seen = (tile.best_id >= 0).astype(np.float32)
-                acc, wts = tile.best * seen[..., None], seen
-            else:
-                acc, wts = tile.acc, tile.wsum
-            self._preview_sums[key] = (acc.reshape(n, f, n, f, c).sum(axis=(1, 3), dtype=np.float32),
-                                       wts.reshape(n, f, n, f).sum(axis=(1, 3), dtype=np.float32))
+            self._preview_sums[key] = block_sums(tile, f, self._tile_size, c)
         self._preview_dirty = set()
-        gx0, gy0, gx1, gy1 = x0 // f, y0 // f, -(-x1 // f), -(-y1 // f)
-        self.last_preview_region = (gx0 * f, gy0 * f, (gx1 - gx0) * f, (gy1 - gy0) * f)
-        acc = np.zeros((gy1 - gy0, gx1 - gx0, c), np.float32)
-        wsum = np.zeros((gy1 - gy0, gx1 - gx0), np.float32)
-        for (kx, ky), (a, w) in self._preview_sums.items():
-            ox, oy = kx * n - gx0, ky * n - gy0
-            xs, ys = max(ox, 0), max(oy, 0)
-            xe, ye = min(ox + n, gx1 - gx0), min(oy + n, gy1 - gy0)
-            if xe > xs and ye > ys:
-                acc[ys:ye, xs:xe] += a[ys - oy:ye - oy, xs - ox:xe - ox]
-                wsum[ys:ye, xs:xe] += w[ys - oy:ye - oy, xs - ox:xe - ox]
-        covered = wsum > 0
-        out = np.full(acc.shape, self._background, np.float32)
-        np.divide(acc, wsum[..., None], out=out, where=covered[..., None])
+        out, covered, self.last_preview_region = assemble(self._preview_sums, self._bounds, f, self._tile_size, c,
+                                                          self._background)
         return (out[:, :, 0] if c == 1 else out), covered
 
     def render_blocks(self, block_rows: int = 256, region: tuple[int, int, int, int] | None = None,
@@ -781,10 +721,7 @@ class TiledCanvas:
             if tile is None:
                 continue
             dst, src = self._overlap(key, region)
-            wsum = tile.wsum[src]
-            cov = wsum > 0
-            covered[dst] = cov
-            np.divide(tile.acc[src], wsum[..., None], out=out[dst], where=cov[..., None])
+            covered[dst] = feather_divide(tile.acc[src], tile.wsum[src], out[dst])
         return out, covered
 
     def _multiband_rows(self, region: tuple[int, int, int, int], bands: int, dst_image: np.ndarray | None = None,
@@ -813,26 +750,18 @@ class TiledCanvas:
             yield by - y0, out, covered
 
     def _render_multiband(self, region: tuple[int, int, int, int], bands: int) -> tuple[np.ndarray, np.ndarray]:
-        """Multiband render of ``region`` with ``bands`` levels.
-
-        The pyramids run over the region grown by MULTIBAND_MARGIN * 2**bands pixels and snapped to
-        multiples of 2**bands in mosaic coordinates, so every render samples the same pyramid grid
-        and a region renders the same (to ~1e-5) alone, inside a larger region or in blocks.
-        """
+        """Multiband render of ``region`` with ``bands`` levels, its pyramids run over
+        :func:`.blend.pyramid_region` (the same grid whatever the region)."""
         x0, y0, x1, y1 = region
-        step = 2**bands
-        margin = MULTIBAND_MARGIN * step
-        ex0, ey0 = (x0 - margin) // step * step, (y0 - margin) // step * step
-        ex1, ey1 = -((-(x1 + margin)) // step) * step, -((-(y1 + margin)) // step) * step
+        ex0, ey0, ex1, ey1 = pyramid_region(region, bands)
         if self._blend == 'bestview':
             best, best_id, second, second_w = self._gather((ex0, ey0, ex1, ey1), ('best', 'best_id', 'second', 'second_w'))
             covered = best_id >= 0
             out = multiband_blend(transition_image(best, second, second_w), best, best_id, bands, coarsest_by_seams=True)
         else:
             acc, wsum, best, best_id = self._gather((ex0, ey0, ex1, ey1), ('acc', 'wsum', 'best', 'best_id'))
-            covered = wsum > 0
             feather = np.zeros(acc.shape, np.float32)
-            np.divide(acc, wsum[..., None], out=feather, where=covered[..., None])
+            covered = feather_divide(acc, wsum, feather)
             out = multiband_blend(feather, best, best_id, bands)
         crop = (slice(y0 - ey0, y1 - ey0), slice(x0 - ex0, x1 - ex0))
         return out[crop], covered[crop]

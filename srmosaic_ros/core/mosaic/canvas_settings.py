@@ -1,0 +1,60 @@
+"""The checks of ``TiledCanvas``'s constructor arguments, apart from the canvas that raises on them.
+
+The canvas is also built without a :class:`.config.MosaicConfig` (tests, tools), so it checks its
+own arguments, over wider ranges than the config's (e.g. tile sizes from 16). ``settings_problem``
+returns the first problem's message; the canvas raises it as a ``CanvasError``.
+"""
+from __future__ import annotations
+
+import math
+
+from .blend import FEATHER_PROFILES
+from .config import BLEND_MODES
+
+__all__ = ['settings_problem']
+
+
+def settings_problem(
+    channels: int,
+    tile_size: int,
+    *,
+    blend: str,
+    feather_profile: str,
+    feather_power: float,
+    max_canvas_side_px: int,
+    max_area_ratio: float,
+    bands: int,
+    max_tiles_in_memory: int,
+    max_stretch: float,
+    recency_frames: int,
+    agree: float,
+    moving: float,
+) -> str | None:
+    """The message of the first invalid ``TiledCanvas`` argument, None when all are valid."""
+    if int(channels) != channels or channels < 1:
+        return f'channels must be a positive integer, got {channels!r}.'
+    if int(tile_size) != tile_size or not 16 <= tile_size <= 4096:
+        return f'tile_size must be an integer in 16..4096, got {tile_size!r}.'
+    if blend not in BLEND_MODES:
+        return f"blend must be one of {', '.join(BLEND_MODES)}, got {blend!r}."
+    if feather_profile not in FEATHER_PROFILES:
+        return f"feather_profile must be one of {', '.join(FEATHER_PROFILES)}, got {feather_profile!r}."
+    if not (math.isfinite(feather_power) and feather_power > 0):
+        return f'feather_power must be a positive number, got {feather_power!r}.'
+    if max_canvas_side_px < 16:
+        return f'max_canvas_side_px must be >= 16, got {max_canvas_side_px!r}.'
+    if not max_area_ratio > 1.0:
+        return f'max_area_ratio must be > 1, got {max_area_ratio!r}.'
+    if int(bands) != bands or not 0 <= bands <= 12:
+        return f'bands must be an integer in 0..12 (0: automatic), got {bands!r}.'
+    if int(max_tiles_in_memory) != max_tiles_in_memory or max_tiles_in_memory < 0:
+        return f'max_tiles_in_memory must be an integer >= 0 (0: no bound), got {max_tiles_in_memory!r}.'
+    if not (math.isfinite(max_stretch) and max_stretch >= 0) or 0 < max_stretch <= 1:
+        return f'max_stretch must be 0 (no cut) or a number > 1, got {max_stretch!r}.'
+    if isinstance(recency_frames, bool) or int(recency_frames) != recency_frames or recency_frames < 0:
+        return f'recency_frames must be an integer >= 0 (0: no preference for newer frames), got {recency_frames!r}.'
+    if not (math.isfinite(agree) and 0.0 <= agree < 1.0):
+        return f'agree must be in [0, 1) (intensity; 0: no consensus), got {agree!r}.'
+    if not (math.isfinite(moving) and 0.0 <= moving < 1.0):
+        return f'moving must be in [0, 1) (intensity; 0: no vote), got {moving!r}.'
+    return None
