@@ -5,7 +5,7 @@ Georeferencer's) and /srmosaic/registration and /srmosaic/sr_tile give positions
 /srmosaic/raster (std_msgs/String, reliable, transient local: a late subscriber gets the last one)
 says where that raster lies, as JSON::
 
-    {"epsg": 32614, "gsd_m_per_px": 0.18, "origin_easting_m": 587501.44,
+    {"version": 1, "epsg": 32614, "gsd_m_per_px": 0.18, "origin_easting_m": 587501.44,
      "origin_northing_m": 3338166.2, "rotation_rad": 0.0,
      "canvas_H_raster": [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]] or null}
 
@@ -40,6 +40,9 @@ if TYPE_CHECKING:
 
 __all__ = ['ImagePlacement', 'LiveRaster']
 
+#: 'version' of the JSON: keys are only ever added (a reader ignores keys it does not know).
+TEXT_VERSION = 1
+
 
 @dataclass(frozen=True)
 class LiveRaster:
@@ -61,7 +64,7 @@ class LiveRaster:
     def text(self) -> str:
         """The JSON carried in /srmosaic/raster."""
         sim = None if self.canvas_H_raster is None else [[float(v) for v in row] for row in self.canvas_H_raster]
-        return json.dumps({'epsg': self.epsg, 'gsd_m_per_px': self.gsd_m_per_px,
+        return json.dumps({'version': TEXT_VERSION, 'epsg': self.epsg, 'gsd_m_per_px': self.gsd_m_per_px,
                            'origin_easting_m': self.origin_easting_m, 'origin_northing_m': self.origin_northing_m,
                            'rotation_rad': self.rotation_rad, 'canvas_H_raster': sim})
 

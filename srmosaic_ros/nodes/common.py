@@ -62,6 +62,8 @@ REGISTRATION_LAYOUT = ['stamp_sec', 'stamp_nanosec', 'ok', 'inliers', 'rms_px', 
                        *[f'prev_H_cur{r}{c}' for r in range(3) for c in range(3)],
                        'reg_ok', *[f'cov{r}{c}' for r in range(8) for c in range(8)]]
 _BASE_FIELDS = 24  # the layout before reg_ok and the covariance were appended
+#: layout.dim[0].label of /srmosaic/registration: the layout's version (1: REGISTRATION_LAYOUT above).
+REGISTRATION_LABEL = 'fields v1'
 
 
 class RegistrationMsg:
@@ -88,7 +90,7 @@ def encode_registration(stamp_ns: int, painted: bool, inliers: int, rms_px: floa
         np.asarray(prev_H_cur, dtype=float).ravel() if prev_H_cur is not None else nan9,
         [float(reg_ok)], cov if cov.size == 64 else nan64]).astype(float)
     msg = Float64MultiArray()
-    msg.layout.dim = [MultiArrayDimension(label='fields', size=values.size, stride=values.size)]
+    msg.layout.dim = [MultiArrayDimension(label=REGISTRATION_LABEL, size=values.size, stride=values.size)]
     msg.data = values.tolist()
     return msg
 

@@ -34,7 +34,6 @@ from typing import Any
 
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from sensor_msgs.msg import CameraInfo, Imu, NavSatFix
-from std_msgs.msg import Float64MultiArray
 
 from msg_adapters import camera_info_to_intrinsics, imu_to_sample, navsat_to_fix
 
@@ -43,7 +42,8 @@ from ..core.undistort import Undistorter
 from ..errors import SrMosaicError
 from ..pipeline import SYNC_HOLD_FRAMES
 from .common import (TELEMETRY_QOS_DEPTH, DiagnosticsPublisher, PosePublisher, RegistrationMsg, StreamOrder, WarnOnce,
-                     decode_registration, input_qos, subscribe_input)
+                     input_qos, subscribe_input)
+from .messages import Messages, message_kind
 from .lifecycle import ManagedNode, autostart, release
 from .parameters import GEOREF_PARAMETERS, declare_pipeline_parameters, on_parameter_change, read_pipeline_config
 
@@ -76,6 +76,7 @@ class GeorefNode(ManagedNode):
         self.config = read_pipeline_config(self, self._defaults)  # ConfigError refuses bad georef.* values
         self._undistorter = Undistorter(self.config.undistort)
         self.standalone = bool(self.get_parameter('live.georef_standalone').value)
+        self.messages = Messages(message_kind(self))  # portable or typed registrations
         self.georef: Georeferencer | None = None
         self._camera = None
         self._pending: list[tuple[float, RegistrationMsg]] = []  # (arrival monotonic s, registration)
@@ -99,7 +100,7 @@ class GeorefNode(ManagedNode):
         subscribe_input(self, NavSatFix, 'fix', self._on_fix, qos, group)
         subscribe_input(self, Imu, 'imu', self._on_imu, qos, group)
         subscribe_input(self, CameraInfo, 'camera_info', self._on_camera_info, qos, group)
-        subscribe_input(self, Float64MultiArray, 'registration', self._on_registration, input_qos(True, 200), group)
+        subscribe_input(self, self.messages.registration_type, 'registration', self._on_registration, input_qos(True, 200), group)
         self.pub_poses = PosePublisher(self)
         period = float(self.get_parameter('live.preview_period_s').value)
         self.create_timer(0.2, self._on_tick, callback_group=group)
@@ -141,12 +142,12 @@ class GeorefNode(ManagedNode):
         except SrMosaicError as exc:
             self.warn('camera_info', f'camera info skipped: {exc}')
 
-    def _on_registration(self, msg: Float64MultiArray) -> None:
+    def _on_registration(self, msg: Any) -> None:
         if not self.active:  # paused (lifecycle): before the stamp order, so a replay is taken later
             self.warn.count('inputs_while_inactive')
             return
         try:
-            reg = decode_registration(msg)
+            reg = self.messages.read_registration(msg)
         except SrMosaicError as exc:
             self.warn('registration', f'registration skipped: {exc}')
             return

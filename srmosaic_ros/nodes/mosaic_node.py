@@ -41,7 +41,6 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, NavSatFix
-from std_msgs.msg import Float64MultiArray, String
 
 from msg_adapters import (
     camera_info_to_intrinsics,
@@ -60,8 +59,9 @@ from ..io.outputs import peak_rss_mb, preview_image
 from ..offline import write_outputs
 from ..pipeline import FrameRecord, Pipeline
 from .common import (IMAGE_QOS_DEPTH, REGISTRATION_LAYOUT, TELEMETRY_QOS_DEPTH, TOPICS, DiagnosticsPublisher,
-                     PosePublisher, StreamOrder, WarnOnce, camera_image, encode_registration, frame_ids, input_qos,
+                     PosePublisher, StreamOrder, WarnOnce, camera_image, frame_ids, input_qos,
                      subscribe_input)
+from .messages import Messages, message_kind
 from .lifecycle import ManagedNode, autostart, release
 from .parameters import MOSAIC_PARAMETERS, declare_pipeline_parameters, on_parameter_change, read_pipeline_config
 
@@ -103,6 +103,7 @@ class MosaicNode(ManagedNode):
         if self.georef_standalone:  # the georef node fuses telemetry; the mosaic stays in the frame plane
             config = dataclasses.replace(config, georef_enabled=False)
         self.config = config
+        self.messages = Messages(message_kind(self))  # portable or typed registration and raster
         self.output_dir = str(self.get_parameter('live.output_dir').value)
         frame_ids(self)  # refused at start when not frame ids (PosePublisher uses them)
         if self.output_dir:
@@ -145,11 +146,11 @@ class MosaicNode(ManagedNode):
         self._input_lock = threading.Lock()  # input callbacks run concurrently: guard their shared state
         self.pub_preview = self.create_publisher(Image, TOPICS['preview'], 1)
         self.pub_preview_c = self.create_publisher(CompressedImage, TOPICS['preview_compressed'], 1)
-        self.pub_registration = self.create_publisher(Float64MultiArray, TOPICS['registration'], 50)
+        self.pub_registration = self.create_publisher(self.messages.registration_type, TOPICS['registration'], 50)
         self.pub_diag = DiagnosticsPublisher(self, 'srmosaic: registration and mosaic')
         latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                              history=HistoryPolicy.KEEP_LAST)
-        self.pub_raster = self.create_publisher(String, TOPICS['raster'], latched)
+        self.pub_raster = self.create_publisher(self.messages.raster_type, TOPICS['raster'], latched)
         self._raster_sent: LiveRaster | None = None
         if not self.georef_standalone:  # else the georef node publishes them (one publisher per graph)
             self.pub_poses = PosePublisher(self)
@@ -260,7 +261,7 @@ class MosaicNode(ManagedNode):
 
     def _publish_registration(self, record: FrameRecord) -> None:
         reg = record.registration
-        self.pub_registration.publish(encode_registration(
+        self.pub_registration.publish(self.messages.registration(
             record.stamp_ns, record.painted, reg.inliers if reg else 0, reg.rms_px if reg else float('nan'),
             record.segment, record.seg_H_frame, reg.prev_H_cur if reg is not None else None,
             bool(reg is not None and reg.ok), getattr(reg, 'covariance', None)))
@@ -300,7 +301,7 @@ class MosaicNode(ManagedNode):
             finally:
                 self._lock.release()
         if raster is not None:
-            self.pub_raster.publish(String(data=raster.text()))
+            self.pub_raster.publish(self.messages.raster(raster, self.get_clock().now().nanoseconds))
         if image is not None:
             preview = preview_image(image, coverage, self.config.mosaic.preview_max_side_px)
             stamp = self.get_clock().now().nanoseconds

@@ -25,13 +25,14 @@ from ..config import PipelineConfig, default_params_path, load_params, pipeline_
 __all__ = ['MOSAIC_PARAMETERS', 'GEOREF_PARAMETERS', 'SR_PARAMETERS', 'declare_pipeline_parameters', 'read_pipeline_config', 'on_parameter_change']
 
 #: The keys each node declares: names, or section prefixes for all the keys of a section.
-_POSE_OUTPUT = ('live.map_frame', 'live.body_frame', 'live.georef_standalone', 'live.reliable_inputs', 'live.preview_period_s')
+_POSE_OUTPUT = ('live.map_frame', 'live.body_frame', 'live.georef_standalone', 'live.reliable_inputs', 'live.preview_period_s',
+                'live.message_types')
 MOSAIC_PARAMETERS = ('device', 'undistort', 'stamp_tolerance_s', 'registration', 'mosaic', 'georef', *_POSE_OUTPUT,
                      'live.queue_size', 'live.torch_threads', 'live.output_dir', 'live.autostart')
 GEOREF_PARAMETERS = ('undistort', 'stamp_tolerance_s', 'georef', *_POSE_OUTPUT, 'live.autostart')
 SR_PARAMETERS = ('device', 'undistort', 'stamp_tolerance_s', 'sr', 'sr_tiles', 'live.reliable_inputs', 'live.torch_threads',
                  'live.sr_period_s', 'live.sr_tiles_per_round', 'live.sr_refresh_growth', 'live.sr_frames_kept',
-                 'live.sr_images_pending', 'live.sr_worker')
+                 'live.sr_images_pending', 'live.sr_worker', 'live.message_types')
 
 # Ranges stated once here for the ROS parameter descriptors; the dataclasses check them again.
 _RANGES: dict[str, tuple[float, float]] = {

@@ -58,7 +58,6 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
-from std_msgs.msg import Float64MultiArray
 
 from msg_adapters import (SUPPORTED_ENCODINGS, camera_info_to_intrinsics, header_to_ns_frame,
                           numpy_to_image)
@@ -78,7 +77,8 @@ from ..sr_live import (
     sr_worker_ready,
 )
 from .common import (IMAGE_QOS_DEPTH, TOPICS, DiagnosticsPublisher, StreamOrder, WarnOnce, camera_image, check_range,
-                     decode_registration, input_qos, subscribe_input)
+                     input_qos, subscribe_input)
+from .messages import Messages, message_kind
 from .parameters import SR_PARAMETERS, declare_pipeline_parameters, on_parameter_change, read_pipeline_config
 
 #: Parameters `ros2 param set` changes while the node runs (the others are read-only).
@@ -113,6 +113,7 @@ class SRNode(Node):
                    f'{self.config.sr_tiles.min_frames}: no tile could ever be scheduled; raise it.')
             raise SrMosaicError(msg)
         self.factor = int(self.config.sr_tiles.factor)
+        self.messages = Messages(message_kind(self))  # portable or typed registrations
         self.worker_kind = str(self.get_parameter('live.sr_worker').value)
         if self.worker_kind not in ('process', 'thread'):
             msg = f"live.sr_worker must be 'process' or 'thread', got {self.worker_kind!r}."
@@ -145,7 +146,7 @@ class SRNode(Node):
         self._undistorter = Undistorter(self.config.undistort)
         subscribe_input(self, CameraInfo, 'camera_info', self._on_camera_info, input_qos(False, 5), images)
         # Registrations are few and each matters: reliable, deep.
-        subscribe_input(self, Float64MultiArray, 'registration', self._on_registration, input_qos(True, 200),
+        subscribe_input(self, self.messages.registration_type, 'registration', self._on_registration, input_qos(True, 200),
                         MutuallyExclusiveCallbackGroup())
         self.pub_tile = self.create_publisher(Image, TOPICS['sr_tile'], 10)
         self.pub_diag = DiagnosticsPublisher(self, 'srmosaic: super-resolution')
@@ -188,9 +189,9 @@ class SRNode(Node):
         except SrMosaicError as exc:
             self.warn('camera_info', f'camera info skipped: {exc}')
 
-    def _on_registration(self, msg: Float64MultiArray) -> None:
+    def _on_registration(self, msg: Any) -> None:
         try:
-            reg = decode_registration(msg)
+            reg = self.messages.read_registration(msg)
         except SrMosaicError as exc:
             self.warn('registration', f'registration skipped: {exc}')
             return

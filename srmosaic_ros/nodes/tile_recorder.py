@@ -26,7 +26,6 @@ from typing import Any
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image
-from std_msgs.msg import String
 
 from msg_adapters import image_to_rgb_or_mono
 
@@ -36,6 +35,7 @@ from ..io.geotiff import GeoGrid, write_geotiff
 from ..io.mosaic_files import write_json, write_png
 from ..live_raster import ImagePlacement, LiveRaster
 from .common import TOPICS, WarnOnce
+from .messages import Messages, message_kind
 
 __all__ = ['TileRecorderNode']
 
@@ -54,15 +54,17 @@ class TileRecorderNode(Node):
         self._lock = threading.Lock()
         self.written: dict[str, int] = {'tiles': 0, 'previews': 0}
         latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        self.create_subscription(String, TOPICS['raster'], self._on_raster, latched)
+        self.declare_parameter('live.message_types', 'portable')  # as the graph's (nodes/messages.py)
+        self.messages = Messages(message_kind(self))
+        self.create_subscription(self.messages.raster_type, TOPICS['raster'], self._on_raster, latched)
         self.create_subscription(Image, TOPICS['sr_tile'], self._on_tile, 20)
         if previews:
             self.create_subscription(Image, TOPICS['preview'], self._on_preview, 1)
         self.get_logger().info(f'recording SR tiles{" and previews" if previews else ""} into {self.out}')
 
-    def _on_raster(self, msg: String) -> None:
+    def _on_raster(self, msg: Any) -> None:
         try:
-            raster = LiveRaster.parse(msg.data)
+            raster = self.messages.read_raster(msg)
         except SrMosaicError as exc:
             self.warn('raster', f'/srmosaic/raster skipped: {exc}')
             return
