@@ -220,7 +220,7 @@ def drift_controlled(georef: Georeferencer, poses: list[FramePose], regs: list) 
 
 
 def reanchored(georef: Georeferencer, poses: list[FramePose], placed: list[np.ndarray]) -> list[np.ndarray]:
-    """The placements as the product's outputs georeference them (mosaic_georeference.anchored_raster): the
+    """The placements as the product's outputs georeference them (app.georeference.anchored_raster): the
     least-squares similarity from the placed corners to the corners predicted by the smoothed
     poses, applied to the whole mosaic (core/georef/anchoring.py)."""
     c = corners_of(georef.camera)

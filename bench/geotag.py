@@ -29,7 +29,7 @@ sys.path.insert(0, str(ROOT))
 from srmosaic_ros.config import pipeline_config
 from srmosaic_ros.core.georef.geodetic import LocalTangentPlane
 from srmosaic_ros.core.georef.ground_homography import apply_H, ground_H_image
-from srmosaic_ros.offline import process_input
+from srmosaic_ros.app.process import process_input
 from srmosaic_ros.sim import SimConfig, simulate
 from srmosaic_ros.sim.record import write_stills_folder
 

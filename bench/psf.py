@@ -77,8 +77,8 @@ def measurement_table(work: Path) -> None:
 def end_to_end(work: Path) -> None:
     from srmosaic_ros.cli import main as cli_main
     from srmosaic_ros.config import pipeline_config
-    from srmosaic_ros.evaluate import evaluate_dir
-    from srmosaic_ros.offline import process_input
+    from srmosaic_ros.app.evaluate import evaluate_dir
+    from srmosaic_ros.app.process import process_input
 
     bag = work / 'demo-sr-bag'
     rc = cli_main(['simulate', '--trajectory', 'line', '--frames', '40', '--width', '320', '--height', '240',

@@ -34,7 +34,7 @@ def overlay(out_dir: Path, picture: Path, *, klv: Path | None = None, max_side: 
     from pyproj import Transformer
 
     from srmosaic_ros.core.metrics import apply_homography
-    from srmosaic_ros.evaluate_real import read_meta_positions
+    from srmosaic_ros.app.evaluate_real import read_meta_positions
     from srmosaic_ros.io.mosaic_files import read_frames_csv
 
     rgba = cv2.imread(str(out_dir / 'mosaic.png'), cv2.IMREAD_UNCHANGED)
@@ -84,7 +84,7 @@ def _frame_size(out_dir: Path) -> tuple[int, int]:
     seg = report.get('frame_size_px')
     if seg:
         return int(seg[0]), int(seg[1])
-    from srmosaic_ros.offline import open_source
+    from srmosaic_ros.app.process import open_source
     from srmosaic_ros.core.types import Frame
 
     items, _, _ = open_source(Path(report['input']))
@@ -96,8 +96,8 @@ def _frame_size(out_dir: Path) -> tuple[int, int]:
 
 def main() -> int:
     from srmosaic_ros.config import PipelineConfig
-    from srmosaic_ros.evaluate_real import evaluate_real, format_real_figures
-    from srmosaic_ros.offline import process_input
+    from srmosaic_ros.app.evaluate_real import evaluate_real, format_real_figures
+    from srmosaic_ros.app.process import process_input
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--out', type=Path, default=Path(__file__).parent / 'out' / 'real_metadata')

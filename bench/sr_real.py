@@ -2,7 +2,7 @@
 
 The sequences in data/sequences (640 px wide, real cameras, real parallax, lighting and lens) are
 halved into LR stills and processed with `--sr` (factor 2, 64-px tiles); every SR tile is compared
-with the 640-px original of its reference frame (srmosaic_ros/evaluate_stills.py), the baseline
+with the 640-px original of its reference frame (srmosaic_ros/app/evaluate_stills.py), the baseline
 being mosaic.png sampled bicubically. No simulation anywhere: this is how far SR gets on real
 imagery, where the frames disagree by more than noise.
 
@@ -27,8 +27,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from srmosaic_ros.config import pipeline_config
-from srmosaic_ros.evaluate_stills import halve_stills, pooled_gain_db, sr_errors_against_originals
-from srmosaic_ros.offline import process_input
+from srmosaic_ros.app.evaluate_stills import halve_stills, pooled_gain_db, sr_errors_against_originals
+from srmosaic_ros.app.process import process_input
 
 SEQUENCES = ('caliterra', 'brighton_beach')
 RUNS: dict[str, dict[str, Any]] = {

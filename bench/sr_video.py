@@ -3,7 +3,7 @@
 Frames of a real video (every ``--every``-th, at most ``--frames``) are halved (area average) into
 a folder of PNG stills, processed with `--sr` (factor 2, 64-px tiles, the chained pipeline: the
 stills carry no metadata), and every SR tile is compared with the full-size original of its
-reference frame (srmosaic_ros/evaluate_stills.py), the baseline being mosaic.png sampled
+reference frame (srmosaic_ros/app/evaluate_stills.py), the baseline being mosaic.png sampled
 bicubically. No simulation anywhere. Prints, per run: tiles, pooled PSNR of SR and bicubic, the
 mean and worst per-tile gain (dB) and the fraction of tiles that gain; the issue's goal is a mean
 gain of at least +1.0 dB, 75 % of tiles gaining, none below -0.5 dB.
@@ -26,9 +26,9 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from srmosaic_ros.config import pipeline_config
-from srmosaic_ros.evaluate_stills import psnr_from_sse, sr_errors_against_originals
+from srmosaic_ros.app.evaluate_stills import psnr_from_sse, sr_errors_against_originals
 from srmosaic_ros.io.video import VideoReader
-from srmosaic_ros.offline import process_input
+from srmosaic_ros.app.process import process_input
 
 REAL = ROOT.parent / 'shared' / 'data' / 'real'
 VIDEOS = (REAL / 'klv' / 'aphill_short.ts', REAL / 'gopro' / 'karma.mp4')

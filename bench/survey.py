@@ -95,10 +95,10 @@ def pairs_picture(out: Path, dst: Path, max_side: int = 1600) -> None:
     import rasterio
     from pyproj import Transformer
 
-    from srmosaic_ros.evaluate_real import read_meta_positions
+    from srmosaic_ros.app.evaluate_real import read_meta_positions
     from srmosaic_ros.io.mosaic_files import read_frames_csv
-    from srmosaic_ros.offline import open_source
-    from srmosaic_ros.survey import survey_stills
+    from srmosaic_ros.app.process import open_source
+    from srmosaic_ros.app.survey import survey_stills
 
     rgba = cv2.imread(str(out / 'mosaic.png'), cv2.IMREAD_UNCHANGED)
     scale = min(1.0, max_side / max(rgba.shape[:2]))
@@ -134,8 +134,8 @@ def pairs_picture(out: Path, dst: Path, max_side: int = 1600) -> None:
 
 def sim_working_resolution(dst: Path) -> list[dict]:
     from srmosaic_ros.config import pipeline_config
-    from srmosaic_ros.evaluate import evaluate_dir
-    from srmosaic_ros.offline import process_input
+    from srmosaic_ros.app.evaluate import evaluate_dir
+    from srmosaic_ros.app.process import process_input
     from srmosaic_ros.sim import SimConfig, save_truth, simulate
     from srmosaic_ros.sim.record import write_drone_stills
 

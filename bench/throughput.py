@@ -14,7 +14,7 @@ it, the two taking turns flight by flight so that load on a shared machine hits 
 Printed per run: frames/s end to end (frames over the process's wall time, start-up included)
 beside the video's own rate, the mean per-frame time of each stage (report.json's
 stage_times; a baseline without them shows the total only), the mean corner error over the
-registered frames in full-size frame pixels (srmosaic_ros.evaluate against the truth), the frames
+registered frames in full-size frame pixels (srmosaic_ros.app.evaluate against the truth), the frames
 in the main mosaic and the peak memory. The figures go to --work/throughput.json.
 
     OMP_NUM_THREADS=2 python bench/throughput.py [--sizes 640x480,1280x720,1920x1080,3840x2160]
@@ -39,7 +39,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from srmosaic_ros.evaluate import evaluate_dir
+from srmosaic_ros.app.evaluate import evaluate_dir
 
 #: (width, height, frames/s of the video)
 SIZES = {'640x480': (640, 480, 30.0), '1280x720': (1280, 720, 30.0), '1920x1080': (1920, 1080, 25.0),

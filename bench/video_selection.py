@@ -8,7 +8,7 @@ above the caliterra orthophoto, 640 x 480 RGB frames, 60 deg horizontal field of
 between frames), 2 deg RMS gusts; 601 frames by default (40 s, 280 m), so that frame 600, the
 last, is an I-frame for G = 12, 20 and 30 and every selection ends on the same frame.
 
-`process` (srmosaic_ros.offline.process_input, called in this process with the default
+`process` (srmosaic_ros.app.process.process_input, called in this process with the default
 parameters, `--hfov 60`, no telemetry: the pure registration chain, as in the reference, and no
 checkpoints) then runs on each video with:
 
@@ -24,7 +24,7 @@ Figures per run: frames selected and registered, wall time of `process` (s: deco
 registration, mosaic and outputs, as report.json's wall_s), frames selected per second, the
 end-of-flight geometric error (px: corner error of the last registered frame's mosaic homography
 against the truth, after the mosaic plane is related to the ground by a fitted homography; see
-srmosaic_ros.evaluate and core.metrics.mosaic_corner_errors), the mean and max corner error over
+srmosaic_ros.app.evaluate and core.metrics.mosaic_corner_errors), the mean and max corner error over
 the selected frames, the mean corner error between consecutive selected frames, and the number of
 mosaic segments. The figures go to --work/video_selection.json (default bench/out/video_selection).
 
@@ -48,9 +48,9 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from srmosaic_ros.config import pipeline_config
-from srmosaic_ros.evaluate import evaluate_dir
+from srmosaic_ros.app.evaluate import evaluate_dir
 from srmosaic_ros.io.mosaic_files import read_frames_csv
-from srmosaic_ros.offline import process_input
+from srmosaic_ros.app.process import process_input
 from srmosaic_ros.sim import SimConfig, simulate
 from srmosaic_ros.sim.cli import _write_video_and_sidecar
 from srmosaic_ros.sim.truth import save_truth

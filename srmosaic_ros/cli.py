@@ -49,7 +49,7 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
 def _run_process(args: argparse.Namespace) -> int:
     from .config import load_params, pipeline_config
     from .io.bags import TopicConfig
-    from .offline import process_input
+    from .app.process import process_input
 
     overrides = load_params(args.params) if args.params else {}
     if args.blend:
@@ -85,10 +85,10 @@ def _add_evaluate(sub: argparse._SubParsersAction) -> None:
 
 
 def _run_evaluate(args: argparse.Namespace) -> int:
-    from .evaluate import evaluate_dir
+    from .app.evaluate import evaluate_dir
 
     if args.truth is None:
-        from .evaluate_real import evaluate_real, format_real_figures
+        from .app.evaluate_real import evaluate_real, format_real_figures
 
         real = evaluate_real(args.dir, progress=not args.no_progress, input_path=args.input)
         print(json.dumps(real, indent=2, default=float) if args.json else '\n'.join(format_real_figures(real)))
@@ -193,7 +193,7 @@ def _add_psf(sub: argparse._SubParsersAction) -> None:
 
 def _run_psf(args: argparse.Namespace) -> int:
     from .errors import ConfigError
-    from .psf_tool import as_json, measure_psf, summary_lines
+    from .app.psf import as_json, measure_psf, summary_lines
 
     if args.max_frames < 1 or not 0.0 < args.quantile < 1.0:
         msg = f'--max-frames must be >= 1 and --quantile in (0, 1), got {args.max_frames} and {args.quantile}.'
@@ -216,7 +216,7 @@ def _add_inspect(sub: argparse._SubParsersAction) -> None:
 
 
 def _run_inspect(args: argparse.Namespace) -> int:
-    from .inspect_tool import format_inspection, inspect_input
+    from .app.inspect_tool import format_inspection, inspect_input
 
     info = inspect_input(args.input)
     print(json.dumps(info, indent=2, default=str) if args.json else '\n'.join(format_inspection(info)))

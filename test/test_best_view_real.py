@@ -8,8 +8,8 @@ from pathlib import Path
 import pytest
 
 from srmosaic_ros.config import pipeline_config
-from srmosaic_ros.evaluate_real import evaluate_real
-from srmosaic_ros.offline import process_input
+from srmosaic_ros.app.evaluate_real import evaluate_real
+from srmosaic_ros.app.process import process_input
 
 REAL = Path(__file__).parent / 'data' / 'real'
 KARMA = REAL / 'gopro' / 'karma_cliffs_6s.mp4'

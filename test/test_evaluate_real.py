@@ -1,4 +1,4 @@
-"""Truth-free evaluation of a real run (srmosaic_ros/evaluate_real.py) on the repository's real stills."""
+"""Truth-free evaluation of a real run (srmosaic_ros/app/evaluate_real.py) on the repository's real stills."""
 from __future__ import annotations
 
 import csv
@@ -16,9 +16,9 @@ from pyproj import Transformer
 from srmosaic_ros.config import pipeline_config
 from srmosaic_ros.core.metrics import apply_homography
 from srmosaic_ros.errors import InputError
-from srmosaic_ros.evaluate_real import MAX_COMPARE_PX, evaluate_real, format_real_figures, read_meta_positions
+from srmosaic_ros.app.evaluate_real import MAX_COMPARE_PX, evaluate_real, format_real_figures, read_meta_positions
 from srmosaic_ros.io.mosaic_files import FRAMES_CSV_HEADER
-from srmosaic_ros.offline import process_input
+from srmosaic_ros.app.process import process_input
 
 SEQUENCES = Path(__file__).resolve().parent.parent / 'data' / 'sequences'
 CALITERRA = SEQUENCES / 'caliterra'

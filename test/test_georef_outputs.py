@@ -206,8 +206,8 @@ def test_a_flight_whose_first_fixes_are_unusable_starts_on_the_map(tmp_path):
 
     from demo_bags import DEMO, rewrite_demo
     from srmosaic_ros.config import PipelineConfig
-    from srmosaic_ros.evaluate import evaluate_dir
-    from srmosaic_ros.offline import process_input
+    from srmosaic_ros.app.evaluate import evaluate_dir
+    from srmosaic_ros.app.process import process_input
 
     def no_fix(kind: str, index: int, msg) -> None:
         if kind == 'fix' and index < 20:

@@ -18,7 +18,7 @@ from srmosaic_ros.config import pipeline_config
 from srmosaic_ros.core.georef.geodetic import LocalTangentPlane
 from srmosaic_ros.core.georef.geotag_fit import fit_mosaic_to_geotags, geotags_at
 from srmosaic_ros.core.georef.ground_homography import apply_H, ground_H_image
-from srmosaic_ros.offline import process_input
+from srmosaic_ros.app.process import process_input
 from srmosaic_ros.sim import SimConfig, simulate
 from srmosaic_ros.sim.record import write_stills_folder
 
@@ -161,7 +161,7 @@ def test_real_stills_are_aligned_globally_on_the_map(tmp_path: Path, name: str, 
 
 def test_image_folder_refuses_video_options() -> None:
     from srmosaic_ros.errors import InputError
-    from srmosaic_ros.offline import open_source
+    from srmosaic_ros.app.process import open_source
 
     with pytest.raises(InputError, match='--hfov and --telemetry apply to video input'):
         open_source(SEQUENCES / 'caliterra', hfov_deg=60.0)
@@ -208,7 +208,7 @@ def test_stills_with_intrinsics_are_anchored_on_frame_centres(stills_bag: Path, 
     """With georef.max_step_s 1 s the frames 2 s apart are bridged and their registrations not
     fused, so the ground height stays at its +-30 m prior; the offline re-anchoring then fits frame
     centres, not corners (whose spread would carry the height error into the scale: 2.7 m RMS)."""
-    from srmosaic_ros.evaluate import evaluate_dir
+    from srmosaic_ros.app.evaluate import evaluate_dir
 
     report = process_input(stills_bag, tmp_path / 'out', pipeline_config({'georef.max_step_s': 1.0}), progress=False)
     geo = report['georeferenced']
@@ -223,7 +223,7 @@ def test_stills_registrations_are_fused_with_a_step_as_long_as_their_spacing(sti
     filter learns the ground; poses 0.74 m RMS instead of 1.2 m bridged). It needs the bound on the
     attitude noise per step: without it (90 deg) the 2 s steps spread the sigma points over +-290
     deg and the filter diverged (pose error 1.5 km)."""
-    from srmosaic_ros.evaluate import evaluate_dir
+    from srmosaic_ros.app.evaluate import evaluate_dir
 
     def run(cap_deg: float) -> tuple[dict, dict]:
         out = tmp_path / f'out_{cap_deg}'

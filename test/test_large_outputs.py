@@ -25,7 +25,7 @@ from srmosaic_ros.io.geotiff import (MOSAIC_BLOCK_PX, overview_factors, png_from
                                      write_geotiff_blocks)
 from srmosaic_ros.io.mosaic_files import write_png
 from srmosaic_ros.io.outputs import StripPreview, preview_image, write_canvas
-from srmosaic_ros.offline import open_source, write_outputs
+from srmosaic_ros.app.process import open_source, write_outputs
 from srmosaic_ros.pipeline import Pipeline
 
 ROOT = Path(__file__).resolve().parent.parent

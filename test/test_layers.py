@@ -1,8 +1,8 @@
 """The package's layers import one way, and no module imports itself back through others.
 
     core (pure algorithm, and errors)  <-  io, msg_adapters (files, bags, messages)
-        <-  pipeline (pipeline, config, sim)  <-  live (sr_live, live_raster)
-        <-  app (offline, sr_offline, evaluate, survey, ...)  <-  nodes, cli
+        <-  pipeline (pipeline, config, sim)  <-  live/ (sr, raster)
+        <-  app/ (process, sr_process, evaluate, survey, ...)  <-  nodes/, cli
 
 Every import statement counts, the lazy ones inside functions too (a lazy import hides a circle,
 it does not remove it); those under ``if TYPE_CHECKING:`` (annotations only) do not.
@@ -15,20 +15,23 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGES = ('srmosaic_ros', 'msg_adapters')
 
-#: Layer of a module: the first matching prefix wins (dotted module names).
+#: Layer of a module: the first matching prefix wins (dotted module names). Every module must have one:
+#: a new top-level module goes into a layer's folder (core/, io/, live/, app/, nodes/) or here.
 LAYERS = [
     ('srmosaic_ros.errors', 0), ('srmosaic_ros.core', 0),
     ('srmosaic_ros.io', 1), ('msg_adapters', 1),
     ('srmosaic_ros.pipeline', 2), ('srmosaic_ros.config', 2), ('srmosaic_ros.param_files', 2),
     ('srmosaic_ros.malloc_tuning', 2), ('srmosaic_ros.sim', 2),
-    ('srmosaic_ros.sr_live', 3), ('srmosaic_ros.live_raster', 3),
+    ('srmosaic_ros.live', 3),
+    ('srmosaic_ros.app', 4),  # process, sr_process, evaluate*, survey, psf, checkpoint, georeference, inspect_tool
     ('srmosaic_ros.nodes', 5), ('srmosaic_ros.cli', 5),
-    ('srmosaic_ros', 4),  # the rest of the top level: offline, sr_offline, evaluate*, survey, psf_tool, ...
 ]
 NAMES = {0: 'core', 1: 'io', 2: 'pipeline', 3: 'live', 4: 'app', 5: 'nodes/cli'}
 
 
 def layer(module: str) -> int:
+    if module == 'srmosaic_ros':  # the package's __init__ (its version only)
+        return 0
     for prefix, rank in LAYERS:
         if module == prefix or module.startswith(prefix + '.'):
             return rank

@@ -1,4 +1,4 @@
-"""The /srmosaic/raster text (live_raster.py): round trip, refusal of other text, and SR tile
+"""The /srmosaic/raster text (live/raster.py): round trip, refusal of other text, and SR tile
 geotransforms that agree with the GeoRaster and with the tile placement convention."""
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import pytest
 from srmosaic_ros.core.georef.drift import similarity_homography
 from srmosaic_ros.core.georef.georeferencer import GeoRaster
 from srmosaic_ros.errors import SrMosaicError
-from srmosaic_ros.live_raster import ImagePlacement, LiveRaster
-from srmosaic_ros.sr_live import SRTilePlacement
+from srmosaic_ros.live.raster import ImagePlacement, LiveRaster
+from srmosaic_ros.live.sr import SRTilePlacement
 
 
 def test_text_round_trip_and_refusals():

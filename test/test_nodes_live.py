@@ -104,7 +104,7 @@ def check_sr_tile_against_truth(tile_msg, registration_msgs) -> dict:
     from srmosaic_ros.nodes.common import decode_registration
     from srmosaic_ros.sim.render import reference_render
     from srmosaic_ros.sim.truth import load_truth
-    from srmosaic_ros.sr_live import SRTilePlacement
+    from srmosaic_ros.live.sr import SRTilePlacement
 
     place = SRTilePlacement.parse(tile_msg.header.frame_id)
     s = place.factor
@@ -140,10 +140,10 @@ def sr_tile_map_error_m(tile_msg, registration_msgs, raster_text: str) -> dict:
 
     from srmosaic_ros.core.georef.geodetic import LocalTangentPlane
     from srmosaic_ros.core.metrics import apply_homography
-    from srmosaic_ros.live_raster import LiveRaster
+    from srmosaic_ros.live.raster import LiveRaster
     from srmosaic_ros.nodes.common import decode_registration
     from srmosaic_ros.sim.truth import load_truth
-    from srmosaic_ros.sr_live import SRTilePlacement
+    from srmosaic_ros.live.sr import SRTilePlacement
 
     raster = LiveRaster.parse(raster_text)
     place = SRTilePlacement.parse(tile_msg.header.frame_id)
@@ -173,7 +173,7 @@ def check_recorded_tiles(folder: Path, tiles: list, raster_text: str) -> None:
     import rasterio
 
     from msg_adapters import image_to_numpy
-    from srmosaic_ros.live_raster import ImagePlacement, LiveRaster
+    from srmosaic_ros.live.raster import ImagePlacement, LiveRaster
 
     raster = LiveRaster.parse(raster_text)
     latest = {t.header.frame_id: t for t in tiles}
@@ -240,7 +240,7 @@ def test_live_graph_matches_offline_process(ros_env, tmp_path):
         preview = listener.previews[-1]
         assert preview.encoding == 'rgb8' and max(preview.width, preview.height) <= 1024
         # The preview says which region of the plane it shows, hence where it lies on the map.
-        from srmosaic_ros.live_raster import ImagePlacement, LiveRaster
+        from srmosaic_ros.live.raster import ImagePlacement, LiveRaster
 
         region = ImagePlacement.parse(preview.header.frame_id)
         assert region.segment == 0 and region.width >= preview.width
@@ -399,7 +399,7 @@ def test_sr_node_refreshes_a_tile_when_more_frames_cover_it(ros_env):
     from imagery import view
     from msg_adapters import image_to_numpy, numpy_to_image
     from srmosaic_ros.nodes.common import encode_registration
-    from srmosaic_ros.sr_live import SRTilePlacement
+    from srmosaic_ros.live.sr import SRTilePlacement
 
     node = srmosaic('node', 'sr', '--ros-args', '-p', 'live.sr_period_s:=0.2', '-p', 'live.sr_worker:=thread',
                     '-p', 'sr_tiles.tile_size:=64', '-p', 'sr_tiles.max_frames:=12', '-p', 'sr.iterations:=5',
@@ -457,7 +457,7 @@ def test_sr_node_removes_lens_distortion_like_the_mosaic_node(ros_env):
     from srmosaic_ros.core.types import CameraIntrinsics
     from srmosaic_ros.core.undistort import pinhole_of
     from srmosaic_ros.nodes.common import encode_registration
-    from srmosaic_ros.sr_live import SRTilePlacement
+    from srmosaic_ros.live.sr import SRTilePlacement
 
     lens = CameraIntrinsics(200, 140, 120.0, 120.0, 99.5, 69.5, 'plumb_bob', (-0.35, 0.1, 0.0, 0.0, 0.0))
     pinhole, _, _ = pinhole_of(lens)
@@ -652,7 +652,7 @@ def test_sr_placement_and_live_planning_without_ros():
     """The ROS-free side of the SR node: placement text, the bounded frame store, tile planning."""
     from srmosaic_ros.core.sr.scheduler import SRTileConfig
     from srmosaic_ros.errors import SrMosaicError
-    from srmosaic_ros.sr_live import LiveFrameStore, SRTilePlacement, plan_live_tiles
+    from srmosaic_ros.live.sr import LiveFrameStore, SRTilePlacement, plan_live_tiles
 
     place = SRTilePlacement(2, -128, 256, 128, 64, 3)
     assert SRTilePlacement.parse(place.frame_id()) == place
@@ -695,7 +695,7 @@ def test_sr_worker_process_gives_the_in_process_tile():
 
     from srmosaic_ros.core.sr import SRConfig
     from srmosaic_ros.core.sr.scheduler import TilePlan
-    from srmosaic_ros.sr_live import (SRError, init_sr_worker_process, reconstruct_live_tile,
+    from srmosaic_ros.live.sr import (SRError, init_sr_worker_process, reconstruct_live_tile,
                                       reconstruct_live_tile_image)
 
     rng = np.random.default_rng(0)

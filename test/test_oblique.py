@@ -16,7 +16,7 @@ from srmosaic_ros.core.georef.frames import (
 )
 from srmosaic_ros.core.types import CameraAttitude, GeoFix
 from srmosaic_ros.io.metadata import merge_by_time
-from srmosaic_ros.offline import write_outputs
+from srmosaic_ros.app.process import write_outputs
 from srmosaic_ros.pipeline import Pipeline
 from srmosaic_ros.sim import SimConfig, simulate
 
@@ -72,7 +72,7 @@ def test_oblique_flight_is_ortho_rectified_within_one_percent_of_the_slant_range
     """A camera 40 deg below the horizon, 200 m up, looking left of a line flight: with the camera
     attitude per frame (0.2 deg noise) and the default (nadir) mount, every frame corner lands on
     the map within 1 % of its slant range of where the true camera sees it."""
-    from srmosaic_ros.evaluate import evaluate_dir
+    from srmosaic_ros.app.evaluate import evaluate_dir
     from srmosaic_ros.sim import save_truth
 
     elevation, altitude = -40.0, 200.0

@@ -10,9 +10,9 @@ from pathlib import Path
 import pytest
 
 from srmosaic_ros.config import PipelineConfig
-from srmosaic_ros.evaluate_real import evaluate_real
-from srmosaic_ros.inspect_tool import format_inspection, inspect_input
-from srmosaic_ros.offline import process_input
+from srmosaic_ros.app.evaluate_real import evaluate_real
+from srmosaic_ros.app.inspect_tool import format_inspection, inspect_input
+from srmosaic_ros.app.process import process_input
 
 REAL = Path(__file__).parent / 'data' / 'real'
 APHILL = REAL / 'klv' / 'aphill_short.ts'

@@ -10,7 +10,7 @@ import sys
 import time
 from pathlib import Path
 
-from srmosaic_ros.checkpoint import read_header
+from srmosaic_ros.app.checkpoint import read_header
 
 ROOT = Path(__file__).resolve().parent.parent
 DEMO = ROOT / 'bags' / 'demo'

@@ -9,8 +9,8 @@ import pytest
 
 from srmosaic_ros.config import pipeline_config
 from srmosaic_ros.errors import SimulationError
-from srmosaic_ros.evaluate import evaluate_dir
-from srmosaic_ros.offline import process_input
+from srmosaic_ros.app.evaluate import evaluate_dir
+from srmosaic_ros.app.process import process_input
 from srmosaic_ros.sim import SimConfig, simulate, write_flight
 from srmosaic_ros.sim.flight import gimbal_deg
 

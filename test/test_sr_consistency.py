@@ -13,8 +13,8 @@ from srmosaic_ros.config import pipeline_config
 from srmosaic_ros.core.sr import SRFramesDisagree, reconstruct_tile
 from srmosaic_ros.core.sr.consistency import consistent_frames, noise_sigma
 from srmosaic_ros.core.sr.synthetic import make_synthetic_tile
-from srmosaic_ros.evaluate_stills import halve_stills, pooled_gain_db, sr_errors_against_originals
-from srmosaic_ros.offline import process_input
+from srmosaic_ros.app.evaluate_stills import halve_stills, pooled_gain_db, sr_errors_against_originals
+from srmosaic_ros.app.process import process_input
 
 from imagery import world_rgb
 

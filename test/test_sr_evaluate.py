@@ -51,7 +51,7 @@ def test_side_by_side_layout():
 @pytest.fixture(scope='module')
 def sr_run(tmp_path_factory):
     from srmosaic_ros.config import pipeline_config
-    from srmosaic_ros.offline import process_input
+    from srmosaic_ros.app.process import process_input
     from srmosaic_ros.sim import SimConfig
     from srmosaic_ros.sim.flight import simulate
     from srmosaic_ros.sim.record import write_flight
@@ -67,7 +67,7 @@ def sr_run(tmp_path_factory):
 
 
 def test_evaluate_reports_sr_gain_over_bicubic(sr_run):
-    from srmosaic_ros.evaluate import evaluate_dir
+    from srmosaic_ros.app.evaluate import evaluate_dir
 
     out, bag = sr_run
     tiles = json.loads((out / 'sr' / 'tiles.json').read_text())
@@ -102,7 +102,7 @@ def test_evaluate_reports_sr_gain_over_bicubic(sr_run):
 def test_evaluate_truth_misplaced_by_a_pixel_costs_psnr(sr_run):
     """The figures depend on where the truth is placed: shifting the true homographies by 1 world
     pixel must lower both PSNRs (guards against figures that ignore the geometry)."""
-    from srmosaic_ros.evaluate import sr_figures
+    from srmosaic_ros.app.evaluate import sr_figures
     from srmosaic_ros.io.mosaic_files import read_frames_csv
     from srmosaic_ros.sim import load_truth
 
@@ -119,7 +119,7 @@ def test_evaluate_truth_misplaced_by_a_pixel_costs_psnr(sr_run):
 
 
 def test_compare_figure_written(sr_run):
-    from srmosaic_ros.evaluate import evaluate_dir
+    from srmosaic_ros.app.evaluate import evaluate_dir
 
     out, bag = sr_run
     fig = evaluate_dir(out, bag / 'ground_truth.json')

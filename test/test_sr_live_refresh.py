@@ -8,7 +8,7 @@ import numpy as np
 from srmosaic_ros.core.sr import SRConfig
 from srmosaic_ros.core.sr.scheduler import SRTileConfig
 from srmosaic_ros.core.sr.synthetic import make_synthetic_tile
-from srmosaic_ros.sr_live import LiveFrameStore, plan_live_tiles, reconstruct_live_tile
+from srmosaic_ros.live.sr import LiveFrameStore, plan_live_tiles, reconstruct_live_tile
 
 from imagery import translation, world_rgb
 

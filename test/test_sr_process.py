@@ -70,7 +70,7 @@ def check_sr_geotiffs(out: Path, tiles: list[dict], mosaic: np.ndarray) -> None:
 
 
 def test_sr_mosaic_strips_are_one_bicubic_resize_with_the_tiles_pasted_in():
-    from srmosaic_ros.sr_offline import sr_mosaic_strips
+    from srmosaic_ros.app.sr_process import sr_mosaic_strips
 
     rng = np.random.default_rng(0)
     mosaic = cv2.GaussianBlur(rng.uniform(0, 255, (70, 90, 3)).astype(np.float32), (0, 0), 2.0).astype(np.uint8)

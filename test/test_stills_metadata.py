@@ -13,8 +13,8 @@ from pathlib import Path
 import pytest
 
 from srmosaic_ros.config import pipeline_config
-from srmosaic_ros.evaluate import evaluate_dir
-from srmosaic_ros.offline import process_input
+from srmosaic_ros.app.evaluate import evaluate_dir
+from srmosaic_ros.app.process import process_input
 from srmosaic_ros.sim import SimConfig, save_truth, simulate
 from srmosaic_ros.sim.record import write_drone_stills
 

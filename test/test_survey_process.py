@@ -14,13 +14,13 @@ import numpy as np
 import pytest
 
 from srmosaic_ros.config import pipeline_config
-from srmosaic_ros.evaluate import evaluate_dir
-from srmosaic_ros.evaluate_real import evaluate_real
+from srmosaic_ros.app.evaluate import evaluate_dir
+from srmosaic_ros.app.evaluate_real import evaluate_real
 from srmosaic_ros.io.mosaic_files import read_frames_csv
-from srmosaic_ros.offline import process_input
+from srmosaic_ros.app.process import process_input
 from srmosaic_ros.sim import SimConfig, save_truth, simulate
 from srmosaic_ros.sim.record import write_drone_stills, write_stills_folder
-from srmosaic_ros.survey import read_reduced, reduction_for
+from srmosaic_ros.app.survey import read_reduced, reduction_for
 
 CALITERRA = Path(__file__).resolve().parent.parent / 'data' / 'sequences' / 'caliterra'
 

@@ -23,7 +23,7 @@ from srmosaic_ros.core.types import Frame
 from srmosaic_ros.errors import ConfigError
 from srmosaic_ros.io.mosaic_files import read_frames_csv
 from srmosaic_ros.io.prefetch import prefetched
-from srmosaic_ros.offline import process_input
+from srmosaic_ros.app.process import process_input
 from srmosaic_ros.pipeline import Pipeline
 
 from imagery import similarity, translation, view, world_rgb

@@ -56,7 +56,7 @@ def ros_env(monkeypatch, request):
 
 ROUND_TRIP = textwrap.dedent("""
     import json, numpy as np
-    from srmosaic_ros.live_raster import LiveRaster
+    from srmosaic_ros.live.raster import LiveRaster
     from srmosaic_ros.nodes.messages import Messages
     typed, portable = Messages('typed'), Messages('portable')
     H, P, C = np.arange(9.0).reshape(3, 3) + 1, np.eye(3) * 2, np.diag(np.arange(1.0, 9.0))

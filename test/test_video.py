@@ -185,7 +185,7 @@ def test_video_with_telemetry_writes_tiled_mosaic_tif_and_matching_png(flight_vi
     import rasterio
 
     from srmosaic_ros.config import pipeline_config
-    from srmosaic_ros.offline import process_input
+    from srmosaic_ros.app.process import process_input
 
     _, video, _ = flight_video
     out = tmp_path / 'out'

@@ -7,9 +7,9 @@ from pathlib import Path
 import pytest
 
 from srmosaic_ros.config import PipelineConfig
-from srmosaic_ros.evaluate import evaluate_dir
+from srmosaic_ros.app.evaluate import evaluate_dir
 from srmosaic_ros.io.video import write_video
-from srmosaic_ros.offline import process_input
+from srmosaic_ros.app.process import process_input
 from srmosaic_ros.sim import SimConfig, save_truth, simulate
 
 # a Mavic 3 block, as test/data/real/dji_srt/MAVIC3_first50.srt writes them

@@ -2,7 +2,7 @@
 
 ``live.message_types: portable`` (the default) carries them in standard messages any ROS 2
 installation has: std_msgs/Float64MultiArray (REGISTRATION_LAYOUT in common.py) and std_msgs/String
-(JSON, live_raster.py). ``typed`` carries them as srmosaic_interfaces/Registration and
+(JSON, live/raster.py). ``typed`` carries them as srmosaic_interfaces/Registration and
 RasterGeoreference (interfaces/srmosaic_interfaces, built with colcon: README "Typed messages").
 A graph must use one kind on both ends of a topic (DDS matches publishers and subscriptions by
 type), so set it for the whole graph, as live.georef_standalone.
@@ -15,7 +15,7 @@ import numpy as np
 from std_msgs.msg import Float64MultiArray, String
 
 from ..errors import SrMosaicError
-from ..live_raster import LiveRaster
+from ..live.raster import LiveRaster
 from .common import RegistrationMsg, decode_registration, encode_registration
 
 __all__ = ['MESSAGE_TYPES', 'Messages', 'message_kind']

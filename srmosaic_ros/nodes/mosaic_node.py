@@ -16,7 +16,7 @@ by its fused pose before it is painted; see nodes/georef_node.py for the reasons
 `live.georef_standalone: true` it does not, the mosaic lies in the first frame's pixel plane, and
 the georef node publishes /srmosaic/pose, /srmosaic/fix and /srmosaic/odom instead. /srmosaic/registration is what
 the SR and georef nodes need from this one, so they can run in other processes. With
-georeferencing, /srmosaic/raster (std_msgs/String, transient local; live_raster.py) says where the
+georeferencing, /srmosaic/raster (std_msgs/String, transient local; live/raster.py) says where the
 plane of seg_H_frame (and of the SR tiles' placements) lies on the map.
 
 Back-pressure: image callbacks only convert and enqueue into a bounded queue (parameter
@@ -52,11 +52,11 @@ from msg_adapters import (
 )
 
 from ..errors import SrMosaicError
-from ..live_raster import ImagePlacement, LiveRaster
+from ..live.raster import ImagePlacement, LiveRaster
 from ..core.types import Frame
 from ..io.mosaic_files import write_json
 from ..io.outputs import peak_rss_mb, preview_image
-from ..offline import write_outputs
+from ..app.process import write_outputs
 from ..pipeline import FrameRecord, Pipeline
 from .common import (IMAGE_QOS_DEPTH, REGISTRATION_LAYOUT, TELEMETRY_QOS_DEPTH, TOPICS, DiagnosticsPublisher,
                      PosePublisher, StreamOrder, WarnOnce, camera_image, frame_ids, input_qos,
@@ -307,7 +307,7 @@ class MosaicNode(ManagedNode):
             stamp = self.get_clock().now().nanoseconds
             u8 = np.clip(preview * 255.0 + 0.5, 0, 255).astype(np.uint8)
             encoding = 'mono8' if u8.ndim == 2 else 'rgb8'
-            # header.frame_id: the plane region the preview shows (live_raster.ImagePlacement)
+            # header.frame_id: the plane region the preview shows (live.raster.ImagePlacement)
             self.pub_preview.publish(numpy_to_image(u8, encoding, stamp_ns=stamp, frame_id=region))
             self.pub_preview_c.publish(numpy_to_compressed(u8, stamp_ns=stamp, frame_id=region))
         self.pub_diag.publish(self._diagnostics())

@@ -13,7 +13,7 @@ Publishes /srmosaic/sr_tile (sensor_msgs/Image, rgb8 or mono8) and /srmosaic/dia
 
 Tile placement, carried in every tile: header.stamp is the stamp of the newest frame used;
 header.frame_id is ``srmosaic_segment_<k>;x0=<int>;y0=<int>;width=<int>;height=<int>;factor=<int>``
-(parse it with :meth:`srmosaic_ros.sr_live.SRTilePlacement.parse`). (x0, y0, width, height) is
+(parse it with :meth:`srmosaic_ros.live.sr.SRTilePlacement.parse`). (x0, y0, width, height) is
 the tile's region in pixels of segment k's plane, the plane of seg_H_frame in
 /srmosaic/registration (with georeferencing: the north-up UTM raster shared by all georeferenced
 segments); the image has height * factor rows and width * factor columns, and tile pixel (u, v)
@@ -66,7 +66,7 @@ from ..core.sr.reconstruct import SRFramesDisagree
 from ..core.types import CameraIntrinsics
 from ..core.undistort import Undistorter
 from ..errors import SrMosaicError
-from ..sr_live import (
+from ..live.sr import (
     LiveFrame,
     LiveFrameStore,
     SRError,

@@ -6,7 +6,7 @@ the last one arrives at once) and, with --preview, /srmosaic/mosaic_preview, and
 writes what it receives into DIR:
 
 - ``sr_tiles/seg<k>_x<x0>_y<y0>.tif``: each SR tile as a GeoTIFF on the map (the live raster's CRS,
-  drift control's canvas similarity taken out: live_raster.py); a tile published again (a refresh,
+  drift control's canvas similarity taken out: live/raster.py); a tile published again (a refresh,
   made from more frames) replaces its file. When a newer /srmosaic/raster moves the estimate by
   more than 2 cm (at 1000 px from the plane's origin), the geotransforms of the tiles written so far
   are updated in place (pixels untouched), so that all tiles follow the newest estimate and stay
@@ -33,7 +33,7 @@ from ..core.image_ops import to_float01
 from ..errors import SrMosaicError
 from ..io.geotiff import GeoGrid, write_geotiff
 from ..io.mosaic_files import write_json, write_png
-from ..live_raster import ImagePlacement, LiveRaster
+from ..live.raster import ImagePlacement, LiveRaster
 from .common import TOPICS, WarnOnce
 from .messages import Messages, message_kind
 

@@ -11,10 +11,10 @@ from typing import Any
 
 import numpy as np
 
-from .core.metrics import corner_error_px, mosaic_corner_errors
-from .errors import InputError
-from .io.mosaic_files import read_frames_csv
-from .sim import load_truth
+from ..core.metrics import corner_error_px, mosaic_corner_errors
+from ..errors import InputError
+from ..io.mosaic_files import read_frames_csv
+from ..sim import load_truth
 
 __all__ = ['evaluate_dir', 'sr_figures', 'tile_grid_H']
 
@@ -85,7 +85,7 @@ def _psf_figures(out_dir: Path, sim_config: dict[str, Any]) -> dict[str, float]:
     blur in frame pixels (``psf_sigma_true_px``), when both are known."""
     import json
 
-    from .sim.render import frame_blur_px
+    from ..sim.render import frame_blur_px
 
     out: dict[str, float] = {}
     report = Path(out_dir) / 'report.json'
@@ -104,9 +104,9 @@ def _georef_errors(out_dir: Path, truth: Any, ok: list[dict[str, Any]], by_stamp
     import rasterio
     from pyproj import Transformer
 
-    from .core.georef.geodetic import LocalTangentPlane
-    from .core.metrics import apply_homography
-    from .io.poses_csv import read_poses_csv
+    from ..core.georef.geodetic import LocalTangentPlane
+    from ..core.metrics import apply_homography
+    from ..io.poses_csv import read_poses_csv
 
     with rasterio.open(out_dir / 'mosaic.tif') as ds:
         affine, epsg = ds.transform, ds.crs.to_epsg()
@@ -158,7 +158,7 @@ def _world_H_mosaic_local(entry: dict[str, Any], ok: list[dict[str, Any]], by_st
     """
     import cv2
 
-    from .core.metrics import apply_homography
+    from ..core.metrics import apply_homography
 
     x0, y0, tw, th = entry['x0'], entry['y0'], entry['width'], entry['height']
     gx, gy = np.meshgrid(np.linspace(x0 - 0.5, x0 + tw - 0.5, 5), np.linspace(y0 - 0.5, y0 + th - 0.5, 5))
@@ -211,10 +211,10 @@ def sr_figures(out_dir: Path, truth: Any, ok: list[dict[str, Any]], by_stamp: di
 
     import cv2
 
-    from .core.sr.quality import mse, psnr, side_by_side, ssim
-    from .io.mosaic_files import write_png
-    from .sim.render import local_scales, reference_render
-    from .sim.world import load_world
+    from ..core.sr.quality import mse, psnr, side_by_side, ssim
+    from ..io.mosaic_files import write_png
+    from ..sim.render import local_scales, reference_render
+    from ..sim.world import load_world
 
     sr_dir = out_dir / 'sr'
     entries = json.loads((sr_dir / 'tiles.json').read_text())

@@ -14,11 +14,11 @@ from typing import Any
 import cv2
 import numpy as np
 
-from .core.sr.psf_estimate import PsfEstimate, PsfEstimationError, estimate_psf_sigma
-from .core.types import Frame
-from .core.undistort import Undistorter
-from .errors import InputError
-from .io.image_folder import IMAGE_SUFFIXES
+from ..core.sr.psf_estimate import PsfEstimate, PsfEstimationError, estimate_psf_sigma
+from ..core.types import Frame
+from ..core.undistort import Undistorter
+from ..errors import InputError
+from ..io.image_folder import IMAGE_SUFFIXES
 
 __all__ = ['as_json', 'collect_frames', 'measure_psf', 'summary_lines']
 
@@ -35,7 +35,7 @@ def _read_image(path: Path) -> np.ndarray:
 
 def _stream_frames(path: Path, max_frames: int, undistort: bool) -> Iterator[np.ndarray]:
     """Up to ``max_frames`` images of a folder, video or bag, spread evenly over it when its length is known."""
-    from .offline import open_source
+    from .process import open_source
 
     items, reader, _kind = open_source(path)
     total = getattr(reader, 'frame_count', None)

@@ -23,8 +23,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from .errors import InputError
-from .io.mosaic_files import atomic_path
+from ..errors import InputError
+from ..io.mosaic_files import atomic_path
 
 __all__ = ['Checkpoint', 'checkpoint_path', 'fingerprint', 'load_checkpoint', 'read_header', 'save_checkpoint']
 
@@ -147,11 +147,21 @@ _PACKAGE_FUNCTIONS = {('srmosaic_ros.core.georef.ukf', '_constant_velocity'),
                       ('srmosaic_ros.core.mosaic.tile_store', '_restore_store')}
 
 
+#: Modules that moved into app/ and live/: a checkpoint names its classes by their module then.
+_MOVED_MODULES = {f'srmosaic_ros.{old}': f'srmosaic_ros.{new}' for old, new in (
+    ('offline', 'app.process'), ('sr_offline', 'app.sr_process'), ('evaluate', 'app.evaluate'),
+    ('evaluate_real', 'app.evaluate_real'), ('evaluate_stills', 'app.evaluate_stills'), ('psf_tool', 'app.psf'),
+    ('checkpoint', 'app.checkpoint'), ('survey', 'app.survey'), ('inspect_tool', 'app.inspect_tool'),
+    ('sr_live', 'live.sr'), ('live_raster', 'live.raster'))}
+
+
 class _CheckpointUnpickler(pickle.Unpickler):
     """Resolves only the globals a checkpoint of this package holds."""
 
     def find_class(self, module: str, name: str) -> Any:
         import numpy as np
+
+        module = _MOVED_MODULES.get(module, module)  # checkpoints written before app/ and live/ existed
 
         if module == 'torch.storage' and name == '_load_from_bytes':
             return _tensor_storage_from_bytes

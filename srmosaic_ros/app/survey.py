@@ -38,18 +38,18 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from .config import PipelineConfig
-from .core.georef.frames import R_enu_from_cam_aviation
-from .core.georef.georeferencer import GeoRaster, utm_epsg
-from .core.georef.geotag_fit import GEOTAG_MIN_EXTENT_M, geotags_at
-from .core.mosaic.canvas import CanvasError, TiledCanvas
-from .core.registration import make_registrar
-from .core.survey.global_align import (PairConstraint, SurveyPriors, attitude_ground_H, estimate_scale,
+from ..config import PipelineConfig
+from ..core.georef.frames import R_enu_from_cam_aviation
+from ..core.georef.georeferencer import GeoRaster, utm_epsg
+from ..core.georef.geotag_fit import GEOTAG_MIN_EXTENT_M, geotags_at
+from ..core.mosaic.canvas import CanvasError, TiledCanvas
+from ..core.registration import make_registrar
+from ..core.survey.global_align import (PairConstraint, SurveyPriors, attitude_ground_H, estimate_scale,
                                        pair_constraint, solve_survey)
-from .core.survey.pairs import predicted_pairs
-from .errors import InputError
-from .io.image_folder import ImageFolderReader
-from .io.metadata import RECORDED_ATTITUDE_SIGMA_DEG
+from ..core.survey.pairs import predicted_pairs
+from ..errors import InputError
+from ..io.image_folder import ImageFolderReader
+from ..io.metadata import RECORDED_ATTITUDE_SIGMA_DEG
 
 __all__ = ['SurveyStill', 'process_survey', 'read_reduced', 'reduction_for', 'survey_stills',
            'use_global_alignment']
@@ -391,9 +391,9 @@ def _paint_and_write(out: Path, config: PipelineConfig, stills: list[SurveyStill
                      origin: tuple[float, float], *, progress: bool, has_gps: bool) -> tuple[dict[str, Any], list]:
     """Paint the placed stills on a north-up raster and write mosaic.png/.tif/.kml, preview.png,
     frames.csv; returns (the report without the survey entry, the frames.csv rows)."""
-    from .io.kml import write_kml_for_raster
-    from .io.mosaic_files import write_frames_csv, write_png
-    from .io.outputs import StripPreview, write_canvas
+    from ..io.kml import write_kml_for_raster
+    from ..io.mosaic_files import write_frames_csv, write_png
+    from ..io.outputs import StripPreview, write_canvas
 
     scfg = config.survey
     n = len(stills)

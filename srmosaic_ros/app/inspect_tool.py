@@ -11,15 +11,15 @@ import math
 from pathlib import Path
 from typing import Any
 
-from .errors import InputError
+from ..errors import InputError
 
 __all__ = ['inspect_input', 'format_inspection']
 
 
 def inspect_input(path: Path) -> dict[str, Any]:
     """A description of ``path`` (video, folder of stills or bag) as a JSON-able dict."""
-    from .io.image_folder import is_image_folder
-    from .io.video import is_video
+    from ..io.image_folder import is_image_folder
+    from ..io.video import is_video
 
     path = Path(path)
     if not path.exists():
@@ -46,7 +46,7 @@ def _plan(positions: bool, intrinsics: bool, attitude: bool, attitude_what: str 
 
 def _stills_plan(path: Path, reader: Any) -> str:
     """What `process` does with a folder of stills under the default parameters (survey.mode)."""
-    from .config import pipeline_config
+    from ..config import pipeline_config
     from .survey import use_global_alignment
 
     s = reader.summary
@@ -64,8 +64,8 @@ def _stills_plan(path: Path, reader: Any) -> str:
 
 
 def _inspect_stills(path: Path) -> dict[str, Any]:
-    from .io.exif import intrinsics_from_metadata
-    from .io.image_folder import ImageFolderReader
+    from ..io.exif import intrinsics_from_metadata
+    from ..io.image_folder import ImageFolderReader
 
     reader = ImageFolderReader(path)
     s = reader.summary
@@ -102,12 +102,12 @@ def _missing(frames: int, positions: int, intrinsics: int, attitude: int, *, sta
 def _inspect_video(path: Path) -> dict[str, Any]:
     import av
 
-    from .io.dji_srt import find_srt, read_srt
-    from .io.gpmf import read_gpmf
-    from .io.klv import read_klv
-    from .io.metadata import MetadataSummary, gpmf_items, srt_items
-    from .errors import MetadataError
-    from .io.video import VideoReader
+    from ..io.dji_srt import find_srt, read_srt
+    from ..io.gpmf import read_gpmf
+    from ..io.klv import read_klv
+    from ..io.metadata import MetadataSummary, gpmf_items, srt_items
+    from ..errors import MetadataError
+    from ..io.video import VideoReader
 
     reader = VideoReader(path)
     out: dict[str, Any] = {'input': str(path), 'kind': 'video', 'codec': reader.codec,
@@ -173,7 +173,7 @@ def _codec_name(stream: Any) -> str:
 
 
 def _inspect_bag(path: Path) -> dict[str, Any]:
-    from .io.bags import bag_summary
+    from ..io.bags import bag_summary
 
     b = bag_summary(path)
     roles = dict(b.flight_topics)

@@ -14,23 +14,23 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from .core.homography import translation as _translation
-from .mosaic_georeference import anchored_raster, geotag_fit_of_main
-from .io.output_dir import OutputTransaction, check_output_dir
+from ..core.homography import translation as _translation
+from .georeference import anchored_raster, geotag_fit_of_main
+from ..io.output_dir import OutputTransaction, check_output_dir
 from .checkpoint import Checkpoint, checkpoint_path, fingerprint, load_checkpoint, save_checkpoint
-from .config import PipelineConfig
-from .io.bags import TopicConfig, read_flight
-from .io.metadata import merge_by_time
-from .io.prefetch import prefetched
-from .io.mosaic_files import write_frames_csv, write_json, write_png
-from .io.outputs import StripPreview, peak_rss_mb, write_canvas
-from .errors import InputError, OutputError, SrMosaicError
-from .io.mosaic_video import MosaicVideoRecorder
-from .pipeline import Pipeline, PipelineResult
-from .core.device import cores_left_for_torch
-from .core.image_ops import to_float01
-from .core.stage_clock import StageClock
-from .core.types import Frame
+from ..config import PipelineConfig
+from ..io.bags import TopicConfig, read_flight
+from ..io.metadata import merge_by_time
+from ..io.prefetch import prefetched
+from ..io.mosaic_files import write_frames_csv, write_json, write_png
+from ..io.outputs import StripPreview, peak_rss_mb, write_canvas
+from ..errors import InputError, OutputError, SrMosaicError
+from ..io.mosaic_video import MosaicVideoRecorder
+from ..pipeline import Pipeline, PipelineResult
+from ..core.device import cores_left_for_torch
+from ..core.image_ops import to_float01
+from ..core.stage_clock import StageClock
+from ..core.types import Frame
 
 _LOG = logging.getLogger(__name__)
 
@@ -116,9 +116,9 @@ def open_source(path: Path, *, topics: TopicConfig | None = None, select: str = 
     ``telemetry_csv`` is given (it overrides them). ``reader.summary`` says what was found. A bag's
     messages stamped more than ``stamp_tolerance_s`` off their topic's clock are skipped and counted.
     """
-    from .io.image_folder import ImageFolderReader, is_image_folder
-    from .io.metadata import MetadataSummary
-    from .io.video import VideoReader, is_video, load_camera_yaml, parse_selection
+    from ..io.image_folder import ImageFolderReader, is_image_folder
+    from ..io.metadata import MetadataSummary
+    from ..io.video import VideoReader, is_video, load_camera_yaml, parse_selection
 
     if is_image_folder(path):
         if select != 'all' or camera_yaml or hfov_deg or telemetry_csv:
@@ -133,7 +133,7 @@ def open_source(path: Path, *, topics: TopicConfig | None = None, select: str = 
         reader = VideoReader(path, selection=parse_selection(select), camera=camera, hfov_deg=hfov_deg)
         items: Iterable[Any] = reader
         if telemetry_csv is not None:
-            from .io.telemetry_csv import read_telemetry_csv
+            from ..io.telemetry_csv import read_telemetry_csv
 
             items = merge_by_time(reader, read_telemetry_csv(telemetry_csv))
             reader.summary = MetadataSummary(source='telemetry CSV', fields=['gps position', 'attitude'])
@@ -150,11 +150,11 @@ def open_source(path: Path, *, topics: TopicConfig | None = None, select: str = 
 
 def _video_with_metadata(path: Path, reader: Any) -> tuple[Iterable[Any], Any, str]:
     """A video's own metadata, found in order: MISB KLV stream, DJI SRT beside it, GoPro GPMF track."""
-    from .io.dji_srt import find_srt, read_srt
-    from .io.gpmf import read_gpmf
-    from .io.klv import read_klv
-    from .io.metadata import KlvVideoSource, MetadataSummary, gpmf_items, srt_items
-    from .errors import MetadataError
+    from ..io.dji_srt import find_srt, read_srt
+    from ..io.gpmf import read_gpmf
+    from ..io.klv import read_klv
+    from ..io.metadata import KlvVideoSource, MetadataSummary, gpmf_items, srt_items
+    from ..errors import MetadataError
 
     track = read_klv(path)
     if track.records:
@@ -192,7 +192,7 @@ def _write_main_mosaic(out: Path, result: PipelineResult, config: PipelineConfig
     x0, y0, x1, y1 = bounds
     preview = StripPreview(y1 - y0, x1 - x0, canvas.channels, config.mosaic.preview_max_side_px)
     georef = result.georef
-    from .io.kml import write_kml_for_raster
+    from ..io.kml import write_kml_for_raster
 
     if not (main.georeferenced and georef is not None and georef.raster is not None):
         fit = geotag_fit_of_main(result, (x0, y0), config) if config.georef_enabled else None
@@ -204,7 +204,7 @@ def _write_main_mosaic(out: Path, result: PipelineResult, config: PipelineConfig
         write_kml_for_raster(out / 'mosaic.kml', 'mosaic.png', fit.raster, x1 - x0, y1 - y0)
         return {'epsg': fit.raster.epsg, 'gsd_m_per_px': fit.raster.gsd_m_per_px,
                 'geotransform': list(fit.raster.geotransform), **fit.figures()}
-    from .io.poses_csv import write_poses_csv
+    from ..io.poses_csv import write_poses_csv
 
     poses = georef.smoothed_poses()
     raster, anchoring = anchored_raster(result, poses, (x0, y0))
@@ -373,7 +373,7 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
     if resume:
         report['resumed_after_frames'] = skip_frames_note(skip_items, frames_done)
     if sr_factor is not None and error is None and result.main_segment is not None:
-        from .sr_offline import super_resolve_mosaic
+        from .sr_process import super_resolve_mosaic
 
         t_sr = time.perf_counter()
         again, _, _ = open_source(path, topics=topics, select=select, camera_yaml=camera_yaml, hfov_deg=hfov_deg,
@@ -424,7 +424,7 @@ def _process_survey(path: Path, out: Path, config: PipelineConfig, reader: Any, 
     report['frames_per_s'] = round(report['frames_in'] / wall, 2) if wall > 0 else None
     report['peak_rss_mb'] = round(peak_rss_mb(), 1)
     if sr_factor is not None:
-        from .sr_offline import super_resolve_mosaic
+        from .sr_process import super_resolve_mosaic
 
         t_sr = time.perf_counter()
         again, _, _ = open_source(path)

@@ -16,9 +16,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .core.sr.scheduler import frame_centres, frame_holds_rect
+from ..core.sr.scheduler import frame_centres, frame_holds_rect
 from .evaluate import tile_grid_H
-from .io.mosaic_files import read_frames_csv
+from ..io.mosaic_files import read_frames_csv
 
 __all__ = ['TileErrors', 'halve_stills', 'pooled_gain_db', 'psnr_from_sse', 'sr_errors_against_originals']
 

@@ -29,17 +29,17 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from .core.homography import translation as _translation
-from .config import PipelineConfig
-from .core.sr.psf_select import TileFrames, choose_psf_sigma
-from .core.sr.reconstruct import SRError, SRFramesDisagree, reconstruct_tile
-from .core.sr.scheduler import plan_tiles
-from .core.types import CameraIntrinsics, Frame
-from .core.undistort import Undistorter
-from .io.geotiff import MOSAIC_BLOCK_PX, read_raster, write_geotiff, write_geotiff_blocks
-from .io.mosaic_files import read_frames_csv, write_json, write_png
-from .io.outputs import StripPreview
-from .sr_live import SRTilePlacement
+from ..core.homography import translation as _translation
+from ..config import PipelineConfig
+from ..core.sr.psf_select import TileFrames, choose_psf_sigma
+from ..core.sr.reconstruct import SRError, SRFramesDisagree, reconstruct_tile
+from ..core.sr.scheduler import plan_tiles
+from ..core.types import CameraIntrinsics, Frame
+from ..core.undistort import Undistorter
+from ..io.geotiff import MOSAIC_BLOCK_PX, read_raster, write_geotiff, write_geotiff_blocks
+from ..io.mosaic_files import read_frames_csv, write_json, write_png
+from ..io.outputs import StripPreview
+from ..live.sr import SRTilePlacement
 
 __all__ = ['sr_mosaic_strips', 'super_resolve_mosaic']
 

@@ -31,11 +31,11 @@ from typing import Any
 import cv2
 import numpy as np
 
-from .core.homography import translation as _translation
-from .core.metrics import apply_homography
-from .core.sr.reconstruct import SRConfig, SRError, reconstruct_tile
-from .core.sr.scheduler import SRTileConfig, TilePlan, plan_tiles
-from .errors import SrMosaicError
+from ..core.homography import translation as _translation
+from ..core.metrics import apply_homography
+from ..core.sr.reconstruct import SRConfig, SRError, reconstruct_tile
+from ..core.sr.scheduler import SRTileConfig, TilePlan, plan_tiles
+from ..errors import SrMosaicError
 
 __all__ = ['ImagePlacement', 'LiveFrame', 'LiveFrameStore', 'SRTilePlacement', 'plan_live_tiles', 'reconstruct_live_tile',
            'MAX_PLAN_SIDE_PX']
@@ -89,7 +89,7 @@ class SRTilePlacement:
 class ImagePlacement:
     """The region (x0, y0, width, height) of a segment's plane that an image shows, as its
     header.frame_id carries it: ``srmosaic_segment_<k>;x0=<int>;y0=<int>;width=<int>;height=<int>``
-    (the mosaic preview), with ``;factor=<int>`` for an SR tile (sr_live.SRTilePlacement). The image
+    (the mosaic preview), with ``;factor=<int>`` for an SR tile (live.sr.SRTilePlacement). The image
     spans the region: its pixel (u, v) shows plane point (x0 + (u + 0.5) width / image_width - 0.5,
     y0 + (v + 0.5) height / image_height - 0.5), which for an SR tile (image width = width * factor)
     is the tiles.json convention."""

@@ -31,12 +31,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .errors import SrMosaicError
-from .sr_live import ImagePlacement
+from ..errors import SrMosaicError
+from .sr import ImagePlacement
 
 if TYPE_CHECKING:
-    from .core.georef.georeferencer import GeoRaster
-    from .sr_live import SRTilePlacement
+    from ..core.georef.georeferencer import GeoRaster
+    from .sr import SRTilePlacement
 
 __all__ = ['ImagePlacement', 'LiveRaster']
 
@@ -78,7 +78,7 @@ class LiveRaster:
                          float(d['origin_northing_m']), float(d.get('rotation_rad', 0.0)),
                          None if sim is None else np.asarray(sim, dtype=np.float64).reshape(3, 3))
         except (ValueError, KeyError, TypeError, AttributeError) as exc:
-            msg = f'not a /srmosaic/raster text ({type(exc).__name__}: {exc}); expected the JSON of srmosaic_ros.live_raster.'
+            msg = f'not a /srmosaic/raster text ({type(exc).__name__}: {exc}); expected the JSON of srmosaic_ros.live.raster.'
             raise SrMosaicError(msg) from None
         if not (raster.gsd_m_per_px > 0 and math.isfinite(raster.origin_easting_m)
                 and math.isfinite(raster.origin_northing_m)):

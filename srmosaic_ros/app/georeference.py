@@ -9,12 +9,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .config import PipelineConfig
-from .core.georef.geotag_fit import GEOTAG_MIN_EXTENT_M
-from .pipeline import PipelineResult
+from ..config import PipelineConfig
+from ..core.georef.geotag_fit import GEOTAG_MIN_EXTENT_M
+from ..pipeline import PipelineResult
 
 if TYPE_CHECKING:
-    from .core.georef import GeoRaster
+    from ..core.georef import GeoRaster
 
 _LOG = logging.getLogger(__name__)
 
@@ -38,8 +38,8 @@ def anchored_raster(result: PipelineResult, poses: list[Any], origin: tuple[int,
     scale, estimated from the whole flight) goes into the geotransform. The mosaic's pixels do
     not move: mosaic.png and mosaic.tif stay one grid.
     """
-    from .core.georef.anchoring import fit_similarity
-    from .core.metrics import apply_homography
+    from ..core.georef.anchoring import fit_similarity
+    from ..core.metrics import apply_homography
 
     georef = result.georef
     chained, by_poses = [], []
@@ -98,7 +98,7 @@ def ground_offsets(result: PipelineResult, stamps_ns: np.ndarray, config: Pipeli
     """(M, 2) east, north offset per metre of height of where each frame's optical axis meets the
     ground (-r_xy / r_z), from the Imu orientation nearest its stamp (within max_gap_s) and the
     camera mount (georef.gimbal_*); NaN without an orientation or for an axis near the horizon."""
-    from .core.georef.frames import R_body_from_cam, matrix_from_quat_xyzw
+    from ..core.georef.frames import R_body_from_cam, matrix_from_quat_xyzw
 
     imus = [i for i in result.imus if i.orientation_xyzw is not None]
     out = np.full((len(stamps_ns), 2), np.nan)
@@ -124,8 +124,8 @@ def geotag_fit_of_main(result: PipelineResult, origin: tuple[int, int], config: 
     """GeotagFit of mosaic.png's grid (pixel (0, 0) = canvas pixel ``origin``) from the frames of the
     main canvas and the fixes at their stamps (core/georef/geotag_fit.py), or None (with the reason
     logged) when there are no fixes or they cannot place the mosaic."""
-    from .core.georef.geotag_fit import fit_mosaic_to_geotags, geotags_at
-    from .core.metrics import apply_homography
+    from ..core.georef.geotag_fit import fit_mosaic_to_geotags, geotags_at
+    from ..core.metrics import apply_homography
 
     fixes = [f for f in result.fixes if f.status >= 0]
     if not fixes:

@@ -45,17 +45,17 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from .core.image_ops import to_gray_float01
-from .core.mosaic.best_view import clip_depth, clipped_polygon, depth_map
-from .core.mosaic.minify import minify_level, reduce_frame
-from .core.metrics import apply_homography
-from .core.types import CameraIntrinsics, Frame
-from .core.undistort import Undistorter
-from .errors import InputError
-from .io.mosaic_files import read_frames_csv
+from ..core.image_ops import to_gray_float01
+from ..core.mosaic.best_view import clip_depth, clipped_polygon, depth_map
+from ..core.mosaic.minify import minify_level, reduce_frame
+from ..core.metrics import apply_homography
+from ..core.types import CameraIntrinsics, Frame
+from ..core.undistort import Undistorter
+from ..errors import InputError
+from ..io.mosaic_files import read_frames_csv
 
 if TYPE_CHECKING:
-    from .io.bags import TopicConfig
+    from ..io.bags import TopicConfig
 
 __all__ = [
     'MAX_COMPARE_PX',
@@ -352,7 +352,7 @@ def evaluate_real(out_dir: Path, *, progress: bool = True, max_frames: int | Non
     Raises InputError when a file of the run is missing or unreadable, the input is gone, no frame
     is in the main mosaic, or no frame of the input has a stamp of frames.csv.
     """
-    from .offline import open_source
+    from .process import open_source
 
     out_dir = Path(out_dir)
     report, rows = _load_run(out_dir)
