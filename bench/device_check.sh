@@ -37,7 +37,7 @@ step() { echo; echo "### $*"; }
     $py -c 'import torch, cv2, numpy; print("torch", torch.__version__, "cuda", torch.cuda.is_available(),
 torch.cuda.get_device_name(0) if torch.cuda.is_available() else "-", "| opencv", cv2.__version__, "| numpy", numpy.__version__)'
     step "CUDA tests (registration, SR)"
-    timeout 240 $py -m pytest -q -p no:cacheprovider test/test_registration_torch.py test/test_sr_reconstruct.py \
+    timeout 240 $py -m pytest -q -p no:cacheprovider test/core/registration/test_registration_torch.py test/core/sr/test_sr_reconstruct.py \
         -k "cuda or gpu" -rs
     step "bench/registration.py --device cuda (describe: fixed shapes, then replayed as a CUDA graph)"
     timeout 150 $py bench/registration.py --device cuda --frames 30 --no-baseline --threads 2 --worlds brighton

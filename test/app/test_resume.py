@@ -11,8 +11,9 @@ import time
 from pathlib import Path
 
 from srmosaic_ros.app.checkpoint import read_header
+from repo_paths import REPO
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = REPO
 DEMO = ROOT / 'bags' / 'demo'
 CLI = [sys.executable, '-m', 'srmosaic_ros.cli']
 

@@ -3,15 +3,15 @@ a forward oblique flight along coastal bluffs with the sea horizon in view (GoPr
 KLV turret video is judged in test_real_footage.py.)"""
 from __future__ import annotations
 
-from pathlib import Path
 
 import pytest
 
 from srmosaic_ros.config import pipeline_config
 from srmosaic_ros.app.evaluate_real import evaluate_real
 from srmosaic_ros.app.process import process_input
+from repo_paths import TEST_DATA
 
-REAL = Path(__file__).parent / 'data' / 'real'
+REAL = TEST_DATA / 'real'
 KARMA = REAL / 'gopro' / 'karma_cliffs_6s.mp4'
 
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import threading
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -27,8 +26,9 @@ from srmosaic_ros.app.process import process_input
 from srmosaic_ros.pipeline import Pipeline
 
 from imagery import similarity, translation, view, world_rgb
+from repo_paths import REPO
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = REPO
 DEMO = ROOT / 'bags' / 'demo'
 
 

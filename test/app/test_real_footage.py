@@ -13,8 +13,9 @@ from srmosaic_ros.config import PipelineConfig
 from srmosaic_ros.app.evaluate_real import evaluate_real
 from srmosaic_ros.app.inspect_tool import format_inspection, inspect_input
 from srmosaic_ros.app.process import process_input
+from repo_paths import REPO, TEST_DATA
 
-REAL = Path(__file__).parent / 'data' / 'real'
+REAL = TEST_DATA / 'real'
 APHILL = REAL / 'klv' / 'aphill_short.ts'
 
 
@@ -103,7 +104,7 @@ def test_klv_packets_failing_their_checksum_are_counted_and_left_out(tmp_path: P
 
 
 def test_inspect_a_bag_lists_topics_and_what_process_uses() -> None:
-    demo = inspect_input(Path(__file__).parents[1] / 'bags' / 'demo')
+    demo = inspect_input(REPO / 'bags' / 'demo')
     assert demo['kind'] == 'bag' and demo['used']['fix'] == '/fix'
     assert demo['plan'].startswith('georeferenced through the filter')
     talker = inspect_input(REAL / 'bags' / 'rosbag2' / 'galactic' / 'rosbag2_py' / 'resources' / 'talker')

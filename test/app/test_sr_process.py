@@ -8,8 +8,9 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from repo_paths import REPO
 
-DEMO = Path(__file__).resolve().parent.parent / 'bags' / 'demo'
+DEMO = REPO / 'bags' / 'demo'
 
 
 def test_process_sr_writes_tiles_contract(tmp_path):

@@ -17,8 +17,9 @@ from srmosaic_ros.app.evaluate import evaluate_dir
 from srmosaic_ros.app.process import process_input
 from srmosaic_ros.sim import SimConfig, save_truth, simulate
 from srmosaic_ros.sim.record import write_drone_stills
+from repo_paths import TEST_DATA
 
-REAL_EXIF = Path(__file__).parent / 'data' / 'real' / 'exif'
+REAL_EXIF = TEST_DATA / 'real' / 'exif'
 CHAIN = pipeline_config({'survey.mode': 'chain'})
 
 

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -17,9 +16,10 @@ from srmosaic_ros.app.evaluate_stills import halve_stills, pooled_gain_db, sr_er
 from srmosaic_ros.app.process import process_input
 
 from imagery import world_rgb
+from repo_paths import REPO
 
 TILE = (32, 32)
-SEQUENCES = Path(__file__).resolve().parent.parent / 'data' / 'sequences'
+SEQUENCES = REPO / 'data' / 'sequences'
 
 
 @pytest.fixture(scope='module')

@@ -2,13 +2,13 @@
 from __future__ import annotations
 
 import re
-from pathlib import Path
 
 import pytest
 
 from srmosaic_ros.config import default_params_path, load_params, pipeline_config
+from repo_paths import REPO
 
-PARAMS = sorted((Path(__file__).resolve().parent.parent / 'params').glob('*.yaml'))
+PARAMS = sorted((REPO / 'params').glob('*.yaml'))
 
 
 @pytest.mark.parametrize('path', PARAMS, ids=[p.name for p in PARAMS])

@@ -21,8 +21,9 @@ from srmosaic_ros.core.georef.ground_homography import apply_H, ground_H_image
 from srmosaic_ros.app.process import process_input
 from srmosaic_ros.sim import SimConfig, simulate
 from srmosaic_ros.sim.record import write_stills_folder
+from repo_paths import REPO
 
-SEQUENCES = Path(__file__).resolve().parent.parent / 'data' / 'sequences'
+SEQUENCES = REPO / 'data' / 'sequences'
 EPSG = 32633  # UTM 33N
 
 

@@ -6,14 +6,14 @@ from __future__ import annotations
 
 import math
 from datetime import datetime, timezone
-from pathlib import Path
 
 import pytest
 
 from srmosaic_ros.errors import InputError, MetadataError
 from srmosaic_ros.io.dji_srt import find_srt, read_srt
+from repo_paths import TEST_DATA
 
-DATA = Path(__file__).parent / 'data' / 'real' / 'dji_srt'
+DATA = TEST_DATA / 'real' / 'dji_srt'
 NAN = math.nan
 
 # file, format, blocks, samples, skipped,

@@ -21,8 +21,9 @@ from srmosaic_ros.app.process import process_input
 from srmosaic_ros.sim import SimConfig, save_truth, simulate
 from srmosaic_ros.sim.record import write_drone_stills, write_stills_folder
 from srmosaic_ros.app.survey import read_reduced, reduction_for
+from repo_paths import REPO
 
-CALITERRA = Path(__file__).resolve().parent.parent / 'data' / 'sequences' / 'caliterra'
+CALITERRA = REPO / 'data' / 'sequences' / 'caliterra'
 
 
 @pytest.fixture(scope='module')

@@ -22,8 +22,9 @@ from srmosaic_ros.errors import ConfigError
 from srmosaic_ros.nodes.executables import EXECUTABLES
 from srmosaic_ros.nodes.launch_xml import read_launch_xml
 from srmosaic_ros.nodes.launcher import xml_node_command
+from repo_paths import REPO
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = REPO
 DEMO = ROOT / 'bags' / 'demo'
 LAUNCH = ROOT / 'launch' / 'srmosaic.launch.xml'
 MOSAIC = 'srmosaic: registration and mosaic'

@@ -3,7 +3,6 @@ the pipeline with either backend against the truth."""
 from __future__ import annotations
 
 import pickle
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -23,8 +22,9 @@ from srmosaic_ros.io.image_folder import ImageFolderReader
 from srmosaic_ros.pipeline import Pipeline
 
 from imagery import similarity, translation, view
+from repo_paths import REPO
 
-BRIGHTON = Path(__file__).resolve().parent.parent / 'data' / 'sequences' / 'brighton_beach'
+BRIGHTON = REPO / 'data' / 'sequences' / 'brighton_beach'
 
 
 def test_factory_selects_backend():

@@ -12,9 +12,11 @@ import cv2
 import numpy as np
 import pytest
 
+from repo_paths import REPO
+
 from srmosaic_ros.io.mosaic_files import FRAMES_CSV_HEADER, FRAMES_CSV_META, FRAMES_CSV_PLACED_BY, read_frames_csv
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = REPO
 DEMO = ROOT / 'bags' / 'demo'
 
 

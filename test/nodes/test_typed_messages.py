@@ -18,8 +18,9 @@ from pathlib import Path
 
 import pytest
 from ros_graph import stop_process
+from repo_paths import REPO
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = REPO
 DEMO = ROOT / 'bags' / 'demo'
 _DOMAIN = 160 + os.getpid() % 20
 

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import math
 from datetime import datetime, timezone
-from pathlib import Path
 
 import av
 import numpy as np
@@ -16,8 +15,9 @@ import pytest
 
 from srmosaic_ros.errors import InputError, MetadataError
 from srmosaic_ros.io.gpmf import GpsSample, read_gpmf
+from repo_paths import TEST_DATA
 
-KARMA = Path(__file__).parent / 'data' / 'real' / 'gopro' / 'karma_telemetry.mp4'
+KARMA = TEST_DATA / 'real' / 'gopro' / 'karma_telemetry.mp4'
 VIDEO_END_NS = 12_078_733_333  # 1087086 / 90000 s: the original video track's duration (362 frames)
 
 

@@ -10,7 +10,6 @@ import math
 import shutil
 from datetime import datetime, timezone
 from fractions import Fraction
-from pathlib import Path
 
 import av
 import numpy as np
@@ -28,8 +27,9 @@ from srmosaic_ros.io.klv import (
     read_klv,
     split_klv,
 )
+from repo_paths import TEST_DATA
 
-DATA = Path(__file__).parent / 'data' / 'real' / 'klv'
+DATA = TEST_DATA / 'real' / 'klv'
 ST0601_FILES = ['h264_klv.ts', 'h265_klv.ts', 'mpeg2_klv.ts']
 
 # MISB ST 0902 Annex C "Dynamic Only" example: a ST0601 packet with the ST0601 example values

@@ -19,8 +19,9 @@ from PIL.TiffImagePlugin import IFDRational
 from srmosaic_ros.errors import InputError, MetadataError
 from srmosaic_ros.io.camera_db import CAMERAS, FULL_FRAME_DIAGONAL_MM, lookup_sensor
 from srmosaic_ros.io.exif import intrinsics_from_metadata, parse_xmp, read_still_metadata
+from repo_paths import REPO
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = REPO
 FIXTURES = REPO / 'test' / 'data' / 'real' / 'exif'
 BRIGHTON = REPO / 'data' / 'worlds' / 'brighton_DJI_0025.jpg'
 CALITERRA_FULL = REPO / 'data' / 'worlds' / 'caliterra_IMG_9360.jpg'

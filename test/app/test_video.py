@@ -17,6 +17,7 @@ from srmosaic_ros.io.video import VideoReader, parse_selection, write_video
 from srmosaic_ros.sim import SimConfig, simulate
 from srmosaic_ros.sim.cli import _write_video_and_sidecar
 from srmosaic_ros.sim.truth import save_truth
+from repo_paths import REPO
 
 GOP = 12
 N = 48
@@ -32,7 +33,7 @@ def flight_video(tmp_path_factory):
     return flight, video, root / 'ground_truth.json'
 
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = REPO
 
 
 def srmosaic(*args: str) -> subprocess.CompletedProcess:
@@ -163,7 +164,7 @@ def test_size_change_mid_stream_stops_with_message_and_keeps_frames(flight_video
 
 
 def test_video_options_refused_for_bags(tmp_path):
-    demo = Path(__file__).resolve().parent.parent / 'bags' / 'demo'
+    demo = REPO / 'bags' / 'demo'
     run = srmosaic('process', str(demo), '--out', str(tmp_path / 'out'), '--select', 'iframes')
     assert run.returncode == 2 and 'video input' in run.stderr
 

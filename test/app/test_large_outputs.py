@@ -27,8 +27,9 @@ from srmosaic_ros.io.mosaic_files import write_png
 from srmosaic_ros.io.outputs import StripPreview, preview_image, write_canvas
 from srmosaic_ros.app.process import open_source, write_outputs
 from srmosaic_ros.pipeline import Pipeline
+from repo_paths import REPO
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = REPO
 DEMO = ROOT / 'bags' / 'demo'
 RASTER = GeoRaster(32633, 0.25, 500_000.0, 5_000_000.0)
 

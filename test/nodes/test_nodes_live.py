@@ -24,8 +24,9 @@ import pytest
 from ros_graph import GraphListener, supervised_processes
 
 from srmosaic_ros.io.mosaic_files import read_frames_csv
+from repo_paths import REPO
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = REPO
 DEMO = ROOT / 'bags' / 'demo'
 pytestmark = pytest.mark.ros
 

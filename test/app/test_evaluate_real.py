@@ -19,8 +19,9 @@ from srmosaic_ros.errors import InputError
 from srmosaic_ros.app.evaluate_real import MAX_COMPARE_PX, evaluate_real, format_real_figures, read_meta_positions
 from srmosaic_ros.io.mosaic_files import FRAMES_CSV_HEADER
 from srmosaic_ros.app.process import process_input
+from repo_paths import REPO
 
-SEQUENCES = Path(__file__).resolve().parent.parent / 'data' / 'sequences'
+SEQUENCES = REPO / 'data' / 'sequences'
 CALITERRA = SEQUENCES / 'caliterra'
 
 

@@ -22,8 +22,9 @@ from rosbags.typesys import Stores, get_typestore
 
 from srmosaic_ros.errors import BagError
 from srmosaic_ros.io.bags import TopicConfig, bag_summary, iter_raw, read_flight
+from repo_paths import TEST_DATA
 
-FIXTURES = Path(__file__).parent / 'data' / 'real' / 'bags'
+FIXTURES = TEST_DATA / 'real' / 'bags'
 R2 = FIXTURES / 'rosbag2'
 REINDEX_G = R2 / 'galactic/rosbag2_tests/resources/reindex_test_bags'
 REINDEX_H = R2 / 'humble/rosbag2_tests/resources/reindex_test_bags'

@@ -1,7 +1,6 @@
 """The real survey sequences (stills seconds apart, 60 to 90% overlap) register end to end."""
 from __future__ import annotations
 
-from pathlib import Path
 
 import pytest
 
@@ -9,8 +8,9 @@ from srmosaic_ros.config import pipeline_config
 from srmosaic_ros.core.types import GeoFix
 from srmosaic_ros.io.image_folder import ImageFolderReader, is_image_folder
 from srmosaic_ros.pipeline import Pipeline
+from repo_paths import REPO
 
-SEQUENCES = Path(__file__).resolve().parent.parent / 'data' / 'sequences'
+SEQUENCES = REPO / 'data' / 'sequences'
 
 
 @pytest.mark.parametrize(('name', 'frames'), [('brighton_beach', 18), ('caliterra', 14)])

@@ -4,7 +4,6 @@ they no longer sit up to 1.5 px from the later ones; records come late, each exa
 from __future__ import annotations
 
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,8 +15,9 @@ from srmosaic_ros.core.types import Frame
 from srmosaic_ros.io.bags import read_flight
 from srmosaic_ros.pipeline import SYNC_HOLD_FRAMES, Pipeline
 from srmosaic_ros.sim.truth import load_truth
+from repo_paths import REPO
 
-DEMO = Path(__file__).resolve().parent.parent / 'bags' / 'demo'
+DEMO = REPO / 'bags' / 'demo'
 
 
 @pytest.fixture(scope='module')
