@@ -1,7 +1,8 @@
 """Parameters: load params/*.yaml (ros__parameters) into the frozen config dataclasses of the core.
 
-params/default.yaml is the one source of defaults. A user file overrides any subset of its keys;
-an unknown key is refused with the list of known ones, so a typo never silently does nothing.
+params/default.yaml (what users set) and params/advanced.yaml (solver internals) are the one source
+of defaults. A user file overrides any subset of their keys; an unknown key is refused with the list
+of known ones, so a typo never silently does nothing.
 """
 from __future__ import annotations
 
@@ -15,9 +16,10 @@ from .core.sr.scheduler import SRTileConfig
 from .core.registration import RegistrationConfig
 from .core.survey.config import SurveyConfig
 from .errors import ConfigError
-from .param_files import default_params_path, load_params, yaml_problem  # re-exported
+from .param_files import default_params, default_params_path, load_params, yaml_problem  # re-exported
 
-__all__ = ['PipelineConfig', 'check_type', 'default_params_path', 'load_params', 'pipeline_config', 'yaml_problem']
+__all__ = ['PipelineConfig', 'check_type', 'default_params', 'default_params_path', 'load_params', 'pipeline_config',
+           'yaml_problem']
 
 DEVICES = ('auto', 'cpu', 'cuda')
 
@@ -97,7 +99,7 @@ def pipeline_config(overrides: dict[str, Any] | None = None, *, defaults: dict[s
     Keys that the pipeline does not know are refused; keys of other stages (nodes, topics, ...)
     that appear in default.yaml are accepted and ignored here.
     """
-    flat = dict(defaults if defaults is not None else load_params(default_params_path()))
+    flat = dict(defaults if defaults is not None else default_params())
     for key, value in (overrides or {}).items():
         if key in REPLACED_KEYS:
             new, why = REPLACED_KEYS[key]

@@ -14,7 +14,7 @@ import yaml
 
 from .errors import ConfigError
 
-__all__ = ['default_params_path', 'load_params', 'yaml_problem']
+__all__ = ['advanced_params_path', 'default_params', 'default_params_path', 'load_params', 'yaml_problem']
 
 
 def default_params_path() -> Path:
@@ -30,6 +30,21 @@ def default_params_path() -> Path:
             return path
     msg = 'params/default.yaml not found; reinstall the package (make venv) or pass --params.'
     raise ConfigError(msg)
+
+
+def advanced_params_path() -> Path:
+    """params/advanced.yaml (the solver internals), beside params/default.yaml."""
+    path = default_params_path().with_name('advanced.yaml')
+    if not path.is_file():
+        msg = f'{path} not found (it is installed with params/default.yaml); reinstall the package (make venv).'
+        raise ConfigError(msg)
+    return path
+
+
+def default_params() -> dict[str, Any]:
+    """Every parameter's default, dotted names: params/default.yaml (what users set) and
+    params/advanced.yaml (solver internals), which share no key."""
+    return {**load_params(default_params_path()), **load_params(advanced_params_path())}
 
 
 def _flatten(tree: dict[str, Any], prefix: str = '') -> dict[str, Any]:

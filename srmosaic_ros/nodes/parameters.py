@@ -1,6 +1,7 @@
-"""Declare the pipeline's parameters on a node, with descriptions and ranges from params/default.yaml.
+"""Declare the pipeline's parameters on a node, with descriptions and ranges from params/default.yaml
+and params/advanced.yaml.
 
-params/default.yaml is the one source of defaults: every key in it is declared with its default,
+Those two files are the one source of defaults: every key in them is declared with its default,
 the comment after it as description, and a range where the config dataclass has one. Values
 given with `--ros-args --params-file FILE` or `-p name:=value` override them; invalid values are
 refused at start (ConfigError) with the dataclass's message.
@@ -20,7 +21,8 @@ from typing import Any
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.node import Node
 
-from ..config import PipelineConfig, default_params_path, load_params, pipeline_config
+from ..config import PipelineConfig, pipeline_config
+from ..param_files import advanced_params_path, default_params, default_params_path
 
 __all__ = ['MOSAIC_PARAMETERS', 'GEOREF_PARAMETERS', 'SR_PARAMETERS', 'declare_pipeline_parameters', 'read_pipeline_config', 'on_parameter_change']
 
@@ -77,7 +79,8 @@ _RANGES: dict[str, tuple[float, float]] = {
 
 
 def _comments(path: Path) -> dict[str, str]:
-    """Trailing comments of params/default.yaml keyed by dotted name (the descriptions)."""
+    """Trailing comments of a parameter file (params/default.yaml, advanced.yaml) keyed by dotted name
+    (the descriptions)."""
     out: dict[str, str] = {}
     stack: list[tuple[int, str]] = []
     for line in path.read_text().splitlines():
@@ -107,13 +110,12 @@ def _descriptor(name: str, value: Any, description: str, read_only: bool) -> Par
 
 
 def declare_pipeline_parameters(node: Node, own: Collection[str], changeable: Collection[str] = ()) -> dict[str, Any]:
-    """Declare the node's own keys of params/default.yaml on `node` (`own`: names or section
+    """Declare the node's own keys of params/default.yaml and advanced.yaml on `node` (`own`: names or section
     prefixes, 'georef' for every georef.* key), read-only but for `changeable`; return the defaults
     of every key (dotted names). Keys of other nodes in a shared parameter file are left undeclared,
     which rclpy ignores."""
-    path = default_params_path()
-    defaults = load_params(path)
-    comments = _comments(path)
+    defaults = default_params()
+    comments = {**_comments(default_params_path()), **_comments(advanced_params_path())}
     for name, value in defaults.items():
         if _is_own(name, own) and not node.has_parameter(name):
             node.declare_parameter(name, value, _descriptor(name, value, comments.get(name, ''), name not in changeable))

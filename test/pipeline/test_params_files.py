@@ -6,6 +6,7 @@ import re
 import pytest
 
 from srmosaic_ros.config import default_params_path, load_params, pipeline_config
+from srmosaic_ros.param_files import advanced_params_path
 from repo_paths import REPO
 
 PARAMS = sorted((REPO / 'params').glob('*.yaml'))
@@ -26,18 +27,47 @@ def test_shipped_files():
 
 
 def test_live_keys_have_descriptions_and_ranges():
-    """Every live.* key of default.yaml is described (its comment) and numeric ones have a range."""
+    """Every live.* key of default.yaml and advanced.yaml is described (its comment) and numeric ones
+    have a range."""
     from srmosaic_ros.nodes.parameters import _RANGES, _comments
 
-    path = default_params_path()
-    comments = _comments(path)
-    for key, value in load_params(path).items():
-        if key.startswith('live.'):
-            assert comments.get(key), f'{key} has no description comment in {path.name}'
-            if isinstance(value, int | float) and not isinstance(value, bool):
-                assert key in _RANGES, f'{key} has no range in nodes/parameters.py'
-                lo, hi = _RANGES[key]
-                assert lo <= value <= hi, key
+    for path in (default_params_path(), advanced_params_path()):
+        comments = _comments(path)
+        for key, value in load_params(path).items():
+            if key.startswith('live.'):
+                assert comments.get(key), f'{key} has no description comment in {path.name}'
+                if isinstance(value, int | float) and not isinstance(value, bool):
+                    assert key in _RANGES, f'{key} has no range in nodes/parameters.py'
+                    lo, hi = _RANGES[key]
+                    assert lo <= value <= hi, key
+
+
+def test_users_see_their_parameters_and_the_internals_apart():
+    """default.yaml holds what a user sets (about 50 keys), advanced.yaml the solver internals; they
+    share no key, their values are the config dataclasses' defaults, and an internal set in a user's
+    file (same dotted name) takes effect, a misspelt one is refused."""
+    import dataclasses
+    import math
+
+    from srmosaic_ros.config import PipelineConfig
+    from srmosaic_ros.errors import ConfigError
+
+    users, internals = load_params(default_params_path()), load_params(advanced_params_path())
+    assert 40 <= len(users) <= 55 and len(internals) >= 60, (len(users), len(internals))
+    assert not set(users) & set(internals)
+    defaults = PipelineConfig()
+    for key, value in {**users, **internals}.items():
+        section, _, name = key.partition('.')
+        config = getattr(defaults, section, None)
+        if not dataclasses.is_dataclass(config) or not name:
+            continue  # live.* (the nodes read them), top-level keys, georef.enabled
+        if name in {f.name for f in dataclasses.fields(config)}:
+            field = getattr(config, name)
+            field = list(field) if isinstance(field, tuple) else field
+            assert field == value or (isinstance(value, float) and math.isnan(value) and math.isnan(field)), key
+    assert pipeline_config({'registration.ratio': 0.7, 'georef.ut_alpha': 0.5}).registration.ratio == 0.7
+    with pytest.raises(ConfigError, match="unknown parameter 'georef.ut_alfa'"):
+        pipeline_config({'georef.ut_alfa': 0.5})
 
 
 @pytest.mark.parametrize(('key', 'value', 'expect'), [

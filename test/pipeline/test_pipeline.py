@@ -75,6 +75,7 @@ def test_telemetry_is_kept_and_unknown_input_refused():
 def test_params_defaults_and_unknown_keys(tmp_path):
     flat = load_params(default_params_path())
     assert flat['registration.max_features'] == 1000
+    assert pipeline_config().registration.ratio == 0.8  # an internal: params/advanced.yaml
     cfg = pipeline_config({'mosaic.blend': 'multiband'})
     assert cfg.mosaic.blend == 'multiband'
     with pytest.raises(ConfigError, match='unknown parameter'):
