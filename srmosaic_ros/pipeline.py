@@ -39,6 +39,7 @@ from .malloc_tuning import HeapTrimmer
 from .core.image_ops import to_float01
 from .core.mosaic.canvas import CanvasError
 from .core.mosaic.segments import Segment
+from .core.time_sync import SYNC_HOLD_FRAMES, telemetry_ready
 from .core.mosaic.best_view import clip_depth
 from .core.mosaic.keyframe import KeyframeResult, corner_shift_px, render_view
 from .core.mosaic.minify import area_factor, area_reduce, finest_stretch
@@ -53,7 +54,6 @@ from .core.types import CameraAttitude, CameraIntrinsics, Frame, GeoFix, ImuSamp
 __all__ = ['FrameRecord', 'Pipeline', 'PipelineResult', 'SYNC_HOLD_FRAMES']
 
 #: Frames kept waiting for telemetry when none has been seen after them (then they go on alone).
-SYNC_HOLD_FRAMES = 3
 #: Before the first GNSS fix, frames wait for one (at most this many, and at most
 #: georef.telemetry_buffer_s of them), so that a flight whose first fixes are late or unusable
 #: still starts its mosaic on the map (the filter starts from the nearest fix, see Georeferencer).
@@ -216,8 +216,7 @@ class Pipeline:
             return decided
         while self._waiting:
             frame = self._waiting[0]
-            seen = self._latest_telemetry_ns is not None and self._latest_telemetry_ns > frame.stamp_ns
-            if not (all_frames or seen or len(self._waiting) > SYNC_HOLD_FRAMES):
+            if not (all_frames or telemetry_ready(frame.stamp_ns, self._latest_telemetry_ns, len(self._waiting))):
                 break
             decided += self._process(self._waiting.pop(0))
         return decided

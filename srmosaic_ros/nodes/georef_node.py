@@ -40,7 +40,7 @@ from msg_adapters import camera_info_to_intrinsics, imu_to_sample, navsat_to_fix
 from ..core.georef.georeferencer import Georeferencer
 from ..core.undistort import Undistorter
 from ..errors import SrMosaicError
-from ..pipeline import SYNC_HOLD_FRAMES
+from ..core.time_sync import telemetry_ready
 from .common import (TELEMETRY_QOS_DEPTH, DiagnosticsPublisher, PosePublisher, RegistrationMsg, StreamOrder, WarnOnce,
                      input_qos, subscribe_input)
 from .messages import Messages, message_kind
@@ -165,9 +165,8 @@ class GeorefNode(ManagedNode):
         now = time.monotonic()
         while self._pending:
             arrived, reg = self._pending[0]
-            seen = self._latest_telemetry_ns is not None and self._latest_telemetry_ns > reg.stamp_ns
             late = timeout and now - arrived > SYNC_TIMEOUT_S
-            if not (seen or late or len(self._pending) > SYNC_HOLD_FRAMES):
+            if not telemetry_ready(reg.stamp_ns, self._latest_telemetry_ns, len(self._pending), late=late):
                 break
             self._pending.pop(0)
             self._fuse(reg)
