@@ -31,6 +31,7 @@ import collections
 import math
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -112,6 +113,15 @@ class _Held:
     record: FrameRecord
     camera: CameraIntrinsics | None
     raw: np.ndarray
+
+
+#: Version of :meth:`Pipeline.state`: a checkpoint of another is refused (the run starts again).
+STATE_VERSION = 1
+
+#: The attributes a resumed run needs (Pipeline.state); everything else is rebuilt from the config.
+_STATE = ('records', 'segments', 'fixes', 'imus', 'attitudes', 'georef', 'camera', 'clock', '_geo_canvas', '_active',
+          '_last_good', '_orphan', '_channels', '_waiting', '_first_fix_wait_over', '_latest_telemetry_ns',
+          '_centres', '_settling', '_settling_seg', '_settled', '_fused')
 
 
 class Pipeline:
@@ -572,25 +582,27 @@ class Pipeline:
             painter, self._painter = self._painter, None
             painter.close()
 
-    def start_paint_thread(self) -> None:
-        """Paint on a background thread from now on (as Pipeline(paint_thread=True))."""
-        if self._painter is None:
-            self._painter = SerialWorker(name='srmosaic-paint')
-
-    def __getstate__(self) -> dict:
-        """Picklable (checkpoints): the paints in flight are finished first; the thread is not kept."""
+    def state(self) -> dict[str, Any]:
+        """What a resumed run needs (checkpoints: app/checkpoint.py), by name: STATE_VERSION, the
+        config, and the attributes of _STATE (records, segments with their canvases, telemetry, the
+        filter, the frames held for registration, for telemetry and while their segment settles,
+        the stage clock). The registrar, undistorter and painter thread are rebuilt from the config
+        (they hold nothing between frames). Paints in flight are finished first."""
         self.sync()
-        state = dict(self.__dict__)
-        state['_painter'] = None
-        return state
+        return {'version': STATE_VERSION, 'config': self.config, **{name: getattr(self, name) for name in _STATE}}
 
-    def __setstate__(self, state: dict) -> None:
-        """Pipelines resumed from checkpoints of earlier versions get the attributes added since."""
-        self.__dict__.update(state)
-        self.__dict__.setdefault('_painter', None)
-        for name, default in (('_centres', dict), ('_settling', list), ('_settled', list), ('attitudes', list),
-                              ('_fused', lambda: collections.deque(maxlen=1000))):
-            if name not in self.__dict__:
-                self.__dict__[name] = default()
-        self.__dict__.setdefault('_settling_seg', None)
-        self.__dict__.setdefault('clock', StageClock())
+    @classmethod
+    def from_state(cls, state: dict[str, Any], *, paint_thread: bool = False) -> Pipeline:
+        """The pipeline whose :meth:`state` this is; ValueError naming the problem when it is a state
+        of another version (or not one)."""
+        if not isinstance(state, dict) or state.get('version') != STATE_VERSION:
+            version = state.get('version') if isinstance(state, dict) else type(state).__name__
+            msg = f'pipeline state of version {version!r}; this version reads version {STATE_VERSION}.'
+            raise ValueError(msg)
+        if missing := [name for name in ('config', *_STATE) if name not in state]:
+            msg = f'pipeline state without {missing}.'
+            raise ValueError(msg)
+        pipe = cls(state['config'], paint_thread=paint_thread)
+        for name in _STATE:
+            setattr(pipe, name, state[name])
+        return pipe

@@ -1,7 +1,8 @@
 """Checkpoints of a long offline run, so that `srmosaic process ... --resume` continues after a crash.
 
-Every N frames the whole pipeline state (chain, segments and their canvases, records, telemetry,
-and the mosaic-video recorder) is pickled to DIR/.checkpoint/state.pkl, written to a temporary
+Every N frames what a resumed run needs (Pipeline.state(): a versioned dict of the records,
+segments and their canvases, telemetry, filter and held frames, by name; and the mosaic-video
+recorder) is pickled to DIR/.checkpoint/state.pkl, written to a temporary
 file and renamed into place, so a kill -9 at any moment leaves either the previous or the new
 checkpoint, never a torn one. The checkpoint also records how many input items (frames and
 telemetry) were consumed and a fingerprint of the input and settings; --resume refuses a
@@ -28,7 +29,7 @@ from ..io.mosaic_files import atomic_path
 
 __all__ = ['Checkpoint', 'checkpoint_path', 'fingerprint', 'load_checkpoint', 'read_header', 'save_checkpoint']
 
-FORMAT = 2
+FORMAT = 3  # 3: the pipeline's state() (2 pickled the Pipeline object)
 MAGIC = b'SRMOSAIC-CHECKPOINT '
 
 
@@ -37,7 +38,7 @@ class Checkpoint:
     fingerprint: str
     items_consumed: int
     frames_consumed: int
-    pipeline: Any
+    pipeline: dict[str, Any]  # Pipeline.state()
     recorder: Any = None
     recent: dict[int, Any] | None = None
     format: int = FORMAT
@@ -147,21 +148,12 @@ _PACKAGE_FUNCTIONS = {('srmosaic_ros.core.georef.ukf', '_constant_velocity'),
                       ('srmosaic_ros.core.mosaic.tile_store', '_restore_store')}
 
 
-#: Modules that moved into app/ and live/: a checkpoint names its classes by their module then.
-_MOVED_MODULES = {f'srmosaic_ros.{old}': f'srmosaic_ros.{new}' for old, new in (
-    ('offline', 'app.process'), ('sr_offline', 'app.sr_process'), ('evaluate', 'app.evaluate'),
-    ('evaluate_real', 'app.evaluate_real'), ('evaluate_stills', 'app.evaluate_stills'), ('psf_tool', 'app.psf'),
-    ('checkpoint', 'app.checkpoint'), ('survey', 'app.survey'), ('inspect_tool', 'app.inspect_tool'),
-    ('sr_live', 'live.sr'), ('live_raster', 'live.raster'))}
-
-
 class _CheckpointUnpickler(pickle.Unpickler):
     """Resolves only the globals a checkpoint of this package holds."""
 
     def find_class(self, module: str, name: str) -> Any:
         import numpy as np
 
-        module = _MOVED_MODULES.get(module, module)  # checkpoints written before app/ and live/ existed
 
         if module == 'torch.storage' and name == '_load_from_bytes':
             return _tensor_storage_from_bytes

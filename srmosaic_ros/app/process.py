@@ -295,9 +295,12 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
     skip_items = frames_done = 0
     if resume:
         state = load_checkpoint(out, run_id)
-        pipeline, recorder = state.pipeline, state.recorder
-        if overlap:
-            pipeline.start_paint_thread()
+        try:
+            pipeline = Pipeline.from_state(state.pipeline, paint_thread=overlap)
+        except ValueError as exc:
+            msg = f'--resume: the checkpoint in {out} holds a {exc} Run without --resume.'
+            raise InputError(msg) from None
+        recorder = state.recorder
         recent = state.recent or {}
         skip_items, frames_done = state.items_consumed, state.frames_consumed
     bar = tqdm(total=reader.frame_count, initial=frames_done, unit='frame', desc='process', disable=not progress)
@@ -326,7 +329,7 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
                             recorder.add(rec.segment, to_float01(recent[rec.stamp_ns]), rec.seg_H_frame)
                 if checkpoint_every and isinstance(item, Frame) and frames_done % checkpoint_every == 0:
                     with clock.stage('outputs'):
-                        save_checkpoint(out, Checkpoint(run_id, consumed, frames_done, pipeline, recorder, recent))
+                        save_checkpoint(out, Checkpoint(run_id, consumed, frames_done, pipeline.state(), recorder, recent))
         except SrMosaicError as exc:
             error = exc
     if recorder is not None and error is None:

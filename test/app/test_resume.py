@@ -95,3 +95,40 @@ def test_resume_verifies_a_checkpoint_before_it_loads_code(tmp_path):
                              capture_output=True, text=True, timeout=300)
         assert run.returncode == 2 and expect in run.stderr, (name, run.stderr)
         assert 'Traceback' not in run.stderr and not pwned.exists(), name
+
+
+def test_checkpoint_holds_the_pipeline_state_by_name(tmp_path):
+    """A checkpoint holds Pipeline.state() (a versioned dict of what a resumed run needs), not the
+    Pipeline object: a state of another version is refused by name, and one that round-trips through
+    pickle continues the flight as the uninterrupted pipeline does."""
+    import numpy as np
+    import pytest
+
+    from srmosaic_ros.config import pipeline_config
+    from srmosaic_ros.io.bags import read_flight
+    from srmosaic_ros.pipeline import STATE_VERSION, Pipeline
+
+    items = list(read_flight(DEMO))
+    cut = next(i for i, item in enumerate(items) if getattr(item, 'image', None) is not None and i > len(items) // 2)
+    config = pipeline_config()
+    whole = Pipeline(config)
+    for item in items:
+        whole.feed(item)
+    first = Pipeline(config)
+    for item in items[:cut]:
+        first.feed(item)
+    state = first.state()
+    assert state['version'] == STATE_VERSION and 'segments' in state and 'registrar' not in state
+    resumed = Pipeline.from_state(pickle.loads(pickle.dumps(state)))
+    for item in items[cut:]:
+        resumed.feed(item)
+    a, b = whole.finish(), resumed.finish()
+    assert [r.stamp_ns for r in a.records] == [r.stamp_ns for r in b.records]
+    for ra, rb in zip(a.records, b.records, strict=True):
+        assert ra.painted == rb.painted and ra.segment == rb.segment
+        if ra.seg_H_frame is not None:
+            assert np.array_equal(ra.seg_H_frame, rb.seg_H_frame)
+    with pytest.raises(ValueError, match=f'version 0.*reads version {STATE_VERSION}'):
+        Pipeline.from_state({**state, 'version': 0})
+    with pytest.raises(ValueError, match='without'):
+        Pipeline.from_state({'version': STATE_VERSION, 'config': config})
