@@ -56,7 +56,7 @@ byte weighted 256. Packets failing it are counted in ``KlvTrack.bad_checksum`` a
 Written by hand from the public definitions (ST0601 tags and their integer mappings, checked in
 the tests against kwiver's decoded values; EG0104.5 keys as listed in Kitware kwiver
 arrows/klv/klv_0104.cxx and in OSSIM's ossimPredatorKlvTable.cxx); the
-``klvdata`` package (0.0.3) was not used because it cannot decode these files (its tag-73 parser
+``klvdata`` package (0.0.3) is not used because it cannot decode these files (its tag-73 parser
 raises on every kwiver ST0601 packet, it reads only one-byte tags, does not verify the checksum,
 raises on the reserved error values and has no EG0104).
 """

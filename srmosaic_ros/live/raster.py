@@ -88,10 +88,11 @@ class LiveRaster:
 
     @property
     def utm_H_raster(self) -> np.ndarray:
-        """(3, 3) raster pixel (centres at integers) -> (easting, northing) m, as GeoRaster's."""
-        g, c, s = self.gsd_m_per_px, math.cos(self.rotation_rad), math.sin(self.rotation_rad)
-        return np.array([[g * c, g * s, self.origin_easting_m], [g * s, -g * c, self.origin_northing_m],
-                         [0.0, 0.0, 1.0]])
+        """(3, 3) raster pixel (centres at integers) -> (easting, northing) m: GeoRaster's."""
+        from ..core.georef.raster import GeoRaster
+
+        return GeoRaster(self.epsg, self.gsd_m_per_px, self.origin_easting_m, self.origin_northing_m,
+                         self.rotation_rad).utm_H_raster
 
     def utm_H_plane(self, *, canvas_frame_removed: bool = True) -> np.ndarray:
         """(3, 3) live plane pixel -> UTM; by default with the canvas similarity taken out (the best

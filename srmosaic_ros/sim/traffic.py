@@ -1,5 +1,5 @@
 """Vehicles moving over the simulated ground, with their true masks: what a static-scene mosaic and
-SR must keep out (issue 17), and the truth to measure it.
+SR must keep out, and the truth to measure it.
 
 A vehicle is a rectangle of ``VEHICLE_SIZE_M`` (length along its heading, width) in one colour,
 driving in a straight line at constant speed; its position at time t (seconds from the flight's

@@ -1,8 +1,8 @@
 """Offline re-anchoring of a georeferenced mosaic on the smoothed poses of all its frames.
 
 Live, the mosaic plane is anchored by the first frame's pose and held by drift control; the
-chain itself is far more precise than any single pose (demo: consecutive frames agree to 0.04 px,
-while one pose's attitude error of 0.5 degree moves the footprint by ~0.9 m). What remains in the
+chain itself is far more precise than any single pose (consecutive frames agree to hundredths of a
+pixel, while an attitude error of 0.5 degree moves the footprint by ~0.9 m at 100 m). What remains in the
 mosaic is therefore mostly a similarity of the whole: an offset, a small rotation (the first
 yaw's error) and a scale (the first height above ground's error). With every frame's smoothed
 pose, the least-squares similarity between the chained frame corners and the pose-predicted

@@ -16,12 +16,11 @@ Two estimates of where frame k lies on the raster (its four corners, c in R^8, r
 Pose error model (first-order Gauss-Markov, from the filter). The filtered pose errors are not
 independent from frame to frame: the same fixes and attitudes drive many consecutive frames, so
 y_k wanders slowly, and averaging the poses as independent measurements copies that wander into
-the mosaic. (The previous controller counted a pose as 1/N of an independent measurement, N a
-fixed number of frames, georef.drift_pose_correlation_frames: right at one frame rate and one
-filter bandwidth only.) A Kalman filter that fuses information at the rate Lambda (information per
-second: the sum of R_i^-1 of the measurements of one second) corrects its own error at the rate
-P Lambda: dP/dt = Q - P Lambda P, and the error obeys dy/dt = -P Lambda y + (driving noise). In
-the normalised error u = P^-1/2 y this is du/dt = -M u + w, M = P^1/2 Lambda P^1/2 (symmetric;
+the mosaic; a fixed discount per frame would be right at one frame rate and one filter bandwidth
+only. A Kalman filter that fuses information at the rate Lambda (information per second: the sum
+of R_i^-1 of the measurements of one second) corrects its own error at the rate P Lambda:
+dP/dt = Q - P Lambda P, and the error obeys dy/dt = -P Lambda y + (driving noise). In the
+normalised error u = P^-1/2 y this is du/dt = -M u + w, M = P^1/2 Lambda P^1/2 (symmetric;
 its eigenvalues are 1 / tau_i, one time constant per direction: for a GNSS position with variance
 R at f Hz and a fused position variance P, tau = R / (f P) = 6.25 m^2 / (5 Hz * 0.2 m^2) ~ 6 s;
 the attitudes renewed by a 50 Hz IMU well under a second). Lambda is what the Georeferencer counts

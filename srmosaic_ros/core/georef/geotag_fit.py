@@ -18,8 +18,7 @@ them the camera is taken as nadir. What it does not know: the mosaic plane is th
 image plane, so a first frame tilted by t leaves a scale gradient of about tan(t) per height above
 ground across the mosaic (3 degrees at 100 m: 5 % over 100 m), which a similarity cannot take
 out: the method is for gimbal-stabilised nadir stills (the real surveys here: 0.1 degree).
-Heights are not used (flat ground). Simulated survey, 20 stills, GNSS sigma 2.5 m, 0.3 degree
-off nadir: mosaic points 1.3 m RMS from the truth (test_geotag_fit).
+Heights are not used (flat ground).
 Accuracy: the GNSS noise averaged over the frames, as a similarity over the mosaic's extent
 (report: residual RMS, and the fitted scale's relative uncertainty, residual RMS / (extent
 sqrt(N))).
@@ -113,7 +112,7 @@ def fit_mosaic_to_geotags(centres_px: np.ndarray, lonlat_deg: np.ndarray,
     above ground, unknown without intrinsics) fitted with the similarity: the tilt of a camera that
     is not stabilised (2 degrees at 100 m: 3.5 m between the frame centre and the geotag, slowly
     varying with the gusts, which biases a plain similarity by 15 % in scale on a 120 m line) is
-    taken out (simulated line: 6.0 -> 0.8 m RMS at the frame centres)."""
+    taken out."""
     from pyproj import Transformer
 
     centres = np.asarray(centres_px, dtype=np.float64).reshape(-1, 2)

@@ -68,9 +68,8 @@ fused.
 Sigma points: ``MerweScaledSigmaPoints`` with alpha = 1, beta = 2, kappa = 0 by default (2L + 1 =
 27 points at +-sqrt(L) sigma; weights Wm_0 = 0, Wc_0 = 2, the others 1 / 2L, none negative). The reference's L + kappa = 3
 (4.32) is available (kappa = 3 - L) but is not the default: with L = 13 it gives a central weight
-of -3.3, and on simulated flights that filter was measurably biased in height (normalised
-estimation error squared 5 to 8 instead of about 1, vertical RMSE 1.8 to 2.3 m instead of 1.2
-to 1.5 m).
+of -3.3, which biases the height on simulated flights (normalised estimation error squared 5 to 8
+instead of about 1).
 
 Offline, :func:`rts_smooth` runs the Rauch-Tung-Striebel recursion over the stored moments of a
 run (the predict is linear, so it is exact for this filter's Gaussian approximation).
@@ -299,8 +298,8 @@ class PoseUkf:
             q[3:6] += (p.initial_rate_sigma_rad_s * dt) ** 2
         # The white angular acceleration makes the attitude's extrapolation error grow as dt^2 (80 deg
         # over 2 s at 20 deg/s^2); an aircraft's attitude does not wander that far between two frames,
-        # and sigma points at +-3.6 such sigmas make the homography and gyro models meaningless (the
-        # filter diverged on stills 2 s apart). Bounded per step; inactive below 1 s at the defaults.
+        # and sigma points at +-3.6 such sigmas make the homography and gyro models meaningless (unbounded,
+        # the filter diverges on stills 2 s apart). Bounded per step; inactive below 1 s at the defaults.
         q[3:6] = np.minimum(q[3:6], p.max_attitude_step_sigma_rad**2)
         Q = np.zeros((STATE_DIM, STATE_DIM))
         Q[SLOT_PREV, SLOT_PREV] = _EPS_VAR * np.eye(POSE_DIM)
@@ -547,13 +546,12 @@ def _batch_update(ukf: UnscentedKalmanFilter, z: np.ndarray, R: np.ndarray,
     z ~ A x + b + N(0, Omega) with A = Psi^T P_i^-1, b = z_bar - A x_i, Omega = Phi - A P_i A^T
     (Psi, Phi: the sigma points' cross- and output covariances), and updates the *prior* (x0, P0)
     with that linear model and R + Omega. Why: a homography constrains displacement / height
-    above ground, a ratio; linearised once at a ground prior 40 m off (a 60 m flight with the
-    default nominal 100 m AGL) every update is fused at the wrong slope, the estimate creeps
-    toward the truth over seconds while P shrinks at once (ground error 5 sigma after 1 s,
-    normalised estimation error squared 17 averaged over 50 to 160 m flights). Re-linearising at
-    the posterior brings that to about 3 (the prior itself is 1.8 there) and the horizontal error
-    after 2 s from 3.4 m to 1.5 m (see test_georef_ukf). Stops when the estimate moves by less than
-    ``tolerance_sigma`` prior standard deviations in every component.
+    above ground, a ratio; linearised once at a ground prior far off (40 m on a 60 m flight with
+    the default nominal 100 m AGL), every update is fused at the wrong slope: the estimate creeps
+    toward the truth over seconds while P shrinks at once, and the filter is overconfident
+    (normalised estimation error squared about 17, about 3 when re-linearised; test_georef_ukf).
+    Stops when the estimate moves by less than ``tolerance_sigma`` prior standard deviations in
+    every component.
     """
     x0, P0 = ukf.x.copy(), ukf.P.copy()
     ukf.sigmas_h = np.atleast_2d(hx_batch(ukf.sigmas_f))

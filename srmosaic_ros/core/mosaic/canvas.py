@@ -200,12 +200,6 @@ class TiledCanvas:
         self._frames = 0
         self._bounds: tuple[int, int, int, int] | None = None
 
-    def __setstate__(self, state: dict[str, Any]) -> None:
-        """Canvases of checkpoints written before best view get its settings' old behaviour."""
-        self.__dict__.update(state)
-        for name, default in (('_max_stretch', 0.0), ('_recency_frames', 90), ('_agree', 0.0), ('_moving', 0.0)):
-            self.__dict__.setdefault(name, default)
-
     # ------------------------------------------------------------------ properties
     @property
     def channels(self) -> int:

@@ -16,9 +16,9 @@ with the previous frame. The next frames chain from the corrected keyframe. By d
 (every `keyframe_interval`-th frame of a segment) is registered only where it revisits ground
 painted at least `keyframe_revisit_frames` frames before: along a straight leg the rendered
 (blended, twice resampled) view is a slightly worse reference than the previous frame itself
-(demo line: 0.35 px mean corner error without keyframes, 0.42 px with one every 10 frames). A correction larger
-than `keyframe_max_correction_px` at the frame corners, a view the mosaic covers too little, or a
-failed registration leaves the predicted placement as it was (and is counted).
+(bench/drift.py compares the settings). A correction larger than `keyframe_max_correction_px` at
+the frame corners, a view the mosaic covers too little, or a failed registration leaves the
+predicted placement as it was (and is counted).
 """
 from __future__ import annotations
 

@@ -1,10 +1,10 @@
-"""Registrar: the homography between consecutive frames (Table 1 of the reference).
+"""Registrar: the homography between consecutive frames (Table 1 of the reference), with OpenCV.
 
-First version, OpenCV based: SIFT keypoints (sub-pixel by construction), ratio-test + mutual
-nearest-neighbour matching, MAGSAC++ robust estimation, least-squares re-estimation on all inliers
-(Levenberg-Marquardt on the reprojection error, inside cv2.findHomography), one round of guided
-matching with the estimate. The torch implementation of the registration issue replaces the
-internals behind the same interface.
+SIFT keypoints (sub-pixel by construction), ratio-test + mutual nearest-neighbour matching,
+MAGSAC++ robust estimation, least-squares re-estimation on all inliers (Levenberg-Marquardt on the
+reprojection error, inside cv2.findHomography), one round of guided matching with the estimate.
+This is the CPU-only 'opencv' backend and FallbackRegistrar's second opinion; TorchRegistrar
+(torch_registrar.py) implements the same interface with torch tensor ops.
 
 Convention: prev_H_cur maps current-frame pixels to previous-frame pixels, x right, y down, pixel
 centres at integers.

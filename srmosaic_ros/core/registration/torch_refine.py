@@ -123,7 +123,7 @@ def _gauss_newton_covariance(hess: torch.Tensor, scale2: float, Hn: np.ndarray, 
     the robust residual variance), carried to h through H(dp) = M^-1 Hn D(dp)^-1 M by a central-
     difference Jacobian. Pixel residuals are not independent (the optics blur neighbours together),
     so s^2 (J^T W J)^-1 is a lower bound: it is inflated by RESIDUAL_CORRELATION_VARIANCE_FACTOR
-    (on the demo flight the refined corners' errors were 1.5x the uninflated sigma)."""
+    (2: on simulated flights the refined corners' errors are about 1.5 times the uninflated sigma)."""
     h64 = hess.to(torch.float64).cpu().numpy()
     try:
         cov_dp = RESIDUAL_CORRELATION_VARIANCE_FACTOR * scale2 * np.linalg.inv(h64)

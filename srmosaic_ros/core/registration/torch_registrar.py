@@ -103,10 +103,10 @@ class TorchRegistrarOptions:
         features, matching and the photometric refinement stay on the GPU. No effect on the CPU.
     static_shapes: describe with fixed tensor shapes (static_describe.py: no host synchronisation
         inside describe); None: on a GPU only. cuda_graphs: there, record describe as a CUDA graph
-        per frame size and replay it (one launch instead of some 800); off by default until it has
-        been measured on a GPU (bench/device_check.sh; the CUDA test is
-        test_cuda_graph_describe_matches_eager_and_registers). static_candidates: scale-space
-        candidates kept per octave with fixed shapes (the strongest; 640x480 frames have 400 to 550).
+        per frame size and replay it (one launch instead of some 800); off by default: not yet
+        verified on a GPU (bench/device_check.sh, test_cuda_graph_describe_matches_eager_and_registers).
+        static_candidates: scale-space candidates kept per octave with fixed shapes (the strongest;
+        640x480 frames have 400 to 550).
     seed: RANSAC sampling seed (reset at every register call: results do not depend on history).
     """
 
@@ -349,8 +349,7 @@ class TorchRegistrar:
                 extras['refined'] = 1.0
                 if opt.covariance and res.covariance is not None:
                     # The returned estimate is the photometric one: its Gauss-Newton covariance
-                    # (the feature covariance above bounds it from above, ~7x wider in sigma on
-                    # the demo flight, where the refined corners are within 0.016 px of the truth).
+                    # (the feature covariance above bounds it from above).
                     cov = res.covariance if scale <= 1.0 else inverse_covariance(res.image_H_template, res.covariance)
                     extras['covariance_from'] = 1.0
         if opt.covariance and cov is None:

@@ -19,10 +19,9 @@ a largest set of mutually consistent frames (greedy, frames with the most consis
 first), seeded by the tile's reference frame when that agrees with any other: the frame whose
 centre is nearest the tile's, which the mosaic shows there, so that the SR tile agrees with the
 mosaic around it. A reference that agrees with no other frame is itself the odd one out (a
-misregistered frame): the others' set is used, and the figures say so. Measured on the tiles that
-`process --sr` plans: aligned frames of simulated flights and of the caliterra stills correlate at
-0.95 to 1.00 (0.87 and 0.57 on flat tiles of 7 grey levels std, where the noise bound is lower
-too), the brighton stills' tiles at -0.2 to 0.98: tree canopy near 0, misregistered parts 0.3 to 0.7.
+misregistered frame): the others' set is used, and the figures say so. For scale, on the tiles
+that `process --sr` plans aligned frames correlate at 0.95 to 1.00 (less on flat tiles, where the
+noise bound is lower too); tree canopy on the brighton stills near 0, misregistered parts 0.3 to 0.7.
 """
 from __future__ import annotations
 

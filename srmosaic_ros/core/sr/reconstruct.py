@@ -11,8 +11,8 @@ chroma, natural aerial scenes carry little high-frequency chroma, and one channe
 three (the speed target). The result is ``rgb0 + (Y_sr - Y0)`` on every channel, which changes Y
 by exactly ``Y_sr - Y0`` and leaves the colour differences B - Y and R - Y of the interpolated
 mosaic untouched. ``color='rgb'`` solves the three channels jointly (same operators; three times the
-cost) for when colour detail matters; on the benchmark it is 0.4 dB lower (PSNR over RGB, factor 2,
-5 frames, noise 2): the per-channel problems are noisier than the luminance one.
+cost) for when colour detail matters; it is not the default because its PSNR over RGB is lower
+(bench/sr.py): the per-channel problems are noisier than the luminance one.
 
 Robust frame weights: frames whose residual on the tile is an outlier (misregistration, moving
 objects) must not smear the result. Before iterating, every frame warped into the LR tile is
@@ -98,11 +98,10 @@ class SRConfig:
         s^2 rho0 measures the scene's activity at the frames' resolution. With
         ``lambda_reference='current'`` rho0 is the activity of the current iterate, as (5.6) reads,
         and the gamma is ``lambda_gamma / s`` (its own calibration): it collapses on sharp scenes
-        (see :class:`~srmosaic_ros.core.sr.solvers.LambdaRule`). lambda_gamma = 0.1 comes from a
-        fixed-lambda sweep on two scenes (caliterra at half resolution, brighton at full), factors
-        2 and 4, noise 0 to 5, where the best fixed lambda was 0.05 to 0.23 times
-        sigma^2 / (s^2 rho0); it is not tuned per case, and bench/sr.py shows the distance to the
-        best fixed lambda in every case.
+        (see :class:`~srmosaic_ros.core.sr.solvers.LambdaRule`). lambda_gamma = 0.1 because the
+        best fixed lambda lies at 0.05 to 0.23 times sigma^2 / (s^2 rho0) over scenes, factors 2
+        and 4 and noise 0 to 5; one value serves all cases (bench/sr.py compares it with the best
+        fixed lambda of each).
     lambda_noise_cap: in the adaptive modes, the frames' RMS residuals in sigma(n) are capped at
         this many times their noise std (Immerkaer's estimate on the frames, core/sr/consistency.py);
         0: not capped (the default: (5.6) as it reads). Where the model fits the residual is below

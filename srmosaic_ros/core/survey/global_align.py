@@ -532,10 +532,9 @@ def _levenberg_marquardt(prob: _Problem, x0: np.ndarray, huber: float, *, max_it
     reweighted normal equations (J^T W J + mu diag(J^T W J)) dx = -J^T W r, solved as a sparse
     system (SuperLU). Returns (x, iterations, converged).
 
-    scipy.optimize.least_squares (trf with LSMR) was tried first: on a 40-frame lawnmower it had
-    not converged after 200 evaluations (frames 0.8 to 2 m off), where this reaches its minimum in
-    about ten; its dense 'exact' solver converges but costs seconds and memory that grow with the
-    square of the frames."""
+    Not scipy.optimize.least_squares: with LSMR its 'trf' converges far more slowly on this problem
+    (a 40-frame lawnmower: not within 200 evaluations, where this needs about ten), and its dense
+    'exact' solver costs time and memory that grow with the square of the frames."""
     from scipy.sparse.linalg import spsolve
 
     x = x0.copy()
