@@ -23,8 +23,8 @@ __all__ = ['PipelineConfig', 'check_type', 'default_params', 'default_params_pat
 
 DEVICES = ('auto', 'cpu', 'cuda')
 
-#: Keys that were replaced: old dotted name -> (new dotted name, why). Their values cannot be
-#: converted, so a file that still sets one is refused with a message naming the new key.
+#: Replaced keys: old dotted name -> (new dotted name, why). Their values cannot be converted,
+#: so a file that sets one is refused with a message naming the new key.
 REPLACED_KEYS = {
     'georef.drift_pose_correlation_frames': (
         'georef.drift_pose_time_constant_s',

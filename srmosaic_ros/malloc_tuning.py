@@ -2,12 +2,11 @@
 
 Registering and painting frames with torch allocates and frees many buffers of 0.1 to 5 MB from
 several threads. glibc raises its mmap threshold after the first large frees, so later buffers
-come from the heap, whose free space fragments and is not returned: a 2000-frame `process` run
-grew by ~0.4 MB per frame (1.4 GB peak against 0.42 GB with the OpenCV registrar).
-`malloc_trim(0)` every HEAP_TRIM_EVERY frames releases the free pages (resident size flat at
-~0.43 GB over 300 frames of the memory benchmark, for ~2 ms per frame on average). Fixing the
-mmap threshold instead (mallopt M_MMAP_THRESHOLD) also bounds it but costs ~40% of throughput
-in page faults. Elsewhere than glibc a no-op.
+come from the heap, whose free space fragments and is not returned: a long `process` run grows
+with every frame. `malloc_trim(0)` every HEAP_TRIM_EVERY frames releases the free pages (resident
+size flat, at a few ms per frame on average; bench/memory.py). Fixing the mmap threshold instead
+(mallopt M_MMAP_THRESHOLD) also bounds it but costs much throughput in page faults. Elsewhere
+than glibc a no-op.
 """
 from __future__ import annotations
 

@@ -18,8 +18,8 @@ the pixel plane of its first frame.
 
 Settling (georeferenced segments, `mosaic.settle_s`, `mosaic.settle_max_frames`): the first frame
 of a segment is placed by its pose when the filter knows least, and drift control then pulls the
-next frames toward better poses; painted at once, the first frames would sit up to 1.5 px from the
-later ones (a seam the registrations, good to a few hundredths of a pixel, do not have). So a
+next frames toward better poses; painted at once, the first frames would not line up with the
+later ones (a seam the registrations, good to hundredths of a pixel, do not have). So a
 segment's first frames are held, unpainted, until settle_s seconds of them (or settle_max_frames
 frames) have been placed; then they are placed back from the newest one through their own
 registrations (H_k = H_(k+1) inv(prev_H_cur_(k+1))) and painted. Their records are decided then,
@@ -365,7 +365,7 @@ class Pipeline:
         p = seg_H_frame @ c
         p = p[:2] / p[2]
         # Centres of the segment's painted frames, computed once each (long flights: O(1) per frame).
-        cache = self.__dict__.setdefault('_centres', {})  # (also on pipelines resumed from older checkpoints)
+        cache = self._centres
         known = cache.setdefault(seg.index, [])
         for i in seg.frames[len(known):]:
             m = seg.seg_H_frames[i] @ c

@@ -47,8 +47,8 @@ def anchored_raster(result: PipelineResult, poses: list[Any], origin: tuple[int,
     seg_of = {seg.index: seg for seg in result.segments}
     # A pose-predicted footprint is as large as its height above the ground says. Where the filter
     # never learnt the ground (registrations not fused: stills further apart than georef.max_step_s,
-    # the nominal AGL prior left at +-30 m), the corners would carry that error into the scale
-    # (stills 2 s apart: 2.7 m RMS); the frame centres do not depend on it (1.5 m).
+    # the nominal AGL prior left at +-30 m), the corners would carry that error into the scale;
+    # the frame centres do not depend on it.
     rel_sd = [math.sqrt(max(float(p.ground_covariance[-1]), 0.0)) / max(p.camera.center_enu_m[2] - p.ground_z_m, 1.0)
               for p in poses if p.valid and p.ground_covariance is not None and p.camera is not None]
     centres_only = bool(rel_sd) and float(np.median(rel_sd)) > ANCHOR_CORNERS_MAX_REL_AGL_SD

@@ -61,7 +61,7 @@ REGISTRATION_LAYOUT = ['stamp_sec', 'stamp_nanosec', 'ok', 'inliers', 'rms_px', 
                        *[f'seg_H_frame{r}{c}' for r in range(3) for c in range(3)],
                        *[f'prev_H_cur{r}{c}' for r in range(3) for c in range(3)],
                        'reg_ok', *[f'cov{r}{c}' for r in range(8) for c in range(8)]]
-_BASE_FIELDS = 24  # the layout before reg_ok and the covariance were appended
+_BASE_FIELDS = 24  # the fields up to prev_H_cur: the least a message must carry
 #: layout.dim[0].label of /srmosaic/registration: the layout's version (1: REGISTRATION_LAYOUT above).
 REGISTRATION_LABEL = 'fields v1'
 

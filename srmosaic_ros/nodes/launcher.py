@@ -102,9 +102,9 @@ def ros_args(params: list[str], parameters: dict[str, Any] | None = None,
 def overrides_last(ros_arguments: list[str], folder: Path) -> list[str]:
     """The same --ros-args with every ``-p name:=value`` (``--param``) moved into a parameter file
     written into ``folder`` and given last. rcl lets a --params-file beat a -p override whatever
-    their order, so `srmosaic launch --ros-args -p registration.max_features:=lots` kept the file's
-    1000 without a word; as the last file the override wins, and a value of the wrong type ('lots',
-    a quoted "false") is refused by the node at start. Values are read as YAML, as rcl reads -p."""
+    their order, so `srmosaic launch --ros-args -p registration.max_features:=lots` would keep the
+    file's value without a word; as the last file the override wins, and a value of the wrong type
+    ('lots', a quoted "false") is refused by the node at start. Values are read as YAML, as rcl reads -p."""
     import yaml
 
     rest, tree = [], {}

@@ -97,7 +97,7 @@ class MosaicNode(ManagedNode):
             raise SrMosaicError(msg)
         if threads:
             # Process-wide: intra-op threads beyond the cores left free by DDS and the executor
-            # only contend with them (bench/live.py: 32 ms per frame with 1 thread, 38 ms with 2).
+            # only contend with them (bench/live.py).
             torch.set_num_threads(threads)
         self.georef_standalone = bool(self.get_parameter('live.georef_standalone').value)
         if self.georef_standalone:  # the georef node fuses telemetry; the mosaic stays in the frame plane

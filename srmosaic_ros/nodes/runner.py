@@ -31,8 +31,8 @@ def init_rclpy(args: list[str] | None, **kwargs: Any) -> None:
 class _Stop(BaseException):
     """SIGINT / SIGTERM: raised in the main thread wherever it is, often inside a callback. A
     BaseException, as KeyboardInterrupt is, so that a callback's `except Exception` (the nodes keep
-    spinning past a bad input) does not swallow it: the georef node once logged 'frame not fused:
-    _Stop()' and went on, and the graph never stopped."""
+    spinning past a bad input) does not swallow it (a node would log it as a bad frame and go on,
+    and the graph would never stop)."""
 
 
 def _raise_stop(signum: int, frame: Any) -> None:
@@ -56,8 +56,8 @@ def run_nodes(node_classes: Sequence[type], args: list[str] | None = None) -> in
         for cls in node_classes:
             nodes.append(cls())
         # One executor thread: every callback only converts and enqueues (the work runs in each
-        # node's worker thread). rclpy's MultiThreadedExecutor spent a whole core polling its
-        # futures at 25 images/s (profiled: 45 M Task.done calls in 40 s) and starved the workers.
+        # node's worker thread). rclpy's MultiThreadedExecutor spends a whole core polling its
+        # futures at video rates and starves the workers.
         executor = SingleThreadedExecutor()
         for node in nodes:
             executor.add_node(node)
