@@ -15,7 +15,7 @@ from .core.sr.reconstruct import SRConfig
 from .core.sr.scheduler import SRTileConfig
 from .core.registration import RegistrationConfig
 from .core.survey.config import SurveyConfig
-from .errors import ConfigError
+from .errors import ConfigError, SrMosaicError
 from .param_files import default_params, default_params_path, load_params, yaml_problem  # re-exported
 
 __all__ = ['PipelineConfig', 'check_type', 'default_params', 'default_params_path', 'load_params', 'pipeline_config',
@@ -53,7 +53,7 @@ def _build(cls: type, prefix: str, flat: dict[str, Any]) -> Any:
     kwargs = {f.name: flat[prefix + f.name] for f in fields(cls) if prefix + f.name in flat}
     try:
         return cls(**kwargs)
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, SrMosaicError) as exc:  # a section's own refusal (SRError...) is a ConfigError here
         raise ConfigError(str(exc)) from None
 
 

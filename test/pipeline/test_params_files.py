@@ -98,3 +98,11 @@ def test_the_device_reaches_sr_unless_sr_has_its_own():
     assert pipeline_config({'device': 'cpu'}).sr.device == 'cpu'
     assert pipeline_config({}).sr.device == 'auto'
     assert pipeline_config({'device': 'cpu', 'sr.device': 'cuda'}).sr.device == 'cuda'
+
+
+def test_a_section_refusal_is_a_config_error():
+    """Every invalid setting reaches the user as a ConfigError naming it, whatever stage checks it."""
+    from srmosaic_ros.errors import ConfigError
+
+    with pytest.raises(ConfigError, match='psf_sigma'):
+        pipeline_config({'sr.psf_sigma': -1.0})
