@@ -119,6 +119,12 @@ def test_checkpoint_holds_the_pipeline_state_by_name(tmp_path):
         first.feed(item)
     state = first.state()
     assert state['version'] == STATE_VERSION and 'segments' in state and 'registrar' not in state
+    # every attribute of a pipeline is either saved or rebuilt from the config: a new one must be added to
+    # pipeline._STATE (or here, when the config rebuilds it), or a resumed run would silently lose it
+    from srmosaic_ros.pipeline import _STATE
+
+    rebuilt = {'config', 'registrar', 'undistorter', '_painter', '_heap'}
+    assert set(vars(first)) == set(_STATE) | rebuilt, set(vars(first)) ^ (set(_STATE) | rebuilt)
     resumed = Pipeline.from_state(pickle.loads(pickle.dumps(state)))
     for item in items[cut:]:
         resumed.feed(item)
