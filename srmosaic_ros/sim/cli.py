@@ -53,6 +53,9 @@ _OPTIONS: list[tuple[str, str, Any, str]] = [
     ('--imu-sigma-deg', 'imu_sigma_deg', float, 'IMU orientation noise sigma per axis (deg)'),
     ('--vehicles', 'vehicles', int, 'cars driving straight over the ground (their true masks in ground_truth.json)'),
     ('--vehicle-speed', 'vehicle_speed_m_s', float, 'speed of the cars (m/s)'),
+    ('--buildings', 'buildings', int, 'boxes with flat roofs on the ground, so frames disagree by parallax '
+     '(their footprints and heights in ground_truth.json)'),
+    ('--building-height', 'building_height_m', float, 'height of the tallest building (m)'),
     ('--seed', 'seed', int, 'random seed: the same seed gives the same bytes'),
 ]
 _CHOICES = {'trajectory': TRAJECTORIES, 'mode': MODES}

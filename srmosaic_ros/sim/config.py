@@ -79,6 +79,9 @@ class SimConfig:
     # traffic (sim/traffic.py)
     vehicles: int = 0  # cars driving straight over the ground, painted into every frame
     vehicle_speed_m_s: float = 8.0
+    # 3-D structure (sim/buildings.py): boxes with flat roofs standing on the ground, so frames disagree by parallax
+    buildings: int = 0
+    building_height_m: float = 15.0  # the tallest; heights are uniform in [0.3, 1] of it
     # telemetry
     fix_rate_hz: float = 5.0
     imu_rate_hz: float = 50.0
@@ -131,6 +134,10 @@ class SimConfig:
              'start_east_m and start_north_m go together')
         need(len(self.lever_arm_m) == 3, 'lever_arm_m needs 3 values')
         need(isinstance(self.vehicles, int) and 0 <= self.vehicles <= 1000, f'vehicles {self.vehicles} must be in 0..1000')
+        need(isinstance(self.buildings, int) and 0 <= self.buildings <= 500, f'buildings {self.buildings} must be in 0..500')
+        need(math.isfinite(self.building_height_m) and 0 < self.building_height_m <= 0.8 * self.altitude_m,
+             f'building_height_m {self.building_height_m} must be > 0 and at most 0.8 x altitude_m '
+             f'({0.8 * self.altitude_m:g}): the camera flies above the roofs')
         need(math.isfinite(self.vehicle_speed_m_s) and self.vehicle_speed_m_s >= 0,
              f'vehicle_speed_m_s {self.vehicle_speed_m_s} must be >= 0')
 

@@ -16,7 +16,8 @@ from ..core.georef.ground_homography import apply_H, ground_H_image, normalize_H
 from ..core.types import CameraIntrinsics, Frame, GeoFix, ImuSample
 from ..errors import SimulationError
 from .config import DEFAULT_LINE_FRAMES, SimConfig
-from .render import hr_H_lr, quantize, render_frame
+from .buildings import make_buildings, paint_roofs
+from .render import Relief, hr_H_lr, quantize, render_frame
 from .telemetry import sample_stamps, simulate_fixes, simulate_imu
 from .traffic import make_traffic, paint_vehicles, restore_world
 from .trajectory import Path2D, Trajectory, lawnmower_path, line_path, orbit_path
@@ -26,7 +27,7 @@ from .world import World, load_world, relative_to_repo
 __all__ = ['SimulatedFlight', 'simulate', 'sensor_intrinsics', 'frame_intrinsics', 'build_trajectory',
            'frame_count']
 
-_STREAM_TRAJECTORY, _STREAM_IMAGE, _STREAM_GPS, _STREAM_IMU, _STREAM_TRAFFIC = 1, 2, 3, 4, 5
+_STREAM_TRAJECTORY, _STREAM_IMAGE, _STREAM_GPS, _STREAM_IMU, _STREAM_TRAFFIC, _STREAM_BUILDINGS = 1, 2, 3, 4, 5, 6
 
 
 @dataclass
@@ -206,7 +207,16 @@ def simulate(config: SimConfig, *, progress: bool = False) -> SimulatedFlight:
     bbox = (float(pts[:, 0].min()), float(pts[:, 1].min()), float(pts[:, 0].max()), float(pts[:, 1].max()))
     vehicles = make_traffic(config.vehicles, config.vehicle_speed_m_s, world.gsd_m, bbox, (stamps[-1] - t0) * 1e-9,
                             np.random.default_rng([config.seed, _STREAM_TRAFFIC])) if config.vehicles else []
-    scene = world.image.copy() if vehicles else world.image  # painted frame by frame, restored after each
+    duration_s = (stamps[-1] - t0) * 1e-9
+    tracks = [(np.asarray(v.start_px), np.asarray(v.start_px) + duration_s * np.asarray(v.velocity_px_s)) for v in vehicles]
+    buildings = make_buildings(config.buildings, config.building_height_m, world.gsd_m, bbox,
+                               np.random.default_rng([config.seed, _STREAM_BUILDINGS]), keep_clear=tracks,
+                               clearance_px=2.0 / world.gsd_m) if config.buildings else []
+    scene = world.image
+    if buildings:
+        scene = paint_roofs(scene, buildings, world.gsd_m)  # the true orthophoto
+    elif vehicles:
+        scene = scene.copy()  # vehicles are painted frame by frame, restored after each
 
     frames: list[Frame] = []
     iterator = range(n_frames)
@@ -216,9 +226,14 @@ def simulate(config: SimConfig, *, progress: bool = False) -> SimulatedFlight:
         iterator = tqdm(iterator, desc='rendering', unit='frame')
     for k in iterator:
         saved = paint_vehicles(scene, vehicles, (stamps[k] - t0) * 1e-9) if vehicles else []
+        relief = None
+        if buildings:
+            cam_px = world.world_px_H_enu @ np.array([*truths[k].camera_enu_m[:2], 1.0])
+            relief = Relief(buildings, (float(cam_px[0] / cam_px[2]), float(cam_px[1] / cam_px[2])),
+                            float(truths[k].camera_enu_m[2]), world.gsd_m)
         clean = render_frame(scene, hr_homographies[k], (config.width, config.height),
                              decimate=config.decimate, psf_sigma_px=config.psf_sigma_px,
-                             max_supersample=config.max_supersample)
+                             max_supersample=config.max_supersample, relief=relief)
         restore_world(scene, saved)
         rng = np.random.default_rng([config.seed, _STREAM_IMAGE, k])
         frames.append(Frame(stamp_ns=stamps[k], image=quantize(clean, config.noise_sigma, rng), camera=cam,
@@ -245,5 +260,6 @@ def simulate(config: SimConfig, *, progress: bool = False) -> SimulatedFlight:
                                float(pts[:, 1].max())),
         frames=truths,
         vehicles=vehicles,
+        buildings=buildings,
     )
     return SimulatedFlight(config=config, frames=frames, fixes=fixes, imus=imus, camera=cam, truth=truth, world=world)

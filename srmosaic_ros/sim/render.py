@@ -24,11 +24,14 @@ for delta >= 2 most of that prefilter is an exact block average (fast for tiny f
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
-__all__ = ['PIXEL_SIGMA_PX', 'effective_sigma_px', 'frame_blur_px', 'local_scales', 'render_frame', 'quantize',
+from .buildings import Building, trace
+
+__all__ = ['Relief', 'PIXEL_SIGMA_PX', 'effective_sigma_px', 'frame_blur_px', 'local_scales', 'render_frame', 'quantize',
            'reference_render', 'hr_H_lr']
 
 PIXEL_SIGMA_PX = 1.0 / math.sqrt(12.0)
@@ -112,8 +115,20 @@ def _crop(world: np.ndarray, x: np.ndarray, y: np.ndarray, pad: int) -> tuple[np
     return world[y0:y1, x0:x1], x0, y0
 
 
+@dataclass(frozen=True)
+class Relief:
+    """3-D structure on the ground for :func:`render_frame`: the buildings, the camera centre above the
+    ground (x, y world px; height m) and the world's metres per pixel."""
+
+    buildings: list[Building]
+    camera_xy_px: tuple[float, float]
+    camera_height_m: float
+    gsd_m: float
+
+
 def render_frame(world: np.ndarray, world_px_H_hr: np.ndarray, hr_size: tuple[int, int], *,
-                 decimate: int = 1, psf_sigma_px: float = 0.7, max_supersample: int = 4) -> np.ndarray:
+                 decimate: int = 1, psf_sigma_px: float = 0.7, max_supersample: int = 4,
+                 relief: Relief | None = None) -> np.ndarray:
     """Noise-free frame, float32 in 0..255, (h, w, C) for an (H, W, C) world or (h, w) for a mono one.
 
     Args:
@@ -123,6 +138,9 @@ def render_frame(world: np.ndarray, world_px_H_hr: np.ndarray, hr_size: tuple[in
         decimate: integer factor d; the output is (height // d, width // d).
         psf_sigma_px: optical Gaussian PSF, sensor pixels.
         max_supersample: cap on supersampling points per sensor pixel (per axis).
+        relief: buildings standing on the ground (None: a flat world). ``world`` must then hold their
+            roofs (:func:`~srmosaic_ros.sim.buildings.paint_roofs`); every supersampled ray is traced
+            through them, so roofs shift by their height, walls show and hide the ground behind.
 
     Convention: pixel centres at integer coordinates; output pixel (u, v) is the sensor point
     (d u + (d - 1) / 2, d v + (d - 1) / 2) (see :func:`hr_H_lr`).
@@ -151,6 +169,12 @@ def render_frame(world: np.ndarray, world_px_H_hr: np.ndarray, hr_size: tuple[in
     den = H[2, 0] * gx[None, :] + H[2, 1] * gy[:, None] + H[2, 2]
     wx = (H[0, 0] * gx[None, :] + H[0, 1] * gy[:, None] + H[0, 2]) / den
     wy = (H[1, 0] * gx[None, :] + H[1, 1] * gy[:, None] + H[1, 2]) / den
+    traced = None
+    if relief is not None and relief.buildings:
+        sx, sy = np.broadcast_to(gx[None, :], wx.shape), np.broadcast_to(gy[:, None], wx.shape)
+        traced = trace(relief.buildings, np.asarray(relief.camera_xy_px), relief.camera_height_m, wx, wy,
+                       relief.gsd_m, (sx, sy, np.linalg.inv(H)))
+        wx, wy = traced.x, traced.y
     reduce = int(math.floor(delta)) if delta >= 2.0 else 1
     pad = int(math.ceil(4.0 * sigma_pre_world)) + 2 + reduce
     crop, x0, y0 = _crop(world, wx, wy, pad)
@@ -169,6 +193,9 @@ def render_frame(world: np.ndarray, world_px_H_hr: np.ndarray, hr_size: tuple[in
     if sigma_rest > 0.0:
         crop = cv2.GaussianBlur(crop.astype(np.float32), (0, 0), sigma_rest, borderType=cv2.BORDER_REFLECT)
     grid = _bilinear(crop, cx, cy)
+    if traced is not None and np.any(traced.wall):
+        walls = traced.wall_rgb if grid.ndim == 3 else traced.wall_rgb @ np.float32([0.299, 0.587, 0.114])
+        grid[traced.wall] = walls
     if sigma_sub > 0.0:
         grid = cv2.GaussianBlur(grid, (0, 0), sigma_sub, borderType=cv2.BORDER_REFLECT)
     out = grid[margin::step, margin::step]

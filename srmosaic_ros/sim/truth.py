@@ -13,6 +13,9 @@ File layout (format_version 1), all numbers in SI units except angles in degrees
     covered_bbox_world_px [x_min, y_min, x_max, y_max] of all frame footprints
     vehicles:             [{start_px [2], velocity_px_s [2], length_px, width_px, colour [3]}] in world
                           pixels, t in seconds from the first frame (sim/traffic.py; [] without traffic)
+    buildings:            [{centre_px [2], length_px, width_px, heading_rad, height_m, roof [3], facade [3],
+                           texture_seed}] (sim/buildings.py; [] on flat ground); the true orthophoto is
+                          the world image with their roofs painted (buildings.paint_roofs)
     frames: [{index, stamp_ns, position_enu_m [3], camera_enu_m [3], latitude_deg, longitude_deg,
               altitude_m, roll_deg, pitch_deg, yaw_deg (body in ENU, REP 103),
               R_enu_from_cam (3x3), world_px_H_frame (3x3), prev_H_cur (3x3 or null)}]
@@ -35,6 +38,7 @@ import numpy as np
 
 from ..core.types import CameraIntrinsics
 from ..errors import InputError
+from .buildings import Building, building_view_mask
 from .traffic import Vehicle, vehicle_mask
 
 __all__ = ['TRUTH_FORMAT_VERSION', 'FrameTruth', 'Truth', 'save_truth', 'load_truth']
@@ -111,6 +115,16 @@ class Truth:
     frames: list[FrameTruth] = field(default_factory=list)
     format_version: int = TRUTH_FORMAT_VERSION
     vehicles: list[Vehicle] = field(default_factory=list)
+    buildings: list[Building] = field(default_factory=list)
+
+    def building_mask(self, index: int) -> np.ndarray:
+        """bool (height, width) of frame ``index``: its pixels that see a building, roof or wall (parallax)."""
+        f = self.frames[index]
+        if not self.buildings:
+            return np.zeros((self.camera.height, self.camera.width), bool)
+        cam = np.linalg.inv(self.enu_H_world_px) @ np.array([f.camera_enu_m[0], f.camera_enu_m[1], 1.0])
+        return building_view_mask(self.buildings, f.world_px_H_frame, cam[:2] / cam[2], float(f.camera_enu_m[2]),
+                                  (self.camera.width, self.camera.height), self.world_gsd_m)
 
     def vehicle_mask(self, index: int) -> np.ndarray:
         """bool (height, width) of frame ``index``: its pixels on a vehicle (all False without traffic)."""
@@ -151,6 +165,7 @@ class Truth:
             'covered_bbox_world_px': [float(v) for v in self.covered_bbox_world_px],
             'frames': [f.to_dict() for f in self.frames],
             'vehicles': [v.to_dict() for v in self.vehicles],
+            'buildings': [b.to_dict() for b in self.buildings],
         }
 
     @classmethod
@@ -176,6 +191,7 @@ class Truth:
             frames=[FrameTruth.from_dict(f) for f in d['frames']],
             format_version=int(version),
             vehicles=[Vehicle.from_dict(v) for v in d.get('vehicles', [])],  # absent in files before traffic
+            buildings=[Building.from_dict(b) for b in d.get('buildings', [])],  # absent in files before buildings
         )
 
 
