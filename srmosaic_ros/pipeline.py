@@ -44,6 +44,7 @@ from .core.time_sync import SYNC_HOLD_FRAMES, telemetry_ready
 from .core.mosaic.best_view import clip_depth
 from .core.mosaic.keyframe import KeyframeResult, corner_shift_px, render_view
 from .core.mosaic.minify import area_factor, area_reduce, finest_stretch
+from .core.mosaic.scratch import scratch
 from .core.registration import Features, Registration, make_registrar
 from .core.registration.pyramid import PyramidRegistrar
 from .core.georef.georeferencer import FramePose, Georeferencer
@@ -246,8 +247,13 @@ class Pipeline:
         return np.ascontiguousarray(small, dtype=np.float32), seg_H_small
 
     def _as_canvas_image(self, image: np.ndarray) -> np.ndarray:
-        """Edge image -> float32 (H, W, C) in [0, 1] with the channel count of the first frame."""
-        f = to_float01(image)
+        """Edge image -> float32 (H, W, C) in [0, 1] with the channel count of the first frame. A uint8
+        image is converted into this thread's scratch array 'frame' (core.mosaic.scratch): valid until
+        the next conversion on the thread, so only for the canvas's paint, which keeps no reference."""
+        if image.dtype == np.uint8:  # to_float01's values, without a fresh full-frame array per frame
+            f = np.multiply(image, np.float32(1.0 / 255.0), out=scratch('frame', image.shape), dtype=np.float32)
+        else:
+            f = to_float01(image)
         if f.ndim == 2:
             f = f[:, :, None]
         if self._channels is None:

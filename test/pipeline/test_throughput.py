@@ -231,3 +231,21 @@ def test_frames_much_finer_than_the_mosaic_are_averaged_down_first():
     np.testing.assert_allclose(m @ [4.0, 2.0, 1.0], [13.0, 7.0, 1.0])  # the block's centre pixel
     assert area_factor(1.0) == area_factor(0.6) == 1 and area_factor(0.5) == 2 and area_factor(1 / 3) == 3
     assert finest_stretch(np.diag([0.25, 0.25, 1.0]), 100, 80) == pytest.approx(0.25)
+
+
+def test_uint8_frames_convert_for_the_canvas_as_to_float01():
+    """_as_canvas_image converts uint8 frames into a reused scratch array: to_float01's values for
+    every grey level, the first frame's channel count, a new size taking the place of the old."""
+    from srmosaic_ros.core.image_ops import to_float01
+
+    pipe = Pipeline(pipeline_config({}))
+    levels = np.arange(256, dtype=np.uint8).reshape(16, 16)
+    rgb = np.stack([levels, levels[::-1], levels.T], axis=-1)
+    out = pipe._as_canvas_image(rgb)
+    assert out.dtype == np.float32 and out.shape == (16, 16, 3) and out.flags.c_contiguous
+    np.testing.assert_array_equal(out, to_float01(rgb))
+    big = np.random.default_rng(0).integers(0, 256, (90, 120, 3), dtype=np.uint8)
+    np.testing.assert_array_equal(pipe._as_canvas_image(big), to_float01(big))
+    np.testing.assert_array_equal(pipe._as_canvas_image(levels), np.repeat(to_float01(levels)[..., None], 3, axis=2))
+    floats = to_float01(big)
+    np.testing.assert_array_equal(pipe._as_canvas_image(floats), floats)

@@ -44,6 +44,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from .scratch import scratch
+
 __all__ = ['clip_depth', 'clipped_polygon', 'depth_map', 'magnified_somewhere', 'resolution_factor', 'transition_image',
            'update_best']
 
@@ -141,7 +143,7 @@ def update_best(tile: object, loc: tuple[slice, slice], colour: np.ndarray, q: n
     moved and is kept out of the pixel.
     """
     with np.errstate(divide='ignore'):  # log 0 = -inf: not seen, beaten by every score and beating none
-        score = np.log(q)
+        score = np.log(q, out=scratch('score', q.shape))  # lives until this update returns
     score += np.float32(index / recency_frames if recency_frames > 0 else 0.0)
     best, best_w, best_id, best_q = tile.best[loc], tile.best_w[loc], tile.best_id[loc], tile.best_q[loc]  # type: ignore[attr-defined]
     second, second_w = tile.second[loc], tile.second_w[loc]  # type: ignore[attr-defined]

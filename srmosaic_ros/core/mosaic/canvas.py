@@ -60,6 +60,7 @@ from .blend import MULTIBAND_MARGIN as MULTIBAND_MARGIN  # importable from here 
 from .blend import auto_bands, feather_divide, feather_weight, multiband_blend, pyramid_region, update_max_weight
 from .canvas_settings import settings_problem
 from .preview import assemble, block_sums, preview_factor
+from .scratch import scratch
 from .tile_store import TileKey, TileLayout, TileStore, TileStoreError
 
 __all__ = ['CanvasError', 'PaintResult', 'TileKey', 'TileStoreError', 'TiledCanvas']
@@ -103,6 +104,31 @@ def _fill_invalid(img: np.ndarray, valid: np.ndarray) -> np.ndarray:
     num = num.reshape(img.shape)
     fill = num / np.maximum(den, np.float32(1.0))[..., None]
     return np.where(valid[..., None], clean, fill).astype(np.float32, copy=False)
+
+
+def _times_weight(colour: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """float32 (h, w, C) ``colour * weight[..., None]`` of colour (h, w, C) and weight (h, w), in this
+    thread's scratch array 'weighted' (:mod:`.scratch`).
+
+    The same products (one float32 rounding each) as numpy's broadcast, which runs element by element
+    over the channel axis; OpenCV multiplies whole rows of a weight expanded to C channels instead.
+    """
+    h, w, c = colour.shape
+    if c == 1:
+        return np.multiply(colour[:, :, 0], weight, out=scratch('weighted', (h, w)))[:, :, None]
+    expanded = scratch('expanded', colour.shape)
+    if c == 3:
+        expanded = cv2.cvtColor(weight, cv2.COLOR_GRAY2RGB, dst=expanded)
+    else:
+        expanded = cv2.merge([weight] * c, dst=expanded)
+    return cv2.multiply(colour, expanded, dst=scratch('weighted', colour.shape)).reshape(colour.shape)
+
+
+def _add_into(dst: np.ndarray, src: np.ndarray) -> None:
+    """dst += src in place (float32 views of one shape); OpenCV's add runs about twice as fast as
+    numpy's on these tile views, with the same sums."""
+    if cv2.add(dst, src, dst=dst) is not dst:  # a layout OpenCV could not write in place: numpy's way
+        np.add(dst, src, out=dst)
 
 
 class TiledCanvas:
@@ -345,7 +371,8 @@ class TiledCanvas:
                 msg = f'mask shape {mask.shape} differs from the image shape {img.shape[:2]}.'
                 raise CanvasError(msg)
             valid = mask.astype(bool)
-        if not np.isfinite(img.sum(dtype=np.float64)):  # fast path: one sum, full check only if needed
+        # fast path: the extremes (NaN propagates through both), the full check only if needed
+        if not (np.isfinite(img.max()) and np.isfinite(img.min())):
             finite = np.isfinite(img).all(axis=2)
             if not finite.all():
                 valid = finite if valid is None else valid & finite
@@ -474,9 +501,10 @@ class TiledCanvas:
         bw, bh = x1 - x0, y1 - y0
         box_h_frame = np.array([[1.0, 0.0, -x0], [0.0, 1.0, -y0], [0.0, 0.0, 1.0]]) @ m
         src = img[:, :, 0] if self._channels == 1 else img
-        img_w = cv2.warpPerspective(src, box_h_frame, (bw, bh), flags=cv2.INTER_LINEAR,
-                                    borderMode=cv2.BORDER_REPLICATE).reshape(bh, bw, self._channels)
-        w_w = cv2.warpPerspective(weight, box_h_frame, (bw, bh), flags=cv2.INTER_LINEAR,
+        # into this thread's scratch arrays: they live until paint returns (the tiles keep copies)
+        img_w = cv2.warpPerspective(src, box_h_frame, (bw, bh), dst=scratch('colour', (bh, bw, *src.shape[2:])),
+                                    flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(bh, bw, self._channels)
+        w_w = cv2.warpPerspective(weight, box_h_frame, (bw, bh), dst=scratch('weight', (bh, bw)), flags=cv2.INTER_LINEAR,
                                   borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
         index = self._frames
         cols = np.flatnonzero(w_w.any(axis=0))
@@ -487,7 +515,7 @@ class TiledCanvas:
         # Tight box of non-zero weight, in box coordinates.
         c0, c1, r0, r1 = int(cols[0]), int(cols[-1]) + 1, int(rows[0]), int(rows[-1]) + 1
         multiband = self._blend == 'multiband'
-        wimg = img_w * w_w[..., None] if (multiband or best_view) else np.multiply(img_w, w_w[..., None], out=img_w)
+        wimg = _times_weight(img_w, w_w)
 
         t = self._tile_size
         jobs: list[tuple[TileKey, tuple[slice, slice], tuple[slice, slice]]] = []
@@ -507,8 +535,8 @@ class TiledCanvas:
         touched: list[TileKey] = []
         for (key, box, loc), tile in zip(jobs, tiles):
             sub_w = w_w[box]
-            tile.acc[loc] += wimg[box]
-            tile.wsum[loc] += sub_w
+            _add_into(tile.acc[loc], wimg[box])
+            _add_into(tile.wsum[loc], sub_w)
             if best_view:
                 update_best(tile, loc, img_w[box], sub_w, index, self._recency_frames, self._agree, self._moving)
             if multiband:
