@@ -515,7 +515,6 @@ class TiledCanvas:
         # Tight box of non-zero weight, in box coordinates.
         c0, c1, r0, r1 = int(cols[0]), int(cols[-1]) + 1, int(rows[0]), int(rows[-1]) + 1
         multiband = self._blend == 'multiband'
-        wimg = _times_weight(img_w, w_w)
 
         t = self._tile_size
         jobs: list[tuple[TileKey, tuple[slice, slice], tuple[slice, slice]]] = []
@@ -535,7 +534,7 @@ class TiledCanvas:
         touched: list[TileKey] = []
         for (key, box, loc), tile in zip(jobs, tiles):
             sub_w = w_w[box]
-            _add_into(tile.acc[loc], wimg[box])
+            _add_into(tile.acc[loc], _times_weight(img_w[box], sub_w))  # per tile: the product stays in cache
             _add_into(tile.wsum[loc], sub_w)
             if best_view:
                 update_best(tile, loc, img_w[box], sub_w, index, self._recency_frames, self._agree, self._moving)
