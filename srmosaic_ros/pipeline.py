@@ -388,7 +388,7 @@ class Pipeline:
         with self.clock.stage('paint'):
             try:
                 seg.canvas.check_placement(seg_H_frame, *held.record.size)
-                seg.canvas.paint(*self._paint_input(held.raw, seg_H_frame))
+                seg.canvas.paint(*self._paint_input(held.raw, seg_H_frame), finite=held.raw.dtype == np.uint8)
             except CanvasError as exc:  # absurd footprint: refuse, never allocate a giant canvas
                 held.record.reason = f'not painted: {exc}'
                 return False
@@ -413,7 +413,7 @@ class Pipeline:
         def paint() -> None:
             with self.clock.stage('paint'):
                 try:
-                    seg.canvas.paint(*self._paint_input(raw, seg_H_frame))
+                    seg.canvas.paint(*self._paint_input(raw, seg_H_frame), finite=raw.dtype == np.uint8)  # from uint8: finite
                 except CanvasError as exc:  # refused after all (the canvas grew meanwhile): as if never placed
                     seg.unplace(record.index)
                     record.segment, record.seg_H_frame = -1, None

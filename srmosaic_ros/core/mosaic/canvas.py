@@ -362,8 +362,9 @@ class TiledCanvas:
             raise CanvasError(msg)
         return np.ascontiguousarray(image, dtype=np.float32)
 
-    def _as_mask(self, mask: np.ndarray | None, img: np.ndarray) -> np.ndarray | None:
-        """Valid-pixel mask (bool (H, W)) or None when every pixel is valid and finite."""
+    def _as_mask(self, mask: np.ndarray | None, img: np.ndarray, finite: bool = False) -> np.ndarray | None:
+        """Valid-pixel mask (bool (H, W)) or None when every pixel is valid and finite (``finite``: the
+        caller knows it is, the image is not read)."""
         valid = None
         if mask is not None:
             mask = np.asarray(mask)
@@ -372,7 +373,7 @@ class TiledCanvas:
                 raise CanvasError(msg)
             valid = mask.astype(bool)
         # fast path: the extremes (NaN propagates through both), the full check only if needed
-        if not (np.isfinite(img.max()) and np.isfinite(img.min())):
+        if not finite and not (np.isfinite(img.max()) and np.isfinite(img.min())):
             finite = np.isfinite(img).all(axis=2)
             if not finite.all():
                 valid = finite if valid is None else valid & finite
@@ -452,6 +453,7 @@ class TiledCanvas:
         mosaic_H_frame: np.ndarray,  # frames in the name
         *,
         mask: np.ndarray | None = None,
+        finite: bool = False,
     ) -> PaintResult:
         """Warp a frame into the canvas and accumulate it with its feather weight.
 
@@ -461,6 +463,8 @@ class TiledCanvas:
             mosaic_H_frame: (3, 3) float64 homography from frame pixels to mosaic pixels (pixel
                 centres at integers): frame pixel (u, v) lands at ``mosaic_H_frame @ (u, v, 1)``.
             mask: optional bool (H, W), True where the pixel is valid; invalid pixels weigh 0.
+            finite: the caller guarantees that every pixel of ``image`` is finite (converted from
+                integers): the check, a pass over the frame, is skipped.
 
         Returns:
             PaintResult: the frame index, the tiles written, the footprint and its bbox.
@@ -474,7 +478,7 @@ class TiledCanvas:
         img = self._as_image(image)
         h, w = img.shape[:2]
         m = self._as_homography(mosaic_H_frame, w, h)
-        valid = self._as_mask(mask, img)
+        valid = self._as_mask(mask, img, finite)
         footprint, _ = project_points(m, np.array([[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5], [-0.5, h - 0.5]]))
         x0, y0, x1, y1 = self._placement(m, w, h)
         level = minify_level(m, w, h, clip_depth(m, w, h, self._max_stretch))

@@ -149,3 +149,16 @@ def test_non_finite_pixels_are_invalid(bad: float) -> None:
     b = TiledCanvas(3, tile_size=64, blend='bestview')
     b.paint(np.where(mask[..., None], dirty, 0.0).astype(np.float32), placement(1), mask=mask)
     assert tile_bytes(a) == tile_bytes(b)
+
+
+@pytest.mark.parametrize('blend', BLENDS)
+def test_a_frame_known_finite_paints_the_same_unchecked(blend: str) -> None:
+    """paint(finite=True) (the caller knows every pixel is finite: converted from uint8) skips the
+    pass over the frame and paints the same bytes as the checked paint."""
+    frames = [(texture(60, 80, seed=k), placement(k)) for k in range(3)]
+    checked = TiledCanvas(3, tile_size=64, blend=blend)
+    trusted = TiledCanvas(3, tile_size=64, blend=blend)
+    for img, m in frames:
+        checked.paint(img, m)
+        trusted.paint(img, m, finite=True)
+    assert tile_bytes(checked) == tile_bytes(trusted)
