@@ -37,6 +37,7 @@ class RegistrationConfig:
     with the OpenCV registrar (FallbackRegistrar). See make_registrar. max_width: the pipeline
     registers frames wider than this on the pyramid level that brings them to it or less
     (pyramid.PyramidRegistrar; 0: full size); the pixel thresholds are then in pixels of that level.
+    photometric_loss: the torch backend's photometric refinement loss, 'huber' or 'tukey' (torch_refine).
     """
 
     backend: str = 'torch'
@@ -54,6 +55,7 @@ class RegistrationConfig:
     max_perspective: float = 0.3
     guided_radius_px: float = 3.0
     max_width: int = 1280
+    photometric_loss: str = 'huber'
 
     def __post_init__(self) -> None:
         checks = {
@@ -71,6 +73,7 @@ class RegistrationConfig:
             'max_perspective': self.max_perspective > 0.0,
             'guided_radius_px': self.guided_radius_px >= 0.0,
             'max_width': self.max_width == 0 or self.max_width >= 64,
+            'photometric_loss': self.photometric_loss in ('huber', 'tukey'),
         }
         bad = [name for name, ok in checks.items() if not ok]
         if bad:

@@ -11,9 +11,17 @@ estimate is well inside its convergence basin), on a sparse set of high-gradient
 compositional (Baker and Matthews 2004): the steepest-descent images dT/dx dW/dp are computed once
 per frame (when the frame is described) and the update is W <- W o W(dp)^-1. The gain a and bias
 b are re-fitted at each iteration (IR automatic gain), rho is Huber (iteratively reweighted, at
-the weighted RMS scale of the residuals: occlusions, moving objects), and pixels that warp
-outside the image frame drop out. Accuracy is limited by sensor noise; the registrar smooths
-the frames slightly (TorchRegistrarOptions.pyramid_sigma) before building the templates.
+the weighted RMS scale of the residuals: occlusions, moving objects) or Tukey's biweight at c = 6
+robust sigmas (sigma = 1.4826 x the median absolute residual), and pixels that warp outside the
+image frame drop out. Tukey gives what disagrees by parallax (buildings standing on the ground
+plane) no say where Huber gives it a say in proportion, so that the plane tilts toward the roofs
+when they hold many of the strong gradients (bench/parallax.py); but it also stops short where
+the feature estimate is a pixel or more off (its cut then drops the very edges that would move it):
+on real turret video the frames agree less with their mosaic. Hence Huber by default, Tukey
+on request (registration.photometric_loss). c = 6 rather than the textbook 4.685: under a zoom of
+1.5 between frames their different blur leaves residuals on every strong edge. Accuracy is
+limited by sensor noise; the registrar smooths the frames slightly
+(TorchRegistrarOptions.pyramid_sigma) before building the templates.
 
 Either frame of a pair can be the template (every frame's template is built when it is described);
 the registrar picks the one with the finer ground sampling, so that the other is sampled densely
@@ -35,6 +43,9 @@ import torch.nn.functional as F
 __all__ = ['PhotometricOptions', 'PhotometricResult', 'PhotometricTemplate', 'make_template', 'refine_photometric']
 
 
+_MAD_STRIDE = 8  # every 8th template pixel (~2,000 of 16,000) sets the robust scale
+
+
 @dataclass(frozen=True)
 class PhotometricOptions:
     """Settings of the photometric refinement.
@@ -44,7 +55,8 @@ class PhotometricOptions:
         many blocks, each offering its strongest-gradient pixel.
     max_iterations: iterations per level.
     tol_px: a level stops when an update moves no frame corner by more than this (level pixels).
-    huber_k: Huber threshold in units of the robust residual scale.
+    loss: 'tukey' (biweight at ``tukey_c`` robust sigmas, the MAD of the residuals) or 'huber' (at
+        ``huber_k`` times the weighted RMS of the residuals).
     """
 
     levels: tuple[int, ...] = (0,)
@@ -52,13 +64,18 @@ class PhotometricOptions:
     max_iterations: int = 12  # converged pairs stop at 3 to 8; scale changes near 1.5 need up to 8
     tol_px: float = 2e-3
     huber_k: float = 2.0
+    loss: str = 'huber'
+    tukey_c: float = 6.0
 
     def __post_init__(self) -> None:
         if len(self.levels) != len(self.points) or not self.levels or min(self.points) < 16:
             msg = 'photometric levels and points need one entry per level, and points >= 16.'
             raise ValueError(msg)
-        if self.max_iterations < 1 or self.tol_px <= 0.0 or self.huber_k <= 0.0:
-            msg = 'photometric max_iterations >= 1, tol_px > 0 and huber_k > 0 are required.'
+        if self.max_iterations < 1 or self.tol_px <= 0.0 or self.huber_k <= 0.0 or self.tukey_c <= 0.0:
+            msg = 'photometric max_iterations >= 1, tol_px > 0, huber_k > 0 and tukey_c > 0 are required.'
+            raise ValueError(msg)
+        if self.loss not in ('tukey', 'huber'):
+            msg = f"photometric loss {self.loss!r}: use 'tukey' or 'huber'."
             raise ValueError(msg)
 
 
@@ -265,10 +282,17 @@ def refine_photometric(
             wdi = wv * di
             gain = (torch.dot(wdi, tv) / torch.dot(wdi, di).clamp_min(1e-12)).clamp(0.2, 5.0)
             e = torch.addcmul(mt - tv, gain, di)
-            # Huber IRLS weights at the weighted RMS scale of the residuals.
             e2 = e * e
-            scale2 = torch.dot(wv, e2) / sw
-            weights = torch.rsqrt(e2 / (opts.huber_k**2 * scale2.clamp_min(1e-12))).clamp_max_(1.0)
+            resid2 = torch.dot(wv, e2) / sw  # weighted residual variance: the covariance's and the reported RMS's
+            if opts.loss == 'tukey':
+                ae = e[::_MAD_STRIDE].abs()[inside[::_MAD_STRIDE]]  # a subsample: the median is the cost
+                scale2 = (1.4826 * ae.median()) ** 2 if ae.numel() >= 16 else resid2
+                u2 = e2 / (opts.tukey_c**2 * scale2.clamp_min(1e-12))
+                weights = (1.0 - u2).clamp_min(0.0) ** 2
+            else:
+                # Huber IRLS weights at the weighted RMS scale of the residuals.
+                scale2 = resid2
+                weights = torch.rsqrt(e2 / (opts.huber_k**2 * scale2.clamp_min(1e-12))).clamp_max_(1.0)
             wv = weights * inside
             sdw = sd * wv
             hess = sdw @ sd.T
@@ -282,9 +306,9 @@ def refine_photometric(
             if _corner_motion(D, half_w, half_h) * s < opts.tol_px:
                 converged = True
                 break
-        rms = float(torch.sqrt(scale2))
+        rms = float(torch.sqrt(resid2))
         valid_fraction = float(inside.float().mean())
         H = np.linalg.inv(M) @ Hn @ M
         H = H / H[2, 2]
-        cov = _gauss_newton_covariance(hess, float(scale2), Hn, M)
+        cov = _gauss_newton_covariance(hess, float(resid2), Hn, M)
     return PhotometricResult(H, total, rms, converged, valid_fraction, cov)

@@ -39,7 +39,7 @@ centres at integers.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -183,6 +183,9 @@ class TorchRegistrar:
                  options: TorchRegistrarOptions | None = None) -> None:
         self.config = config or RegistrationConfig()
         self.options = options or TorchRegistrarOptions()
+        ph = self.options.photometric
+        if ph is not None and ph.loss != self.config.photometric_loss:  # the config names the loss
+            self.options = replace(self.options, photometric=replace(ph, loss=self.config.photometric_loss))
         self.device = device if isinstance(device, torch.device) else resolve_device(device)
         f = self.options.features
         if self.config.max_features < f.max_keypoints:
