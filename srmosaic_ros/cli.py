@@ -30,6 +30,8 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
     p.add_argument('--device', choices=['auto', 'cpu', 'cuda'], help='override device')
     p.add_argument('--select', default='all', help='video frame selection: all, every:N, iframes (the '
                    "reference's MPEG I-frame mosaics) or overlap:F (next frame when overlap drops below F)")
+    p.add_argument('--deinterlace', choices=['auto', 'on', 'off'], default='auto',
+                   help='video: keep the top field of interlaced frames (auto: those the stream flags interlaced)')
     p.add_argument('--camera', type=Path, help='video: camera calibration YAML (ROS camera_calibration format)')
     p.add_argument('--hfov', type=float, help='video: horizontal field of view in degrees (square pixels, '
                    'centred principal point)')
@@ -63,7 +65,7 @@ def _run_process(args: argparse.Namespace) -> int:
                            hfov_deg=args.hfov, telemetry_csv=args.telemetry, mosaic_video=args.mosaic_video,
                            checkpoint_every=args.checkpoint_every, resume=args.resume,
                            sr_factor=(args.sr_factor or config.sr_tiles.factor) if (args.sr or args.sr_factor) else None,
-                           progress=not args.no_progress)
+                           progress=not args.no_progress, deinterlace=args.deinterlace)
     print(f"{report['frames_registered']}/{report['frames_in']} frames in mosaic.png "
           f"({len(report['segments'])} segment(s)), {report['frames_per_s']} frames/s, "
           f"peak {report['peak_rss_mb']} MB -> {args.out}")

@@ -107,7 +107,8 @@ def write_outputs(result: PipelineResult, out: Path, config: PipelineConfig, ext
 
 def open_source(path: Path, *, topics: TopicConfig | None = None, select: str = 'all',
                 camera_yaml: Path | None = None, hfov_deg: float | None = None,
-                telemetry_csv: Path | None = None, stamp_tolerance_s: float = 10.0) -> tuple[Iterable[Any], Any, str]:
+                telemetry_csv: Path | None = None, stamp_tolerance_s: float = 10.0,
+                deinterlace: str = 'auto') -> tuple[Iterable[Any], Any, str]:
     """(items in time order, the reader (frame_count, skipped, summary), 'bag', 'video' or 'images')
     for a bag, a video file or a folder of stills.
 
@@ -115,14 +116,15 @@ def open_source(path: Path, *, topics: TopicConfig | None = None, select: str = 
     video's MISB KLV stream, a DJI .SRT beside it or a GoPro GPMF track, in that order, unless
     ``telemetry_csv`` is given (it overrides them). ``reader.summary`` says what was found. A bag's
     messages stamped more than ``stamp_tolerance_s`` off their topic's clock are skipped and counted.
+    ``deinterlace``: a video's interlaced frames (io/video.py: auto, on, off).
     """
     from ..io.image_folder import ImageFolderReader, is_image_folder
     from ..io.metadata import MetadataSummary
     from ..io.video import VideoReader, is_video, load_camera_yaml, parse_selection
 
     if is_image_folder(path):
-        if select != 'all' or camera_yaml or hfov_deg or telemetry_csv:
-            msg = ('--select, --camera, --hfov and --telemetry apply to video input; a folder of stills takes its '
+        if select != 'all' or camera_yaml or hfov_deg or telemetry_csv or deinterlace != 'auto':
+            msg = ('--select, --camera, --hfov, --telemetry and --deinterlace apply to video input; a folder of stills takes its '
                    'stamps, geotags and camera from each image\'s EXIF/XMP (or a telemetry_from_exif.csv beside the '
                    'images).')
             raise InputError(msg)
@@ -130,7 +132,8 @@ def open_source(path: Path, *, topics: TopicConfig | None = None, select: str = 
         return reader, reader, 'images'
     if is_video(path):
         camera = load_camera_yaml(camera_yaml) if camera_yaml else None
-        reader = VideoReader(path, selection=parse_selection(select), camera=camera, hfov_deg=hfov_deg)
+        reader = VideoReader(path, selection=parse_selection(select), camera=camera, hfov_deg=hfov_deg,
+                             deinterlace=deinterlace)
         items: Iterable[Any] = reader
         if telemetry_csv is not None:
             from ..io.telemetry_csv import read_telemetry_csv
@@ -139,8 +142,8 @@ def open_source(path: Path, *, topics: TopicConfig | None = None, select: str = 
             reader.summary = MetadataSummary(source='telemetry CSV', fields=['gps position', 'attitude'])
             return items, reader, 'video'
         return _video_with_metadata(path, reader)
-    if select != 'all' or camera_yaml or hfov_deg or telemetry_csv:
-        msg = ('--select, --camera, --hfov and --telemetry apply to video input; a bag carries its own camera '
+    if select != 'all' or camera_yaml or hfov_deg or telemetry_csv or deinterlace != 'auto':
+        msg = ('--select, --camera, --hfov, --telemetry and --deinterlace apply to video input; a bag carries its own camera '
                'info and telemetry topics.')
         raise InputError(msg)
     reader = read_flight(path, topics=topics or TopicConfig(), stamp_tolerance_s=stamp_tolerance_s)
@@ -232,7 +235,7 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
                   select: str = 'all', camera_yaml: Path | None = None, hfov_deg: float | None = None,
                   telemetry_csv: Path | None = None, mosaic_video: bool = False,
                   checkpoint_every: int = 0, resume: bool = False, sr_factor: int | None = None,
-                  progress: bool = True, overlap: bool = True) -> dict[str, Any]:
+                  progress: bool = True, overlap: bool = True, deinterlace: str = 'auto') -> dict[str, Any]:
     """Run the pipeline over a bag, a video or a folder of stills and write the outputs into ``out``;
     returns the report (also in report.json).
 
@@ -252,14 +255,14 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
         raise InputError(msg)
     items, reader, kind = open_source(path, topics=topics, select=select, camera_yaml=camera_yaml,
                                       hfov_deg=hfov_deg, telemetry_csv=telemetry_csv,
-                                      stamp_tolerance_s=config.stamp_tolerance_s)
+                                      stamp_tolerance_s=config.stamp_tolerance_s, deinterlace=deinterlace)
     check_output_dir(out)  # before the work, not after it
     with OutputTransaction(out) as transaction:
         try:
             report = _process(path, out, transaction.stage, config, items, reader, kind, t0, topics=topics,
                               select=select, camera_yaml=camera_yaml, hfov_deg=hfov_deg, telemetry_csv=telemetry_csv,
                               mosaic_video=mosaic_video, checkpoint_every=checkpoint_every, resume=resume,
-                              sr_factor=sr_factor, progress=progress, overlap=overlap)
+                              sr_factor=sr_factor, progress=progress, overlap=overlap, deinterlace=deinterlace)
         except OSError as exc:
             if exc.errno not in (errno.ENOSPC, errno.EFBIG, errno.EDQUOT):
                 raise
@@ -273,7 +276,8 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
 def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: Iterable[Any], reader: Any,
              kind: str, t0: float, *, topics: TopicConfig | None, select: str, camera_yaml: Path | None,
              hfov_deg: float | None, telemetry_csv: Path | None, mosaic_video: bool, checkpoint_every: int,
-             resume: bool, sr_factor: int | None, progress: bool, overlap: bool) -> dict[str, Any]:
+             resume: bool, sr_factor: int | None, progress: bool, overlap: bool,
+             deinterlace: str = 'auto') -> dict[str, Any]:
     """process_input's work: outputs into ``stage``, checkpoints into ``out``."""
     summary = getattr(reader, 'summary', None)
     if kind == 'images':
@@ -353,7 +357,8 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
         report_extra['metadata'] = _metadata_report(summary, result)
     if kind == 'video':
         report_extra['video'] = {'codec': reader.codec, 'fps': reader.fps, 'frames_decoded': reader.decoded,
-                                 'frames_selected': reader.selected, 'select': select}
+                                 'frames_selected': reader.selected, 'select': select,
+                                 'deinterlace': reader.deinterlace, 'frames_deinterlaced': reader.deinterlaced}
         if getattr(reader, 'ended_early', ''):
             report_extra['video']['ended_early'] = reader.ended_early
     if error is not None:
@@ -380,7 +385,8 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
 
         t_sr = time.perf_counter()
         again, _, _ = open_source(path, topics=topics, select=select, camera_yaml=camera_yaml, hfov_deg=hfov_deg,
-                                  telemetry_csv=telemetry_csv, stamp_tolerance_s=config.stamp_tolerance_s)
+                                  telemetry_csv=telemetry_csv, stamp_tolerance_s=config.stamp_tolerance_s,
+                                  deinterlace=deinterlace)
         report['sr'] = super_resolve_mosaic(stage, again, config, factor=sr_factor, progress=progress)
         report['sr']['wall_s'] = round(time.perf_counter() - t_sr, 3)
         report['wall_s'] = round(time.perf_counter() - t0, 3)

@@ -10,6 +10,9 @@ Selection modes (`--select`):
   the two frames by phase correlation on a downscaled grey image (cv2.phaseCorrelate), which is
   cheap and sufficient for the near-nadir translation-dominated motion of UAS video.
 
+Interlaced video (``deinterlace``): ``auto`` keeps the top field of every frame the stream flags as
+interlaced (io/deinterlace.py), ``on`` of every frame, ``off`` none.
+
 Stamps: a frame's stamp_ns is its presentation time in ns from the first frame of the file.
 """
 from __future__ import annotations
@@ -27,10 +30,12 @@ import numpy as np
 from ..core.image_ops import to_gray_float01
 from ..core.types import CameraIntrinsics, Frame
 from ..errors import InputError
+from .deinterlace import top_field
 
-__all__ = ['VIDEO_SUFFIXES', 'FrameSelection', 'VideoReader', 'camera_from_hfov', 'is_video', 'load_camera_yaml',
+__all__ = ['VIDEO_SUFFIXES', 'DEINTERLACE_MODES', 'FrameSelection', 'VideoReader', 'camera_from_hfov', 'is_video', 'load_camera_yaml',
            'parse_selection', 'write_video']
 
+DEINTERLACE_MODES = ('auto', 'on', 'off')
 VIDEO_SUFFIXES = {'.mp4', '.m4v', '.mkv', '.avi', '.ts', '.mts', '.m2ts', '.mpg', '.mpeg', '.mov', '.webm'}
 
 _LOG = logging.getLogger(__name__)
@@ -146,11 +151,16 @@ class VideoReader:
     """Frames of a video file, selected (see module docstring); iterable, with counts for progress."""
 
     def __init__(self, path: str | Path, *, selection: FrameSelection = FrameSelection('all'),
-                 camera: CameraIntrinsics | None = None, hfov_deg: float | None = None) -> None:
+                 camera: CameraIntrinsics | None = None, hfov_deg: float | None = None,
+                 deinterlace: str = 'auto') -> None:
         import av
 
         self.path = Path(path)
         self.selection = selection
+        if deinterlace not in DEINTERLACE_MODES:
+            msg = f'deinterlace {deinterlace!r}: use one of {", ".join(DEINTERLACE_MODES)}.'
+            raise InputError(msg)
+        self.deinterlace = deinterlace
         if not self.path.is_file():
             msg = f'video {str(self.path)!r} does not exist; check the path.'
             raise VideoError(msg)
@@ -199,6 +209,7 @@ class VideoReader:
             self.camera = None
         self.decoded = 0
         self.selected = 0
+        self.deinterlaced = 0  # decoded frames of which only the top field was kept
         self.error: str = ''
         self.ended_early: str = ''  # the stream ended before what its header declares (a cut file)
 
@@ -212,7 +223,7 @@ class VideoReader:
 
         sel = self.selection
         overlap = _OverlapSelector(sel.overlap) if sel.mode == 'overlap' else None
-        self.decoded = self.selected = 0
+        self.decoded = self.selected = self.deinterlaced = 0
         self.error = self.ended_early = ''
         last_pts = None
         with av.open(str(self.path)) as container:
@@ -240,6 +251,9 @@ class VideoReader:
                         first_pts = pts
                     last_pts = pts
                     image = vframe.to_ndarray(format='rgb24')
+                    if self.deinterlace == 'on' or (self.deinterlace == 'auto' and vframe.interlaced_frame):
+                        image = top_field(image)
+                        self.deinterlaced += 1
                     if overlap is not None and not overlap(image):
                         continue
                     self.selected += 1

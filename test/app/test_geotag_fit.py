@@ -164,7 +164,7 @@ def test_image_folder_refuses_video_options() -> None:
     from srmosaic_ros.errors import InputError
     from srmosaic_ros.app.process import open_source
 
-    with pytest.raises(InputError, match='--hfov and --telemetry apply to video input'):
+    with pytest.raises(InputError, match='--telemetry and --deinterlace apply to video input'):
         open_source(SEQUENCES / 'caliterra', hfov_deg=60.0)
 
 

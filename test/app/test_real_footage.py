@@ -32,6 +32,7 @@ def test_klv_video_is_georeferenced_where_its_klv_says(aphill_out: Path) -> None
     the KLV centres themselves scatter over 70 m while the imagery stares at one point)."""
     report = json.loads((aphill_out / 'report.json').read_text())
     assert report['frames_registered'] == 48 and len(report['segments']) == 1
+    assert report['video']['frames_deinterlaced'] == 48  # an interlaced MPEG-2 stream: its top fields
     meta = report['metadata']
     assert meta['source'] == 'MISB KLV (EG0104)'
     assert meta['frames_with_position'] == meta['frames_with_attitude'] == meta['frames_with_intrinsics'] == 48
@@ -45,8 +46,8 @@ def test_klv_video_is_georeferenced_where_its_klv_says(aphill_out: Path) -> None
     assert figures['fraction_in_main'] == 1.0
     # best view (the default): each frame agrees with the mosaic up to the frames' own noise and
     # compression (two frames of the same ground correlate at about 0.92), as sharp as the frames
-    assert figures['ncc_median'] > 0.9, figures['ncc_median']         # measured 0.920 (feather: 0.983)
-    assert figures['sharpness_median'] > 0.95, figures                # measured 1.04 (feather: 0.795)
+    assert figures['ncc_median'] > 0.93, figures['ncc_median']        # measured 0.947 (combed frames: 0.920)
+    assert figures['sharpness_median'] > 0.95, figures                # measured 1.03
     assert figures['position']['rms_m'] < 20.0, figures['position']    # measured 14.9 m
 
 
