@@ -32,11 +32,13 @@ from srmosaic_ros.sim import SimConfig, simulate
 from srmosaic_ros.sim.buildings import paint_roofs
 from srmosaic_ros.sim.ortho_error import REGIONS, ortho_in_plane, region_errors, region_masks
 
-BLENDS = ('feather', 'multiband', 'bestview')
+RUNS = {'feather': {'mosaic.blend': 'feather'}, 'multiband': {'mosaic.blend': 'multiband'},
+        'bestview': {'mosaic.blend': 'bestview'},
+        'bestview, tukey': {'mosaic.blend': 'bestview', 'registration.photometric_loss': 'tukey'}}
 
 
-def run(flight, blend: str):
-    pipe = Pipeline(pipeline_config({'georef.enabled': False, 'mosaic.blend': blend}))
+def run(flight, overrides: dict):
+    pipe = Pipeline(pipeline_config({'georef.enabled': False, **overrides}))
     for frame in flight.frames:
         pipe.feed_frame(frame)
     seg = pipe.finish().main_segment
@@ -54,9 +56,9 @@ def measure(flight, near_m: float, out_dir: Path, tag: str, regions_of=None) -> 
     print('| mosaic | frames in the main mosaic | corner error px mean / max | PSNR dB open / near / roofs '
           '| best single frame (true H) open / near / roofs | pixels open / near / roofs |')
     print('|---|---|---|---|---|---|')
-    for blend in BLENDS:
+    for blend, overrides in RUNS.items():
         t0 = time.perf_counter()
-        seg = run(flight, blend)
+        seg = run(flight, overrides)
         x0, y0, x1, y1 = seg.canvas.bounds()
         image, covered = seg.canvas.render((x0, y0, x1, y1))
         world_H_seg = truth.frames[0].world_px_H_frame @ np.linalg.inv(seg.seg_H_frames[0])
@@ -87,7 +89,7 @@ def measure(flight, near_m: float, out_dir: Path, tag: str, regions_of=None) -> 
         print(f'| {blend} | {len(seg.frames)}/{len(flight.frames)} | {np.mean(corner):.3f} / {np.max(corner):.3f} '
               f'| {fmt} | {fmt_best} | {n} |  ({time.perf_counter() - t0:.0f} s)', flush=True)
         side = np.hstack([np.clip(image, 0, 1), true_img])
-        cv2.imwrite(str(out_dir / f'parallax_{tag}_{blend}.png'),
+        cv2.imwrite(str(out_dir / f'parallax_{tag}_{blend.replace(", ", "_")}.png'),
                     cv2.cvtColor((side * 255).astype(np.uint8), cv2.COLOR_RGB2BGR))
 
 
