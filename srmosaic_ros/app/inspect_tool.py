@@ -1,9 +1,9 @@
 """`srmosaic inspect INPUT`: what a file carries, and what `srmosaic process` will do with it.
 
-Reads headers and metadata only (no frame is decoded, except to count a video's frames when the
-container does not say): streams, frame count and rate, MISB KLV packets and their standard, a DJI
-SRT beside a video or a GoPro GPMF track inside it, the EXIF camera of stills and the intrinsics
-derived, the fields that are missing.
+Reads headers and metadata only (no frame is decoded, except a video's first, to tell whether it
+is interlaced, and its others to count them when the container does not say): streams, frame
+count and rate, MISB KLV packets and their standard, a DJI SRT beside a video or a GoPro GPMF track
+inside it, the EXIF camera of stills and the intrinsics derived, the fields that are missing.
 """
 from __future__ import annotations
 
@@ -115,7 +115,11 @@ def _inspect_video(path: Path) -> dict[str, Any]:
                            'frames': reader.frame_count}
     with av.open(str(path)) as container:
         out['streams'] = [f'#{s.index} {s.type} {_codec_name(s)}' for s in container.streams]
+        first_frame = next(container.decode(container.streams.video[0]), None)
+        if first_frame is not None and first_frame.interlaced_frame:
+            out['interlaced'] = 'yes: process keeps the top field of each frame (--deinterlace)'
         if not out['frames']:  # the container does not say: count the decoded frames (packets may be fields)
+            container.seek(0)
             out['frames'] = sum(1 for _ in container.decode(container.streams.video[0]))
     klv = read_klv(path)
     out['klv'] = {'packets': klv.packets, 'records': len(klv.records), 'standards': dict(klv.standards),

@@ -32,7 +32,7 @@ def test_klv_video_is_georeferenced_where_its_klv_says(aphill_out: Path) -> None
     the KLV centres themselves scatter over 70 m while the imagery stares at one point)."""
     report = json.loads((aphill_out / 'report.json').read_text())
     assert report['frames_registered'] == 48 and len(report['segments']) == 1
-    assert report['video']['frames_deinterlaced'] == 48  # an interlaced MPEG-2 stream: its top fields
+    assert report['video']['frames_deinterlaced'] == 48  # an interlaced stream: its top fields
     meta = report['metadata']
     assert meta['source'] == 'MISB KLV (EG0104)'
     assert meta['frames_with_position'] == meta['frames_with_attitude'] == meta['frames_with_intrinsics'] == 48
@@ -55,6 +55,7 @@ def test_inspect_names_what_each_file_carries() -> None:
     info = inspect_input(APHILL)
     assert info['klv']['standards'] == {'EG0104': 48} and info['metadata_source'] == 'MISB KLV'
     assert info['plan'].startswith('georeferenced through the filter')
+    assert info['interlaced'].startswith('yes')
     lines = format_inspection(info)
     assert any('klv' in line for line in lines) and lines[-1].startswith('  process will:')
     none = inspect_input(REAL / 'klv' / 'h264_no_klv.ts')
