@@ -10,7 +10,14 @@ its TRUE homography (the best a single view can do in that plane, per region). A
 registration's corner error against the truth (does it lock onto the ground plane?) and the same
 flight without buildings as the control.
 
+With --vehicles N the flight has traffic too (cars kept off the buildings), and each mosaic is also
+compared with the same flight's mosaic without the cars: the share of the ground some car covered
+in some frame (the trail area) that the mosaic shows differently by more than 25 grey levels (the
+vehicle ghosts; bench/traffic.py's measure). With --crf Q every frame goes through H.264 at that
+constant rate factor (28: a few Mbit/s at 640x480; 18: visually lossless) and back.
+
     python bench/parallax.py [--buildings 12] [--height 15] [--frames 42] [--size 640x480]
+                             [--vehicles 20] [--crf 28]
 """
 from __future__ import annotations
 
@@ -30,11 +37,15 @@ from srmosaic_ros.core.homography import corner_shift_px
 from srmosaic_ros.pipeline import Pipeline
 from srmosaic_ros.sim import SimConfig, simulate
 from srmosaic_ros.sim.buildings import paint_roofs
+from srmosaic_ros.io.video import VideoReader, write_video
 from srmosaic_ros.sim.ortho_error import REGIONS, ortho_in_plane, region_errors, region_masks
+from srmosaic_ros.sim.traffic import vehicle_mask
 
 RUNS = {'feather': {'mosaic.blend': 'feather'}, 'multiband': {'mosaic.blend': 'multiband'},
         'bestview': {'mosaic.blend': 'bestview'},
-        'bestview, tukey': {'mosaic.blend': 'bestview', 'registration.photometric_loss': 'tukey'}}
+        'bestview, tukey': {'mosaic.blend': 'bestview', 'registration.photometric_loss': 'tukey'},
+        'bestview, tukey, moving 0.1': {'mosaic.blend': 'bestview', 'registration.photometric_loss': 'tukey',
+                                        'mosaic.moving': 0.1}}
 
 
 def run(flight, overrides: dict):
@@ -45,17 +56,42 @@ def run(flight, overrides: dict):
     return seg
 
 
-def measure(flight, near_m: float, out_dir: Path, tag: str, regions_of=None) -> None:
+def through_h264(flight, crf: int, work: Path):
+    """The flight with every frame encoded to H.264 at ``crf`` and decoded back (in place)."""
+    path = work / f'flight_crf{crf}.mp4'
+    write_video(path, (f.image for f in flight.frames), fps=flight.config.rate_hz, crf=crf)
+    for frame, decoded in zip(flight.frames, VideoReader(path), strict=True):
+        frame.image = decoded.image
+    return flight
+
+
+def ghosts(seg, clean_seg, truth) -> float:
+    """Share of the trail area (ground some vehicle covered in some frame) shown > 25 grey levels off
+    the traffic-free flight's mosaic."""
+    x0, y0, x1, y1 = seg.canvas.bounds()
+    image, covered = seg.canvas.render((x0, y0, x1, y1))
+    clean, clean_covered = clean_seg.canvas.render((x0, y0, x1, y1))
+    h0 = truth.frames[0].world_px_H_frame @ np.linalg.inv(seg.seg_H_frames[0]) @ np.array(
+        [[1.0, 0, x0], [0, 1.0, y0], [0, 0, 1.0]])
+    trail = np.zeros((y1 - y0, x1 - x0), bool)
+    for f in truth.frames:
+        trail |= vehicle_mask(truth.vehicles, (f.stamp_ns - truth.frames[0].stamp_ns) * 1e-9, h0, (x1 - x0, y1 - y0))
+    trail &= covered & clean_covered
+    diff = np.abs(image - clean).max(axis=2) * 255.0
+    return float((diff[trail] > 25.0).mean()) if trail.any() else float('nan')
+
+
+def measure(flight, near_m: float, out_dir: Path, tag: str, regions_of=None, clean=None) -> None:
     """Print the table row of every blend; ``regions_of``: the buildings whose footprints set the regions
-    (default: the flight's own)."""
+    (default: the flight's own); ``clean``: the same flight without traffic (vehicle ghosts)."""
     truth = flight.truth
     ortho = paint_roofs(flight.world.image, truth.buildings, truth.world_gsd_m) if truth.buildings else flight.world.image
     region_buildings = truth.buildings if regions_of is None else regions_of
     size = (truth.camera.width, truth.camera.height)
     print(f'\n### {tag}: {len(flight.frames)} frames, {len(truth.buildings)} buildings\n')
     print('| mosaic | frames in the main mosaic | corner error px mean / max | PSNR dB open / near / roofs '
-          '| best single frame (true H) open / near / roofs | pixels open / near / roofs |')
-    print('|---|---|---|---|---|---|')
+          '| best single frame (true H) open / near / roofs | pixels open / near / roofs | vehicle ghosts |')
+    print('|---|---|---|---|---|---|---|')
     for blend, overrides in RUNS.items():
         t0 = time.perf_counter()
         seg = run(flight, overrides)
@@ -86,8 +122,9 @@ def measure(flight, near_m: float, out_dir: Path, tag: str, regions_of=None) -> 
         fmt = ' / '.join(f'{errors.psnr_db[r]:.2f}' for r in REGIONS)
         fmt_best = ' / '.join(f'{best[r]:.2f}' for r in REGIONS)
         n = ' / '.join(str(errors.pixels[r]) for r in REGIONS)
+        ghost = f'{ghosts(seg, run(clean, overrides), truth):.1%}' if clean is not None else '-'
         print(f'| {blend} | {len(seg.frames)}/{len(flight.frames)} | {np.mean(corner):.3f} / {np.max(corner):.3f} '
-              f'| {fmt} | {fmt_best} | {n} |  ({time.perf_counter() - t0:.0f} s)', flush=True)
+              f'| {fmt} | {fmt_best} | {n} | {ghost} |  ({time.perf_counter() - t0:.0f} s)', flush=True)
         side = np.hstack([np.clip(image, 0, 1), true_img])
         cv2.imwrite(str(out_dir / f'parallax_{tag}_{blend.replace(", ", "_")}.png'),
                     cv2.cvtColor((side * 255).astype(np.uint8), cv2.COLOR_RGB2BGR))
@@ -101,6 +138,7 @@ def main() -> None:
     ap.add_argument('--size', default='640x480')
     ap.add_argument('--near', type=float, default=15.0, help='"near" ground: within this many metres of a footprint')
     ap.add_argument('--vehicles', type=int, default=0)
+    ap.add_argument('--crf', type=int, default=None, help='H.264 constant rate factor of every frame (default: none)')
     ap.add_argument('--no-control', action='store_true', help='skip the flat-ground control flight')
     args = ap.parse_args()
     w, h = (int(v) for v in args.size.split('x'))
@@ -111,11 +149,18 @@ def main() -> None:
     out_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     flight = simulate(cfg)
+    clean = simulate(cfg.replace(vehicles=0)) if args.vehicles else None
+    if args.crf is not None:
+        flight = through_h264(flight, args.crf, out_dir)
+        clean = through_h264(clean, args.crf, out_dir) if clean is not None else None
     print(f'simulated in {time.perf_counter() - t0:.0f} s; orbit 60 m radius, 80 m up, {w}x{h}, '
-          f'buildings up to {args.height:g} m, near = {args.near:g} m')
-    measure(flight, args.near, out_dir, 'buildings')
+          f'buildings up to {args.height:g} m, near = {args.near:g} m, {args.vehicles} vehicles, '
+          f'H.264 crf {args.crf}')
+    measure(flight, args.near, out_dir, 'buildings', clean=clean)
     if not args.no_control:
-        control = simulate(cfg.replace(buildings=0))
+        control = simulate(cfg.replace(buildings=0, vehicles=0))
+        if args.crf is not None:
+            control = through_h264(control, args.crf, out_dir)
         measure(control, args.near, out_dir, 'flat', regions_of=flight.truth.buildings)  # same regions, flat ground
 
 
