@@ -39,7 +39,10 @@ _OPTIONS: list[tuple[str, str, Any, str]] = [
     ('--gust-pos', 'gust_pos_m', float, 'RMS of the position wander (m)'),
     ('--gimbal-azimuth', 'gimbal_azimuth_deg', float, 'gimbal azimuth, counter-clockwise from the nose (deg)'),
     ('--gimbal-elevation', 'gimbal_elevation_deg', float, 'gimbal elevation above the horizon (deg); -90 is nadir'),
-    ('--hfov', 'hfov_deg', float, 'horizontal field of view (deg)'),
+    ('--hfov', 'hfov_deg', float, 'horizontal field of view (deg) at zoom 1'),
+    ('--zoom', 'zoom', float, 'the lens zooms in to this many times its shortest focal length and back out '
+     '(CameraInfo per frame)'),
+    ('--zoom-period', 'zoom_period_s', float, 'seconds of one zoom in and out'),
     ('--width', 'width', int, 'sensor width (px) before decimation'),
     ('--height', 'height', int, 'sensor height (px) before decimation'),
     ('--decimate', 'decimate', int, 'integer decimation of the sensor image; frames are width/N x height/N'),

@@ -25,7 +25,7 @@ from .truth import FrameTruth, Truth
 from .world import World, load_world, relative_to_repo
 
 __all__ = ['SimulatedFlight', 'simulate', 'sensor_intrinsics', 'frame_intrinsics', 'build_trajectory',
-           'frame_count']
+           'frame_count', 'zoom_at']
 
 _STREAM_TRAJECTORY, _STREAM_IMAGE, _STREAM_GPS, _STREAM_IMU, _STREAM_TRAFFIC, _STREAM_BUILDINGS = 1, 2, 3, 4, 5, 6
 
@@ -47,16 +47,22 @@ class SimulatedFlight:
     world: World = field(repr=False)
 
 
-def sensor_intrinsics(config: SimConfig) -> CameraIntrinsics:
-    """Pinhole of the sensor before decimation: fx = fy = (W / 2) / tan(hfov / 2), centre ((W-1)/2, (H-1)/2)."""
-    f = (config.width / 2.0) / math.tan(math.radians(config.hfov_deg) / 2.0)
+def zoom_at(config: SimConfig, t_s: float) -> float:
+    """The focal length at ``t_s`` s from the first frame over the zoom-1 one: 1 at t = 0, ``zoom`` half a
+    period later, back to 1 after a whole period."""
+    return 1.0 + (config.zoom - 1.0) * 0.5 * (1.0 - math.cos(2.0 * math.pi * t_s / config.zoom_period_s))
+
+
+def sensor_intrinsics(config: SimConfig, zoom: float = 1.0) -> CameraIntrinsics:
+    """Pinhole of the sensor before decimation: fx = fy = zoom (W / 2) / tan(hfov / 2), centre ((W-1)/2, (H-1)/2)."""
+    f = zoom * (config.width / 2.0) / math.tan(math.radians(config.hfov_deg) / 2.0)
     return CameraIntrinsics(width=config.width, height=config.height, fx=f, fy=f,
                             cx=(config.width - 1) / 2.0, cy=(config.height - 1) / 2.0)
 
 
-def frame_intrinsics(config: SimConfig) -> CameraIntrinsics:
+def frame_intrinsics(config: SimConfig, zoom: float = 1.0) -> CameraIntrinsics:
     """Intrinsics of the published frames: the sensor's, through lr_H_hr of the decimation (no distortion)."""
-    hr = sensor_intrinsics(config)
+    hr = sensor_intrinsics(config, zoom)
     K = np.linalg.inv(hr_H_lr(config.decimate)) @ hr.K
     return CameraIntrinsics(width=config.width // config.decimate, height=config.height // config.decimate,
                             fx=float(K[0, 0]), fy=float(K[1, 1]), cx=float(K[0, 2]), cy=float(K[1, 2]),
@@ -168,9 +174,7 @@ def simulate(config: SimConfig, *, progress: bool = False) -> SimulatedFlight:
     """
     world = load_world(config.world, config.world_gsd_m, mode=config.mode, origin_lat_deg=config.origin_lat_deg,
                        origin_lon_deg=config.origin_lon_deg, origin_alt_m=config.origin_alt_m)
-    hr = sensor_intrinsics(config)
-    cam = frame_intrinsics(config)
-    K_hr = hr.K
+    cam = frame_intrinsics(config)  # at zoom 1: the truth's nominal camera
     hr_from_lr = hr_H_lr(config.decimate)
     traj, n_frames = build_trajectory(config)
     t0 = int(config.start_stamp_ns)
@@ -182,7 +186,11 @@ def simulate(config: SimConfig, *, progress: bool = False) -> SimulatedFlight:
     corners_all = []
     prev_ground_H = None
     azimuth_deg, elevation_deg = gimbal_deg(config)
+    cameras = []
     for k, stamp in enumerate(stamps):
+        zoom = zoom_at(config, (stamp - t0) * 1e-9)
+        K_hr = sensor_intrinsics(config, zoom).K
+        cameras.append(frame_intrinsics(config, zoom) if config.zoom != 1.0 else cam)
         st = traj.state((stamp - t0) * 1e-9)
         pose = camera_pose(st.position_enu_m, st.roll_rad, st.pitch_rad, st.yaw_rad,
                            gimbal_azimuth_rad=math.radians(azimuth_deg), gimbal_elevation_rad=math.radians(elevation_deg),
@@ -236,7 +244,7 @@ def simulate(config: SimConfig, *, progress: bool = False) -> SimulatedFlight:
                              max_supersample=config.max_supersample, relief=relief)
         restore_world(scene, saved)
         rng = np.random.default_rng([config.seed, _STREAM_IMAGE, k])
-        frames.append(Frame(stamp_ns=stamps[k], image=quantize(clean, config.noise_sigma, rng), camera=cam,
+        frames.append(Frame(stamp_ns=stamps[k], image=quantize(clean, config.noise_sigma, rng), camera=cameras[k],
                             frame_id=config.frame_id))
 
     end = stamps[-1]

@@ -62,8 +62,8 @@ def _messages(flight: SimulatedFlight, transport: str, jpeg_quality: int) -> lis
                           lambda im=image, e=encoding, s=stamp, f=fid: ma.numpy_to_image(
                               im, e, stamp_ns=s, frame_id=f, flavor=flavor)))
         items.append((stamp, 1, CAMERA_INFO_TOPIC,
-                      lambda s=stamp, f=fid: ma.intrinsics_to_camera_info(flight.camera, stamp_ns=s, frame_id=f,
-                                                                        flavor=flavor)))
+                      lambda s=stamp, f=fid, c=frame.camera or flight.camera: ma.intrinsics_to_camera_info(
+                          c, stamp_ns=s, frame_id=f, flavor=flavor)))
     for fix in flight.fixes:
         items.append((fix.stamp_ns, 2, FIX_TOPIC, lambda x=fix: ma.fix_to_navsat(x, flavor=flavor)))
     for imu in flight.imus:
@@ -198,7 +198,8 @@ def write_drone_stills(flight: SimulatedFlight, folder: str | os.PathLike[str], 
         sub[0x9003] = when.strftime('%Y:%m:%d %H:%M:%S')
         sub[0x9291] = f'{(fr.stamp_ns % 1_000_000_000) // 1_000_000:03d}'
         sub[0x9011] = '+00:00'
-        sub[0x920A] = focal_length_mm
+        # a zoomed frame (sim zoom): a longer focal length on the same sensor
+        sub[0x920A] = focal_length_mm * (fr.camera.fx / cam.fx if fr.camera is not None else 1.0)
         sub[0xA20E] = sub[0xA20F] = cam.fx / focal_length_mm  # pixels per mm
         sub[0xA210] = 4  # millimetres
         sub[0xA002], sub[0xA003] = cam.width, cam.height

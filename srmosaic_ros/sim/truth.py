@@ -8,7 +8,8 @@ File layout (format_version 1), all numbers in SI units except angles in degrees
                            gsd_m, origin: {latitude_deg, longitude_deg, altitude_m},
                            enu_H_world_px (3x3)}
     camera:               intrinsics of the published (decimated) frames {width, height, fx, fy, cx, cy,
-                          distortion_model, distortion} (no distortion: plumb_bob, zeros)
+                          distortion_model, distortion} (no distortion: plumb_bob, zeros); with a zoom
+                          (config zoom > 1) those at zoom 1, each frame's own are in its CameraInfo
     camera_gsd_m:         nominal ground sampling of the published frames at the nominal altitude
     covered_bbox_world_px [x_min, y_min, x_max, y_max] of all frame footprints
     vehicles:             [{start_px [2], velocity_px_s [2], length_px, width_px, colour [3]}] in world
