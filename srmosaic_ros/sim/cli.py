@@ -43,6 +43,8 @@ _OPTIONS: list[tuple[str, str, Any, str]] = [
     ('--zoom', 'zoom', float, 'the lens zooms in to this many times its shortest focal length and back out '
      '(CameraInfo per frame)'),
     ('--zoom-period', 'zoom_period_s', float, 'seconds of one zoom in and out'),
+    ('--rolling-shutter', 'rolling_shutter_s', float, 'readout time (s) from the first row to the last: each row '
+     'is exposed at its own pose (0: global shutter); the stamp and the truth are the middle row\'s'),
     ('--width', 'width', int, 'sensor width (px) before decimation'),
     ('--height', 'height', int, 'sensor height (px) before decimation'),
     ('--decimate', 'decimate', int, 'integer decimation of the sensor image; frames are width/N x height/N'),

@@ -74,6 +74,7 @@ class SimConfig:
     zoom: float = 1.0  # the longest focal length over the shortest: the lens zooms in and back out
     zoom_period_s: float = 20.0  # one zoom in and out: f(t) = f0 (1 + (zoom - 1) (1 - cos(2 pi t / period)) / 2)
     decimate: int = 1
+    rolling_shutter_s: float = 0.0  # readout from the first row to the last (0: global shutter); the stamp is the middle row's
     psf_sigma_px: float = 0.7  # optical Gaussian PSF, sensor pixels (before decimation)
     noise_sigma: float = 2.0  # Gaussian sensor noise, 0..255 units
     mode: str = 'eo'
@@ -119,6 +120,8 @@ class SimConfig:
         need(0 < self.hfov_deg < 170, f'hfov_deg {self.hfov_deg} must be in (0, 170)')
         need(self.width >= 2 and self.height >= 2, f'frame size {self.width}x{self.height} is too small')
         need(self.decimate >= 1, f'decimate {self.decimate} must be >= 1')
+        need(math.isfinite(self.rolling_shutter_s) and 0.0 <= self.rolling_shutter_s <= 0.2,
+             f'rolling_shutter_s {self.rolling_shutter_s} must be in [0, 0.2] (a readout, not a frame interval)')
         need(math.isfinite(self.zoom) and 1.0 <= self.zoom <= 30.0, f'zoom {self.zoom} must be in [1, 30]')
         need(math.isfinite(self.zoom_period_s) and self.zoom_period_s > 0, f'zoom_period_s {self.zoom_period_s} must be > 0')
         need(self.width // self.decimate >= 2 and self.height // self.decimate >= 2,

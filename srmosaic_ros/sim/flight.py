@@ -7,6 +7,7 @@ noise level leaves the trajectory unchanged.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -164,6 +165,38 @@ def _check_inside(config: SimConfig, world: World, footprints: list[np.ndarray])
         raise SimulationError(msg)
 
 
+def _world_px_H_hr_at(config: SimConfig, traj: Trajectory, world: World, t_s: float, azimuth_deg: float,
+                      elevation_deg: float) -> np.ndarray:
+    """(3, 3) sensor pixel -> world pixel of the camera at ``t_s`` s from the first frame (zoom included)."""
+    st = traj.state(t_s)
+    pose = camera_pose(st.position_enu_m, st.roll_rad, st.pitch_rad, st.yaw_rad,
+                       gimbal_azimuth_rad=math.radians(azimuth_deg), gimbal_elevation_rad=math.radians(elevation_deg),
+                       lever_arm_body_m=config.lever_arm_m)
+    K_hr = sensor_intrinsics(config, zoom_at(config, t_s)).K
+    return normalize_H(world.world_px_H_enu @ ground_H_image(K_hr, pose.R_enu_from_cam, pose.center_enu_m))
+
+
+def _rolling_rows(config: SimConfig, traj: Trajectory, world: World, t_s: float, azimuth_deg: float,
+                  elevation_deg: float) -> Callable[[np.ndarray], np.ndarray]:
+    """Rolling shutter: sensor rows y (n,) -> (n, 3, 3) homographies of the pose when each row was exposed.
+
+    Row y is exposed at t_s + (y - (H - 1) / 2) / (H - 1) x ``rolling_shutter_s``: the frame's stamp is
+    its middle row's (whose homography is the truth's). Poses are computed at 17 instants over the
+    readout and the homographies interpolated between them (the motion over a readout is smooth).
+    """
+    h = config.height
+    ys = np.linspace(-0.1 * h, 1.1 * h, 17)  # the render grid extends a blur margin beyond the sensor
+    times = t_s + (ys - (h - 1) / 2.0) / (h - 1) * config.rolling_shutter_s
+    Hs = np.stack([_world_px_H_hr_at(config, traj, world, float(t), azimuth_deg, elevation_deg) for t in times])
+
+    def at(y: np.ndarray) -> np.ndarray:
+        y = np.clip(np.asarray(y, dtype=np.float64), ys[0], ys[-1])
+        flat = Hs.reshape(len(ys), 9)
+        return np.stack([np.interp(y, ys, flat[:, i]) for i in range(9)], axis=-1).reshape(-1, 3, 3)
+
+    return at
+
+
 def simulate(config: SimConfig, *, progress: bool = False) -> SimulatedFlight:
     """Render a synthetic flight. See :class:`SimConfig` for the options and their defaults.
 
@@ -234,6 +267,9 @@ def simulate(config: SimConfig, *, progress: bool = False) -> SimulatedFlight:
         iterator = tqdm(iterator, desc='rendering', unit='frame')
     for k in iterator:
         saved = paint_vehicles(scene, vehicles, (stamps[k] - t0) * 1e-9) if vehicles else []
+        rows = None
+        if config.rolling_shutter_s > 0.0:
+            rows = _rolling_rows(config, traj, world, (stamps[k] - t0) * 1e-9, azimuth_deg, elevation_deg)
         relief = None
         if buildings:
             cam_px = world.world_px_H_enu @ np.array([*truths[k].camera_enu_m[:2], 1.0])
@@ -241,7 +277,7 @@ def simulate(config: SimConfig, *, progress: bool = False) -> SimulatedFlight:
                             float(truths[k].camera_enu_m[2]), world.gsd_m)
         clean = render_frame(scene, hr_homographies[k], (config.width, config.height),
                              decimate=config.decimate, psf_sigma_px=config.psf_sigma_px,
-                             max_supersample=config.max_supersample, relief=relief)
+                             max_supersample=config.max_supersample, relief=relief, row_homographies=rows)
         restore_world(scene, saved)
         rng = np.random.default_rng([config.seed, _STREAM_IMAGE, k])
         frames.append(Frame(stamp_ns=stamps[k], image=quantize(clean, config.noise_sigma, rng), camera=cameras[k],

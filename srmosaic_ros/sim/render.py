@@ -24,6 +24,7 @@ for delta >= 2 most of that prefilter is an exact block average (fast for tiny f
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
@@ -128,7 +129,8 @@ class Relief:
 
 def render_frame(world: np.ndarray, world_px_H_hr: np.ndarray, hr_size: tuple[int, int], *,
                  decimate: int = 1, psf_sigma_px: float = 0.7, max_supersample: int = 4,
-                 relief: Relief | None = None) -> np.ndarray:
+                 relief: Relief | None = None,
+                 row_homographies: Callable[[np.ndarray], np.ndarray] | None = None) -> np.ndarray:
     """Noise-free frame, float32 in 0..255, (h, w, C) for an (H, W, C) world or (h, w) for a mono one.
 
     Args:
@@ -141,6 +143,9 @@ def render_frame(world: np.ndarray, world_px_H_hr: np.ndarray, hr_size: tuple[in
         relief: buildings standing on the ground (None: a flat world). ``world`` must then hold their
             roofs (:func:`~srmosaic_ros.sim.buildings.paint_roofs`); every supersampled ray is traced
             through them, so roofs shift by their height, walls show and hide the ground behind.
+        row_homographies: a rolling shutter: sensor row coordinates (n,) -> (n, 3, 3) sensor pixel ->
+            world pixel of the pose when that row was exposed (None: every row at ``world_px_H_hr``,
+            which then also sets the sampling and blur).
 
     Convention: pixel centres at integer coordinates; output pixel (u, v) is the sensor point
     (d u + (d - 1) / 2, d v + (d - 1) / 2) (see :func:`hr_H_lr`).
@@ -166,9 +171,15 @@ def render_frame(world: np.ndarray, world_px_H_hr: np.ndarray, hr_size: tuple[in
     ny = step * (h_lr - 1) + 2 * margin + 1
     gx = offset + (np.arange(nx, dtype=np.float64) - margin) / q
     gy = offset + (np.arange(ny, dtype=np.float64) - margin) / q
-    den = H[2, 0] * gx[None, :] + H[2, 1] * gy[:, None] + H[2, 2]
-    wx = (H[0, 0] * gx[None, :] + H[0, 1] * gy[:, None] + H[0, 2]) / den
-    wy = (H[1, 0] * gx[None, :] + H[1, 1] * gy[:, None] + H[1, 2]) / den
+    if row_homographies is None:
+        den = H[2, 0] * gx[None, :] + H[2, 1] * gy[:, None] + H[2, 2]
+        wx = (H[0, 0] * gx[None, :] + H[0, 1] * gy[:, None] + H[0, 2]) / den
+        wy = (H[1, 0] * gx[None, :] + H[1, 1] * gy[:, None] + H[1, 2]) / den
+    else:
+        Hr = np.asarray(row_homographies(gy), dtype=np.float64)  # (ny, 3, 3): each grid row its own pose
+        den = Hr[:, 2, 0, None] * gx[None, :] + (Hr[:, 2, 1] * gy + Hr[:, 2, 2])[:, None]
+        wx = (Hr[:, 0, 0, None] * gx[None, :] + (Hr[:, 0, 1] * gy + Hr[:, 0, 2])[:, None]) / den
+        wy = (Hr[:, 1, 0, None] * gx[None, :] + (Hr[:, 1, 1] * gy + Hr[:, 1, 2])[:, None]) / den
     traced = None
     if relief is not None and relief.buildings:
         sx, sy = np.broadcast_to(gx[None, :], wx.shape), np.broadcast_to(gy[:, None], wx.shape)
