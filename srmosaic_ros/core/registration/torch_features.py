@@ -21,6 +21,7 @@ import math
 from dataclasses import dataclass
 from functools import lru_cache
 
+import cv2
 import numpy as np
 import torch
 import torch.nn.functional as F
@@ -184,29 +185,52 @@ def _gauss_taps(sigma: float) -> tuple[float, ...]:
 def gaussian_blur(x: torch.Tensor, sigma: float) -> torch.Tensor:
     """Separable Gaussian blur (radius ceil(3 sigma)) with replicated borders; x: (B, C, H, W).
 
-    On the CPU the taps are applied as shifted in-place multiply-adds, several times faster than
-    torch's 1-D convolutions there; on other devices as two convolutions.
+    On the CPU by OpenCV (cv2.sepFilter2D, same taps: equal to the convolution up to float32
+    rounding, a few times faster than torch's ops there); on other devices as two convolutions.
     """
     if sigma <= 0.0:
         return x
     b, c, h, w = x.shape
+    if x.device.type == 'cpu':
+        src = x.detach().reshape(b * c, h, w).contiguous().numpy()
+        out = np.empty_like(src)
+        for i in range(b * c):
+            _blur_plane(src[i], sigma, out[i])
+        return torch.from_numpy(out).view(b, c, h, w)
     taps = _gauss_taps(round(float(sigma), 4))
     r = (len(taps) - 1) // 2
     y = x.reshape(b * c, 1, h, w)
-    if x.device.type == 'cpu':
-        p = F.pad(y, (r, r, 0, 0), mode='replicate')
-        out = torch.mul(p[..., 0:w], taps[0])
-        for i in range(1, len(taps)):
-            out.add_(p[..., i:i + w], alpha=taps[i])
-        p = F.pad(out, (0, 0, r, r), mode='replicate')
-        out = torch.mul(p[..., 0:h, :], taps[0])
-        for i in range(1, len(taps)):
-            out.add_(p[..., i:i + h, :], alpha=taps[i])
-    else:
-        k = cached_constant(taps, x.device, x.dtype)
-        out = F.conv2d(F.pad(y, (r, r, 0, 0), mode='replicate'), k.view(1, 1, 1, -1))
-        out = F.conv2d(F.pad(out, (0, 0, r, r), mode='replicate'), k.view(1, 1, -1, 1))
+    k = cached_constant(taps, x.device, x.dtype)
+    out = F.conv2d(F.pad(y, (r, r, 0, 0), mode='replicate'), k.view(1, 1, 1, -1))
+    out = F.conv2d(F.pad(out, (0, 0, r, r), mode='replicate'), k.view(1, 1, -1, 1))
     return out.reshape(b, c, h, w)
+
+
+@lru_cache(maxsize=64)
+def _gauss_taps_np(sigma: float) -> np.ndarray:
+    return np.asarray(_gauss_taps(sigma), dtype=np.float32)
+
+
+def _blur_plane(src: np.ndarray, sigma: float, dst: np.ndarray) -> None:
+    """gaussian_blur of one float32 plane (H, W) into dst (H, W), contiguous arrays (CPU path)."""
+    taps = _gauss_taps_np(round(float(sigma), 4))
+    cv2.sepFilter2D(src, cv2.CV_32F, taps, taps, dst=dst, borderType=cv2.BORDER_REPLICATE)
+
+
+def _gaussian_stack(base: torch.Tensor, steps: list[float]) -> torch.Tensor:
+    """(1 + len(steps), H, W): base (1, 1, H, W), then each level the previous one blurred by the next step."""
+    _, _, h, w = base.shape
+    if base.device.type == 'cpu':
+        stack = base.new_empty(len(steps) + 1, h, w)
+        stack[0] = base[0, 0]
+        arr = stack.numpy()
+        for i, s in enumerate(steps):
+            _blur_plane(arr[i], s, arr[i + 1])
+        return stack
+    lv = [base]
+    for s in steps:
+        lv.append(gaussian_blur(lv[-1], s))
+    return torch.cat(lv, 1)[0]
 
 
 def build_pyramid(gray: torch.Tensor, levels: int, *, sigma: float = 0.0) -> list[torch.Tensor]:
@@ -227,10 +251,32 @@ def full_from_level(xy: torch.Tensor, level: int) -> torch.Tensor:
 
 
 def _gradients_into(stack: torch.Tensor, out: torch.Tensor) -> None:
-    """Central differences of (S, H, W) with replicated borders, written to out (2, S, H, W) (gx, gy)."""
-    p = F.pad(stack[None], (1, 1, 1, 1), mode='replicate')[0]
-    torch.sub(p[:, 1:-1, 2:], p[:, 1:-1, :-2], out=out[0]).mul_(0.5)
-    torch.sub(p[:, 2:, 1:-1], p[:, :-2, 1:-1], out=out[1]).mul_(0.5)
+    """Central differences of (S, H, W) with replicated borders (one-sided halves at the border),
+    written to out (2, S, H, W) (gx, gy)."""
+    gx, gy = out[0], out[1]
+    torch.sub(stack[:, :, 2:], stack[:, :, :-2], out=gx[:, :, 1:-1])
+    torch.sub(stack[:, :, 1:2], stack[:, :, :1], out=gx[:, :, :1])
+    torch.sub(stack[:, :, -1:], stack[:, :, -2:-1], out=gx[:, :, -1:])
+    torch.sub(stack[:, 2:], stack[:, :-2], out=gy[:, 1:-1])
+    torch.sub(stack[:, 1:2], stack[:, :1], out=gy[:, :1])
+    torch.sub(stack[:, -1:], stack[:, -2:-1], out=gy[:, -1:])
+    out.mul_(0.5)
+
+
+_RECT3 = np.ones((3, 3), np.uint8)
+
+
+def _nms_max(resp: torch.Tensor) -> torch.Tensor:
+    """Largest value of the 3 x 3 x 3 neighbourhood of each interior point of resp (S, H, W)
+    -> (S - 2, H - 2, W - 2)."""
+    scale = torch.maximum(torch.maximum(resp[:-2], resp[1:-1]), resp[2:])      # (S - 2, H, W), contiguous
+    if resp.device.type == 'cpu':
+        n, h, w = scale.shape
+        # One 3 x 3 dilation of the levels stacked vertically: the rows where two levels meet
+        # mix them, but those are border rows of a level, cropped below.
+        d = cv2.dilate(scale.numpy().reshape(n * h, w), _RECT3)
+        return torch.from_numpy(d).view(n, h, w)[:, 1:-1, 1:-1]
+    return _max3(_max3(scale, 2), 1)
 
 
 def _max3(a: torch.Tensor, dim: int) -> torch.Tensor:
@@ -265,8 +311,7 @@ def _detect_octave(levels: torch.Tensor, sigmas: list[float], index: int, opts: 
     lxy4 = torch.sub(levels[:, 2:, 2:], levels[:, 2:, :-2]).sub_(levels[:, :-2, 2:]).add_(levels[:, :-2, :-2])
     # (S+2, H-2, W-2), offset 1 from the level pixels.
     resp = lxx.mul_(lyy).addcmul_(lxy4, lxy4, value=-1.0 / 16.0).mul_((sig**4).view(-1, 1, 1))
-    spatial = _max3(_max3(resp, 2), 1)                          # (S+2, H-4, W-4), offset 2
-    scale_max = _max3(spatial, 0)                               # (S, H-4, W-4)
+    scale_max = _nms_max(resp)                                  # (S, H-4, W-4), offset 2
     centre = resp[1:-1, 1:-1, 1:-1]
     is_max = (centre >= scale_max) & (centre > opts.response_threshold)
     b = max(opts.border_px - 2, 0)
@@ -484,19 +529,21 @@ def detect(level_image: torch.Tensor, level: int, opts: FeatureOptions, *,
     rows = [0]
     for _, h_o in sizes:
         rows.append(rows[-1] + n_lv * h_o)
-    tall = level_image.new_zeros(1, 2, max(rows[-1], 1), w0)
+    tall = level_image.new_empty(1, 2, max(rows[-1], 1), w0)
+    if not sizes:
+        tall.zero_()
     octs: list[_Octave] = []
     base = gaussian_blur(level_image, math.sqrt(max(sig[0] ** 2 - _SIGMA_IN**2, 1e-6)))
+    steps = [math.sqrt(sig[i] ** 2 - sig[i - 1] ** 2) for i in range(1, n_lv)]
     for o, (w_o, h_o) in enumerate(sizes):
-        lv = [base]
-        for i in range(1, n_lv):
-            lv.append(gaussian_blur(lv[-1], math.sqrt(sig[i] ** 2 - sig[i - 1] ** 2)))
-        stack = torch.cat(lv, 1)[0]
+        stack = _gaussian_stack(base, steps)
         octs.append(_detect_octave(stack, sig, o, opts, static_k))
         _gradients_into(stack, tall[0, :, rows[o]:rows[o + 1], :w_o].view(2, n_lv, h_o, w_o))
+        if w_o < w0:  # bilinear samples at a level's right edge read (with weight 0) the column beyond
+            tall[0, :, rows[o]:rows[o + 1], w_o:] = 0.0
         if o + 1 < len(sizes):
             # Next octave from the level at 2 sigma0 (index S), 2 x 2 averaged: sigma ~ sigma0 again.
-            base = F.avg_pool2d(lv[s_per], 2)
+            base = F.avg_pool2d(stack[s_per][None, None], 2)
     z = torch.zeros(0, device=dev)
     if not octs:
         return ScaleSpaceCandidates(level, torch.zeros(0, 2, device=dev), z, z.long(), z, tall,

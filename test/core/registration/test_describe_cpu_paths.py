@@ -8,6 +8,16 @@ import pytest
 import torch
 import torch.nn.functional as F
 
+from srmosaic_ros.core.registration.torch_features import (
+    FeatureOptions,
+    _gaussian_stack,
+    _gradients_into,
+    _max3,
+    _nms_max,
+    describe_candidates,
+    detect,
+    gaussian_blur,
+)
 from srmosaic_ros.core.registration.torch_refine import make_template
 
 
@@ -63,3 +73,65 @@ def test_make_template_picks_the_first_block_maximum(h: int, w: int, points: int
     others[block] = -2.0
     assert others.max() <= kept.min()
     np.testing.assert_array_equal(t.values.numpy(), img[0, 0].reshape(-1)[y * w + x].numpy())
+
+
+def _blur_reference(x: torch.Tensor, sigma: float) -> torch.Tensor:
+    """The separable blur as two convolutions with replicated borders (the path of other devices)."""
+    r = max(1, math.ceil(3.0 * sigma))
+    t = torch.arange(-r, r + 1, dtype=torch.float64)
+    k = torch.exp(-0.5 * (t / sigma) ** 2)
+    k = (k / k.sum()).to(torch.float32)
+    b, c, h, w = x.shape
+    y = x.reshape(b * c, 1, h, w)
+    y = F.conv2d(F.pad(y, (r, r, 0, 0), mode='replicate'), k.view(1, 1, 1, -1))
+    y = F.conv2d(F.pad(y, (0, 0, r, r), mode='replicate'), k.view(1, 1, -1, 1))
+    return y.reshape(b, c, h, w)
+
+
+@pytest.mark.parametrize('sigma', [0.6, 1.25, 1.52, 2.7])
+def test_cpu_gaussian_blur_equals_the_convolution(sigma: float) -> None:
+    x = torch.rand(2, 3, 37, 53, generator=torch.Generator().manual_seed(1))
+    got = gaussian_blur(x, sigma)
+    assert got.shape == x.shape
+    torch.testing.assert_close(got, _blur_reference(x, sigma), rtol=0.0, atol=1e-6)
+    torch.testing.assert_close(gaussian_blur(x[:, :, :, 5:40], sigma), _blur_reference(x[:, :, :, 5:40], sigma),
+                               rtol=0.0, atol=1e-6)   # a non-contiguous input
+
+
+def test_gaussian_stack_is_the_blur_cascade() -> None:
+    x = _textured(40, 60)
+    steps = [0.9, 1.1, 1.4]
+    got = _gaussian_stack(x, steps)
+    lv = [x]
+    for s in steps:
+        lv.append(_blur_reference(lv[-1], s))
+    torch.testing.assert_close(got, torch.cat(lv, 1)[0], rtol=0.0, atol=1e-6)
+
+
+def test_gradients_equal_padded_central_differences() -> None:
+    stack = torch.rand(5, 23, 31, generator=torch.Generator().manual_seed(2))
+    out = torch.full((2, 5, 23, 31), float('nan'))
+    _gradients_into(stack, out)
+    p = F.pad(stack[None], (1, 1, 1, 1), mode='replicate')[0]
+    assert torch.equal(out[0], (p[:, 1:-1, 2:] - p[:, 1:-1, :-2]) * 0.5)
+    assert torch.equal(out[1], (p[:, 2:, 1:-1] - p[:, :-2, 1:-1]) * 0.5)
+
+
+def test_nms_max_equals_the_running_maxima() -> None:
+    resp = torch.rand(5, 29, 41, generator=torch.Generator().manual_seed(3))
+    resp[:, 10:14, 10:14] = 0.5    # plateaus: ties
+    ref = _max3(_max3(_max3(resp, 2), 1), 0)
+    assert torch.equal(_nms_max(resp), ref)
+
+
+def test_detect_with_two_octaves_leaves_no_garbage_in_the_gradient_buffer() -> None:
+    img = _textured(200, 300)
+    opts = FeatureOptions(octaves=2)
+    c = detect(img, 0, opts)
+    assert torch.isfinite(c.tall).all()
+    w1 = int(c.size[1, 0])
+    r1 = int(c.row0[1])
+    assert torch.equal(c.tall[0, :, r1:, w1:], torch.zeros_like(c.tall[0, :, r1:, w1:]))
+    kps = describe_candidates(c, 0, 100)
+    assert len(kps) > 20
+    assert torch.isfinite(kps.descriptors).all()
