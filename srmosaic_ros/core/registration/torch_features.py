@@ -40,6 +40,7 @@ __all__ = [
     'detect_and_describe',
     'full_from_level',
     'gaussian_blur',
+    'half_size',
     'image_to_gray_tensor',
 ]
 
@@ -182,6 +183,11 @@ def _gauss_taps(sigma: float) -> tuple[float, ...]:
     return tuple((k / k.sum()).tolist())
 
 
+def _on_cpu32(x: torch.Tensor) -> bool:
+    """Whether the OpenCV paths apply: float32 on the CPU (elsewhere torch ops, device-agnostic)."""
+    return x.device.type == 'cpu' and x.dtype == torch.float32
+
+
 def gaussian_blur(x: torch.Tensor, sigma: float) -> torch.Tensor:
     """Separable Gaussian blur (radius ceil(3 sigma)) with replicated borders; x: (B, C, H, W).
 
@@ -191,7 +197,7 @@ def gaussian_blur(x: torch.Tensor, sigma: float) -> torch.Tensor:
     if sigma <= 0.0:
         return x
     b, c, h, w = x.shape
-    if x.device.type == 'cpu':
+    if _on_cpu32(x):
         src = x.detach().reshape(b * c, h, w).contiguous().numpy()
         out = np.empty_like(src)
         for i in range(b * c):
@@ -220,7 +226,7 @@ def _blur_plane(src: np.ndarray, sigma: float, dst: np.ndarray) -> None:
 def _gaussian_stack(base: torch.Tensor, steps: list[float]) -> torch.Tensor:
     """(1 + len(steps), H, W): base (1, 1, H, W), then each level the previous one blurred by the next step."""
     _, _, h, w = base.shape
-    if base.device.type == 'cpu':
+    if _on_cpu32(base):
         stack = base.new_empty(len(steps) + 1, h, w)
         stack[0] = base[0, 0]
         arr = stack.numpy()
@@ -240,8 +246,25 @@ def build_pyramid(gray: torch.Tensor, levels: int, *, sigma: float = 0.0) -> lis
     """
     pyr = [gaussian_blur(gray, sigma) if sigma > 0 else gray]
     for _ in range(1, levels):
-        pyr.append(F.avg_pool2d(pyr[-1], 2))
+        pyr.append(half_size(pyr[-1]))
     return pyr
+
+
+def half_size(x: torch.Tensor) -> torch.Tensor:
+    """2 x 2 averages of x (B, C, H, W) -> (B, C, H // 2, W // 2) (an odd last row / column is dropped).
+
+    On the CPU by OpenCV (cv2.resize INTER_AREA: the same averages up to float32 rounding, some
+    twenty times faster than avg_pool2d there).
+    """
+    b, c, h, w = x.shape
+    h2, w2 = h // 2, w // 2
+    if not _on_cpu32(x) or h2 == 0 or w2 == 0:
+        return F.avg_pool2d(x, 2)
+    src = x.detach().reshape(b * c, h, w).contiguous().numpy()
+    out = np.empty((b * c, h2, w2), dtype=np.float32)
+    for i in range(b * c):
+        cv2.resize(src[i, :2 * h2, :2 * w2], (w2, h2), dst=out[i], interpolation=cv2.INTER_AREA)
+    return torch.from_numpy(out).view(b, c, h2, w2)
 
 
 def full_from_level(xy: torch.Tensor, level: int) -> torch.Tensor:
@@ -270,7 +293,7 @@ def _nms_max(resp: torch.Tensor) -> torch.Tensor:
     """Largest value of the 3 x 3 x 3 neighbourhood of each interior point of resp (S, H, W)
     -> (S - 2, H - 2, W - 2)."""
     scale = torch.maximum(torch.maximum(resp[:-2], resp[1:-1]), resp[2:])      # (S - 2, H, W), contiguous
-    if resp.device.type == 'cpu':
+    if _on_cpu32(resp):
         n, h, w = scale.shape
         # One 3 x 3 dilation of the levels stacked vertically: the rows where two levels meet
         # mix them, but those are border rows of a level, cropped below.
@@ -543,7 +566,7 @@ def detect(level_image: torch.Tensor, level: int, opts: FeatureOptions, *,
             tall[0, :, rows[o]:rows[o + 1], w_o:] = 0.0
         if o + 1 < len(sizes):
             # Next octave from the level at 2 sigma0 (index S), 2 x 2 averaged: sigma ~ sigma0 again.
-            base = F.avg_pool2d(stack[s_per][None, None], 2)
+            base = half_size(stack[s_per][None, None])
     z = torch.zeros(0, device=dev)
     if not octs:
         return ScaleSpaceCandidates(level, torch.zeros(0, 2, device=dev), z, z.long(), z, tall,

@@ -17,6 +17,7 @@ from srmosaic_ros.core.registration.torch_features import (
     describe_candidates,
     detect,
     gaussian_blur,
+    half_size,
 )
 from srmosaic_ros.core.registration.torch_refine import make_template
 
@@ -135,3 +136,11 @@ def test_detect_with_two_octaves_leaves_no_garbage_in_the_gradient_buffer() -> N
     kps = describe_candidates(c, 0, 100)
     assert len(kps) > 20
     assert torch.isfinite(kps.descriptors).all()
+
+
+@pytest.mark.parametrize(('h', 'w'), [(40, 60), (41, 63), (3, 2)])
+def test_half_size_equals_avg_pool(h: int, w: int) -> None:
+    x = torch.rand(2, 3, h, w, generator=torch.Generator().manual_seed(4))
+    got = half_size(x)
+    torch.testing.assert_close(got, F.avg_pool2d(x, 2), rtol=0.0, atol=1e-7)
+    torch.testing.assert_close(half_size(x.double()), F.avg_pool2d(x.double(), 2), rtol=0.0, atol=0.0)
