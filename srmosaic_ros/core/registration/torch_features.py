@@ -308,6 +308,44 @@ def _max3(a: torch.Tensor, dim: int) -> torch.Tensor:
     return torch.maximum(torch.maximum(a.narrow(dim, 0, n - 2), a.narrow(dim, 1, n - 2)), a.narrow(dim, 2, n - 2))
 
 
+def _is_max(resp: torch.Tensor, threshold: float, border: int) -> torch.Tensor:
+    """(S, H - 4, W - 4) bool: resp (S + 2, H - 2, W - 2) at offset (1, 1, 1) is its 3 x 3 x 3
+    neighbourhood's maximum and above threshold, and at least border from the edges of the mask."""
+    centre = resp[1:-1, 1:-1, 1:-1]
+    is_max = (centre >= _nms_max(resp)) & (centre > threshold)
+    if border:
+        is_max[:, :border, :] = False
+        is_max[:, -border:, :] = False
+        is_max[:, :, :border] = False
+        is_max[:, :, -border:] = False
+    return is_max
+
+
+def _maxima_cpu(resp: torch.Tensor, threshold: float, border: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The points of _is_max (same order) by OpenCV: (s, y, x) long, coordinates in resp (S + 2, H, W),
+    at least border (>= 1) from its spatial edges."""
+    scale = torch.maximum(torch.maximum(resp[:-2], resp[1:-1]), resp[2:])       # (S, H, W), contiguous
+    n, h, w = scale.shape
+    a = scale.numpy().reshape(n * h, w)
+    # centre > threshold  <=>  centre >= the next float32 above it: folded into the maximum.
+    np.maximum(a, np.nextafter(np.float32(threshold), np.float32(np.inf)), out=a)
+    # 3 x 3 dilation of the levels stacked vertically: rows where two levels meet mix them, but
+    # they lie in the cleared border.
+    mask = cv2.compare(resp[1:-1].numpy().reshape(n * h, w), cv2.dilate(a, _RECT3), cv2.CMP_GE)
+    m = mask.reshape(n, h, w)
+    m[:, :border] = 0
+    m[:, h - border:] = 0
+    m[:, :, :border] = 0
+    m[:, :, w - border:] = 0
+    pts = cv2.findNonZero(mask)                                   # (K, 1, 2) int32 (x, y), row-major
+    if pts is None:
+        e = torch.zeros(0, dtype=torch.long)
+        return e, e, e
+    pts = torch.from_numpy(pts.reshape(-1, 2)).long()
+    row = pts[:, 1]
+    return row // h + 1, row % h, pts[:, 0]
+
+
 @dataclass
 class _Octave:
     index: int                # octave number o (octave image = detection level / 2**o)
@@ -334,18 +372,16 @@ def _detect_octave(levels: torch.Tensor, sigmas: list[float], index: int, opts: 
     lxy4 = torch.sub(levels[:, 2:, 2:], levels[:, 2:, :-2]).sub_(levels[:, :-2, 2:]).add_(levels[:, :-2, :-2])
     # (S+2, H-2, W-2), offset 1 from the level pixels.
     resp = lxx.mul_(lyy).addcmul_(lxy4, lxy4, value=-1.0 / 16.0).mul_((sig**4).view(-1, 1, 1))
-    scale_max = _nms_max(resp)                                  # (S, H-4, W-4), offset 2
-    centre = resp[1:-1, 1:-1, 1:-1]
-    is_max = (centre >= scale_max) & (centre > opts.response_threshold)
     b = max(opts.border_px - 2, 0)
-    if b:
-        is_max[:, :b, :] = False
-        is_max[:, -b:, :] = False
-        is_max[:, :, :b] = False
-        is_max[:, :, -b:] = False
     hr, wr = h - 2, w - 2
     invalid = None
-    if static_k is None:
+    if static_k is None and _on_cpu32(resp):
+        s, y, x = _maxima_cpu(resp, opts.response_threshold, b + 1)
+        if s.numel() == 0:
+            z = torch.zeros(0, device=dev)
+            return _Octave(index, torch.zeros(0, 2, device=dev), z, z)
+    elif static_k is None:
+        is_max = _is_max(resp, opts.response_threshold, b)
         idx = is_max.nonzero()  # (K, 3): s-1, y-2, x-2
         if idx.shape[0] == 0:
             z = torch.zeros(0, device=dev)
@@ -354,6 +390,8 @@ def _detect_octave(levels: torch.Tensor, sigmas: list[float], index: int, opts: 
         y = idx[:, 1] + 1     # in resp coordinates (offset 1)
         x = idx[:, 2] + 1
     else:
+        is_max = _is_max(resp, opts.response_threshold, b)
+        centre = resp[1:-1, 1:-1, 1:-1]
         masked = torch.where(is_max, centre, torch.full_like(centre, -math.inf)).view(-1)
         top = masked.topk(min(static_k, masked.numel()))
         invalid = torch.isinf(top.values)

@@ -12,7 +12,9 @@ from srmosaic_ros.core.registration.torch_features import (
     FeatureOptions,
     _gaussian_stack,
     _gradients_into,
+    _is_max,
     _max3,
+    _maxima_cpu,
     _nms_max,
     describe_candidates,
     detect,
@@ -144,3 +146,22 @@ def test_half_size_equals_avg_pool(h: int, w: int) -> None:
     got = half_size(x)
     torch.testing.assert_close(got, F.avg_pool2d(x, 2), rtol=0.0, atol=1e-7)
     torch.testing.assert_close(half_size(x.double()), F.avg_pool2d(x.double(), 2), rtol=0.0, atol=0.0)
+
+
+@pytest.mark.parametrize('border', [0, 2])
+def test_cpu_maxima_are_those_of_the_mask(border: int) -> None:
+    g = torch.Generator().manual_seed(5)
+    resp = torch.rand(5, 31, 47, generator=g) * 1e-4
+    resp[:, 10:13, 20:23] = 5e-5      # a plateau: ties are maxima
+    resp[2, 5, 5] = 0.5e-5            # a maximum below the threshold
+    threshold = 1e-5
+    resp[2, 25, 30] = threshold       # at the threshold: not above it
+    resp[2, 24:27, 29:32] = torch.minimum(resp[2, 24:27, 29:32], torch.tensor(threshold))
+    idx = _is_max(resp, threshold, border).nonzero()
+    s, y, x = _maxima_cpu(resp, threshold, border + 1)
+    assert s.numel() > 10
+    assert torch.equal(s, idx[:, 0] + 1)
+    assert torch.equal(y, idx[:, 1] + 1)
+    assert torch.equal(x, idx[:, 2] + 1)
+    e = _maxima_cpu(torch.zeros(5, 20, 20), threshold, 1)
+    assert all(t.numel() == 0 for t in e)
