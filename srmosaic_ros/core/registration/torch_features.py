@@ -156,6 +156,10 @@ def image_to_gray_tensor(image: np.ndarray | torch.Tensor, device: torch.device)
     if not isinstance(image, np.ndarray) or image.ndim not in (2, 3):
         msg = 'expected a numpy image (H, W) or (H, W, C) or a torch tensor.'
         raise TypeError(msg)
+    if image.dtype == np.uint8 and device.type == 'cpu' and image.ndim == 3 and image.shape[2] == 3:
+        # One OpenCV pass (the weighted sum of the float channels): half the time of torch's here.
+        gray = cv2.transform(image.astype(np.float32), _luma_row())
+        return torch.from_numpy(gray.reshape(image.shape[0], image.shape[1]))[None, None]
     if image.dtype == np.uint8:
         # Convert on the device: the uint8 transfer is a quarter of a float one.
         t = torch.from_numpy(np.ascontiguousarray(image)).to(device)
@@ -167,6 +171,12 @@ def image_to_gray_tensor(image: np.ndarray | torch.Tensor, device: torch.device)
         return t[None, None].contiguous()
     gray = to_gray_float01(image)
     return torch.from_numpy(np.ascontiguousarray(gray, dtype=np.float32)).to(device)[None, None]
+
+
+@lru_cache(maxsize=1)
+def _luma_row() -> np.ndarray:
+    """(1, 3) float32 luma weights of 8-bit RGB to luminance in [0, 1]."""
+    return np.array([[c / 255.0 for c in _LUMA]], dtype=np.float32)
 
 
 @lru_cache(maxsize=256)

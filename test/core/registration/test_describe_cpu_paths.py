@@ -20,6 +20,7 @@ from srmosaic_ros.core.registration.torch_features import (
     detect,
     gaussian_blur,
     half_size,
+    image_to_gray_tensor,
 )
 from srmosaic_ros.core.registration.torch_refine import make_template
 
@@ -165,3 +166,16 @@ def test_cpu_maxima_are_those_of_the_mask(border: int) -> None:
     assert torch.equal(x, idx[:, 2] + 1)
     e = _maxima_cpu(torch.zeros(5, 20, 20), threshold, 1)
     assert all(t.numel() == 0 for t in e)
+
+
+def test_rgb_uint8_to_gray_equals_the_luma_weights() -> None:
+    rgb = np.random.default_rng(6).integers(0, 256, (37, 53, 3), dtype=np.uint8)
+    got = image_to_gray_tensor(rgb, torch.device('cpu'))
+    assert got.shape == (1, 1, 37, 53)
+    assert got.dtype == torch.float32
+    ref = torch.from_numpy(rgb).to(torch.float32) @ torch.tensor([0.299, 0.587, 0.114]) / 255.0
+    torch.testing.assert_close(got[0, 0], ref, rtol=0.0, atol=1e-6)
+    # a non-contiguous frame (a crop)
+    crop = rgb[3:30, 5:40]
+    torch.testing.assert_close(image_to_gray_tensor(crop, torch.device('cpu'))[0, 0], ref[3:30, 5:40], rtol=0.0,
+                               atol=1e-6)
