@@ -14,6 +14,10 @@ and robust to contrast changes (IR) and blur.
 Convention: images (B, C, H, W) float32 in [0, 1]; keypoint positions (x, y) in full-resolution
 pixels, pixel centres at integers; a pyramid level l has pixel x_l with
 x_full = 2**l * x_l + (2**l - 1) / 2 (levels are made by 2 x 2 averaging).
+
+Device: torch ops throughout, except that on the CPU (float32) the image-sized steps (luminance,
+blurs, 2 x 2 averages, the scale-space maxima) run in OpenCV on the tensors' memory: the same
+results up to float32 rounding, several times faster than torch's one-thread ops there.
 """
 from __future__ import annotations
 
