@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..core.georef.frames import camera_pose
+from ..core.georef.frames import CameraPose, camera_pose
 from ..core.georef.ground_homography import apply_H, ground_H_image, normalize_H
 from ..core.types import CameraIntrinsics, Frame, GeoFix, ImuSample
 from ..errors import SimulationError
@@ -21,7 +21,7 @@ from .buildings import make_buildings, paint_roofs
 from .render import Relief, hr_H_lr, quantize, render_frame
 from .telemetry import sample_stamps, simulate_fixes, simulate_imu
 from .traffic import make_traffic, paint_vehicles, restore_world
-from .trajectory import Path2D, Trajectory, lawnmower_path, line_path, orbit_path
+from .trajectory import BodyState, Path2D, Trajectory, lawnmower_path, line_path, orbit_path
 from .truth import FrameTruth, Truth
 from .world import World, load_world, relative_to_repo
 
@@ -165,15 +165,16 @@ def _check_inside(config: SimConfig, world: World, footprints: list[np.ndarray])
         raise SimulationError(msg)
 
 
-def _world_px_H_hr_at(config: SimConfig, traj: Trajectory, world: World, t_s: float, azimuth_deg: float,
-                      elevation_deg: float) -> np.ndarray:
-    """(3, 3) sensor pixel -> world pixel of the camera at ``t_s`` s from the first frame (zoom included)."""
+def _camera_at(config: SimConfig, traj: Trajectory, t_s: float, azimuth_deg: float,
+               elevation_deg: float) -> tuple[BodyState, CameraPose, np.ndarray, np.ndarray]:
+    """(body state, camera pose, sensor K (3, 3), enu_H_hr (3, 3): sensor pixel -> ground metres) of the
+    camera at ``t_s`` s from the first frame (zoom included)."""
     st = traj.state(t_s)
     pose = camera_pose(st.position_enu_m, st.roll_rad, st.pitch_rad, st.yaw_rad,
                        gimbal_azimuth_rad=math.radians(azimuth_deg), gimbal_elevation_rad=math.radians(elevation_deg),
                        lever_arm_body_m=config.lever_arm_m)
     K_hr = sensor_intrinsics(config, zoom_at(config, t_s)).K
-    return normalize_H(world.world_px_H_enu @ ground_H_image(K_hr, pose.R_enu_from_cam, pose.center_enu_m))
+    return st, pose, K_hr, ground_H_image(K_hr, pose.R_enu_from_cam, pose.center_enu_m)
 
 
 def _rolling_rows(config: SimConfig, traj: Trajectory, world: World, t_s: float, azimuth_deg: float,
@@ -187,7 +188,8 @@ def _rolling_rows(config: SimConfig, traj: Trajectory, world: World, t_s: float,
     h = config.height
     ys = np.linspace(-0.1 * h, 1.1 * h, 17)  # the render grid extends a blur margin beyond the sensor
     times = t_s + (ys - (h - 1) / 2.0) / (h - 1) * config.rolling_shutter_s
-    Hs = np.stack([_world_px_H_hr_at(config, traj, world, float(t), azimuth_deg, elevation_deg) for t in times])
+    Hs = np.stack([normalize_H(world.world_px_H_enu @ _camera_at(config, traj, float(t), azimuth_deg, elevation_deg)[3])
+                   for t in times])
 
     def at(y: np.ndarray) -> np.ndarray:
         y = np.clip(np.asarray(y, dtype=np.float64), ys[0], ys[-1])
@@ -221,14 +223,9 @@ def simulate(config: SimConfig, *, progress: bool = False) -> SimulatedFlight:
     azimuth_deg, elevation_deg = gimbal_deg(config)
     cameras = []
     for k, stamp in enumerate(stamps):
-        zoom = zoom_at(config, (stamp - t0) * 1e-9)
-        K_hr = sensor_intrinsics(config, zoom).K
-        cameras.append(frame_intrinsics(config, zoom) if config.zoom != 1.0 else cam)
-        st = traj.state((stamp - t0) * 1e-9)
-        pose = camera_pose(st.position_enu_m, st.roll_rad, st.pitch_rad, st.yaw_rad,
-                           gimbal_azimuth_rad=math.radians(azimuth_deg), gimbal_elevation_rad=math.radians(elevation_deg),
-                           lever_arm_body_m=config.lever_arm_m)
-        enu_H_hr = ground_H_image(K_hr, pose.R_enu_from_cam, pose.center_enu_m)
+        t_s = (stamp - t0) * 1e-9
+        cameras.append(frame_intrinsics(config, zoom_at(config, t_s)) if config.zoom != 1.0 else cam)
+        st, pose, K_hr, enu_H_hr = _camera_at(config, traj, t_s, azimuth_deg, elevation_deg)
         world_px_H_hr = normalize_H(world.world_px_H_enu @ enu_H_hr)
         corners_all.append(_footprint(config, k, world_px_H_hr, pose.R_enu_from_cam, K_hr))
         enu_H_frame = enu_H_hr @ hr_from_lr
