@@ -69,6 +69,7 @@ class FrameRecord:
     segment: index of the segment the frame was painted into, or -1 (not painted).
     seg_H_frame: (3, 3) frame pixels -> segment plane pixels, or None.
     registration: the registration that placed it (None for the first frame of a segment).
+    camera: the intrinsics the frame was taken with (a zoom changes them frame to frame), or None.
     """
 
     index: int
@@ -81,6 +82,7 @@ class FrameRecord:
     time_s: float = 0.0
     pose: FramePose | None = None
     keyframe: KeyframeResult | None = None
+    camera: CameraIntrinsics | None = None
 
     @property
     def painted(self) -> bool:
@@ -459,6 +461,7 @@ class Pipeline:
         if self._channels is None:  # the canvas's, from the first frame (later ones are converted to it)
             self._channels = 1 if frame.image.ndim == 2 else frame.image.shape[2]
         held = _Held(features, record, frame.camera or self.camera, frame.image)
+        record.camera = held.camera
         decided = [record]
         if self._last_good is None:
             self._fuse(held, None, None)

@@ -61,7 +61,7 @@ def anchored_raster(result: PipelineResult, poses: list[Any], origin: tuple[int,
         corners = np.array([[0, 0], [w_f - 1, 0], [w_f - 1, h_f - 1], [0, h_f - 1]], dtype=float)
         if centres_only:
             corners = np.array([[(w_f - 1) / 2.0, (h_f - 1) / 2.0]])
-        by_poses.append(apply_homography(georef.raster_H_frame(pose), corners))
+        by_poses.append(apply_homography(georef.raster_H_frame(pose, rec.camera), corners))  # its own K: a zoom
         chained.append(apply_homography(rec.seg_H_frame, corners))
     translation_only = False
     if chained:

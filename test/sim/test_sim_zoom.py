@@ -2,8 +2,6 @@
 truth's homographies follow, and the pipeline keeps every frame in one mosaic."""
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 
@@ -45,5 +43,9 @@ def test_a_zooming_flight_is_mosaicked_with_its_camera_info_per_frame(tmp_path) 
     fig = evaluate_dir(tmp_path / 'out', bag / 'ground_truth.json')
     assert fig['frames_registered'] == 40
     assert fig['corner_error_mean_px'] < 0.15, fig   # measured 0.050 (zoom 1: 0.053)
-    assert fig['georef_error_rms_m'] < 1.5, fig       # measured 0.74 (zoom 1: 0.58)
-    assert math.isfinite(fig['pose_rmse_horizontal_m'])
+    # With each frame's own K in the filter's homography model and in the re-anchoring, the zoomed
+    # flight is placed as well as the same flight without zoom (measured 0.50 m, poses 0.48 / 1.46 m;
+    # zoom 1: 0.58 m, 0.48 / 1.46 m); with the current K for both frames: 0.74 m, poses 1.00 / 3.94 m.
+    assert fig['georef_error_rms_m'] < 0.65, fig
+    assert fig['pose_rmse_horizontal_m'] < 0.7, fig
+    assert fig['pose_rmse_vertical_m'] < 2.2, fig

@@ -275,6 +275,7 @@ class Georeferencer:
         n_fix, n_imu = self._apply_pending()
         pose = self._pose(SLOT_CUR, stamp_ns, used_h, n_fix, n_imu)
         self.poses.append(pose)
+        self._prev_camera = self.camera  # the next registration maps into this frame
         self._check_raster_agl(pose)
         return pose
 
@@ -683,7 +684,9 @@ class Georeferencer:
             rms = rms_px if (rms_px is not None and math.isfinite(rms_px) and rms_px > 0) else 1.0
             R = (cfg.homography_sigma_gain * rms) ** 2 * np.eye(8)
         R = R + cfg.homography_min_sigma_px**2 * np.eye(8)
-        res = self.ukf.update_homography(H, R, self.camera.K, self.mount, corners)
+        prev_camera = getattr(self, '_prev_camera', None)  # the previous frame's intrinsics (a zoom changes them)
+        K_prev = prev_camera.K if prev_camera is not None and prev_camera != self.camera else None
+        res = self.ukf.update_homography(H, R, self.camera.K, self.mount, corners, K_prev)
         self.updates[f'homography_{res.status}'] += 1
         if res.status == 'gated':
             self._skip('homography_gated', f'a registration disagrees with the fused poses (squared Mahalanobis '

@@ -383,9 +383,10 @@ class PoseUkf:
                             hx, inflate=None, hx_batch=hx_batch)
 
     def homography_model(self, K: np.ndarray, mount: CameraMount,
-                         corners: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+                         corners: np.ndarray, K_prev: np.ndarray | None = None) -> Callable[[np.ndarray], np.ndarray]:
         """hx(x) -> (2N,): the current frame's ``corners`` (N, 2) mapped into the previous frame by
-        the flat-ground homography of the two camera poses of state x (4.28, 4.29), ground at x[12]."""
+        the flat-ground homography of the two camera poses of state x (4.28, 4.29), ground at x[12].
+        K: the current frame's intrinsics; K_prev: the previous frame's (a zoom), None: the same."""
         K = np.asarray(K, dtype=np.float64)
         corners = np.asarray(corners, dtype=np.float64)
 
@@ -393,20 +394,20 @@ class PoseUkf:
             prev = mount.camera_pose(x[SLOT_PREV])
             cur = mount.camera_pose(x[SLOT_CUR])
             prev_H_cur = frame2_H_frame1(K, cur.R_enu_from_cam, cur.center_enu_m, prev.R_enu_from_cam,
-                                         prev.center_enu_m, ground_z_m=x[GROUND])
+                                         prev.center_enu_m, K2=K_prev, ground_z_m=x[GROUND])
             return apply_H(prev_H_cur, corners).ravel()
 
         return hx
 
     def homography_model_batch(self, K: np.ndarray, mount: CameraMount,
-                               corners: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+                               corners: np.ndarray, K_prev: np.ndarray | None = None) -> Callable[[np.ndarray], np.ndarray]:
         """:meth:`homography_model` for every row of xs (N, STATE_DIM) at once -> (N, 2 corners).
 
         The same 4.28: prev_H_cur = K R_prev^T (I - (C_cur - C_prev) n^T / d) R_cur K^-1 with
         R = R_enu_from_cam, d = C_cur,z - g, n = (0, 0, 1) (scale left out: the corners are
         dehomogenised)."""
-        K = np.asarray(K, dtype=np.float64)
-        K_inv = np.linalg.inv(K)
+        K_inv = np.linalg.inv(np.asarray(K, dtype=np.float64))
+        K = np.asarray(K if K_prev is None else K_prev, dtype=np.float64)  # the previous frame's, on the left
         pts = np.c_[np.asarray(corners, dtype=np.float64), np.ones(len(corners))]          # (M, 3)
         R_bc = R_body_from_cam(mount.gimbal_azimuth_rad, mount.gimbal_elevation_rad)
         lever = np.asarray(mount.lever_arm_body_m, dtype=np.float64)
@@ -428,15 +429,16 @@ class PoseUkf:
         return hx_batch
 
     def update_homography(self, prev_H_cur: np.ndarray, R_corners: np.ndarray, K: np.ndarray,
-                          mount: CameraMount, corners: np.ndarray) -> UpdateResult:
+                          mount: CameraMount, corners: np.ndarray, K_prev: np.ndarray | None = None) -> UpdateResult:
         """A registration prev_H_cur (current -> previous frame pixels) of the two frames in the state.
 
         R_corners: (2N, 2N) covariance (px^2) of the mapped corners (see :func:`corner_jacobian`).
+        K, K_prev: the current and the previous frame's intrinsics (K_prev None: the same).
         """
         z = apply_H(np.asarray(prev_H_cur, dtype=np.float64), np.asarray(corners, dtype=np.float64)).ravel()
-        hx = self.homography_model(K, mount, corners)
+        hx = self.homography_model(K, mount, corners, K_prev)
         return self._update('homography', z, R_corners, hx, inflate=None,
-                            hx_batch=self.homography_model_batch(K, mount, corners))
+                            hx_batch=self.homography_model_batch(K, mount, corners, K_prev))
 
     # -- internals -----------------------------------------------------------------------------
     def _gate(self, dof: int) -> float:

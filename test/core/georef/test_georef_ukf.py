@@ -159,6 +159,30 @@ def test_homography_model_reproduces_the_simulators_homographies(flight) -> None
         np.testing.assert_allclose(hx(x), apply_H(b.prev_H_cur, c).ravel(), atol=1e-3)
 
 
+
+def test_homography_model_of_a_zooming_lens_takes_each_frames_intrinsics() -> None:
+    """A zoom changes K between the two frames: prev_H_cur = K_prev R_prev (I - ...) R_cur^T K_cur^-1.
+    With the current K on both sides (the model before K_prev) the corners are tens of px off."""
+    zoom = simulate_geometry(SimConfig(width=320, height=240, world_gsd_m=0.3, frames=24, zoom=2.5,
+                                       zoom_period_s=6.0, seed=3))
+    cams = [f.camera for f in zoom.frames]
+    georef = Georeferencer(GeorefConfig(ground_altitude_m=zoom.config.origin_alt_m), cams[0])
+    georef.feed_fix(zoom.fixes[0])
+    truth = truth_enu(georef, zoom)
+    c = corners(cams[0])
+    for k in (3, 9, 15):   # zooming in, near the top, zooming out
+        a, b = zoom.truth.frames[k - 1], zoom.truth.frames[k]
+        assert cams[k].fx != pytest.approx(cams[k - 1].fx, rel=1e-3)
+        x = np.r_[truth[k - 1], np.radians([a.roll_deg, a.pitch_deg, a.yaw_deg]),
+                  truth[k], np.radians([b.roll_deg, b.pitch_deg, b.yaw_deg]), 0.0]
+        want = apply_H(b.prev_H_cur, c).ravel()
+        hx = georef.ukf.homography_model(cams[k].K, georef.mount, c, cams[k - 1].K)
+        np.testing.assert_allclose(hx(x), want, atol=1e-3)
+        batch = georef.ukf.homography_model_batch(cams[k].K, georef.mount, c, cams[k - 1].K)
+        np.testing.assert_allclose(batch(x[None])[0], want, atol=1e-3)
+        one_k = georef.ukf.homography_model(cams[k].K, georef.mount, c)
+        assert np.abs(one_k(x) - want).max() > 1.0
+
 # --- failures: dropouts, NaN, NO_FIX, out of order, outliers ---------------------------------
 
 
