@@ -44,8 +44,8 @@ from srmosaic_ros.sim.traffic import vehicle_mask
 RUNS = {'feather': {'mosaic.blend': 'feather'}, 'multiband': {'mosaic.blend': 'multiband'},
         'bestview': {'mosaic.blend': 'bestview'},
         'bestview, tukey': {'mosaic.blend': 'bestview', 'registration.photometric_loss': 'tukey'},
-        'bestview, tukey, moving 0.1': {'mosaic.blend': 'bestview', 'registration.photometric_loss': 'tukey',
-                                        'mosaic.moving': 0.1}}
+        'bestview, tukey, moving 0.05': {'mosaic.blend': 'bestview', 'registration.photometric_loss': 'tukey',
+                                         'mosaic.moving': 0.05}}
 
 
 def run(flight, overrides: dict):
@@ -140,7 +140,11 @@ def main() -> None:
     ap.add_argument('--vehicles', type=int, default=0)
     ap.add_argument('--crf', type=int, default=None, help='H.264 constant rate factor of every frame (default: none)')
     ap.add_argument('--no-control', action='store_true', help='skip the flat-ground control flight')
+    ap.add_argument('--only', default='', help="the runs to make, ';'-separated names of RUNS (default: all)")
     args = ap.parse_args()
+    if args.only:
+        for name in set(RUNS) - set(args.only.split(';')):
+            del RUNS[name]
     w, h = (int(v) for v in args.size.split('x'))
     cfg = SimConfig(trajectory='orbit', orbit_radius_m=60.0, laps=1.1, altitude_m=80.0, hfov_deg=50.0, width=w,
                     height=h, speed_m_s=10.0, rate_hz=1.0, frames=args.frames, seed=4, buildings=args.buildings,

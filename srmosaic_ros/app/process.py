@@ -22,7 +22,7 @@ from ..config import PipelineConfig
 from ..io.bags import TopicConfig, read_flight
 from ..io.metadata import merge_by_time
 from ..io.prefetch import prefetched
-from ..io.mosaic_files import write_frames_csv, write_json, write_png
+from ..io.mosaic_files import write_counts_png, write_frames_csv, write_json, write_png
 from ..io.outputs import StripPreview, peak_rss_mb, write_canvas
 from ..errors import InputError, OutputError, SrMosaicError
 from ..io.mosaic_video import MosaicVideoRecorder
@@ -57,6 +57,7 @@ def write_outputs(result: PipelineResult, out: Path, config: PipelineConfig, ext
     segments_report = []
     written: dict[int, str] = {}  # id(canvas) -> file
     geo: dict[str, Any] = {}
+    moving: dict[str, Any] | None = None
     for seg in result.segments:
         x0, y0, x1, y1 = seg.canvas.bounds()
         if id(seg.canvas) not in written:
@@ -64,6 +65,7 @@ def write_outputs(result: PipelineResult, out: Path, config: PipelineConfig, ext
                 mosaic_H_seg = _translation(-x0, -y0)
                 geo = _write_main_mosaic(out, result, config, (x0, y0, x1, y1))
                 written[id(seg.canvas)] = 'mosaic.png'
+                moving = _write_moving(out, seg.canvas, (x0, y0, x1, y1))
             elif len(seg.frames) >= 2:
                 written[id(seg.canvas)] = f'segments/segment_{seg.index:03d}.png'
                 write_canvas(seg.canvas, None, out / written[id(seg.canvas)])
@@ -99,6 +101,7 @@ def write_outputs(result: PipelineResult, out: Path, config: PipelineConfig, ext
         },
         'telemetry': {'fixes': len(result.fixes), 'imu': len(result.imus)},
         'georeferenced': geo or None,
+        **({'moving': moving} if moving is not None else {}),
         'config': {'device': config.device, 'registration': vars(config.registration), 'mosaic': vars(config.mosaic)},
     }
     report.update(extra)
@@ -183,6 +186,20 @@ def _video_with_metadata(path: Path, reader: Any) -> tuple[Iterable[Any], Any, s
         summary.note(f'{track.packets} KLV packets, none usable')
     reader.summary = summary
     return reader, reader, 'video'
+
+
+def _write_moving(out: Path, canvas: Any, bounds: tuple[int, int, int, int]) -> dict[str, Any] | None:
+    """moving.png beside mosaic.png (same pixel grid) when the canvas votes on moving objects
+    (mosaic.moving > 0): 8-bit grey, at each mosaic pixel the number of frames whose pixel there
+    saw something move and was kept out (0: none; saturating at 255). Returns the report's
+    'moving' entry, None without the vote."""
+    if not canvas.tracks_moving:
+        return None
+    counts = canvas.moving_counts(bounds)
+    write_counts_png(out / 'moving.png', counts)
+    covered = max(int(np.count_nonzero(canvas.weights(bounds))), 1)
+    return {'file': 'moving.png', 'pixels': int(np.count_nonzero(counts)),
+            'fraction_of_mosaic': round(float(np.count_nonzero(counts)) / covered, 5)}
 
 
 def _write_main_mosaic(out: Path, result: PipelineResult, config: PipelineConfig,

@@ -25,6 +25,7 @@ __all__ = [
     'FRAMES_CSV_PLACED_BY',
     'atomic_path',
     'read_frames_csv',
+    'write_counts_png',
     'write_frames_csv',
     'write_json',
     'write_png',
@@ -82,6 +83,18 @@ def write_png(path: str | os.PathLike[str], image: np.ndarray, coverage: np.ndar
         out = u8 if u8.ndim == 2 else cv2.cvtColor(u8, cv2.COLOR_RGB2BGR)
     with atomic_path(path) as tmp:
         if not cv2.imwrite(str(tmp), out):
+            msg = f'could not write {path}'
+            raise OSError(msg)
+
+
+def write_counts_png(path: str | os.PathLike[str], counts: np.ndarray) -> None:
+    """Write uint8 counts (H, W) as an 8-bit grey PNG, values as they are (atomically)."""
+    u8 = np.asarray(counts)
+    if u8.dtype != np.uint8 or u8.ndim != 2:
+        msg = f'counts must be uint8 (H, W), got {u8.dtype} {u8.shape}.'
+        raise ValueError(msg)
+    with atomic_path(path) as tmp:
+        if not cv2.imwrite(str(tmp), u8):
             msg = f'could not write {path}'
             raise OSError(msg)
 

@@ -135,13 +135,10 @@ def update_best(tile: object, loc: tuple[slice, slice], colour: np.ndarray, q: n
     the winner's consensus (its quality-weighted mean) and
     takes the lead label if its score is higher; where it disagrees and scores higher, it replaces
     the winner (which becomes the runner-up); where it disagrees and scores lower, it becomes the
-    runner-up if it beats that one. moving: the vote of three views (0: none), the frame, the winner
-    and the feather mean of every frame that saw the pixel (the tile's ``acc / wsum``, to which a
-    car seen in a few of the many frames over a pixel contributes little): where the frame agrees
-    with the mean (within ``moving``, judged as for ``agree``) and the winner disagrees with both,
-    the winner saw something that moved and the frame replaces it whatever the scores; where the
-    winner agrees with the mean and the frame disagrees with both, the frame saw something that
-    moved and is kept out of the pixel.
+    runner-up if it beats that one. moving: the vote against each pixel's background (0: none; the
+    tile must have a ``hist``, TileLayout.history > 0; :func:`_moving_vote`): a frame that saw
+    something move at a pixel is kept out of it whatever its score; a winner (runner-up) that saw
+    something move where the frame agrees with the background is replaced by the frame.
     """
     with np.errstate(divide='ignore'):  # log 0 = -inf: not seen, beaten by every score and beating none
         score = np.log(q, out=scratch('score', q.shape))  # lives until this update returns
@@ -154,30 +151,15 @@ def update_best(tile: object, loc: tuple[slice, slice], colour: np.ndarray, q: n
     seen = q > 0
     fresh = best_id < 0
     none = np.zeros(q.shape, bool)
-    d_cb = _disagreement(colour, best) if (agree > 0 or moving > 0) else None
-    best_moved, frame_moved = none, none
-    if moving > 0 and d_cb is not None:
-        old = seen & ~fresh
-        if old.any():  # the third view: the feather mean of every frame that saw the pixel (this one included)
-            mean = tile.acc[loc] / np.maximum(tile.wsum[loc], np.float32(1e-30))[..., None]  # type: ignore[attr-defined]
-            d_cm, d_bm = _disagreement(colour, mean), _disagreement(best, mean)
-            thr = np.float32(moving)
-            best_moved = old & (d_cb > thr) & (d_bm > thr) & (d_cm <= thr)
-            frame_moved = old & (d_cb > thr) & (d_cm > thr) & (d_bm <= thr)
-            two = old & np.isfinite(second_w)
-            if two.any():  # and the runner-up's
-                d_cs, d_bs = _disagreement(colour, second), _disagreement(best, second)
-                best_moved |= two & (d_cb > thr) & (d_bs > thr) & (d_cs <= thr)
-                frame_moved &= ~(two & (d_cs <= thr))
-            # the box mean halves a car's difference at its outline: grow both masks by the box
-            kernel = np.ones((AGREE_BOX, AGREE_BOX), np.uint8)
-            best_moved = old & cv2.dilate(best_moved.view(np.uint8), kernel).astype(bool)
-            frame_moved = old & ~best_moved & cv2.dilate(frame_moved.view(np.uint8), kernel).astype(bool)
+    d_cb = _disagreement(colour, best) if agree > 0 else None
+    best_moved, frame_moved, second_moved = none, none, none
+    if moving > 0 and getattr(tile, 'hist', None) is not None:
+        best_moved, frame_moved, second_moved = _moving_vote(tile, loc, colour, q, fresh, np.float32(moving))
     lead = ((score > best_w) & ~frame_moved) | best_moved
     # consensus: the 5 x 5 mean of the signed difference, where noise averages out and a misregistration's does not
     joins = seen & ~fresh & (d_cb <= np.float32(agree)) & ~best_moved if (agree > 0 and d_cb is not None) else none
     take = lead & ~joins
-    runner = seen & ~lead & ~joins & ~frame_moved & (score > second_w)
+    runner = seen & ~lead & ~joins & ~frame_moved & ((score > second_w) | second_moved)
     if joins.any():
         total = best_q + np.where(joins, q, np.float32(0.0))
         frac = np.where(joins, q / np.maximum(total, np.float32(1e-30)), np.float32(0.0))
@@ -195,6 +177,92 @@ def update_best(tile: object, loc: tuple[slice, slice], colour: np.ndarray, q: n
     if runner.any():
         copy_where(second, colour, runner)
         copy_where(second_w, score, runner)
+
+
+#: Samples a pixel's history must hold before its median is trusted as the background.
+MIN_BACKGROUND_SAMPLES = 3
+
+
+def _known_disagreement(a: np.ndarray, background: np.ndarray, known: np.ndarray) -> np.ndarray:
+    """(h, w) :func:`_disagreement` of a (h, w, C) against ``background`` (h, w, C) where ``known``
+    (h, w) bool: the other pixels add no difference to the box means."""
+    delta = np.zeros(background.shape, np.float32)
+    out = cv2.subtract(a, background, dst=delta, mask=known.view(np.uint8))  # zero where not known
+    if out is not delta:  # a layout OpenCV could not write in place
+        np.subtract(a, background, out=delta, where=known[..., None])
+    mean = np.abs(cv2.boxFilter(delta, -1, (AGREE_BOX, AGREE_BOX), borderType=cv2.BORDER_REPLICATE).reshape(delta.shape))
+    if mean.shape[-1] == 1:
+        return mean[..., 0]
+    return cv2.reduce(mean.reshape(-1, mean.shape[-1]), 1, cv2.REDUCE_MAX).reshape(mean.shape[:2])
+
+
+def _median(hist: np.ndarray) -> np.ndarray:
+    """The median over the first axis of K (odd) uint8 samples (K, ...): min/max networks for 3 and 5
+    (OpenCV's saturating min and max, several times numpy's partition), else numpy's partition."""
+    k = hist.shape[0]
+    if k == 3:
+        a, b, c = hist
+        return cv2.max(cv2.min(a, b), cv2.min(cv2.max(a, b), c))
+    if k == 5:  # median of 5 = median3(e, max(min(a, b), min(c, d)), min(max(a, b), max(c, d)))
+        a, b, c, d, e = hist
+        f, g = cv2.max(cv2.min(a, b), cv2.min(c, d)), cv2.min(cv2.max(a, b), cv2.max(c, d))
+        return cv2.max(cv2.min(f, g), cv2.min(cv2.max(f, g), e))
+    return np.partition(hist, k // 2, axis=0)[k // 2]
+
+
+def _moving_vote(tile: object, loc: tuple[slice, slice], colour: np.ndarray, q: np.ndarray, fresh: np.ndarray,
+                 thr: np.float32) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(best_moved, frame_moved, second_moved) bool (h, w) against each pixel's background; then the
+    frame's sample is taken into the history and the pixels it kept out counted (``moved``).
+
+    The background is the median, channel by channel, of the pixel's last K colour samples before
+    this frame (the tile's ``hist``): a car covers a ground point in fewer than half of them, so the
+    median is the ground under it (robust, unlike the feather mean, to which every car that passed
+    adds its colour); for the third view of a pixel, the median of the two before and this one's.
+    Where the history holds at least MIN_BACKGROUND_SAMPLES - 1 samples (the background is
+    known): the frame differs from the background by more than ``thr`` (the largest channel of the
+    difference averaged over AGREE_BOX^2 pixels, as for ``agree``; unknown pixels add nothing to
+    the means, or a frame's rim would be flagged where nothing moved): it saw something move there
+    (frame_moved); the winner (runner-up) differs while the frame agrees: the winner (runner-up)
+    did (best_moved, second_moved). The box mean halves a car's difference at its outline:
+    frame_moved and best_moved are grown by the box.
+    """
+    hist, hist_n = tile.hist[:, loc[0], loc[1]], tile.hist_n[loc]  # type: ignore[attr-defined]
+    k = hist.shape[0]
+    seen = q > 0
+    h, w, c = colour.shape
+    if c == 1:  # OpenCV takes (h, w, 1) views as (h, w)
+        hist = hist.reshape(k, h, w)
+    background = _median(hist).astype(np.float32).reshape(h, w, c)
+    background *= np.float32(1.0 / 255.0)
+    third = seen & (hist_n == MIN_BACKGROUND_SAMPLES - 1)
+    if third.any():  # the third view of a pixel: the median of the two before it and this frame's
+        scale = np.float32(1.0 / 255.0)
+        a, b = (hist[i].astype(np.float32).reshape(h, w, c) * scale for i in (0, 1))
+        med3 = np.maximum(np.minimum(a, b), np.minimum(np.maximum(a, b), colour))
+        copy_where(background, med3, third)
+    known = seen & (hist_n >= MIN_BACKGROUND_SAMPLES - 1)
+    kernel = np.ones((AGREE_BOX, AGREE_BOX), np.uint8)
+    frame_moved = known & (_known_disagreement(colour, background, known) > thr)
+    frame_moved = known & cv2.dilate(frame_moved.view(np.uint8), kernel).astype(bool)
+    agrees = known & ~frame_moved
+    best_moved = agrees & ~fresh & (_known_disagreement(tile.best[loc], background, known) > thr)  # type: ignore[attr-defined]
+    best_moved = agrees & ~fresh & cv2.dilate(best_moved.view(np.uint8), kernel).astype(bool)
+    second_moved = agrees & np.isfinite(tile.second_w[loc]) & (  # type: ignore[attr-defined]
+        _known_disagreement(tile.second[loc], background, known) > thr)  # type: ignore[attr-defined]
+    # the sample: into the ring slot n mod K of every pixel the frame sees
+    sample = cv2.convertScaleAbs(colour.reshape(h, w * c), alpha=255.0).reshape(hist.shape[1:])  # rounded, saturated
+    slot = hist_n % np.uint8(k)
+    for i in range(k):
+        copy_where(hist[i], sample, seen & (slot == i))
+    np.add(hist_n, np.uint8(1), out=hist_n, where=seen & (hist_n < 255))
+    full = seen & (hist_n == 255)
+    if full.any():  # saturated: back by K every time, so the ring goes on turning
+        hist_n[full] = 255 - k
+    if frame_moved.any():
+        moved = tile.moved[loc]  # type: ignore[attr-defined]
+        np.add(moved, np.uint8(1), out=moved, where=frame_moved & (moved < 255))
+    return best_moved, frame_moved, second_moved
 
 
 def _update_scores_only(score: np.ndarray, colour: np.ndarray, q: np.ndarray, index: int, best: np.ndarray,

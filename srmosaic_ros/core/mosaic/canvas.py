@@ -162,8 +162,11 @@ class TiledCanvas:
             view (0: no preference for newer frames).
         agree: best view only: frames whose pixel is within this of the winner's (intensity, every
             channel) are averaged into it (0: one frame per pixel).
-        moving: best view only: the three-view vote on moving objects (intensity threshold; 0: off),
-            see :func:`.best_view.update_best`.
+        moving: best view only: a frame's pixels that differ from the pixel's background by more
+            than this (intensity; 0: off) saw something move and are kept out, see
+            :func:`.best_view.update_best`.
+        moving_history: best view with ``moving``: colour samples kept per mosaic pixel (odd); their
+            median is the background (K C + 2 bytes per pixel more).
         max_tiles_in_memory: at most this many tiles are kept in memory, the least recently
             painted ones are spilled to disk (0: no bound, nothing is ever written). One tile
             holds ``4 T^2 (C + 1)`` bytes (feather), ``4 T^2 (2 C + 3)`` (multiband) or
@@ -193,11 +196,13 @@ class TiledCanvas:
         recency_frames: int = 90,
         agree: float = 0.0,
         moving: float = 0.0,
+        moving_history: int = 5,
     ) -> None:
         msg = settings_problem(channels, tile_size, blend=blend, feather_profile=feather_profile, feather_power=feather_power,
                                max_canvas_side_px=max_canvas_side_px, max_area_ratio=max_area_ratio, bands=bands,
                                max_tiles_in_memory=max_tiles_in_memory, max_stretch=max_stretch,
-                               recency_frames=recency_frames, agree=agree, moving=moving)
+                               recency_frames=recency_frames, agree=agree, moving=moving,
+                               moving_history=moving_history)
         if msg is not None:
             raise CanvasError(msg)
         self._max_stretch = float(max_stretch)
@@ -213,7 +218,8 @@ class TiledCanvas:
         self._max_area_ratio = float(max_area_ratio)
         self._bands = int(bands)
         self._background = np.float32(background)
-        self._store = TileStore(TileLayout(self._tile_size, self._channels, blend == 'multiband', blend == 'bestview'),
+        history = int(moving_history) if (blend == 'bestview' and self._moving > 0) else 0
+        self._store = TileStore(TileLayout(self._tile_size, self._channels, blend == 'multiband', blend == 'bestview', history),
                                 max_in_memory=int(max_tiles_in_memory), spill_dir=spill_dir)
         self._tile_frames: dict[TileKey, int] = {}  # every tile: how many frames wrote into it
         self._touched: set[TileKey] = set()
@@ -599,10 +605,11 @@ class TiledCanvas:
         h, w = y1 - y0, x1 - x0
         c = self._channels
         shapes = {'acc': (h, w, c), 'best': (h, w, c), 'second': (h, w, c),
-                  'wsum': (h, w), 'best_w': (h, w), 'best_id': (h, w), 'second_w': (h, w)}
+                  'wsum': (h, w), 'best_w': (h, w), 'best_id': (h, w), 'second_w': (h, w), 'moved': (h, w)}
+        dtypes = {'best_id': np.int32, 'moved': np.uint8}
         fill = {'best_id': -1, 'best_w': -np.inf, 'second_w': -np.inf} if self._blend == 'bestview' else {'best_id': -1}
-        outs = [np.full(shapes[n], fill[n], np.int32 if n == 'best_id' else np.float32) if n in fill
-                else np.zeros(shapes[n], np.float32) for n in names]
+        outs = [np.full(shapes[n], fill[n], dtypes.get(n, np.float32)) if n in fill
+                else np.zeros(shapes[n], dtypes.get(n, np.float32)) for n in names]
         for key in self._keys_in(x0, y0, x1, y1):
             tile = self._store.peek(key)
             if tile is None:  # only after a failed paint created no tile for its key
@@ -611,6 +618,22 @@ class TiledCanvas:
             for out, n in zip(outs, names):
                 out[dst] = getattr(tile, n)[src]
         return outs
+
+    @property
+    def tracks_moving(self) -> bool:
+        """Whether the canvas votes on moving objects (best view with ``moving`` > 0): then
+        :meth:`moving_counts` says where something moved."""
+        return self._store.layout.history > 0
+
+    def moving_counts(self, region: tuple[int, int, int, int] | None = None) -> np.ndarray:
+        """uint8 (h, w) over ``region`` (default: bounds): how many frames' pixels the vote on moving
+        objects kept out of each mosaic pixel (saturating at 255; :func:`.best_view.update_best`): where
+        something moved. Zeros when the canvas does not vote (:attr:`tracks_moving`)."""
+        self._check_open()
+        region = self._region(region)
+        if not self.tracks_moving:
+            return np.zeros((region[3] - region[1], region[2] - region[0]), np.uint8)
+        return self._gather(region, ('moved',))[0]
 
     def weights(self, region: tuple[int, int, int, int] | None = None) -> np.ndarray:
         """Feather weight sum ``sum_i W_H^i``, float32 (h, w), over ``region`` (default: bounds)."""

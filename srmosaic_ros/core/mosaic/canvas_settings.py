@@ -29,6 +29,7 @@ def settings_problem(
     recency_frames: int,
     agree: float,
     moving: float,
+    moving_history: int = 5,
 ) -> str | None:
     """The message of the first invalid ``TiledCanvas`` argument, None when all are valid."""
     if int(channels) != channels or channels < 1:
@@ -57,4 +58,7 @@ def settings_problem(
         return f'agree must be in [0, 1) (intensity; 0: no consensus), got {agree!r}.'
     if not (math.isfinite(moving) and 0.0 <= moving < 1.0):
         return f'moving must be in [0, 1) (intensity; 0: no vote), got {moving!r}.'
+    if isinstance(moving_history, bool) or int(moving_history) != moving_history or not 3 <= moving_history <= 31 \
+            or moving_history % 2 == 0:
+        return f'moving_history must be an odd integer in 3..31, got {moving_history!r}.'
     return None

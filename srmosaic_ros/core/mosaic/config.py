@@ -16,7 +16,8 @@ class MosaicConfig:
     max_stretch: float = 4.0  # frame pixels this many times coarser than the frame's finest are not painted (0: all)
     recency_frames: int = 90  # bestview: a frame this many frames newer wins over an e-fold better view (0: none)
     agree: float = 0.0  # bestview: frames within this of the winner (intensity) are averaged into it (0: none)
-    moving: float = 0.0  # bestview: three-view vote threshold (intensity) keeping moving objects out (0: off)
+    moving: float = 0.0  # bestview: moving objects kept out where a frame differs from the pixel's background by this (intensity; 0: off)
+    moving_history: int = 5  # bestview with moving: colour samples kept per pixel; their median is the background (odd, 3..31)
     max_canvas_side_px: int = 100000
     preview_max_side_px: int = 1024
     max_tiles_in_memory: int = 256  # per canvas; 0: no bound (see canvas.TiledCanvas)
@@ -49,6 +50,11 @@ class MosaicConfig:
             raise ValueError(msg)
         if not (isinstance(self.moving, (int, float)) and 0.0 <= self.moving < 1.0):
             msg = f'mosaic.moving must be in [0, 1) (intensity; 0: no vote), got {self.moving!r}.'
+            raise ValueError(msg)
+        if isinstance(self.moving_history, bool) or not isinstance(self.moving_history, int) \
+                or not 3 <= self.moving_history <= 31 or self.moving_history % 2 == 0:
+            msg = (f'mosaic.moving_history must be an odd integer in 3..31 (colour samples per mosaic pixel whose median '
+                   f'is the background), got {self.moving_history!r}.')
             raise ValueError(msg)
         if self.max_canvas_side_px < 256:
             msg = f'mosaic.max_canvas_side_px must be >= 256, got {self.max_canvas_side_px}.'

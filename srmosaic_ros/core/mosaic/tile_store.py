@@ -64,13 +64,19 @@ class TileLayout:
     composite, which keyframes register to: it holds the first pass under a revisit), ``best``
     (the mean of the winner's consensus), ``best_w`` (the winner's log score, -inf: none),
     ``best_id``, ``best_q`` (the consensus's quality sum), ``second`` float32 (T, T, C) and
-    ``second_w`` (the runner-up's colour and log score).
+    ``second_w`` (the runner-up's colour and log score); with ``history`` K > 0 (best view's vote on
+    moving objects, :func:`.best_view.update_best`) also ``hist`` uint8 (K, T, T, C), the last K
+    colour samples of each pixel (a ring; slots not yet written hold 0 and 255 alternately, so that the
+    median of the K slots is a median of the samples), ``hist_n`` uint8 (T, T) the samples taken
+    (saturating at 255) and ``moved`` uint8 (T, T) the frames whose pixel was kept out as moving
+    (saturating).
     """
 
     size: int
     channels: int
     multiband: bool
     best_view: bool = False
+    history: int = 0
 
     @property
     def fields(self) -> tuple[tuple[str, tuple[int, ...], type], ...]:
@@ -78,7 +84,9 @@ class TileLayout:
         if self.best_view:
             return (('acc', (t, t, c), np.float32), ('wsum', (t, t), np.float32), ('best', (t, t, c), np.float32),
                     ('best_w', (t, t), np.float32), ('best_id', (t, t), np.int32), ('best_q', (t, t), np.float32),
-                    ('second', (t, t, c), np.float32), ('second_w', (t, t), np.float32))
+                    ('second', (t, t, c), np.float32), ('second_w', (t, t), np.float32)) + (
+                    (('hist', (self.history, t, t, c), np.uint8), ('hist_n', (t, t), np.uint8), ('moved', (t, t), np.uint8))
+                    if self.history > 0 else ())  # 1-byte fields last: the float32 views stay aligned
         out: list[tuple[str, tuple[int, ...], type]] = [('acc', (t, t, c), np.float32), ('wsum', (t, t), np.float32)]
         if self.multiband:
             out += [('best', (t, t, c), np.float32), ('best_w', (t, t), np.float32), ('best_id', (t, t), np.int32)]
@@ -86,14 +94,15 @@ class TileLayout:
 
     @property
     def nbytes(self) -> int:
-        """Bytes of one tile (every field is 4 bytes per element)."""
-        return sum(4 * math.prod(shape) for _, shape, _ in self.fields)
+        """Bytes of one tile."""
+        return sum(np.dtype(dtype).itemsize * math.prod(shape) for _, shape, dtype in self.fields)
 
 
 class Tile:
     """One tile: the arrays of its :class:`TileLayout` as views into one ``uint8`` buffer ``buf``."""
 
-    __slots__ = ('acc', 'best', 'best_id', 'best_q', 'best_w', 'buf', 'second', 'second_w', 'wsum')
+    __slots__ = ('acc', 'best', 'best_id', 'best_q', 'best_w', 'buf', 'hist', 'hist_n', 'moved', 'second', 'second_w',
+                 'wsum')
 
     def __init__(self, layout: TileLayout, buf: np.ndarray | None = None) -> None:
         fresh = buf is None
@@ -105,9 +114,12 @@ class Tile:
         self.best_q: np.ndarray | None = None
         self.second: np.ndarray | None = None
         self.second_w: np.ndarray | None = None
+        self.hist: np.ndarray | None = None
+        self.hist_n: np.ndarray | None = None
+        self.moved: np.ndarray | None = None
         off = 0
         for name, shape, dtype in layout.fields:
-            n = 4 * math.prod(shape)
+            n = np.dtype(dtype).itemsize * math.prod(shape)
             setattr(self, name, self.buf[off:off + n].view(dtype).reshape(shape))
             off += n
         if fresh and self.best_id is not None:
@@ -115,6 +127,8 @@ class Tile:
         if fresh and self.second_w is not None:  # best view: log scores, -inf where no frame
             self.best_w.fill(-np.inf)
             self.second_w.fill(-np.inf)
+        if fresh and self.hist is not None:  # unwritten slots: 0 and 255 alternately (see TileLayout)
+            self.hist[1::2] = 255
 
     @property
     def nbytes(self) -> int:
@@ -345,7 +359,8 @@ class TileStore:
         bound as the tiles arrive (into a new spill directory of its own).
         """
         self._check_open()
-        args = ((self.layout.size, self.layout.channels, self.layout.multiband, self.layout.best_view), self.max_in_memory,
+        args = ((self.layout.size, self.layout.channels, self.layout.multiband, self.layout.best_view, self.layout.history),
+                self.max_in_memory,
                 self.spill_root, self.loads, self.writes)
         return (_restore_store, args, None, self._pickle_items())
 

@@ -198,8 +198,11 @@ def test_consensus_averages_aligned_frames() -> None:
 def test_the_moving_vote_keeps_a_passing_car_out() -> None:
     """mosaic.moving: a car (a bright 12 x 12 px square) seen only by the newest of nine aligned
     frames over one spot wins that spot in plain best view (the newest frame scores highest); the
-    three-view vote (frame, winner, feather mean) sees the newest frame disagree with the other
-    frames there and keeps it out, while the static ground stays the newest frame's."""
+    vote sees the newest frame disagree with the pixels' background (the median of the frames
+    before it) and keeps it out, while the static ground stays the newest frame's; moving_counts
+    marks the car's ground and nothing else."""
+    counts = {}
+
     def run(moving: float) -> tuple[np.ndarray, np.ndarray]:
         canvas = TiledCanvas(3, tile_size=64, blend='bestview', moving=moving)
         for k in range(9):
@@ -208,6 +211,8 @@ def test_the_moving_vote_keeps_a_passing_car_out() -> None:
                 img[84:96, 114:126] = 1.0  # the car, at the centre of the newest frame, where it sees best
             canvas.paint(img, translation(4.0 * k, 0.0))
         image, _ = canvas.render((120, 70, 160, 110))
+        counts[moving] = canvas.moving_counts()
+        assert canvas.tracks_moving == (moving > 0)
         return image, view(translation(220.0, 270.0), 40, 40).astype(np.float32) / 255.0
 
     def car_px(image: np.ndarray, truth: np.ndarray) -> int:
@@ -217,5 +222,70 @@ def test_the_moving_vote_keeps_a_passing_car_out() -> None:
     voted, _ = run(0.1)
     assert car_px(plain, truth) > 100  # the car is in the plain mosaic
     assert car_px(voted, truth) < 5
+    car = np.zeros(counts[0.1].shape, bool)
+    car[84:96, 146:158] = True  # the car's mosaic pixels (frame 8 is painted 32 px on)
+    assert (counts[0.1][car] == 1).all()  # one frame kept out there
+    near = np.zeros(car.shape, bool)
+    near[80:100, 142:162] = True  # and nothing beyond the outline grown twice by the 5 x 5 box (detection, dilation)
+    assert not counts[0.1][~near].any()
+    assert not counts[0.0].any()
     with pytest.raises(CanvasError, match='moving'):
         TiledCanvas(3, blend='bestview', moving=1.5)
+    with pytest.raises(CanvasError, match='moving_history'):
+        TiledCanvas(3, blend='bestview', moving=0.1, moving_history=4)
+
+
+def test_a_car_that_won_its_spot_is_replaced_once_later_frames_agree_on_the_ground() -> None:
+    """A car in the first of nine aligned frames, at its centre, where that frame sees best: plain best
+    view keeps it (no later frame scores higher there); with the vote, the third frame over the spot
+    makes the median (car, ground, ground) the ground, finds the winner off it and replaces it."""
+    def run(moving: float) -> tuple[np.ndarray, np.ndarray]:
+        canvas = TiledCanvas(3, tile_size=64, blend='bestview', moving=moving, recency_frames=0)
+        for k in range(9):
+            img = frame_at(100.0 + 4 * k, 200.0, seed=k)
+            if k == 0:
+                img[84:96, 114:126] = (0.9, 0.1, 0.1)  # a red car
+            canvas.paint(img, translation(4.0 * k, 0.0))
+        image, _ = canvas.render((104, 80, 136, 100))
+        return image, view(translation(204.0, 280.0), 32, 20).astype(np.float32) / 255.0
+
+    def car_px(image: np.ndarray, truth: np.ndarray) -> int:
+        return int((np.abs(image - truth).max(axis=-1) > 0.25).sum())
+
+    plain, truth = run(0.0)
+    voted, _ = run(0.05)
+    assert car_px(plain, truth) > 60  # the half of the car nearer frame 0's centre than frame 1's
+    assert car_px(voted, truth) == 0
+
+
+def test_the_vote_on_moving_objects_spills_and_pickles(tmp_path) -> None:
+    """The history and counts of the vote travel with the tiles: spilled to disk and pickled, the
+    canvas renders and counts the same, and goes on voting the same."""
+    def paint(canvas: TiledCanvas, ks: range) -> None:
+        for k in ks:
+            img = frame_at(100 + 30 * k, 200, seed=k)
+            img[80:90, 100:112] = 1.0  # a car at every frame's centre: it moves with the camera
+            canvas.paint(img, translation(30.0 * k, 0.0))
+
+    kept = TiledCanvas(3, tile_size=64, blend='bestview', moving=0.05)
+    spilled = TiledCanvas(3, tile_size=64, blend='bestview', moving=0.05, max_tiles_in_memory=1, spill_dir=tmp_path)
+    for canvas in (kept, spilled):
+        paint(canvas, range(4))
+    spilled = pickle.loads(pickle.dumps(spilled))
+    for canvas in (kept, spilled):
+        paint(canvas, range(4, 7))
+    np.testing.assert_array_equal(kept.render()[0], spilled.render()[0])
+    np.testing.assert_array_equal(kept.moving_counts(), spilled.moving_counts())
+    assert kept.moving_counts().any()
+
+
+def test_the_background_history_keeps_turning_after_255_samples() -> None:
+    """The sample count saturates at 255 but the ring of samples goes on: ground that changes for good
+    after 290 frames (a parked car leaving) becomes the background, and the mosaic shows it."""
+    canvas = TiledCanvas(1, tile_size=16, blend='bestview', moving=0.05, moving_history=3)
+    for k in range(300):
+        canvas.paint(np.full((8, 8), 0.2 if k >= 290 else 0.5, np.float32), np.eye(3))
+    tile = canvas._store.peek((0, 0))
+    assert tile.hist_n[3, 3] >= 250
+    assert (tile.hist[:, 3, 3] == 51).all()  # 0.2 * 255
+    assert canvas.render((0, 0, 8, 8))[0][3, 3] == pytest.approx(0.2)
