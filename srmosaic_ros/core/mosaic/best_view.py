@@ -186,10 +186,17 @@ MIN_BACKGROUND_SAMPLES = 3
 def _known_disagreement(a: np.ndarray, background: np.ndarray, known: np.ndarray) -> np.ndarray:
     """(h, w) :func:`_disagreement` of a (h, w, C) against ``background`` (h, w, C) where ``known``
     (h, w) bool: the other pixels add no difference to the box means."""
+    mask = known.view(np.uint8)
     delta = np.zeros(background.shape, np.float32)
-    out = cv2.subtract(a, background, dst=delta, mask=known.view(np.uint8))  # zero where not known
+    out = cv2.subtract(a, background, dst=delta, mask=mask)  # zero where not known
     if out is not delta:  # a layout OpenCV could not write in place
         np.subtract(a, background, out=delta, where=known[..., None])
+    # a change of exposure or white balance shifts the whole view: the median difference (every
+    # 4th known pixel across and down, per channel) is taken out, what moved is what differs beyond it
+    step = known[::4, ::4]
+    if step.any():
+        offset = np.median(delta[::4, ::4][step], axis=0)
+        cv2.subtract(delta, tuple(float(v) for v in offset), dst=delta, mask=mask)
     mean = np.abs(cv2.boxFilter(delta, -1, (AGREE_BOX, AGREE_BOX), borderType=cv2.BORDER_REPLICATE).reshape(delta.shape))
     if mean.shape[-1] == 1:
         return mean[..., 0]
