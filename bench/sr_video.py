@@ -40,6 +40,8 @@ RUNS: dict[str, dict[str, Any]] = {
     'noise cap 1': {'sr.lambda_noise_cap': 1.0},
     'gamma 0.3': {'sr.lambda_gamma': 0.3},
     'defaults before 2026-12-03': {'sr.psf_sigma': 0.5, 'sr.anchor': False, 'sr.lambda_noise_cap': 1.0},
+    'moving 0.05': {'sr.moving': 0.05},
+    'moving 0.15': {'sr.moving': 0.15},
 }
 
 
@@ -68,7 +70,11 @@ def main() -> None:
     ap.add_argument('--every', type=int, default=1)
     ap.add_argument('--frames', type=int, default=48)
     ap.add_argument('--out', type=Path, default=None)
+    ap.add_argument('--only', default='', help="the runs to make, ';'-separated names of RUNS (default: all)")
     args = ap.parse_args()
+    if args.only:
+        for name in set(RUNS) - set(args.only.split(';')):
+            del RUNS[name]
     logging.basicConfig(level=logging.ERROR)
     work = args.out or Path(tempfile.mkdtemp(prefix='bench_sr_video_'))
     for video in args.videos:

@@ -42,6 +42,7 @@ from ...errors import SrMosaicError
 from ..device import resolve_device
 from .anchor import anchor_to_frame
 from .consistency import consistent_frames, noise_sigma
+from .moving import MIN_FRAMES as MOVING_MIN_FRAMES, moving_mask
 from .observation import FrameStack, build_frame_stack
 from .operators import Warp, gaussian_psf
 from .prior import HuberPrior, clique_differences, huber_sum
@@ -115,6 +116,9 @@ class SRConfig:
     consistency: frames that do not see the same picture on the tile are left out before the solve
         (pairwise NCC below this fraction of what their noise allows; core/sr/consistency.py), and
         a tile where fewer than two agree is refused (SRError); 0 turns the test off.
+    moving: frames' LR pixels that differ from the per-pixel median of the frames on the tile by
+        more than this (intensity; core/sr/moving.py) saw something move and weigh 0 in the data
+        term and the initial estimate; 0: off.
     lm_inner: inner CG iterations of LM.
     anchor: after the solve, the reference frame's residual is back-projected onto the estimate
         (core/sr/anchor.py), so the tile shows what the mosaic around it shows (the same moving
@@ -141,6 +145,7 @@ class SRConfig:
     outlier_threshold: float = 3.0
     outlier_power: float = 2.0
     consistency: float = 0.8
+    moving: float = 0.0
     min_observed: int = 16
     lm_inner: int = 8
     anchor: bool = True
@@ -162,6 +167,7 @@ class SRConfig:
             (self.margin >= 0, f'margin must be >= 0 LR pixels, got {self.margin}'),
             (self.lambda_noise_cap >= 0, f'lambda_noise_cap must be >= 0 (0: off), got {self.lambda_noise_cap}'),
             (0.0 <= self.consistency < 1.0, f'consistency must be in [0, 1) (0: off), got {self.consistency}'),
+            (0.0 <= self.moving < 1.0, f'moving must be in [0, 1) (intensity; 0: off), got {self.moving}'),
             (self.lm_inner >= 1, f'lm_inner must be >= 1, got {self.lm_inner}'),
         ]
         for ok, msg in checks:
@@ -185,6 +191,7 @@ class SRResult:
     nearest the tile's; anchor_rms: RMS of its residual before anchoring (intensity), NaN when the
     tile was not anchored.
     timings: seconds for 'setup', 'initial', 'solve', 'total'.
+    moving_pixels: frames' LR pixels left out of the data term as moving (``moving``).
     """
 
     image: torch.Tensor
@@ -201,6 +208,7 @@ class SRResult:
     anchor_rms: float = math.nan
     timings: dict[str, float] = field(default_factory=dict)
     converged: bool = False
+    moving_pixels: int = 0
     stop_reason: str = ''
     config: SRConfig | None = None
 
@@ -458,6 +466,13 @@ def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames:
                                        power=cfg.outlier_power) if robust else 1.0
         return w
 
+    moving_px = 0
+    if cfg.moving > 0 and len(kept) >= MOVING_MIN_FRAMES:  # moving objects out of the data term (moving.py)
+        moved, drop = moving_mask(stack, luma(warped), covered, kept, cfg.moving)
+        covered = covered * (1.0 - moved)
+        stack.mask.mul_(1.0 - drop)  # the operator's M: these pixels weigh 0 in (5.3)
+        stack.y.mul_(1.0 - drop)
+        moving_px = int(drop.sum())
     w0 = torch.zeros(k_frames, dtype=torch.float64, device=device)
     w0[kept] = 1.0
     if robust:
@@ -538,4 +553,4 @@ def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames:
         frame_weights=weights_all, frame_rms=rms_all, frame_consistent=consistent_all, consistency=consistency,
         reference=stack.index[ref], anchor_rms=anchor_rms,
         timings={'setup': t1 - t0, 'initial': t2 - t1, 'solve': t3 - t2, 'total': t4 - t0},
-        converged=res.converged, stop_reason=res.stop_reason, config=cfg)
+        converged=res.converged, stop_reason=res.stop_reason, config=cfg, moving_pixels=moving_px)

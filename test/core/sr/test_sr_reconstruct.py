@@ -206,3 +206,39 @@ def test_anchoring_shows_what_the_reference_frame_shows(world, tile):
         reconstruct_tile(frames, tile.tile_H_frames, TILE, 2, iterations=10, device='cpu')
     fused = reconstruct_tile(frames, tile.tile_H_frames, TILE, 2, iterations=10, device='cpu', anchor=False)
     assert fused.frame_weights[ref] < 0.5 and np.isnan(fused.anchor_rms)
+
+
+def test_moving_objects_are_kept_out_of_the_data_term(world) -> None:
+    """sr.moving: a car (a bright 5 x 3 LR px box) crosses the tile, in a different place in each of
+    five of eight frames: too many for the per-frame outlier weights (measured: every frame keeps
+    weight 1), so the data term fits it and leaves its trail in the SR tile (trail error 0.039,
+    PSNR 34.9 dB). With the per-pixel weights (core/sr/moving.py) every frame keeps the pixels the
+    car did not cover: the trail's error is no worse than the bicubic mosaic's of the frames without
+    cars, and the tile gains 6 dB (measured 0.0076, 41.1 dB)."""
+    st = make_synthetic_tile(world, (150, 480), TILE, 2, 8, noise_sigma=1.0, seed=6)
+    frames = [f.copy() for f in st.frames]
+    trail = np.zeros((TILE[0] * 2, TILE[1] * 2), bool)  # HR tile pixels a car covered
+    for k, (tx, ty) in zip((1, 4, 6, 2, 7), ((8, 10), (15, 14), (22, 18), (10, 22), (20, 6))):
+        frame_H_tile = np.linalg.inv(st.tile_H_frames[k])
+        p = frame_H_tile @ np.array([tx, ty, 1.0])
+        u, v = int(round(p[0] / p[2])), int(round(p[1] / p[2]))
+        frames[k][v - 1:v + 2, u - 2:u + 3] = (250, 240, 40)
+        trail[2 * ty - 2:2 * ty + 4, 2 * tx - 4:2 * tx + 6] = True
+    truth = st.truth
+
+    def errors(**kw) -> tuple[float, float, float, int]:
+        res = reconstruct_tile(frames, st.tile_H_frames, TILE, 2, iterations=10, device='cpu', **kw)
+        sr, bic = hwc(res.image).astype(np.float64), hwc(res.initial).astype(np.float64)
+        return (float(np.abs(sr - truth)[trail].mean()), float(np.abs(bic - truth)[trail].mean()), psnr(sr, truth),
+                res.moving_pixels)
+
+    plain_trail, plain_bicubic, plain_psnr, n0 = errors()
+    moving_trail, moving_bicubic, moving_psnr, n1 = errors(moving=0.05)
+    clean = reconstruct_tile(st.frames, st.tile_H_frames, TILE, 2, iterations=10, device='cpu')
+    clean_bicubic = float(np.abs(hwc(clean.initial).astype(np.float64) - truth)[trail].mean())
+    assert n0 == 0 and n1 > 0
+    assert moving_trail < 0.5 * plain_trail      # the trail is gone from the SR tile
+    assert moving_trail <= clean_bicubic * 1.05  # no worse than bicubic of the frames without the car
+    assert moving_psnr > plain_psnr + 3.0
+    with pytest.raises(SRError, match='moving'):
+        SRConfig(moving=1.5)
