@@ -193,7 +193,7 @@ def multiband_blend(
     every level), so a region without seams renders as S exactly (the best-view compositor, whose F
     is a two-frame composite, not a smooth average of every frame).
     """
-    diff = (seam_image - feather).astype(np.float32, copy=False)
+    diff = _sub(seam_image, feather)
     if not diff.any():
         return feather.copy()
     dist = seam_distance(labels)
@@ -214,21 +214,57 @@ def multiband_blend(
 
     # collapsed blend of levels > l; the coarsest band comes from F unless coarsest_by_seams
     top = gauss[levels]
-    acc: np.ndarray | None = top * region_weight(levels, top.shape)[..., None] if coarsest_by_seams else None
+    acc: np.ndarray | None = _times(top, region_weight(levels, top.shape)) if coarsest_by_seams else None
     for lev in range(levels - 1, -1, -1):
         g = gauss[lev]
-        lap = g - _pyr_up(gauss[lev + 1], g.shape)
-        band = lap * region_weight(lev, g.shape)[..., None]
-        acc = band if acc is None else band + _pyr_up(acc, g.shape)
+        band = _times(_sub(g, _pyr_up(gauss[lev + 1], g.shape)), region_weight(lev, g.shape))
+        acc = band if acc is None else _add(band, _pyr_up(acc, g.shape))
     assert acc is not None
-    return feather + acc
+    return _add(feather, acc)
+
+
+# Element-wise float32 arithmetic by OpenCV: the same IEEE operations (one rounding each) as numpy's
+# operators, whose broadcasting over the channel axis runs element by element (several times slower
+# on (h, w, 3) images). Any layout OpenCV does not take (float64, non-contiguous) goes numpy's way.
+def _cv_ready(*arrays: np.ndarray) -> bool:
+    return all(a.dtype == np.float32 and a.flags.c_contiguous and a.ndim == 3 for a in arrays)
+
+
+def _sub(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """float32 a - b, a and b (h, w, C) of one shape."""
+    if not _cv_ready(a, b):
+        return (a - b).astype(np.float32, copy=False)
+    return cv2.subtract(a, b).reshape(a.shape)
+
+
+def _add(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """float32 a + b, a and b (h, w, C) of one shape."""
+    if not _cv_ready(a, b):
+        return (a + b).astype(np.float32, copy=False)
+    return cv2.add(a, b).reshape(a.shape)
+
+
+def _times(a: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """float32 a * weight[..., None], a (h, w, C), weight float32 (h, w)."""
+    if not (_cv_ready(a) and weight.dtype == np.float32 and weight.flags.c_contiguous):
+        return a * weight[..., None]
+    c = a.shape[2]
+    if c == 1:
+        return cv2.multiply(a.reshape(weight.shape), weight).reshape(a.shape)
+    expanded = cv2.cvtColor(weight, cv2.COLOR_GRAY2RGB) if c == 3 else cv2.merge([weight] * c)
+    return cv2.multiply(a, expanded).reshape(a.shape)
 
 
 def feather_divide(acc: np.ndarray, wsum: np.ndarray, out: np.ndarray) -> np.ndarray:
     """The feather composite ``acc / wsum`` (acc (h, w, C), wsum (h, w)) written into ``out`` (h, w, C)
     where ``wsum > 0``, ``out`` left as it is elsewhere; returns that coverage, bool (h, w)."""
     covered = wsum > 0
-    np.divide(acc, wsum[..., None], out=out, where=covered[..., None])
+    if _cv_ready(acc, out) and acc.shape[2] == 3 and wsum.dtype == np.float32 and wsum.flags.c_contiguous:
+        # OpenCV's division (IEEE, as numpy's) of whole rows, copied where covered (0 / 0 elsewhere)
+        quotient = cv2.divide(acc, cv2.cvtColor(wsum, cv2.COLOR_GRAY2RGB))
+        copy_where(out, quotient, covered)
+    else:
+        np.divide(acc, wsum[..., None], out=out, where=covered[..., None])
     return covered
 
 
