@@ -122,7 +122,7 @@ STRIP_ROWS = 512
 
 
 def write_canvas(canvas: TiledCanvas, tif: Path | None, png: Path, raster: GeoRaster | None = None,
-                  preview: StripPreview | None = None) -> None:
+                  preview: StripPreview | None = None, *, threads: int = 1, zlevel: int | None = None) -> None:
     """Render ``canvas`` (its bounds) strip by strip into a tiled GeoTIFF, then PNG from that.
 
     With ``tif`` (and ``raster``, its grid) that GeoTIFF is an output (mosaic.tif: 512 px tiles,
@@ -130,11 +130,20 @@ def write_canvas(canvas: TiledCanvas, tif: Path | None, png: Path, raster: GeoRa
     The PNG has the pixels ``mosaic_files.write_png(render(), covered)`` would write. Both files
     are written atomically. ``preview`` receives every strip. Memory: one strip of STRIP_ROWS
     rows (multiband: one RENDER_BLOCK_PX row of blocks) and GDAL's bounded cache; never the mosaic.
+
+    ``threads`` > 1 (see :func:`_write_canvas_streamed`): the same pixels, written on that many
+    threads while the canvas renders: each strip is converted to 8 bits once, the PNG streamed from
+    it (no TIFF written and read back for it), the GeoTIFF's blocks and overviews compressed by GDAL
+    threads at DEFLATE level ``zlevel`` (None: 6). The files' bytes differ from the one-thread
+    writer's (filters, block order); their pixels do not.
     """
     import tempfile
 
     from .geotiff import MOSAIC_BLOCK_PX, png_from_geotiff, write_geotiff_blocks
 
+    if threads > 1:
+        _write_canvas_streamed(canvas, tif, png, raster, preview, threads=threads, zlevel=zlevel)
+        return
     x0, y0, x1, y1 = canvas.bounds()
 
     def strips() -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
@@ -152,3 +161,70 @@ def write_canvas(canvas: TiledCanvas, tif: Path | None, png: Path, raster: GeoRa
         scratch = Path(tmp) / 'mosaic.tif'
         write_geotiff_blocks(scratch, strips(), None, y1 - y0, x1 - x0, block_px=MOSAIC_BLOCK_PX, overviews=False)
         png_from_geotiff(scratch, png)
+
+
+def _rgba_u8(image: np.ndarray, covered: np.ndarray) -> np.ndarray:
+    """uint8 (rows, W, C + 1) of a rendered strip (float (rows, W[, C])): colour as mosaic.tif stores
+    it (geotiff's rounding), alpha 255 where covered, 0 elsewhere."""
+    from .geotiff import CONVERT_ROWS, _to_u8
+
+    img = image if image.ndim == 3 else image[:, :, None]
+    out = np.empty((*img.shape[:2], img.shape[2] + 1), np.uint8)
+    for r in range(0, len(img), CONVERT_ROWS):  # small float temporaries
+        out[r:r + CONVERT_ROWS, :, :-1] = _to_u8(img[r:r + CONVERT_ROWS])
+    out[:, :, -1] = covered
+    out[:, :, -1] *= 255
+    return out
+
+
+def _write_canvas_streamed(canvas: TiledCanvas, tif: Path | None, png: Path, raster: GeoRaster | None,
+                           preview: StripPreview | None, *, threads: int, zlevel: int | None) -> None:
+    """write_canvas on ``threads`` threads: one pass over the rendered strips feeds the preview, the
+    PNG (:class:`.png_stream.StreamingPngWriter`, grey + alpha as RGBA with the grey repeated, as
+    png_from_geotiff writes it) and, with ``tif``, the GeoTIFF (GDAL compressing on its threads)."""
+    import queue
+    import threading
+
+    from .geotiff import MOSAIC_BLOCK_PX, write_geotiff_blocks
+    from .png_stream import StreamingPngWriter
+
+    x0, y0, x1, y1 = canvas.bounds()
+    height, width = y1 - y0, x1 - x0
+    grey = canvas.channels == 1
+    tif_strips: queue.Queue[tuple[int, np.ndarray, None] | None] = queue.Queue(maxsize=2)
+    failure: list[BaseException] = []
+    ended = threading.Event()  # the producer's end mark (None) was taken
+
+    def tif_writer() -> None:  # GDAL's writes and the overviews on a thread of their own
+        def strips() -> Iterator[tuple[int, np.ndarray, None]]:
+            while (item := tif_strips.get()) is not None:
+                yield item
+            ended.set()
+        try:
+            write_geotiff_blocks(tif, strips(), raster, height, width, block_px=MOSAIC_BLOCK_PX, threads=threads,
+                                 zlevel=zlevel)
+        except BaseException as exc:  # noqa: BLE001 -- handed to the caller's thread and raised there
+            failure.append(exc)
+            while not ended.is_set() and tif_strips.get() is not None:  # let the producer finish
+                pass
+
+    writer = threading.Thread(target=tif_writer, name='mosaic.tif') if tif is not None else None
+    if writer is not None:
+        writer.start()
+    try:
+        with StreamingPngWriter(png, width, height, 4 if grey else canvas.channels + 1, threads=threads) as out:
+            for row, image, covered in canvas.render_blocks(STRIP_ROWS):
+                if preview is not None:
+                    preview.add(row, image, covered)
+                rgba = _rgba_u8(image, covered)
+                out.write(np.concatenate([rgba[:, :, :1]] * 3 + [rgba[:, :, 1:]], axis=2) if grey else rgba)
+                if writer is not None:
+                    tif_strips.put((row, rgba, None))
+                if failure:
+                    raise failure[0]
+    finally:
+        if writer is not None:
+            tif_strips.put(None)
+            writer.join()
+    if failure:
+        raise failure[0]

@@ -8,6 +8,7 @@ import signal
 import subprocess
 import sys
 import textwrap
+from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
@@ -81,6 +82,52 @@ def test_mosaic_tif_written_in_strips_equals_the_whole_render(channels: int, ble
     assert np.array_equal(_read_png(tmp_path / 'mosaic.png'), _read_png(tmp_path / 'before.png'))
     assert not list(tmp_path.glob('*.aux.xml')) and not list(tmp_path.glob('.*'))
     np.testing.assert_allclose(preview.image(), preview_image(image, covered, 300), atol=2e-6)
+
+
+@pytest.mark.parametrize(('channels', 'blend'), [(3, 'feather'), (1, 'feather'), (3, 'multiband')])
+@pytest.mark.parametrize('georeferenced', [True, False])
+def test_the_threaded_writer_writes_the_pixels_of_the_one_thread_writer(channels: int, blend: str, georeferenced: bool,
+                                                                        tmp_path: Path) -> None:
+    """write_canvas(threads=2) (the survey's: the PNG streamed while rendering, GDAL compressing the
+    GeoTIFF on threads at another DEFLATE level) gives the files of threads=1 pixel for pixel: PNG
+    (RGBA, grey repeated), GeoTIFF bands, grid, overviews and alpha, and the same preview."""
+    canvas = _painted_canvas(channels, blend)
+    h, w = canvas.bounds()[3] - canvas.bounds()[1], canvas.bounds()[2] - canvas.bounds()[0]
+    raster = RASTER if georeferenced else None
+    previews = {}
+    for threads in (1, 2):
+        out = tmp_path / str(threads)
+        previews[threads] = StripPreview(h, w, channels, 300)
+        write_canvas(canvas, out / 'mosaic.tif' if georeferenced else None, out / 'mosaic.png', raster,
+                     previews[threads], threads=threads, zlevel=None if threads == 1 else 3)
+        assert sorted(p.name for p in out.iterdir()) == (['mosaic.png', 'mosaic.tif'] if georeferenced else ['mosaic.png'])
+    one, two = tmp_path / '1', tmp_path / '2'
+    assert np.array_equal(_read_png(one / 'mosaic.png'), _read_png(two / 'mosaic.png'))
+    assert _read_png(two / 'mosaic.png').shape == (h, w, 4)
+    np.testing.assert_array_equal(previews[1].image(), previews[2].image())
+    if georeferenced:
+        with rasterio.open(one / 'mosaic.tif') as a, rasterio.open(two / 'mosaic.tif') as b:
+            np.testing.assert_array_equal(a.read(), b.read())
+            assert (a.crs, a.transform, a.colorinterp, a.overviews(1), a.block_shapes, a.tags()) == \
+                (b.crs, b.transform, b.colorinterp, b.overviews(1), b.block_shapes, b.tags())
+            np.testing.assert_array_equal(a.read(1, out_shape=(h // 4, w // 4)), b.read(1, out_shape=(h // 4, w // 4)))
+            assert b.compression == Compression.deflate
+
+
+def test_a_failing_render_leaves_no_file_with_the_threaded_writer(tmp_path: Path) -> None:
+    canvas = _painted_canvas(3, 'feather')
+    real = canvas.render_blocks
+
+    def broken(rows: int) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+        for k, strip in enumerate(real(rows)):
+            if k == 1:
+                raise RuntimeError('render failed')
+            yield strip
+
+    canvas.render_blocks = broken  # type: ignore[method-assign]
+    with pytest.raises(RuntimeError, match='render failed'):
+        write_canvas(canvas, tmp_path / 'mosaic.tif', tmp_path / 'mosaic.png', RASTER, threads=2)
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_strip_preview_equals_preview_image_for_any_strips() -> None:
