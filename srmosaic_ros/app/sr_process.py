@@ -32,7 +32,8 @@ from tqdm import tqdm
 from ..core.homography import translation as _translation
 from ..config import PipelineConfig
 from ..core.sr.psf_select import TileFrames, choose_psf_sigma
-from ..core.sr.reconstruct import SRError, SRFramesDisagree, reconstruct_tile
+from ..core.sr.reconstruct import SRError, SRFramesDisagree
+from ..core.sr.self_check import SRNotBetterThanMosaic, reconstruct_checked_tile
 from ..core.sr.scheduler import plan_tiles
 from ..core.types import CameraIntrinsics, Frame
 from ..core.undistort import Undistorter
@@ -101,10 +102,11 @@ def super_resolve_mosaic(out: Path, items: Iterable[Any], config: PipelineConfig
         t0 = time.perf_counter()
         tile = tile_inputs(plan)
         try:
-            res = reconstruct_tile(tile.frames, tile.tile_H_frames, tile.tile_shape, s, config=sr_config)
+            res = reconstruct_checked_tile(tile.frames, tile.tile_H_frames, tile.tile_shape, s, sr_config)
         except SRError as exc:
             figures.append({'x0': plan.x0, 'y0': plan.y0, 'frames': len(tile.frames), 'error': str(exc),
-                            'frames_disagree': isinstance(exc, SRFramesDisagree)})
+                            'frames_disagree': isinstance(exc, SRFramesDisagree),
+                            'not_better_than_mosaic': isinstance(exc, SRNotBetterThanMosaic)})
             continue
         image = res.image.detach().cpu().numpy().transpose(1, 2, 0)
         image = np.clip(image, 0.0, 1.0)
@@ -129,6 +131,7 @@ def super_resolve_mosaic(out: Path, items: Iterable[Any], config: PipelineConfig
                         'iterations': len(res.history), 'stop_reason': res.stop_reason,
                         'lambda': float(getattr(last, 'lam', float('nan'))) if last is not None else None,
                         'min_frame_weight': float(weights[np.isfinite(weights)].min()) if weights.size else None,
+                        'held_out_rms': [round(v, 3) if np.isfinite(v) else None for v in res.held_out_rms],
                         'time_s': round(time.perf_counter() - t0, 3)})
     write_json(tiles_dir / 'tiles.json', entries)
     h, w = coverage.shape
@@ -145,14 +148,20 @@ def super_resolve_mosaic(out: Path, items: Iterable[Any], config: PipelineConfig
                          raster.transformed(whole.plane_H_tile()), h * s, w * s, block_px=MOSAIC_BLOCK_PX)
     write_png(tiles_dir / 'preview.png', preview.image())
     refused = sum(1 for f in figures if f.get('frames_disagree'))
-    failed = [f['error'] for f in figures if 'error' in f and not f.get('frames_disagree')]
+    not_better = sum(1 for f in figures if f.get('not_better_than_mosaic'))
+    failed = [f['error'] for f in figures
+              if 'error' in f and not f.get('frames_disagree') and not f.get('not_better_than_mosaic')]
     if refused:
         _LOG.warning('%d of %d SR tiles left to the mosaic (mosaic_sr.tif) because their frames disagree; per tile '
                      'in report.json sr.per_tile, e.g.: %s', refused, len(plans),
                      next(f['error'] for f in figures if f.get('frames_disagree')))
+    if not_better:
+        _LOG.warning('%d of %d SR tiles left to the mosaic because they predict a held-out frame no better than it '
+                     '(sr.self_check); per tile in report.json sr.per_tile', not_better, len(plans))
     if failed:
         _LOG.warning('%d of %d SR tiles failed: %s', len(failed), len(plans), failed[0])
-    return {'factor': s, 'tiles': len(entries), 'tiles_planned': len(plans), 'tiles_refused': refused,
+    return {'factor': s, 'tiles': len(entries), 'tiles_planned': len(plans), 'tiles_refused': refused + not_better,
+            'tiles_frames_disagree': refused, 'tiles_not_better_than_mosaic': not_better,
             'frames_read': len(frames),
             'solver': config.sr.solver, 'iterations_cap': config.sr.iterations,
             'psf_sigma_px': sr_config.psf_sigma, 'psf_selection': selection, 'per_tile': figures}

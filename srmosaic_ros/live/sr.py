@@ -33,7 +33,8 @@ import numpy as np
 
 from ..core.homography import translation as _translation
 from ..core.metrics import apply_homography
-from ..core.sr.reconstruct import SRConfig, SRError, reconstruct_tile
+from ..core.sr.reconstruct import SRConfig, SRError
+from ..core.sr.self_check import reconstruct_checked_tile
 from ..core.sr.scheduler import SRTileConfig, TilePlan, plan_tiles
 from ..errors import SrMosaicError
 
@@ -253,14 +254,15 @@ def plan_live_tiles(frames: Sequence[LiveFrame], sizes: dict[int, tuple[int, int
 
 def reconstruct_live_tile(plan: TilePlan, images: Sequence[np.ndarray], seg_H_frames: Sequence[np.ndarray],
                           factor: int, config: SRConfig, segment: int) -> tuple[np.ndarray, SRTilePlacement, Any]:
-    """Super-resolve one planned tile (core/sr/reconstruct_tile).
+    """Super-resolve one planned tile (core/sr/self_check.reconstruct_checked_tile).
 
     images: (h, w) or (h, w, 3) uint8/uint16 frames; seg_H_frames: their (3, 3) frame -> plane maps.
     Returns (tile (H s, W s[, 3]) uint8, its placement, the SRResult); raises SRError when no frame
-    observes the tile or its frames disagree (core/sr/consistency.py).
+    observes the tile, its frames disagree (core/sr/consistency.py) or it predicts a held-out frame
+    no better than the mosaic (core/sr/self_check.py).
     """
     tile_H = [_translation(-plan.x0, -plan.y0) @ H for H in seg_H_frames]
-    res = reconstruct_tile(list(images), tile_H, (plan.height, plan.width), factor, config=config)
+    res = reconstruct_checked_tile(list(images), tile_H, (plan.height, plan.width), factor, config)
     image = res.to_numpy()
     if image.shape[2] == 1:
         image = image[:, :, 0]

@@ -63,6 +63,7 @@ from msg_adapters import (SUPPORTED_ENCODINGS, camera_info_to_intrinsics, header
                           numpy_to_image)
 
 from ..core.sr.reconstruct import SRFramesDisagree
+from ..core.sr.self_check import SRNotBetterThanMosaic
 from ..core.types import CameraIntrinsics
 from ..core.undistort import Undistorter
 from ..errors import SrMosaicError
@@ -320,6 +321,9 @@ class SRNode(Node):
                     plan, [im for im, _ in decoded], [f.seg_H_frame for _, f in decoded], segment)
             except SRFramesDisagree as exc:  # 3-D ground or motion: expected, counted apart
                 self.warn('sr tile frames disagree', f'SR tile at ({plan.x0}, {plan.y0}) left to the mosaic: {exc}')
+                continue
+            except SRNotBetterThanMosaic as exc:  # the leave-one-out check: expected, counted apart
+                self.warn('sr tile not better than mosaic', f'SR tile at ({plan.x0}, {plan.y0}) left to the mosaic: {exc}')
                 continue
             except SRError as exc:
                 self.warn('sr tile', f'SR tile at ({plan.x0}, {plan.y0}) skipped: {exc}')

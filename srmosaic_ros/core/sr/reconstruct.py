@@ -116,6 +116,10 @@ class SRConfig:
     consistency: frames that do not see the same picture on the tile are left out before the solve
         (pairwise NCC below this fraction of what their noise allows; core/sr/consistency.py), and
         a tile where fewer than two agree is refused (SRError); 0 turns the test off.
+    self_check: frames held out per tile to check that SR predicts them better than the mosaic
+        (core/sr/self_check.py: a tile that does not is left to the mosaic); 0: no check (the
+        default: on real video the check's verdict does not follow the tiles' gain, README). Read
+        by :func:`~srmosaic_ros.core.sr.self_check.reconstruct_checked_tile`, not by reconstruct_tile.
     moving: frames' LR pixels that differ from the per-pixel median of the frames on the tile by
         more than this (intensity; core/sr/moving.py) saw something move and weigh 0 in the data
         term and the initial estimate; 0: off.
@@ -145,6 +149,7 @@ class SRConfig:
     outlier_threshold: float = 3.0
     outlier_power: float = 2.0
     consistency: float = 0.8
+    self_check: int = 0
     moving: float = 0.0
     min_observed: int = 16
     lm_inner: int = 8
@@ -168,6 +173,8 @@ class SRConfig:
             (self.lambda_noise_cap >= 0, f'lambda_noise_cap must be >= 0 (0: off), got {self.lambda_noise_cap}'),
             (0.0 <= self.consistency < 1.0, f'consistency must be in [0, 1) (0: off), got {self.consistency}'),
             (0.0 <= self.moving < 1.0, f'moving must be in [0, 1) (intensity; 0: off), got {self.moving}'),
+            (isinstance(self.self_check, int) and not isinstance(self.self_check, bool) and 0 <= self.self_check <= 8,
+             f'self_check must be an integer in 0..8 (held-out frames per tile; 0: off), got {self.self_check!r}'),
             (self.lm_inner >= 1, f'lm_inner must be >= 1, got {self.lm_inner}'),
         ]
         for ok, msg in checks:
@@ -192,6 +199,8 @@ class SRResult:
     tile was not anchored.
     timings: seconds for 'setup', 'initial', 'solve', 'total'.
     moving_pixels: frames' LR pixels left out of the data term as moving (``moving``).
+    held_out_rms: the leave-one-out check's RMS prediction errors (grey levels) of the held-out
+    frames from SR and from the mosaic (core/sr/self_check.py), NaN when not checked.
     """
 
     image: torch.Tensor
@@ -209,6 +218,7 @@ class SRResult:
     timings: dict[str, float] = field(default_factory=dict)
     converged: bool = False
     moving_pixels: int = 0
+    held_out_rms: tuple[float, float] = (math.nan, math.nan)
     stop_reason: str = ''
     config: SRConfig | None = None
 
