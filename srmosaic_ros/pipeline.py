@@ -463,6 +463,10 @@ class Pipeline:
         held = _Held(features, record, frame.camera or self.camera, frame.image)
         record.camera = held.camera
         decided = [record]
+        if self._last_good is not None and self._last_good.record.seg_H_frame is None:
+            # its placement was refused after it became the chain's base (painted when its segment
+            # settled, or on the painter thread, into a canvas grown meanwhile): start anew
+            self._last_good = None
         if self._last_good is None:
             self._fuse(held, None, None)
             self._active = self._start_segment(held)

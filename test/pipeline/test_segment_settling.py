@@ -101,3 +101,30 @@ def test_a_bad_frame_inside_the_settle_window_is_skipped_and_the_rest_settles(fl
     assert all(r.painted for r in pipe.records if r.index != 5)
     err = _errors(pipe)
     assert len(err) == 59 and err.max() < 0.15, np.round(err[:14], 3)
+
+
+def test_a_base_frame_refused_after_the_fact_starts_a_new_segment(flight: list) -> None:
+    """A frame becomes the chain's base when it is placed; its paint may still be refused later (when
+    its segment settles, or on the painter thread into a canvas grown meanwhile), which sets its
+    seg_H_frame to None. The next frame must not chain from it (karma.mp4 with a camera crashed
+    here: None @ prev_H_cur) but start a new segment."""
+    config = PipelineConfig()
+    pipe = Pipeline(replace(config, mosaic=replace(config.mosaic, settle_s=0.0)))
+    items = iter(flight)
+    refused = None
+    for item in items:
+        pipe.feed(item)
+        if pipe._last_good is not None and pipe._last_good.record.index >= 5:
+            refused = pipe._last_good.record
+            refused.segment, refused.seg_H_frame = -1, None  # what a refused paint leaves (Pipeline._paint_later)
+            break
+    fed = 0
+    for item in items:
+        pipe.feed(item)
+        fed += isinstance(item, Frame)
+        if fed == 10:
+            break
+    result = pipe.finish()
+    later = [r for r in result.records if r.index > refused.index]
+    assert later and all(r.painted for r in later)
+    assert later[0].segment == len(result.segments) - 1 >= 1  # a new segment starts after the refused base
