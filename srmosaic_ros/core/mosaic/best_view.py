@@ -118,9 +118,15 @@ def magnified_somewhere(m: np.ndarray, w: int, h: int) -> bool:
 
 def _disagreement(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """(h, w) the largest channel of |the AGREE_BOX^2 mean of a - b|, a, b (h, w, C)."""
-    delta = np.ascontiguousarray(a - b, dtype=np.float32)
-    mean = cv2.boxFilter(delta, -1, (AGREE_BOX, AGREE_BOX), borderType=cv2.BORDER_REPLICATE)
-    return np.abs(mean.reshape(delta.shape)).max(axis=-1)
+    return _box_mean_abs_max(np.ascontiguousarray(a - b, dtype=np.float32))
+
+
+def _box_mean_abs_max(delta: np.ndarray) -> np.ndarray:
+    """(h, w) the largest channel of |the AGREE_BOX^2 mean of delta| (h, w, C) float32."""
+    mean = np.abs(cv2.boxFilter(delta, -1, (AGREE_BOX, AGREE_BOX), borderType=cv2.BORDER_REPLICATE).reshape(delta.shape))
+    if mean.shape[-1] == 1:
+        return mean[..., 0]
+    return cv2.reduce(mean.reshape(-1, mean.shape[-1]), 1, cv2.REDUCE_MAX).reshape(mean.shape[:2])
 
 
 def update_best(tile: object, loc: tuple[slice, slice], colour: np.ndarray, q: np.ndarray, index: int,
@@ -197,10 +203,7 @@ def _known_disagreement(a: np.ndarray, background: np.ndarray, known: np.ndarray
     if step.any():
         offset = np.median(delta[::4, ::4][step], axis=0)
         cv2.subtract(delta, tuple(float(v) for v in offset), dst=delta, mask=mask)
-    mean = np.abs(cv2.boxFilter(delta, -1, (AGREE_BOX, AGREE_BOX), borderType=cv2.BORDER_REPLICATE).reshape(delta.shape))
-    if mean.shape[-1] == 1:
-        return mean[..., 0]
-    return cv2.reduce(mean.reshape(-1, mean.shape[-1]), 1, cv2.REDUCE_MAX).reshape(mean.shape[:2])
+    return _box_mean_abs_max(delta)
 
 
 def _median(hist: np.ndarray) -> np.ndarray:
@@ -262,8 +265,8 @@ def _moving_vote(tile: object, loc: tuple[slice, slice], colour: np.ndarray, q: 
     slot = hist_n % np.uint8(k)
     for i in range(k):
         copy_where(hist[i], sample, seen & (slot == i))
-    np.add(hist_n, np.uint8(1), out=hist_n, where=seen & (hist_n < 255))
-    full = seen & (hist_n == 255)
+    np.add(hist_n, np.uint8(1), out=hist_n, where=seen)  # at most 254 before: 255 is set back below
+    full = hist_n == 255
     if full.any():  # saturated: back by K every time, so the ring goes on turning
         hist_n[full] = 255 - k
     if frame_moved.any():
