@@ -41,6 +41,8 @@ All arrays are numpy float32 unless said; frame pixel centres at integer (u, v).
 """
 from __future__ import annotations
 
+import math
+
 import cv2
 import numpy as np
 
@@ -98,9 +100,13 @@ def resolution_factor(m: np.ndarray, depth: np.ndarray) -> np.ndarray:
     """(h, w) float32 ``r = min(1, 1 / s)``, s = sqrt(|det m| / depth**3) the linear stretch of each frame
     pixel on the mosaic (det J of the homography); 0 where depth <= 0. ``depth``: :func:`depth_map`."""
     det = abs(float(np.linalg.det(m)))
-    d = np.maximum(depth, np.float32(0.0))
-    r = np.sqrt(d * d * d / np.float32(det)) if det > 0 else np.ones_like(depth)
-    return np.minimum(r, np.float32(1.0), out=r)
+    if not det > 0:
+        return np.ones_like(depth)
+    # OpenCV's vectorised power on one array (a numpy chain of six passes took 7 ms at 1280 x 720)
+    r = cv2.max(depth, 0.0)
+    cv2.pow(r, 1.5, dst=r)
+    cv2.multiply(r, 1.0 / math.sqrt(det), dst=r)
+    return cv2.min(r, 1.0, dst=r)
 
 
 def magnified_somewhere(m: np.ndarray, w: int, h: int) -> bool:

@@ -505,7 +505,8 @@ class TiledCanvas:
 
         weight = feather_weight(h, w, profile=self._profile, power=self._power, mask=valid)
         if coarse and depth is not None:  # view quality: closeness to the centre x resolution
-            weight = weight * resolution_factor(m, depth)
+            r = resolution_factor(m, depth)
+            weight = cv2.multiply(weight, r, dst=r)
         if valid is not None:
             img = _fill_invalid(img, valid)
         bw, bh = x1 - x0, y1 - y0
