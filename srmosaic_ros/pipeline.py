@@ -24,10 +24,19 @@ segment's first frames are held, unpainted, until settle_s seconds of them (or s
 frames) have been placed; then they are placed back from the newest one through their own
 registrations (H_k = H_(k+1) inv(prev_H_cur_(k+1))) and painted. Their records are decided then,
 that much later (the poses are ready at once: take_fused()).
+
+Poses without a measured attitude (no Imu orientation, no CameraAttitude: the filter's camera is
+only the configured mount, nadir by default): when the first georeferenced segment settles, its
+drift-control innovations say whether that assumption fits the footage (core/georef/pose_check.py).
+When it does not (an oblique or forward-looking camera), the held frames are placed back in the
+first frame's pixel plane through their registrations, no later segment is placed by its pose,
+and the mosaic is chained as without intrinsics (georeferenced afterwards by its geotags);
+``pose_check`` says so, with a warning.
 """
 from __future__ import annotations
 
 import collections
+import logging
 import math
 import time
 from dataclasses import dataclass, field
@@ -48,12 +57,15 @@ from .core.mosaic.scratch import scratch
 from .core.registration import Features, Registration, make_registrar
 from .core.registration.pyramid import PyramidRegistrar
 from .core.georef.georeferencer import FramePose, Georeferencer
+from .core.georef.pose_check import PoseCheck, check_pose_placement
 from .core.serial_worker import SerialWorker
 from .core.stage_clock import StageClock
 from .core.undistort import Undistorter
 from .core.types import CameraAttitude, CameraIntrinsics, Frame, GeoFix, ImuSample
 
 __all__ = ['FrameRecord', 'Pipeline', 'PipelineResult', 'SYNC_HOLD_FRAMES']
+
+_LOG = logging.getLogger(__name__)
 
 #: Frames kept waiting for telemetry when none has been seen after them (then they go on alone).
 #: Before the first GNSS fix, frames wait for one (at most this many, and at most
@@ -98,6 +110,7 @@ class PipelineResult:
     georef: Georeferencer | None = None
     attitudes: list[CameraAttitude] = field(default_factory=list)
     georef_note: str = ''  # why the offline fallback (the fit to geotags) did not place the mosaic
+    pose_check: PoseCheck | None = None  # whether the poses of an unmeasured attitude placed the mosaic
 
     @property
     def main_segment(self) -> Segment | None:
@@ -119,12 +132,12 @@ class _Held:
 
 
 #: Version of :meth:`Pipeline.state`: a checkpoint of another is refused (the run starts again).
-STATE_VERSION = 1
+STATE_VERSION = 2
 
 #: The attributes a resumed run needs (Pipeline.state); everything else is rebuilt from the config.
 _STATE = ('records', 'segments', 'fixes', 'imus', 'attitudes', 'georef', 'camera', 'clock', '_geo_canvas', '_active',
           '_last_good', '_orphan', '_channels', '_waiting', '_first_fix_wait_over', '_latest_telemetry_ns',
-          '_centres', '_settling', '_settling_seg', '_settled', '_fused')
+          '_centres', '_settling', '_settling_seg', '_settled', '_fused', 'pose_check', '_settling_nis')
 
 
 class Pipeline:
@@ -160,6 +173,8 @@ class Pipeline:
         self._settling_seg: Segment | None = None
         self._settled: list[FrameRecord] = []  # records decided by the last settle (returned by _process)
         self._fused: collections.deque[FrameRecord] = collections.deque(maxlen=1000)
+        self.pose_check: PoseCheck | None = None  # decided when the first georeferenced segment settles
+        self._settling_nis: list[float] = []  # drift-control NIS of the settling frames (pose_check.py)
         self.clock = StageClock()  # seconds per stage per input frame (the driver calls clock.end_frame())
 
     # -- input -------------------------------------------------------------------------------
@@ -270,6 +285,8 @@ class Pipeline:
         pose, camera = held.record.pose, held.camera
         if self.georef is None or pose is None or not pose.valid or camera is None:
             return None
+        if self.pose_check is not None and not self.pose_check.used:  # the assumed attitude was refused
+            return None
         if self.georef.raster is None:
             self.georef.make_raster(pose, camera, coarsen=1.0 / self._plane_scale(held.record.size[0]))
         self.georef.reset_drift()
@@ -307,7 +324,10 @@ class Pipeline:
         if not seg.georeferenced or self.georef is None or pose is None or not pose.valid or held.camera is None:
             return chained
         with self.clock.stage('fuse'):
-            return self._drift_corrected(chained, reg, pose, held)
+            corrected = self._drift_corrected(chained, reg, pose, held)
+        if seg is self._settling_seg and seg is self._geo_canvas and self.pose_check is None:
+            self._settling_nis.append(self.georef.drift_nis)  # evidence for _poses_refused
+        return corrected
 
     def _drift_corrected(self, chained: np.ndarray, reg: Registration, pose: FramePose, held: _Held) -> np.ndarray:
         """The chained seg_H_frame pulled toward the pose-predicted placement (drift control)."""
@@ -547,7 +567,8 @@ class Pipeline:
     def finish(self) -> PipelineResult:
         """Process the frames still waiting for telemetry, paint those held for settling, and return everything."""
         self.flush()
-        return PipelineResult(self.records, self.segments, self.fixes, self.imus, self.georef, self.attitudes)
+        return PipelineResult(self.records, self.segments, self.fixes, self.imus, self.georef, self.attitudes,
+                              pose_check=self.pose_check)
 
     # -- settling --------------------------------------------------------------------------------
     def _place(self, seg: Segment, held: _Held, seg_H_frame: np.ndarray) -> bool:
@@ -573,15 +594,54 @@ class Pipeline:
         self._settling, self._settling_seg = [], None
         if not held or seg is None:
             return
-        placed = [held[-1].record.seg_H_frame]
-        for k in range(len(held) - 2, -1, -1):
-            rel = held[k + 1].record.registration.prev_H_cur  # frame k+1 -> frame k (its last good frame)
-            h = placed[-1] @ np.linalg.inv(rel)
-            placed.append(h / h[2, 2])
-        for h_k, frame in zip(reversed(placed), held, strict=True):
+        if self._poses_refused(seg):
+            placed = self._chained_from_first(held)
+        else:
+            placed = [held[-1].record.seg_H_frame]
+            for k in range(len(held) - 2, -1, -1):
+                rel = held[k + 1].record.registration.prev_H_cur  # frame k+1 -> frame k (its last good frame)
+                h = placed[-1] @ np.linalg.inv(rel)
+                placed.append(h / h[2, 2])
+            placed.reverse()
+        for h_k, frame in zip(placed, held, strict=True):
             if not self._paint(seg, frame, h_k):
                 frame.record.seg_H_frame = None
             self._settled.append(frame.record)
+
+    def _poses_refused(self, seg: Segment) -> bool:
+        """Decide pose_check when ``seg``, the first georeferenced segment, settles (module docstring);
+        True when its frames must not be placed by their poses: then the segment, not painted yet,
+        becomes an ordinary one in its first frame's plane and no later one is georeferenced."""
+        nis, self._settling_nis = self._settling_nis, []
+        if seg is not self._geo_canvas or self.pose_check is not None or self._attitude_measured():
+            return False
+        g = self.config.georef
+        self.pose_check = check_pose_placement(nis, g.gate_probability, (g.gimbal_azimuth_deg, g.gimbal_elevation_deg))
+        if self.pose_check is None or self.pose_check.used:
+            return False
+        _LOG.warning('the frames are not placed by the filter\'s poses: %s. They are chained in the first frame\'s plane '
+                     'as without intrinsics, and the mosaic is georeferenced afterwards by its geotags. To place them '
+                     'on the map through the filter, give the camera attitude (an Imu orientation, gimbal angles) or '
+                     'the mount it is fixed at (georef.gimbal_elevation_deg, georef.gimbal_azimuth_deg).',
+                     self.pose_check.reason)
+        seg.georeferenced = False
+        self._geo_canvas = None
+        self.georef.drop_raster()
+        return True
+
+    def _attitude_measured(self) -> bool:
+        """Whether the input measured the camera's attitude (an Imu orientation or a camera attitude
+        so far): then the filter's orientation is not only the assumed mount."""
+        return bool(self.attitudes) or any(imu.orientation_xyzw is not None for imu in self.imus)
+
+    def _chained_from_first(self, held: list[_Held]) -> list[np.ndarray]:
+        """seg_H_frame of each held frame in the first one's pixel plane (scaled to mosaic.max_width),
+        through their registrations: what a segment without georeferencing gives (_start_segment)."""
+        s = self._plane_scale(held[0].record.size[0])
+        placed = [np.diag([s, s, 1.0])]
+        for frame in held[1:]:
+            placed.append(placed[-1] @ frame.record.registration.prev_H_cur)  # frame k -> frame k-1
+        return placed
 
     def _take_settled(self) -> list[FrameRecord]:
         out = self._settled

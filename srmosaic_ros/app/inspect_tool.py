@@ -36,7 +36,8 @@ def _plan(positions: bool, intrinsics: bool, attitude: bool, attitude_what: str 
           why_fit: str = 'no camera intrinsics; give --camera or --hfov (video) for the filter') -> str:
     if positions and intrinsics:
         att = f'camera attitude from {attitude_what}' if attitude else \
-            'no attitude: it is learnt from the registrations and the course over ground'
+            ('no attitude: it is learnt from the registrations and the course over ground, the camera taken as the '
+             'mount georef.gimbal_* says (nadir); footage that disagrees is chained and fitted to its geotags instead')
         return f'georeferenced through the filter (GPS + homographies; {att}); mosaic.tif, mosaic.kml, poses.csv'
     if positions:
         return f'georeferenced by its geotags (a similarity fitted to the GPS positions): {why_fit}'

@@ -101,6 +101,7 @@ def write_outputs(result: PipelineResult, out: Path, config: PipelineConfig, ext
         },
         'telemetry': {'fixes': len(result.fixes), 'imu': len(result.imus)},
         'georeferenced': geo or None,
+        **({'pose_placement': result.pose_check.as_dict()} if result.pose_check is not None else {}),
         **({'moving': moving} if moving is not None else {}),
         'config': {'device': config.device, 'registration': vars(config.registration), 'mosaic': vars(config.mosaic)},
     }
@@ -512,6 +513,9 @@ def not_georeferenced_reason(result: PipelineResult, config: PipelineConfig,
     if not result.fixes:
         return ('the input carries no GPS positions (no NavSatFix topic, EXIF GPS, KLV, SRT or GPMF track); give a '
                 'flight log with --telemetry (video) or a telemetry_from_exif.csv beside the stills.')
+    check = getattr(result, 'pose_check', None)
+    if getattr(result, 'georef_note', '') and check is not None and not check.used:
+        return f'the filter\'s poses were not used ({check.reason}) and {result.georef_note}.'
     if getattr(result, 'georef_note', ''):
         return f'the filter could not place the mosaic (no camera intrinsics or attitude) and {result.georef_note}.'
     if result.georef is None or result.georef.raster is None:

@@ -115,7 +115,9 @@ class DriftState:
     covariance of the last pose fused, the canvas similarity's origin (2,), the estimates of the
     similarity (4,) and of the pose error (d,), and the covariance (12 + d, 12 + d) of (the
     chain's error of the 8 corner coordinates, the similarity, the pose error); d = 7 in the
-    Georeferencer (the pose and the ground height)."""
+    Georeferencer (the pose and the ground height). ``nis``: the normalised innovation squared
+    nu^T S^-1 nu of the last pose update (chi-square with 8 degrees of freedom when the chain and
+    the pose model agree); NaN before the first update and after a step without a pose."""
 
     placed: np.ndarray
     stamp_ns: int
@@ -124,6 +126,7 @@ class DriftState:
     sim: np.ndarray
     pose_error: np.ndarray
     cov: np.ndarray
+    nis: float = float('nan')
 
     @property
     def canvas(self) -> CanvasSimilarity:
@@ -312,7 +315,7 @@ def drift_step(state: DriftState, chained: np.ndarray, corners: np.ndarray, chai
     c = apply_H(chained, corners).ravel()
     if pose is None:
         state.cov = Phi @ state.cov @ Phi.T + Q
-        state.placed = chained
+        state.placed, state.nis = chained, float('nan')
         return chained
     stamp_ns, z, J, P = pose
     A, Qy = pose_error_transition(state.pose_cov, P, (int(stamp_ns) - state.stamp_ns) * 1e-9,
@@ -326,7 +329,11 @@ def drift_step(state: DriftState, chained: np.ndarray, corners: np.ndarray, chai
     R = max(model_sigma_px, 1e-3) ** 2 * np.eye(_CORNERS)
     S = H @ cov @ H.T + R
     K = np.linalg.solve(S, H @ cov).T  # cov H^T S^-1 (S and cov symmetric)
-    dx = K @ (np.asarray(z, dtype=np.float64) - c + G @ state.sim - J @ y)
+    nu = np.asarray(z, dtype=np.float64) - c + G @ state.sim - J @ y
+    dx = K @ nu
+    # how far the pose's placement lies from the chain's, in their sigma: evidence whether the pose
+    # model (with no attitude measured, the mount assumed) fits the footage
+    state.nis = float(nu @ np.linalg.solve(S, nu))
     c = c + dx[:_CORNERS]
     IKH = np.eye(n) - K @ H
     cov = IKH @ cov @ IKH.T + K @ R @ K.T

@@ -351,6 +351,13 @@ class Georeferencer:
         self.raster = GeoRaster(epsg, gsd, e0, n0)
         return self.raster
 
+    def drop_raster(self) -> None:
+        """Forget the raster and the drift controller: the mosaic is not placed by the poses after
+        all (pipeline: pose_check.py); the filter goes on giving poses."""
+        self.raster = None
+        self.__dict__.pop('_raster_agl_m', None)  # nothing painted at its sampling: no warning about it
+        self.reset_drift(new_canvas=True)
+
     def raster_H_enu(self, raster: GeoRaster | None = None) -> np.ndarray:
         """(3, 3) ENU ground (east, north, 1) -> raster pixel (x, y, 1) (affine)."""
         raster = self._raster(raster)
@@ -428,6 +435,13 @@ class Georeferencer:
         self._drift = None
         if new_canvas:
             self._canvas = None
+
+    @property
+    def drift_nis(self) -> float:
+        """The normalised innovation squared of the last :meth:`correct` (pose-predicted corners
+        against the chained ones, chi-square with 8 dof when they agree; see pose_check.py); NaN
+        when that call fused no pose or anchored a chain."""
+        return float('nan') if self._drift is None else self._drift.nis
 
     @property
     def canvas_similarity(self) -> np.ndarray | None:

@@ -1,0 +1,88 @@
+"""GPS and intrinsics but no measured attitude (no Imu orientation, gimbal or KLV angles): the
+filter's camera is only the assumed mount, nadir by default (issue 17, found on a GoPro Karma
+clip). An oblique camera must not be pulled onto that assumption: the mosaic is chained and
+georeferenced afterwards by its geotags, and the report says why. A nadir camera is still placed by
+its poses from the first frame, its figures unchanged."""
+from __future__ import annotations
+
+import logging
+import math
+
+import pytest
+
+from srmosaic_ros.app.evaluate import evaluate_dir
+from srmosaic_ros.app.process import write_outputs
+from srmosaic_ros.config import PipelineConfig
+from srmosaic_ros.core.georef.pose_check import MIN_INNOVATIONS, check_pose_placement
+from srmosaic_ros.io.metadata import merge_by_time
+from srmosaic_ros.pipeline import Pipeline
+from srmosaic_ros.sim import SimConfig, save_truth, simulate
+
+# test_sim_orbit.py's orbit: 52 frames of 160 x 120 circling at 80 m, 58 deg below the horizon
+ORBIT = {'trajectory': 'orbit', 'orbit_radius_m': 50.0, 'laps': 1.1, 'altitude_m': 80.0, 'hfov_deg': 40.0,
+         'width': 160, 'height': 120, 'speed_m_s': 10.0, 'rate_hz': 1.5, 'seed': 4}
+NADIR = {'trajectory': 'line', 'frames': 20, 'rate_hz': 4.0, 'altitude_m': 80.0, 'width': 160, 'height': 120,
+         'world': 'data/worlds/caliterra_IMG_9360.jpg', 'seed': 5}
+
+
+def _run(cfg: SimConfig, tmp_path, *, imu: bool = False):
+    """(PipelineResult, report, truth figures) of a simulated flight fed with its fixes (and its Imu
+    samples when ``imu``), the frames carrying their intrinsics; default configuration (nadir mount)."""
+    flight = simulate(cfg)
+    telemetry = flight.fixes + (flight.imus if imu else [])
+    config = PipelineConfig()
+    pipeline = Pipeline(config)
+    for item in merge_by_time(flight.frames, sorted(telemetry, key=lambda x: x.stamp_ns)):
+        pipeline.feed(item)
+    result = pipeline.finish()
+    report = write_outputs(result, tmp_path, config, {})
+    save_truth(flight.truth, tmp_path / 'truth.json')
+    return result, report, evaluate_dir(tmp_path, tmp_path / 'truth.json')
+
+
+def test_oblique_orbit_without_attitude_is_chained_not_forced_to_nadir(tmp_path, caplog) -> None:
+    """Before the check, drift control pulled every frame toward a nadir footprint: corner error
+    4.78 px mean (14.0 max) against the truth; chained, 0.083 px (0.19 max), as without intrinsics."""
+    with caplog.at_level(logging.WARNING, logger='srmosaic_ros.pipeline'):
+        result, report, fig = _run(SimConfig(**ORBIT), tmp_path)
+    assert fig['frames_registered'] == fig['frames_in'] == 52
+    assert fig['corner_error_mean_px'] < 0.3, fig  # measured 0.083 px (4.78 px when forced to nadir)
+    assert [seg.georeferenced for seg in result.segments] == [False]
+    placement = report['pose_placement']
+    assert placement['used'] is False and placement['attitude'] == 'not measured'
+    assert placement['median_nis'] > placement['gate_nis'] and placement['innovations'] >= MIN_INNOVATIONS
+    assert 'mount' in placement['reason'] and 'nadir' in placement['reason']
+    assert report['georeferenced']['method'] == 'geotags'  # afterwards, as a mosaic without intrinsics
+    said = ' '.join(r.getMessage() for r in caplog.records)
+    assert 'not placed by the filter' in said and 'georef.gimbal_elevation_deg' in said
+
+
+def test_oblique_orbit_with_its_imu_is_not_checked(tmp_path) -> None:
+    """A measured attitude: the filter's camera is not an assumption, and nothing is decided."""
+    cfg = SimConfig(**{**ORBIT, 'laps': 0.3})
+    result, report, _ = _run(cfg, tmp_path, imu=True)
+    assert result.pose_check is None and 'pose_placement' not in report
+
+
+def test_nadir_flight_without_attitude_is_placed_by_its_poses_from_the_start(tmp_path) -> None:
+    """GPS only over a nadir camera: the check passes (median NIS 1.8 against the gate 37.3) and the
+    frames are on the map from the first one, as before it existed (0.048 px, 0.97 m)."""
+    result, report, fig = _run(SimConfig(**NADIR), tmp_path)
+    assert result.pose_check is not None and result.pose_check.used
+    assert result.pose_check.median_nis < 5.0
+    assert [seg.georeferenced for seg in result.segments] == [True]
+    assert report['georeferenced']['method'] == 'filter' and report['pose_placement']['used'] is True
+    assert fig['frames_registered'] == 20
+    assert fig['corner_error_mean_px'] == pytest.approx(0.0475, abs=0.005), fig
+    assert fig['georef_error_rms_m'] == pytest.approx(0.973, abs=0.01), fig
+
+
+def test_the_rule_is_the_median_innovation_against_the_filters_gate() -> None:
+    mount = (0.0, -90.0)
+    assert check_pose_placement([500.0] * (MIN_INNOVATIONS - 1) + [math.nan], 0.99999, mount) is None  # too few
+    used = check_pose_placement([2.0, 3.0, 1.0, 900.0, 2.5], 0.99999, mount)  # one bad registration does not decide
+    assert used is not None and used.used and used.reason == ''
+    assert used.gate_nis == pytest.approx(37.33, abs=0.01)  # chi-square, 8 dof, at georef.gate_probability
+    refused = check_pose_placement([300.0, 20.0, 400.0, 250.0, 1.0], 0.99999, (90.0, -30.0))
+    assert refused is not None and not refused.used
+    assert refused.median_nis == 250.0 and 'elevation -30 deg: oblique' in refused.reason
