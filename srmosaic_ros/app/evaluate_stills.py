@@ -4,8 +4,12 @@ A folder of stills (`data/sequences` layout: images/ and telemetry_from_exif.csv
 average, JPEG quality 98) into an LR folder for `srmosaic process --sr`; each SR tile is then
 compared with the HR original of its reference frame (of the frames that hold the whole tile, the
 one whose centre is nearest the tile's: the frame SR anchors to), sampled at the tile's pixels through that frame's registered
-homography: HR pixel = 2 * LR pixel + 0.5 (pixel centres at integers). The baseline is mosaic.png
-sampled bicubically at the same points. Used by bench/sr_real.py and test/test_sr_consistency.py.
+homography: HR pixel = 2 * LR pixel + 0.5 (pixel centres at integers). Two baselines, both sampled
+bicubically at the same points: mosaic.png (what the product shows without SR) and the reference
+frame's own LR image (the HR original halved by area average: single-frame bicubic upsampling, the
+usual baseline of SR). They differ where the mosaic shows another frame than the reference (best
+view: exposure, parallax, waves and traffic differ between frames), which the mosaic baseline
+charges to bicubic. Used by bench/sr_real.py, bench/sr_video.py and test/test_sr_consistency.py.
 """
 from __future__ import annotations
 
@@ -20,10 +24,11 @@ from ..core.sr.scheduler import frame_centres, frame_holds_rect
 from .evaluate import tile_grid_H
 from ..io.mosaic_files import read_frames_csv
 
-__all__ = ['TileErrors', 'halve_stills', 'pooled_gain_db', 'psnr_from_sse', 'sr_errors_against_originals']
+__all__ = ['TileErrors', 'gains_db', 'halve_stills', 'pooled_gain_db', 'psnr_from_sse', 'sr_errors_against_originals']
 
-#: Per SR tile file: (sum of squared errors of SR, of bicubic, number of values), 0..255 units.
-TileErrors = dict[str, tuple[float, float, int]]
+#: Per SR tile file: (sum of squared errors of SR, of the mosaic sampled bicubically, number of
+#: values, of the reference frame's LR image sampled bicubically), 0..255 units.
+TileErrors = dict[str, tuple[float, float, int, float]]
 _HR_H_LR = np.array([[2.0, 0.0, 0.5], [0.0, 2.0, 0.5], [0.0, 0.0, 1.0]])
 
 
@@ -59,6 +64,7 @@ def sr_errors_against_originals(out: Path, hr: dict[str, np.ndarray]) -> TileErr
     h_hr, w_hr = next(iter(hr.values())).shape[:2]
     size = (w_hr // 2, h_hr // 2)
     centres = frame_centres([h for _, h in ok], [size] * len(ok))
+    lr: dict[str, np.ndarray] = {}  # the reference frames halved, as the LR input was made
     result: TileErrors = {}
     for entry in json.loads((out / 'sr' / 'tiles.json').read_text()):
         sr = cv2.imread(str(out / 'sr' / entry['file']))[:, :, :3].astype(np.float64)
@@ -72,19 +78,32 @@ def sr_errors_against_originals(out: Path, hr: dict[str, np.ndarray]) -> TileErr
             continue
         dist = np.where(covers, np.hypot(*(centres - c).T), np.inf)
         name, mosaic_H_frame = ok[int(np.argmin(dist))]
-        truth = _sample(hr[name], _HR_H_LR @ np.linalg.inv(mosaic_H_frame) @ grid_H, sr.shape[:2])
+        frame_H_grid = np.linalg.inv(mosaic_H_frame) @ grid_H
+        truth = _sample(hr[name], _HR_H_LR @ frame_H_grid, sr.shape[:2])
         bicubic = _sample(mosaic, grid_H, sr.shape[:2])
-        result[entry['file']] = (float(((sr - truth) ** 2).sum()), float(((bicubic - truth) ** 2).sum()), truth.size)
+        if name not in lr:
+            lr[name] = cv2.resize(hr[name], size, interpolation=cv2.INTER_AREA)
+        frame_bicubic = _sample(lr[name], frame_H_grid, sr.shape[:2])
+        result[entry['file']] = (float(((sr - truth) ** 2).sum()), float(((bicubic - truth) ** 2).sum()), truth.size,
+                                 float(((frame_bicubic - truth) ** 2).sum()))
     return result
+
+
+def gains_db(errors: TileErrors, baseline: str = 'mosaic') -> np.ndarray:
+    """Per-tile PSNR gain (dB) of SR over the ``baseline`` ('mosaic' or 'frame', module docstring)."""
+    k = 1 if baseline == 'mosaic' else 3
+    return np.array([psnr_from_sse(e[0], e[2]) - psnr_from_sse(e[k], e[2]) for e in errors.values()])
 
 
 def psnr_from_sse(sse: float, n: int) -> float:
     return float(10 * np.log10(255.0**2 / max(sse / max(n, 1), 1e-12)))
 
 
-def pooled_gain_db(errors: TileErrors, files: list[str] | None = None) -> tuple[float, float, float]:
-    """(PSNR of SR, PSNR of bicubic, gain dB) pooled over ``files`` (default all)."""
+def pooled_gain_db(errors: TileErrors, files: list[str] | None = None, baseline: str = 'mosaic') -> tuple[float, float, float]:
+    """(PSNR of SR, PSNR of bicubic, gain dB) pooled over ``files`` (default all), bicubic of the
+    ``baseline`` ('mosaic' or 'frame', module docstring)."""
     use = list(errors) if files is None else files
-    sse_sr, sse_bi, n = (sum(errors[f][i] for f in use) for i in range(3))
+    k = 1 if baseline == 'mosaic' else 3
+    sse_sr, sse_bi, n = (sum(errors[f][i] for f in use) for i in (0, k, 2))
     p_sr, p_bi = psnr_from_sse(sse_sr, n), psnr_from_sse(sse_bi, n)
     return p_sr, p_bi, p_sr - p_bi

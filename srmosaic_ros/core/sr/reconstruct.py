@@ -141,6 +141,7 @@ class SRConfig:
     lambda_gamma: float = 0.1
     lambda_reference: str = 'initial'
     lambda_noise_cap: float = 0.0
+    lambda_noise_floor: float = 0.0
     huber_alpha: float = 0.02
     color: str = 'luma'
     margin: int = 4
@@ -171,6 +172,7 @@ class SRConfig:
             (self.lam >= 0 and self.lambda_gamma >= 0, 'lam and lambda_gamma must be >= 0'),
             (self.margin >= 0, f'margin must be >= 0 LR pixels, got {self.margin}'),
             (self.lambda_noise_cap >= 0, f'lambda_noise_cap must be >= 0 (0: off), got {self.lambda_noise_cap}'),
+            (self.lambda_noise_floor >= 0, f'lambda_noise_floor must be >= 0 (0: off), got {self.lambda_noise_floor}'),
             (0.0 <= self.consistency < 1.0, f'consistency must be in [0, 1) (0: off), got {self.consistency}'),
             (0.0 <= self.moving < 1.0, f'moving must be in [0, 1) (intensity; 0: off), got {self.moving}'),
             (isinstance(self.self_check, int) and not isinstance(self.self_check, bool) and 0 <= self.self_check <= 8,
@@ -506,12 +508,15 @@ def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames:
         noise = noise_sigma(stack.crops.reshape(-1, 1, *stack.crops.shape[-2:]),
                             stack.in_frame.repeat_interleave(solve_c, dim=0))
     noise_cap = cfg.lambda_noise_cap * noise if cfg.lambda_noise_cap > 0 and noise > 0 else None
+    noise_floor = cfg.lambda_noise_floor * noise if cfg.lambda_noise_floor > 0 and noise > 0 else None
     if cfg.lambda_reference == 'initial':
         g0 = clique_differences(x0)
         rule = LambdaRule(cfg.lambda_mode, value=cfg.lam, gamma=cfg.lambda_gamma / (s * s),
-                          reference=huber_sum(g0, cfg.huber_alpha) / g0.numel(), noise_cap=noise_cap)
+                          reference=huber_sum(g0, cfg.huber_alpha) / g0.numel(), noise_cap=noise_cap,
+                          noise_floor=noise_floor)
     else:
-        rule = LambdaRule(cfg.lambda_mode, value=cfg.lam, gamma=cfg.lambda_gamma / s, noise_cap=noise_cap)
+        rule = LambdaRule(cfg.lambda_mode, value=cfg.lam, gamma=cfg.lambda_gamma / s, noise_cap=noise_cap,
+                          noise_floor=noise_floor)
     problem = Problem(stack.operator, y_obs, prior=HuberPrior(cfg.huber_alpha), lam=rule,
                       frame_weights=w0.to(y_obs.dtype), counts=counts)
 

@@ -89,7 +89,10 @@ class LambdaRule:
     comparison). ``noise_cap``: in ``adaptive`` mode, each frame's RMS residual is capped at this
     value (intensity) before it enters (5.6): the residual stands for the noise only where the
     model fits; on real frames it also holds misfit (parallax, lens, lighting) that a stronger
-    prior does not cure (bench/sr_real.py).
+    prior does not cure (bench/sr_real.py). ``noise_floor``: each frame's RMS residual is taken as at
+    least this (intensity) in ``adaptive`` mode: an estimate that fits its frames below their noise
+    (one frame, or frames that agree, can be fitted exactly) has fitted the noise, and (5.6) would
+    let lambda collapse with the residual and the noise be amplified into the HR estimate.
     """
 
     mode: str = 'adaptive'
@@ -97,6 +100,7 @@ class LambdaRule:
     gamma: float = 1.0
     reference: float | None = None
     noise_cap: float | None = None
+    noise_floor: float | None = None
 
     def __post_init__(self) -> None:
         if self.mode not in LAMBDA_MODES:
@@ -188,6 +192,8 @@ class Problem:
         rms = torch.sqrt(fsq / self._counts_cpu.clamp_min(1.0))
         if rule.noise_cap is not None:
             rms = rms.clamp_max(rule.noise_cap)
+        if rule.noise_floor is not None:
+            rms = rms.clamp_min(rule.noise_floor)
         mean_rho = rho_sum / n_cliques if rule.reference is None else rule.reference
         return float(adaptive_lambda(rms, self._w_cpu, mean_rho, gamma=rule.gamma))
 

@@ -88,6 +88,17 @@ def test_lambda_noise_cap_acts_on_misfit_only(world, tile):
     assert mis_on < 0.7 * mis_off      # ... and the cap takes most of that back
 
 
+def test_lambda_noise_floor_keeps_the_prior_on_a_single_frame(world):
+    """One noisy frame can be fitted exactly: (5.6)'s lambda falls with the residual and the noise is
+    amplified into the tile; with the residual floored at twice the noise lambda stays up, and the
+    tile is closer to the truth."""
+    st = make_synthetic_tile(world, (150, 480), TILE, 2, 1, noise_sigma=4.0, seed=3)
+    runs = {f: reconstruct_tile(st.frames, st.tile_H_frames, TILE, 2, iterations=10, device='cpu', consistency=0,
+                                anchor=False, lambda_noise_floor=f) for f in (0.0, 2.0)}
+    assert runs[2.0].history[-1].lam > 3 * runs[0.0].history[-1].lam
+    assert psnr(hwc(runs[2.0].image), st.truth) > psnr(hwc(runs[0.0].image), st.truth)
+
+
 def test_moving_object_frame_is_down_weighted(world):
     st = make_synthetic_tile(world, (150, 480), TILE, 2, 6, noise_sigma=1.0, seed=4)
     frames = [f.copy() for f in st.frames]

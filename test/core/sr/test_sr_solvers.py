@@ -137,6 +137,19 @@ def test_lambda_rule_noise_cap_bounds_the_residual():
         assert math.isclose(p.lam_from(fsq, 1e-3, n), expect)
 
 
+def test_lambda_rule_noise_floor_keeps_lambda_when_the_residual_vanishes():
+    """sigma(n) of (5.6) is taken as at least the floor: a residual of 0.001 (the estimate fits its
+    frames below their noise) gives the lambda of the floor, a residual above it its own."""
+    op, x_true = _dense_problem(seed=9)
+    y = op.apply(x_true)
+    n = 4 * 16
+    for rms, floor, expect in ((1e-3, 0.01, 0.5 * 0.01**2 / 2e-4), (0.02, 0.01, 0.5 * 0.02**2 / 2e-4),
+                               (1e-3, None, 0.5 * 1e-3**2 / 2e-4)):
+        fsq = torch.tensor([rms**2] * 3, dtype=torch.float64) * 36
+        p = Problem(op, y, prior=HuberPrior(0.05), lam=LambdaRule('adaptive', gamma=0.5, reference=2e-4, noise_floor=floor))
+        assert math.isclose(p.lam_from(fsq, 1e-3, n), expect)
+
+
 # ----------------------------------------------------------------------------------- line search
 
 
