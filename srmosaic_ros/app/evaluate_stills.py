@@ -89,9 +89,20 @@ def sr_errors_against_originals(out: Path, hr: dict[str, np.ndarray]) -> TileErr
     return result
 
 
+#: Where each baseline's sum of squared errors sits in a TileErrors tuple.
+_BASELINE_FIELD = {'mosaic': 1, 'frame': 3}
+
+
+def _baseline_field(baseline: str) -> int:
+    if baseline not in _BASELINE_FIELD:
+        msg = f"baseline must be 'mosaic' or 'frame', got {baseline!r}."
+        raise ValueError(msg)
+    return _BASELINE_FIELD[baseline]
+
+
 def gains_db(errors: TileErrors, baseline: str = 'mosaic') -> np.ndarray:
     """Per-tile PSNR gain (dB) of SR over the ``baseline`` ('mosaic' or 'frame', module docstring)."""
-    k = 1 if baseline == 'mosaic' else 3
+    k = _baseline_field(baseline)
     return np.array([psnr_from_sse(e[0], e[2]) - psnr_from_sse(e[k], e[2]) for e in errors.values()])
 
 
@@ -103,7 +114,7 @@ def pooled_gain_db(errors: TileErrors, files: list[str] | None = None, baseline:
     """(PSNR of SR, PSNR of bicubic, gain dB) pooled over ``files`` (default all), bicubic of the
     ``baseline`` ('mosaic' or 'frame', module docstring)."""
     use = list(errors) if files is None else files
-    k = 1 if baseline == 'mosaic' else 3
+    k = _baseline_field(baseline)
     sse_sr, sse_bi, n = (sum(errors[f][i] for f in use) for i in (0, k, 2))
     p_sr, p_bi = psnr_from_sse(sse_sr, n), psnr_from_sse(sse_bi, n)
     return p_sr, p_bi, p_sr - p_bi
