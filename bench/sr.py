@@ -440,7 +440,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument('--out', default=str(ROOT / 'bench' / 'out'))
     ap.add_argument('--no-anchor', action='store_true', help='SR without anchoring to the reference frame (sr.anchor)')
     ap.add_argument('--set', action='append', default=[], metavar='KEY=VALUE',
-                    help='an SR setting for every run, e.g. lambda_gamma=0.3 (a number, true or false)')
+                    help='an SR setting for every run, e.g. lambda_gamma=0.3 (a number, true, false or a word)')
     args = ap.parse_args(argv)
     if args.no_anchor:
         OVERRIDES['anchor'] = False
@@ -448,7 +448,10 @@ def main(argv: list[str] | None = None) -> int:
         key, _, value = item.partition('=')
         OVERRIDES[key] = {'true': True, 'false': False}.get(value.lower(), None)
         if OVERRIDES[key] is None:
-            OVERRIDES[key] = float(value)
+            try:
+                OVERRIDES[key] = int(value) if value.isdigit() else float(value)
+            except ValueError:
+                OVERRIDES[key] = value
     torch.set_num_threads(args.threads)
     if args.goal_cases:
         CONFIGS[:] = list(GOALS)

@@ -10,10 +10,12 @@ imagery, where the frames disagree by more than noise.
 Runs per sequence: the defaults; the consistency gate off (`sr.consistency 0`: what the refused
 tiles would have looked like); lambda's residual capped at the noise (`sr.lambda_noise_cap 1`, the
 default before 2026-12-03); `sr.psf_sigma` 0.3 (about the blur of the halving: a 2-px box is
-0.29 LR px); and `sr.lambda_gamma` x 1/3 and x 3. Prints pooled PSNR (dB) over the tiles each run
+0.29 LR px); `sr.lambda_gamma` x 1/3 and x 3; each frame not aligned to the reference on the tile
+(`sr.local_align off`) or not matched to its exposure (`sr.photometric off`), the defaults before
+2026-12-04. Prints pooled PSNR (dB) over the tiles each run
 made, and on the tiles the gate refuses.
 
-    python bench/sr_real.py [--out /tmp/bench_sr_real]
+    python bench/sr_real.py [--out /tmp/bench_sr_real] [--only 'gamma 0.3;align off']
 """
 from __future__ import annotations
 
@@ -39,6 +41,10 @@ RUNS: dict[str, dict[str, Any]] = {
     'psf 0.3': {'sr.psf_sigma': 0.3},
     'gamma 0.033': {'sr.lambda_gamma': 0.1 / 3},
     'gamma 0.3': {'sr.lambda_gamma': 0.3},
+    'align off': {'sr.local_align': 'off'},
+    'anchor noise 0': {'sr.anchor_noise': 0.0},
+    'anchor noise 1': {'sr.anchor_noise': 1.0},
+    'photometric off': {'sr.photometric': False},
 }
 
 
@@ -76,7 +82,11 @@ def run_sequence(name: str, work: Path) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--out', type=Path, help='work folder (default: a temporary one)')
+    ap.add_argument('--only', default='', help="the runs to make, ';'-separated names of RUNS ('default' is always made)")
     args = ap.parse_args()
+    if args.only:
+        for name in set(RUNS) - {'default', *args.only.split(';')}:
+            del RUNS[name]
     logging.getLogger('srmosaic_ros').setLevel(logging.ERROR)
     with tempfile.TemporaryDirectory() as tmp:
         work = args.out or Path(tmp)

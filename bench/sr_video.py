@@ -45,6 +45,14 @@ RUNS: dict[str, dict[str, Any]] = {
     'defaults before 2026-12-03': {'sr.psf_sigma': 0.5, 'sr.anchor': False, 'sr.lambda_noise_cap': 1.0},
     'moving 0.05': {'sr.moving': 0.05},
     'moving 0.15': {'sr.moving': 0.15},
+    'align off': {'sr.local_align': 'off'},
+    'anchor noise 0': {'sr.anchor_noise': 0.0},
+    'anchor noise 1': {'sr.anchor_noise': 1.0},
+    'photometric off': {'sr.photometric': False},
+    'before 2026-12-04': {'sr.local_align': 'off', 'sr.photometric': False},
+    'align translation': {'sr.local_align': 'translation'},
+    '3 iterations': {'sr.iterations': 3},
+    'self check 2': {'sr.self_check': 2},
 }
 
 

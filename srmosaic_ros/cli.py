@@ -81,6 +81,9 @@ def _add_evaluate(sub: argparse._SubParsersAction) -> None:
                    'run (frames in the main mosaic, frame-to-mosaic consistency, sharpness, position error against the '
                    'footage\'s own GPS/KLV)')
     p.add_argument('--input', type=Path, default=None, help='the input of the run, when it moved since `process`')
+    p.add_argument('--camera', type=Path, default=None,
+                   help='video: the camera calibration YAML the run was processed with, when it moved (default: the one '
+                   'report.json names), so that the frames are compared undistorted as the run saw them')
     p.add_argument('--json', action='store_true', help='print the figures as JSON')
     p.add_argument('--no-progress', action='store_true', help='no progress bar')
     p.set_defaults(func=_run_evaluate)
@@ -92,7 +95,7 @@ def _run_evaluate(args: argparse.Namespace) -> int:
     if args.truth is None:
         from .app.evaluate_real import evaluate_real, format_real_figures
 
-        real = evaluate_real(args.dir, progress=not args.no_progress, input_path=args.input)
+        real = evaluate_real(args.dir, progress=not args.no_progress, input_path=args.input, camera_yaml=args.camera)
         print(json.dumps(real, indent=2, default=float) if args.json else '\n'.join(format_real_figures(real)))
         return 0
     figures = evaluate_dir(args.dir, args.truth)

@@ -328,7 +328,7 @@ def _nan_stat(values: list[float], fn: Any) -> float | None:
 
 def evaluate_real(out_dir: Path, *, progress: bool = True, max_frames: int | None = None,
                   input_path: Path | None = None, camera_yaml: Path | None = None,
-                  topics: TopicConfig | None = None, undistort: bool = True) -> dict[str, Any]:
+                  topics: TopicConfig | None = None, undistort: bool | None = None) -> dict[str, Any]:
     """Truth-free figures of the process output ``out_dir`` (see the module docstring).
 
     Args:
@@ -338,8 +338,10 @@ def evaluate_real(out_dir: Path, *, progress: bool = True, max_frames: int | Non
             run (None: all). The position figures use every frame with metadata regardless.
         input_path: the input to re-read instead of report.json's 'input' (moved or relative).
         camera_yaml, topics: what `process` was given (--camera, topic options), so that the
-            frames are re-read, and undistorted, as that run saw them; undistort=False for a run
-            made with ``undistort: false``.
+            frames are re-read, and undistorted, as that run saw them. Default: the camera YAML
+            report.json names (a video run records its --camera), read again.
+        undistort: whether that run undistorted its frames (default: report.json's config, else
+            True); the video's deinterlace mode is report.json's.
 
     Returns a JSON-serialisable dict: input (str), input_kind, frames_rows, frames_in_main,
     fraction_in_main (0..1), frames_compared (frames with a finite NCC), frames_not_in_input
@@ -376,8 +378,18 @@ def evaluate_real(out_dir: Path, *, progress: bool = True, max_frames: int | Non
             msg = f'input {source} does not exist; pass the input that {out_dir} was processed from.'
             raise InputError(msg)
     kind = report.get('input_kind', '')
-    select = str((report.get('video') or {}).get('select', 'all')) if kind == 'video' else 'all'
-    items, _, kind_now = open_source(source, topics=topics, select=select, camera_yaml=camera_yaml)
+    video = (report.get('video') or {}) if kind == 'video' else {}
+    select = str(video.get('select', 'all'))
+    if camera_yaml is None and video.get('camera'):
+        camera_yaml = Path(video['camera'])
+        if not camera_yaml.is_file():
+            msg = (f'{out_dir} was processed with the camera calibration {camera_yaml} (report.json video.camera), '
+                   'which no longer exists; pass it (--camera) so that the frames are undistorted as that run saw them.')
+            raise InputError(msg)
+    if undistort is None:
+        undistort = bool(((report.get('config') or {}).get('undistort', True)))
+    reread = {'deinterlace': video['deinterlace']} if video.get('deinterlace') else {}
+    items, _, kind_now = open_source(source, topics=topics, select=select, camera_yaml=camera_yaml, **reread)
     meta = read_meta_positions(out_dir / 'frames.csv')
     max_stretch = float(((report.get('config') or {}).get('mosaic') or {}).get('max_stretch', 0.0))
 

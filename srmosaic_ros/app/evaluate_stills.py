@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import json
 import shutil
+from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -24,7 +26,8 @@ from ..core.sr.scheduler import frame_centres, frame_holds_rect
 from .evaluate import tile_grid_H
 from ..io.mosaic_files import read_frames_csv
 
-__all__ = ['TileErrors', 'gains_db', 'halve_stills', 'pooled_gain_db', 'psnr_from_sse', 'sr_errors_against_originals']
+__all__ = ['TileComparison', 'TileErrors', 'gains_db', 'halve_stills', 'pooled_gain_db', 'psnr_from_sse',
+           'sr_errors_against_originals', 'tile_comparisons']
 
 #: Per SR tile file: (sum of squared errors of SR, of the mosaic sampled bicubically, number of
 #: values, of the reference frame's LR image sampled bicubically), 0..255 units.
@@ -57,6 +60,30 @@ def _sample(img: np.ndarray, img_H_tile: np.ndarray, shape: tuple[int, int]) -> 
 def sr_errors_against_originals(out: Path, hr: dict[str, np.ndarray]) -> TileErrors:
     """Errors of every tile of ``out``/sr/tiles.json against the HR originals ``hr`` (name -> BGR
     image, in the folder's frame order = sorted names, one per frames.csv row)."""
+    result: TileErrors = {}
+    for t in tile_comparisons(out, hr):
+        result[t.file] = (float(((t.sr - t.truth) ** 2).sum()), float(((t.mosaic_bicubic - t.truth) ** 2).sum()),
+                          t.truth.size, float(((t.frame_bicubic - t.truth) ** 2).sum()))
+    return result
+
+
+@dataclass(frozen=True)
+class TileComparison:
+    """One SR tile and what it is scored against, all (H s, W s, 3) float64 BGR 0..255 on the tile's
+    grid: the HR original of its reference frame ``reference`` (truth), the SR tile, mosaic.png and
+    the reference's LR image sampled bicubically."""
+
+    file: str
+    reference: str
+    truth: np.ndarray
+    sr: np.ndarray
+    mosaic_bicubic: np.ndarray
+    frame_bicubic: np.ndarray
+
+
+def tile_comparisons(out: Path, hr: dict[str, np.ndarray]) -> Iterator[TileComparison]:
+    """Every tile of ``out``/sr/tiles.json beside its truth and baselines (module docstring); ``hr``
+    as :func:`sr_errors_against_originals` takes it. Tiles no frame holds whole are skipped."""
     names = sorted(hr)
     rows = read_frames_csv(out / 'frames.csv')
     ok = [(names[i], r['mosaic_H_frame']) for i, r in enumerate(rows) if r['ok']]
@@ -65,7 +92,6 @@ def sr_errors_against_originals(out: Path, hr: dict[str, np.ndarray]) -> TileErr
     size = (w_hr // 2, h_hr // 2)
     centres = frame_centres([h for _, h in ok], [size] * len(ok))
     lr: dict[str, np.ndarray] = {}  # the reference frames halved, as the LR input was made
-    result: TileErrors = {}
     for entry in json.loads((out / 'sr' / 'tiles.json').read_text()):
         sr = cv2.imread(str(out / 'sr' / entry['file']))[:, :, :3].astype(np.float64)
         grid_H = tile_grid_H(entry)
@@ -79,14 +105,10 @@ def sr_errors_against_originals(out: Path, hr: dict[str, np.ndarray]) -> TileErr
         dist = np.where(covers, np.hypot(*(centres - c).T), np.inf)
         name, mosaic_H_frame = ok[int(np.argmin(dist))]
         frame_H_grid = np.linalg.inv(mosaic_H_frame) @ grid_H
-        truth = _sample(hr[name], _HR_H_LR @ frame_H_grid, sr.shape[:2])
-        bicubic = _sample(mosaic, grid_H, sr.shape[:2])
         if name not in lr:
             lr[name] = cv2.resize(hr[name], size, interpolation=cv2.INTER_AREA)
-        frame_bicubic = _sample(lr[name], frame_H_grid, sr.shape[:2])
-        result[entry['file']] = (float(((sr - truth) ** 2).sum()), float(((bicubic - truth) ** 2).sum()), truth.size,
-                                 float(((frame_bicubic - truth) ** 2).sum()))
-    return result
+        yield TileComparison(entry['file'], name, _sample(hr[name], _HR_H_LR @ frame_H_grid, sr.shape[:2]), sr,
+                             _sample(mosaic, grid_H, sr.shape[:2]), _sample(lr[name], frame_H_grid, sr.shape[:2]))
 
 
 #: Where each baseline's sum of squared errors sits in a TileErrors tuple.

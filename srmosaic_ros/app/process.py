@@ -103,7 +103,8 @@ def write_outputs(result: PipelineResult, out: Path, config: PipelineConfig, ext
         'georeferenced': geo or None,
         **({'pose_placement': result.pose_check.as_dict()} if result.pose_check is not None else {}),
         **({'moving': moving} if moving is not None else {}),
-        'config': {'device': config.device, 'registration': vars(config.registration), 'mosaic': vars(config.mosaic)},
+        'config': {'device': config.device, 'registration': vars(config.registration), 'mosaic': vars(config.mosaic),
+                   'undistort': config.undistort},
     }
     report.update(extra)
     return report
@@ -376,7 +377,9 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
     if kind == 'video':
         report_extra['video'] = {'codec': reader.codec, 'fps': reader.fps, 'frames_decoded': reader.decoded,
                                  'frames_selected': reader.selected, 'select': select,
-                                 'deinterlace': reader.deinterlace, 'frames_deinterlaced': reader.deinterlaced}
+                                 'deinterlace': reader.deinterlace, 'frames_deinterlaced': reader.deinterlaced,
+                                 'camera': str(Path(camera_yaml).resolve()) if camera_yaml else None,
+                                 'hfov_deg': hfov_deg}
         if getattr(reader, 'ended_early', ''):
             report_extra['video']['ended_early'] = reader.ended_early
     if error is not None:

@@ -123,8 +123,9 @@ def test_real_stills_super_resolved_against_their_originals(tmp_path) -> None:
     report, errors = runs['global']
     _, unanchored = runs['global unanchored']
     # anchored, a tile whose reference (the still the mosaic shows) disagrees with the others is
-    # left to the mosaic too: the anchored run's tiles are the unanchored run's less those
-    assert len(errors) >= 6 and set(errors) < set(unanchored)  # measured 7 of 8
+    # left to the mosaic too: the anchored run's tiles are the unanchored run's less those (none since
+    # each frame's exposure is matched to the reference's, sr.photometric: 8 of 8; 7 before)
+    assert len(errors) >= 7 and set(errors) <= set(unanchored)
     assert sum(1 for t in report['per_tile'] if t.get('anchored')) == len(errors)
     # pooled over the same tiles against bicubic of mosaic.png: measured +5.13 dB anchored, +3.11 not
     gain, gain_unanchored = pooled_gain_db(errors)[2], pooled_gain_db(unanchored, sorted(errors))[2]

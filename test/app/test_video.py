@@ -280,3 +280,30 @@ def test_a_second_writer_of_the_same_out_is_refused(tmp_path):
     assert run.returncode == 2, run.stderr
     assert f'another srmosaic process (pid {os.getpid()}) is writing' in run.stderr
     assert sorted(p.name for p in out.iterdir()) == []
+
+
+def test_evaluate_rereads_a_video_with_the_camera_its_run_was_given(flight_video, tmp_path):
+    """`evaluate` compares the frames as the run saw them: undistorted with the --camera it recorded."""
+    from srmosaic_ros.app.evaluate_real import evaluate_real
+
+    _, video, _ = flight_video
+    cam = tmp_path / 'cam.yaml'
+    cam.write_text(json.dumps({'image_width': 320, 'image_height': 240, 'distortion_model': 'plumb_bob',
+                               'camera_matrix': {'rows': 3, 'cols': 3, 'data': [277, 0, 159.5, 0, 277, 119.5, 0, 0, 1]},
+                               'distortion_coefficients': {'rows': 1, 'cols': 5, 'data': [-0.3, 0.0, 0, 0, 0]}}))
+    out = tmp_path / 'out'
+    run = srmosaic('process', str(video), '--out', str(out), '--select', 'every:2', '--camera', str(cam), '--no-progress')
+    assert run.returncode == 0, run.stderr
+    report = json.loads((out / 'report.json').read_text())
+    assert report['video']['camera'] == str(cam.resolve()) and report['config']['undistort'] is True
+    recorded = evaluate_real(out, progress=False)
+    given = evaluate_real(out, progress=False, camera_yaml=cam)
+    assert recorded['ncc_median'] == pytest.approx(given['ncc_median'])
+    raw = evaluate_real(out, progress=False, undistort=False)   # the frames as decoded: not what was painted
+    assert recorded['ncc_median'] > raw['ncc_median'] + 0.02, (recorded['ncc_median'], raw['ncc_median'])
+    cam.rename(tmp_path / 'moved.yaml')
+    with pytest.raises(InputError, match='--camera'):
+        evaluate_real(out, progress=False)
+    ev = srmosaic('evaluate', str(out), '--camera', str(tmp_path / 'moved.yaml'), '--json', '--no-progress')
+    assert ev.returncode == 0, ev.stderr
+    assert json.loads(ev.stdout)['ncc_median'] == pytest.approx(recorded['ncc_median'])

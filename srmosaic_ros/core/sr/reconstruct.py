@@ -9,10 +9,23 @@ Colour: by default (``color='luma'``) the MAP problem is solved on the luminance
 the chroma is taken from the interpolated mosaic: the eye resolves luminance detail far better than
 chroma, natural aerial scenes carry little high-frequency chroma, and one channel costs a third of
 three (the speed target). The result is ``rgb0 + (Y_sr - Y0)`` on every channel, which changes Y
-by exactly ``Y_sr - Y0`` and leaves the colour differences B - Y and R - Y of the interpolated
-mosaic untouched. ``color='rgb'`` solves the three channels jointly (same operators; three times the
-cost) for when colour detail matters; it is not the default because its PSNR over RGB is lower
-(bench/sr.py): the per-channel problems are noisier than the luminance one.
+by exactly ``Y_sr - Y0`` and leaves the colour differences B - Y and R - Y of ``rgb0`` untouched.
+``rgb0`` is the interpolated mosaic, and when the tile is anchored (``anchor``) its colour
+differences are anchored too: where the reference frame's (sampled bicubically onto the HR tile)
+depart from the average's by more than twice the noise, the excess is added back, as anchor.py does
+for the luminance. Interlaced and compressed video carries a different chroma error in each frame,
+so the average's colour fringes on edges and small objects where the frame the mosaic shows has
+none; on simulated frames the difference is noise and stays out. ``color='rgb'`` solves the three
+channels jointly (same operators; three times the cost) for when colour detail matters; it is not
+the default because its PSNR over RGB is lower (bench/sr.py): the per-channel problems are noisier
+than the luminance one.
+
+Local alignment (``local_align``, :mod:`.local_align`): before anything else each frame warped into
+the tile is aligned to the reference by ECC (affine), so that (5.1) does not read the homographies'
+local error on real footage (parallax, lens, the chain) as detail; a correction larger than
+``local_align_max_px`` at the tile's corners is not applied. Then (``photometric``) each frame's
+gain and offset per channel give it the reference's mean and std on the tile, where that changes it
+by more than twice the noise (survey stills differ in exposure and white balance).
 
 Robust frame weights: frames whose residual on the tile is an outlier (misregistration, moving
 objects) must not smear the result. Before iterating, every frame warped into the LR tile is
@@ -40,8 +53,9 @@ import torch.nn.functional as F
 
 from ...errors import SrMosaicError
 from ..device import resolve_device
-from .anchor import anchor_to_frame
+from .anchor import anchor_to_frame, reference_on_hr, structure_threshold
 from .consistency import consistent_frames, noise_sigma
+from .local_align import ALIGN_MODES, align_to_reference, photometric_to_reference
 from .moving import MIN_FRAMES as MOVING_MIN_FRAMES, moving_mask
 from .observation import FrameStack, build_frame_stack
 from .operators import Warp, gaussian_psf
@@ -63,8 +77,13 @@ __all__ = [
 ]
 
 LUMA = (0.299, 0.587, 0.114)
-#: Anchoring ignores the reference's residual below this many noise stds (core/sr/anchor.py).
-ANCHOR_NOISE = 2.0
+#: std of the colour difference R - Y, G - Y, B - Y over the std of Y, for noise i.i.d. per channel:
+#: sqrt(sum_j (delta_cj - w_j)^2 / sum_j w_j^2), w = LUMA.
+CHROMA_NOISE = tuple(math.sqrt(sum(((c == j) - w) ** 2 for j, w in enumerate(LUMA)) / sum(w * w for w in LUMA))
+                     for c in range(3))
+#: Exposure matching leaves a frame as it is when it would change it by less than this many noise
+#: stds (core/sr/local_align.py).
+PHOTOMETRIC_NOISE = 2.0
 COLOR_MODES = ('luma', 'rgb')
 
 
@@ -123,12 +142,21 @@ class SRConfig:
     moving: frames' LR pixels that differ from the per-pixel median of the frames on the tile by
         more than this (intensity; core/sr/moving.py) saw something move and weigh 0 in the data
         term and the initial estimate; 0: off.
+    local_align: each frame aligned to the reference on the tile before the solve ('affine',
+        'translation' or 'off'; core/sr/local_align.py); local_align_max_px: the largest correction
+        applied (LR pixels at the tile's corners).
+    photometric: each frame's exposure and white balance matched to the reference's on the tile
+        (gain and offset per channel; core/sr/local_align.py).
     lm_inner: inner CG iterations of LM.
     anchor: after the solve, the reference frame's residual is back-projected onto the estimate
         (core/sr/anchor.py), so the tile shows what the mosaic around it shows (the same moving
-        objects, the same side of a building) with the detail the fusion recovered. A tile whose
-        reference the consistency test or the robust weights (below 0.5) set aside is refused
-        (SRFramesDisagree): fused from the others, it would disagree with the mosaic around it.
+        objects, the same side of a building, its colour; module docstring) with the detail the
+        fusion recovered. A tile whose reference the consistency test or the robust weights
+        (below 0.5) set aside is refused (SRFramesDisagree): fused from the others, it would
+        disagree with the mosaic around it.
+    anchor_noise: the reference's residual (and colour difference) is shrunk by this many noise
+        stds first, scaled down where it is several times the noise (anchor.py
+        ``structure_threshold``); 0: the tile takes the reference's band exactly.
     """
 
     psf_sigma: float = 0.5
@@ -155,12 +183,19 @@ class SRConfig:
     min_observed: int = 16
     lm_inner: int = 8
     anchor: bool = True
+    anchor_noise: float = 2.0
+    local_align: str = 'affine'
+    local_align_max_px: float = 1.5
+    photometric: bool = True
     device: str = 'auto'
 
     def __post_init__(self) -> None:
         checks = [
             (self.solver in SOLVERS, f'solver must be one of {SOLVERS}, got {self.solver!r}'),
             (self.lambda_mode in LAMBDA_MODES, f'lambda_mode must be one of {LAMBDA_MODES}, got {self.lambda_mode!r}'),
+            (self.local_align in ALIGN_MODES, f'local_align must be one of {ALIGN_MODES}, got {self.local_align!r}'),
+            (self.anchor_noise >= 0, f'anchor_noise must be >= 0 (noise stds), got {self.anchor_noise}'),
+            (self.local_align_max_px > 0, f'local_align_max_px must be > 0 (LR pixels), got {self.local_align_max_px}'),
             (self.color in COLOR_MODES, f'color must be one of {COLOR_MODES}, got {self.color!r}'),
             (self.lambda_reference in ('initial', 'current'),
              f"lambda_reference must be 'initial' or 'current', got {self.lambda_reference!r}"),
@@ -457,6 +492,26 @@ def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames:
     # estimate on the warped frames would take for less noise
     noise = noise_sigma(luma(stack.crops), stack.in_frame)
     ref = _nearest_frame(stack.index, tilem_H_frames, ts, (hm, wm))
+    if cfg.local_align != 'off' and k_frames >= 2:  # each frame superposed on the reference here (local_align.py)
+        corr = align_to_reference(luma(warped), covered, ref, mode=cfg.local_align, max_shift=cfg.local_align_max_px)
+        ref_frame = stack.index[ref]
+        if not np.allclose(corr, np.eye(3)):
+            for k, i in enumerate(stack.index):
+                tilem_H_frames[i] = corr[k] @ tilem_H_frames[i]
+            stack = build_frame_stack(ts, tilem_H_frames, (hm, wm), s, kernel, min_observed=cfg.min_observed)
+            if stack is None:
+                msg = 'no frame observes this tile; pick tiles inside the frames\' footprints.'
+                raise SRError(msg)
+            k_frames = len(stack.index)
+            warped, covered = warp_frames_to_tile(stack, (hm, wm))
+            # the reference stays the frame the mosaic shows (centres often tie within a pixel)
+            ref = stack.index.index(ref_frame) if ref_frame in stack.index else \
+                _nearest_frame(stack.index, tilem_H_frames, ts, (hm, wm))
+    if cfg.photometric and k_frames >= 2:  # exposure and white balance onto the reference's (local_align.py)
+        gain, offset = photometric_to_reference(warped, covered, ref, min_change=PHOTOMETRIC_NOISE * noise)
+        stack.crops.copy_((stack.crops * gain + offset).clamp(0, 1) * stack.in_frame)
+        stack.y.copy_(stack.crops * stack.mask)
+        warped = (warped * gain + offset).clamp(0, 1) * covered
     keep, consistency = np.ones(k_frames, dtype=bool), {}
     if cfg.consistency > 0 and k_frames >= 2:
         keep, consistency = consistent_frames(luma(warped), covered, threshold=cfg.consistency, noise=noise,
@@ -520,8 +575,25 @@ def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames:
     problem = Problem(stack.operator, y_obs, prior=HuberPrior(cfg.huber_alpha), lam=rule,
                       frame_weights=w0.to(y_obs.dtype), counts=counts)
 
+    base = x0_rgb  # the colour of a luminance solve: the frames' average, anchored to the reference's
+    if cfg.anchor and solve_c != channels:
+        # the reference's colour where it departs from the average by more than the noise, as
+        # anchor.py does for the luminance (interlaced and compressed video: chroma differs per frame)
+        ref_rgb, ref_valid = reference_on_hr(stack, ref, s, x0_rgb.shape[-2:])
+        d = (ref_rgb - x0_rgb) * ref_valid
+        d = d - luma(d)
+        n_valid = max(float(ref_valid.sum()), 1.0)
+        thr = torch.zeros((1, channels, 1, 1), dtype=d.dtype, device=d.device)
+        for c in range(channels):
+            # noise i.i.d. per channel: a colour difference c - Y is noisier than Y by CHROMA_NOISE[c]
+            noise_c = CHROMA_NOISE[c] * noise
+            d_rms = float(torch.sqrt((d[:, c].double() ** 2).sum() / n_valid))
+            thr[0, c] = structure_threshold(cfg.anchor_noise * noise_c, noise_c, d_rms)
+        base = x0_rgb + torch.sign(d) * (d.abs() - thr).clamp_min(0.0) * ref_valid
+    base_y = luma(base)
+
     def compose(x: torch.Tensor) -> torch.Tensor:
-        full = (x0_rgb + (x - x0)) if solve_c != channels else x
+        full = (base + (x - base_y)) if solve_c != channels else x
         return full[0, :, m * s:(m + h_t) * s, m * s:(m + w_t) * s].clamp(0, 1)
 
     reweight_at = set(cfg.reweight_at) if robust else set()
@@ -531,7 +603,8 @@ def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames:
             return None
         return gated(problem.frame_rms(r).double()).to(r.dtype)
 
-    cb = None if callback is None else (lambda n, x: callback(n, compose(x)))
+    x0_tile = x0_rgb[0, :, m * s:(m + h_t) * s, m * s:(m + w_t) * s].clamp(0, 1)
+    cb = None if callback is None else (lambda n, x: callback(n, x0_tile if n == 0 else compose(x)))
     lm_opts = {'inner_iterations': cfg.lm_inner} if cfg.solver == 'lm' else {}
     res = solve(problem, x0, method=cfg.solver, iterations=cfg.iterations, tol=cfg.tol, callback=cb,
                 reweight=reweight, **lm_opts)
@@ -545,7 +618,8 @@ def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames:
                    'misregistration; the tile is left to the mosaic (sr.anchor: false super-resolves it from the '
                    'others).')
             raise SRFramesDisagree(msg)
-        x_final, anchor_rms = anchor_to_frame(res.x, y_obs, stack, ref, s, threshold=ANCHOR_NOISE * noise)
+        x_final, anchor_rms = anchor_to_frame(res.x, y_obs, stack, ref, s, threshold=cfg.anchor_noise * noise,
+                                              noise=noise)
     if device.type == 'cuda':
         torch.cuda.synchronize(device)
     t3 = time.perf_counter()

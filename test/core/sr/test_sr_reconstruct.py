@@ -12,22 +12,14 @@ from srmosaic_ros.core.sr import SRConfig, SRError, SRFramesDisagree, reconstruc
 from srmosaic_ros.core.sr.self_check import SRNotBetterThanMosaic, held_out_errors, reconstruct_checked_tile
 from srmosaic_ros.core.sr.synthetic import make_synthetic_tile, perturb_homography
 
-from imagery import world_rgb
+from sr_tiles import hwc, psnr, world01
 
 TILE = (32, 32)     # LR; the HR tile is 64 x 64 at factor 2
 
 
-def psnr(a: np.ndarray, b: np.ndarray) -> float:
-    return float(10 * np.log10(1.0 / np.mean((a.astype(np.float64) - b) ** 2)))
-
-
-def hwc(t: torch.Tensor) -> np.ndarray:
-    return t.detach().cpu().permute(1, 2, 0).numpy()
-
-
 @pytest.fixture(scope='module')
 def world() -> np.ndarray:
-    return world_rgb().astype(np.float32) / 255.0
+    return world01()
 
 
 @pytest.fixture(scope='module')
@@ -53,13 +45,14 @@ def test_misregistered_frame_is_down_weighted(tile):
     mats = [h.copy() for h in tile.tile_H_frames]
     mats[2] = np.array([[1.0, 0.0, 1.5], [0.0, 1.0, -1.0], [0.0, 0.0, 1.0]]) @ mats[2]
     # frame 2 is the tile's reference (the frame the mosaic shows): anchored (the default) the tile is
-    # left to the mosaic; the weights are measured without anchoring
+    # left to the mosaic; the weights are measured without anchoring, and without aligning the others
+    # to the reference on the tile (sr.local_align), which would carry the tile 1.5 px with it
     with pytest.raises(SRFramesDisagree, match='the frame the mosaic shows'):
-        reconstruct_tile(tile.frames, mats, TILE, 2, iterations=10, device='cpu')
-    robust = reconstruct_tile(tile.frames, mats, TILE, 2, iterations=10, device='cpu', anchor=False)
-    plain = reconstruct_tile(tile.frames, mats, TILE, 2, iterations=10, device='cpu', robust=False, consistency=0,
-                             anchor=False)
-    gate_only = reconstruct_tile(tile.frames, mats, TILE, 2, iterations=10, device='cpu', robust=False, anchor=False)
+        reconstruct_tile(tile.frames, mats, TILE, 2, iterations=10, device='cpu', local_align='off')
+    kw = {'iterations': 10, 'device': 'cpu', 'anchor': False, 'local_align': 'off'}
+    robust = reconstruct_tile(tile.frames, mats, TILE, 2, **kw)
+    plain = reconstruct_tile(tile.frames, mats, TILE, 2, robust=False, consistency=0, **kw)
+    gate_only = reconstruct_tile(tile.frames, mats, TILE, 2, robust=False, **kw)
     clean = reconstruct_tile(tile.frames, tile.tile_H_frames, TILE, 2, iterations=10, device='cpu', anchor=False)
     assert robust.reference == 2
     # the consistency test leaves the frame out (1.5 px off: NCC 0.72 with the others, 1.00 among them)
@@ -83,7 +76,8 @@ def test_lambda_noise_cap_acts_on_misfit_only(world, tile):
     assert fit_on == pytest.approx(fit_off, rel=0.2)
     rng = np.random.default_rng(1)
     off = [perturb_homography(h, f.shape[:2], 0.5, rng) for h, f in zip(tile.tile_H_frames, tile.frames, strict=True)]
-    mis_on, mis_off = (last_lambda(off, lambda_noise_cap=c, consistency=0) for c in (1.0, 0.0))
+    # the tile's own alignment (sr.local_align) would take the misfit away
+    mis_on, mis_off = (last_lambda(off, lambda_noise_cap=c, consistency=0, local_align='off') for c in (1.0, 0.0))
     assert mis_off > 2 * fit_off       # the misfit raises the residual, so (5.6) raises lambda ...
     assert mis_on < 0.7 * mis_off      # ... and the cap takes most of that back
 
@@ -223,10 +217,10 @@ def test_anchoring_shows_what_the_reference_frame_shows(world, tile):
 def test_moving_objects_are_kept_out_of_the_data_term(world) -> None:
     """sr.moving: a car (a bright 5 x 3 LR px box) crosses the tile, in a different place in each of
     five of eight frames: too many for the per-frame outlier weights (measured: every frame keeps
-    weight 1), so the data term fits it and leaves its trail in the SR tile (trail error 0.039,
-    PSNR 34.9 dB). With the per-pixel weights (core/sr/moving.py) every frame keeps the pixels the
-    car did not cover: the trail's error is no worse than the bicubic mosaic's of the frames without
-    cars, and the tile gains 6 dB (measured 0.0076, 41.1 dB)."""
+    weight 1), so the data term fits it and leaves its trail in the SR tile (trail error 0.014,
+    PSNR 37.8 dB; anchoring takes back part of it). With the per-pixel weights (core/sr/moving.py)
+    every frame keeps the pixels the car did not cover: the trail's error is no worse than the
+    bicubic mosaic's of the frames without cars, and the tile gains 3 dB (measured 0.0077, 40.9 dB)."""
     st = make_synthetic_tile(world, (150, 480), TILE, 2, 8, noise_sigma=1.0, seed=6)
     frames = [f.copy() for f in st.frames]
     trail = np.zeros((TILE[0] * 2, TILE[1] * 2), bool)  # HR tile pixels a car covered
@@ -249,9 +243,9 @@ def test_moving_objects_are_kept_out_of_the_data_term(world) -> None:
     clean = reconstruct_tile(st.frames, st.tile_H_frames, TILE, 2, iterations=10, device='cpu')
     clean_bicubic = float(np.abs(hwc(clean.initial).astype(np.float64) - truth)[trail].mean())
     assert n0 == 0 and n1 > 0
-    assert moving_trail < 0.5 * plain_trail      # the trail is gone from the SR tile
+    assert moving_trail < 0.6 * plain_trail      # the trail is gone from the SR tile
     assert moving_trail <= clean_bicubic * 1.05  # no worse than bicubic of the frames without the car
-    assert moving_psnr > plain_psnr + 3.0
+    assert moving_psnr > plain_psnr + 2.5
     with pytest.raises(SRError, match='moving'):
         SRConfig(moving=1.5)
 
