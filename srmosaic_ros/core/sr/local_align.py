@@ -27,7 +27,7 @@ _MOTION = {'translation': cv2.MOTION_TRANSLATION, 'affine': cv2.MOTION_AFFINE}
 
 
 def align_to_reference(warped: torch.Tensor, covered: torch.Tensor, ref: int, *, mode: str = 'affine',
-                       max_shift: float = 1.5, min_correlation: float = 0.6, iterations: int = 50) -> np.ndarray:
+                       max_shift: float = 1.5, min_correlation: float = 0.6, iterations: int = 30) -> np.ndarray:
     """Corrections (K, 3, 3) that move each frame's LR tile coordinates onto the reference's.
 
     warped: (K, 1, H, W) the frames' luminance warped into the LR tile, [0, 1]; covered: (K, 1, H, W)
