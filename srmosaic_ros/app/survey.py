@@ -69,6 +69,9 @@ _REDUCED = {1: cv2.IMREAD_COLOR, 2: cv2.IMREAD_REDUCED_COLOR_2, 4: cv2.IMREAD_RE
 OUTPUT_THREADS_MAX = 4
 #: DEFLATE level of mosaic.tif (GDAL's default, 6, makes the 37-still 12 MP survey's 9 % smaller: 69.0 vs 75.8 MB).
 MOSAIC_TIF_ZLEVEL = 3
+#: A pair by footprint that the torch registrar fails gets the OpenCV registrar's second opinion
+#: when one of its stills has fewer registered pairs than this.
+SECOND_OPINION_BELOW_PAIRS = 3
 #: The canvas keeps this many stills' footprints of tiles in memory (at least mosaic.max_tiles_in_memory).
 TILES_PER_FOOTPRINT = 2.0
 #: Unknown focal length: the normalised coordinates use this many pixels per unit of the longer
@@ -285,12 +288,18 @@ def process_survey(path: Path, out: Path, config: PipelineConfig, reader: ImageF
                           config.registration.max_features)
     pos = np.array([s.position_m for s in stills])
     registrations: dict[tuple[int, int], Any] = {}
+    has_second_opinion = getattr(registrar, 'has_second_opinion', False)
 
-    def register(i: int, j: int) -> PairConstraint | None:
+    def register(i: int, j: int, *, second_opinion: bool = True) -> PairConstraint | None:
         fi, fj = cache.get(i), cache.get(j)
         if fi is None or fj is None:
             return None
-        reg = registrar.register(fi, fj)
+        if (i, j) in registrations:  # tried without a second opinion: only that is left to do
+            reg = registrar.second_opinion(fi, fj, registrations[(i, j)])
+        elif has_second_opinion:
+            reg = registrar.register(fi, fj, second_opinion=second_opinion)
+        else:
+            reg = registrar.register(fi, fj)
         registrations[(i, j)] = reg
         if not reg.ok:
             return None
@@ -300,15 +309,6 @@ def process_survey(path: Path, out: Path, config: PipelineConfig, reader: ImageF
                                _working_K(stills[j], reduction[j]), wi, wj, inliers=reg.inliers,
                                model_px=scfg.model_px)
 
-    t_reg = time.perf_counter()
-    pairs: list[PairConstraint] = []
-    bar = tqdm(total=max(n - 1, 0), unit='pair', desc='survey: consecutive pairs', disable=not progress)
-    with bar:
-        for i in range(n - 1):
-            c = register(i, i + 1)
-            if c is not None:
-                pairs.append(c)
-            bar.update(1)
     sigma_gps = float(config.georef.gps_sigma_h_m)
     has_gps = bool(np.isfinite(pos).all(axis=1).sum() >= 3)
     georef_note = '' if has_gps else 'fewer than three stills carry a GPS position'
@@ -322,6 +322,19 @@ def process_survey(path: Path, out: Path, config: PipelineConfig, reader: ImageF
                            'a pan)')
             has_gps = False
             pos = np.full_like(pos, np.nan)
+    t_reg = time.perf_counter()
+    found: dict[tuple[int, int], PairConstraint] = {}
+    second_opinions: list[list[int | bool]] = []  # [i, j, registered] of the pairs given the second opinion
+    bar = tqdm(total=max(n - 1, 0), unit='pair', desc='survey: consecutive pairs', disable=not progress)
+    with bar:
+        # With GPS, a consecutive pair the torch registrar fails (mostly a line turn, no overlap) gets
+        # the OpenCV second opinion later, if its footprints overlap; without, the chain needs it now.
+        for i in range(n - 1):
+            c = register(i, i + 1, second_opinion=not has_gps)
+            if c is not None:
+                found[(i, i + 1)] = c
+            bar.update(1)
+    pairs = list(found.values())
     scale = estimate_scale(pairs, pos, min_baseline_m=3.0 * sigma_gps) if has_gps else math.nan
     focal_known = all(s.focal_known for s in stills)
     scale_source = 'GPS baselines over the registered displacements of consecutive stills'
@@ -344,11 +357,29 @@ def process_survey(path: Path, out: Path, config: PipelineConfig, reader: ImageF
     more = [(i, j) for i, j, _ in candidates if j != i + 1]
     bar = tqdm(total=len(more), unit='pair', desc='survey: pairs by footprint', disable=not progress)
     with bar:
-        for i, j in more:
-            c = register(i, j)
+        # Last stills first: the consecutive pass left their features in the cache. Without the
+        # OpenCV second opinion (SIFT on both stills, then matching): a pair between lines that the
+        # torch registrar fails is mostly one that SIFT fails too (caliterra: 6 of 117).
+        for i, j in reversed(more):
+            c = register(i, j, second_opinion=False)
             if c is not None:
-                pairs.append(c)
+                found[(i, j)] = c
             bar.update(1)
+        if has_second_opinion:
+            # ... except for a still that is short of pairs: its failed pairs that the footprints
+            # say overlap get the second opinion
+            count = collections.Counter(k for i, j in found for k in (i, j))
+            for i, j, _ in candidates:
+                reg = registrations.get((i, j))
+                if reg is not None and not reg.ok and 'fallback_opencv' not in reg.extras \
+                        and min(count[i], count[j]) < SECOND_OPINION_BELOW_PAIRS:
+                    c = register(i, j)
+                    second_opinions.append([i, j, c is not None])
+                    if c is not None:
+                        found[(i, j)] = c
+                        count.update((i, j))
+    # the solve sees the consecutive pairs first, then the others in (j, i) order
+    pairs = [found[(i, i + 1)] for i in range(n - 1) if (i, i + 1) in found] + [found[p] for p in more if p in found]
     t_reg = time.perf_counter() - t_reg
     cache.cache.clear()  # the features are spent: the canvas gets the memory
     trim_heap()
@@ -407,6 +438,11 @@ def process_survey(path: Path, out: Path, config: PipelineConfig, reader: ImageF
         'position_sigma_m': float(np.median(sigma)),
         'pairs_tried': len(registrations), 'pairs_registered': len(pairs),
         'pairs_consecutive_tried': n - 1, 'pairs_by_footprint_tried': len(more),
+        # the OpenCV registrar's second opinion: pairs it registered (also those of the consecutive
+        # pass of a survey without GPS), and the pairs by footprint it was asked about ([i, j, registered])
+        'pairs_by_second_opinion': sum(reg.ok and reg.extras.get('fallback_opencv') == 1.0
+                                       for reg in registrations.values()),
+        'pairs_second_opinion': second_opinions,
         'registration_failures': dict(failures),
         'frames_described': cache.described, 'feature_cache_frames': scfg.feature_cache_frames,
         'unreadable': dict(cache.unreadable),
@@ -478,6 +514,7 @@ def _paint_and_write(out: Path, config: PipelineConfig, stills: list[SurveyStill
             if gsd[k] * cand <= g * 1.0001:
                 reduction[k] = cand
                 break
+
     with canvas, ThreadPoolExecutor(1, thread_name_prefix='survey-decode') as decoder:
         # the next still is decoded (OpenCV, without the GIL) while this one is painted
         decoded = collections.deque(decoder.submit(read_reduced, stills[k].file, reduction[k]) for k in placed[:1])

@@ -96,8 +96,9 @@ class StripPreview:
     def _add(self, row: int, image: np.ndarray, coverage: np.ndarray) -> None:
         import cv2
 
-        strip = np.where(coverage[..., None] if image.ndim == 3 else coverage, image, 0.0).astype(np.float32)
-        strip = strip.reshape(strip.shape[0], strip.shape[1], -1)
+        src = np.ascontiguousarray(image, np.float32).reshape(image.shape[0], image.shape[1], -1)
+        strip = np.zeros(src.shape, np.float32)
+        cv2.copyTo(src, coverage.view(np.uint8), strip)  # np.where's broadcast is ~5x slower
         n = strip.shape[0]
         if self._rows is None:
             self._out[row:row + n] = strip
@@ -213,7 +214,7 @@ def _write_canvas_streamed(canvas: TiledCanvas, tif: Path | None, png: Path, ras
         writer.start()
     try:
         with StreamingPngWriter(png, width, height, 4 if grey else canvas.channels + 1, threads=threads) as out:
-            for row, image, covered in canvas.render_blocks(STRIP_ROWS):
+            for row, image, covered in canvas.render_blocks(STRIP_ROWS, threads=threads):
                 if preview is not None:
                     preview.add(row, image, covered)
                 rgba = _rgba_u8(image, covered)

@@ -118,8 +118,8 @@ def test_a_failing_render_leaves_no_file_with_the_threaded_writer(tmp_path: Path
     canvas = _painted_canvas(3, 'feather')
     real = canvas.render_blocks
 
-    def broken(rows: int) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
-        for k, strip in enumerate(real(rows)):
+    def broken(rows: int, **kwargs: int) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+        for k, strip in enumerate(real(rows, **kwargs)):
             if k == 1:
                 raise RuntimeError('render failed')
             yield strip

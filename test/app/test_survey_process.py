@@ -3,6 +3,7 @@ simulated DJI survey (EXIF/XMP only) against its truth, with a glitched GPS tag,
 and a hover; the repository's real caliterra stills through the truth-free figures."""
 from __future__ import annotations
 
+import collections
 import csv
 import dataclasses
 import json
@@ -93,6 +94,14 @@ def test_a_textureless_still_is_placed_by_its_pose(drone_survey: Path, tmp_path:
     placed = _placed_by(tmp_path / 'out' / 'frames.csv')
     assert placed[5] == 'pose' and placed.count('registration') == 19
     assert report['placed_by'] == {'registration': 19, 'pose': 1}
+    # the OpenCV second opinion is asked about the pairs of the still that has none (in vain), and
+    # not about every failed pair of well-connected stills
+    asked = report['survey']['pairs_second_opinion']
+    assert any(5 in (i, j) for i, j, _ in asked) and not any(ok for i, j, ok in asked if 5 in (i, j))
+    count = collections.Counter(k for (i, j), _ in report['survey']['pairs_graph'] for k in (i, j))
+    assert all(min(count[i], count[j]) - ok < 3 for i, j, ok in asked)
+    failed = report['survey']['pairs_tried'] - report['survey']['pairs_registered']
+    assert len(asked) < failed
     figures = evaluate_dir(tmp_path / 'out', drone_survey / 'truth.json')
     assert figures['georef_error_max_m'] < 3 * 2.5 * 2 + 5.0, figures  # within its GPS error, tilt included
 

@@ -44,6 +44,8 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -715,8 +717,8 @@ class TiledCanvas:
                                                           self._background)
         return (out[:, :, 0] if c == 1 else out), covered
 
-    def render_blocks(self, block_rows: int = 256, region: tuple[int, int, int, int] | None = None,
-                      ) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+    def render_blocks(self, block_rows: int = 256, region: tuple[int, int, int, int] | None = None, *,
+                      threads: int = 1) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
         """The mosaic of ``render(region)`` in strips of ``block_rows`` rows, top to bottom.
 
         Yields ``(row, image, covered)``: ``row`` the strip's first row in the region (image row 0
@@ -725,8 +727,9 @@ class TiledCanvas:
         ``render(region)`` exactly (same band count in multiband mode: automatic bands follow the
         whole region). For writers of mosaics too large to hold whole: feather strips cost their
         own size; multiband strips are cut from rows of RENDER_BLOCK_PX-high blocks, one such row
-        (RENDER_BLOCK_PX x region width) is held at a time. The canvas must not be painted while
-        the generator runs.
+        (RENDER_BLOCK_PX x region width) is held at a time, its blocks rendered on ``threads``
+        threads (the same pixels; each thread holds one block's pyramids, ~10 block-sized float
+        arrays). The canvas must not be painted while the generator runs.
         """
         if isinstance(block_rows, bool) or int(block_rows) != block_rows or block_rows < 1:
             msg = f'block_rows must be a positive integer, got {block_rows!r}.'
@@ -743,7 +746,7 @@ class TiledCanvas:
             return
         pending: list[tuple[np.ndarray, np.ndarray]] = []
         have = start = 0
-        for _, o, c in self._multiband_rows((x0, y0, x1, y1), self._bands or auto_bands(h, w)):
+        for _, o, c in self._multiband_rows((x0, y0, x1, y1), self._bands or auto_bands(h, w), threads=threads):
             pos = 0
             while pos < o.shape[0]:
                 take = min(block_rows - have, o.shape[0] - pos)
@@ -774,29 +777,40 @@ class TiledCanvas:
         return out, covered
 
     def _multiband_rows(self, region: tuple[int, int, int, int], bands: int, dst_image: np.ndarray | None = None,
-                        dst_covered: np.ndarray | None = None) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+                        dst_covered: np.ndarray | None = None, *, threads: int = 1,
+                        ) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
         """Multiband render of ``region`` in rows of RENDER_BLOCK_PX-square blocks anchored at its origin.
 
         Yields (first row in the region, image (rows, w, C) with the background where uncovered,
         covered (rows, w)); written into ``dst_image`` (h, w, C) and ``dst_covered`` (h, w) when
-        given (the yielded arrays are then views of them), else into new arrays per row.
+        given (the yielded arrays are then views of them), else into new arrays per row. A row's
+        blocks are rendered on ``threads`` threads (OpenCV's pyramids release the GIL), each
+        writing its own columns of the row.
         """
         x0, y0, x1, y1 = region
         block = RENDER_BLOCK_PX
-        for by in range(y0, y1, block):
-            by1 = min(by + block, y1)
-            if dst_image is not None and dst_covered is not None:
-                out, covered = dst_image[by - y0:by1 - y0], dst_covered[by - y0:by1 - y0]
-            else:
-                out = np.empty((by1 - by, x1 - x0, self._channels), np.float32)
-                covered = np.empty((by1 - by, x1 - x0), bool)
-            for bx in range(x0, x1, block):
-                bx1 = min(bx + block, x1)
-                o, c = self._render_multiband((bx, by, bx1, by1), bands)
-                out[:, bx - x0:bx1 - x0] = o
-                covered[:, bx - x0:bx1 - x0] = c
-            out[~covered] = self._background
-            yield by - y0, out, covered
+        columns = [(bx, min(bx + block, x1)) for bx in range(x0, x1, block)]
+        workers = max(1, min(int(threads), len(columns)))
+        with ThreadPoolExecutor(workers, thread_name_prefix='render') if workers > 1 else nullcontext() as pool:
+            for by in range(y0, y1, block):
+                by1 = min(by + block, y1)
+                if dst_image is not None and dst_covered is not None:
+                    out, covered = dst_image[by - y0:by1 - y0], dst_covered[by - y0:by1 - y0]
+                else:
+                    out = np.empty((by1 - by, x1 - x0, self._channels), np.float32)
+                    covered = np.empty((by1 - by, x1 - x0), bool)
+
+                def put(cols: tuple[int, int], by: int = by, by1: int = by1, out: np.ndarray = out,
+                        covered: np.ndarray = covered) -> None:
+                    bx, bx1 = cols
+                    o, c = self._render_multiband((bx, by, bx1, by1), bands)
+                    out[:, bx - x0:bx1 - x0] = o
+                    covered[:, bx - x0:bx1 - x0] = c
+
+                for _ in (pool.map(put, columns) if pool is not None else map(put, columns)):
+                    pass
+                out[~covered] = self._background
+                yield by - y0, out, covered
 
     def _render_multiband(self, region: tuple[int, int, int, int], bands: int) -> tuple[np.ndarray, np.ndarray]:
         """Multiband render of ``region`` with ``bands`` levels, its pyramids run over

@@ -333,7 +333,7 @@ class TileStore:
             raise TileStoreError(msg)
         if not (buf.flags.writeable and buf.flags.c_contiguous):
             buf = np.array(buf, np.uint8, order='C')
-        self.loads += 1
+        self.loads += 1  # a lost count at worst when render threads read tiles at once (peek)
         return Tile(self.layout, buf)
 
     # ---------------------------------------------------------------- life cycle

@@ -67,6 +67,13 @@ class FallbackRegistrar:
         reg = self.primary.register(prev.primary, cur.primary)
         if reg.ok or not second_opinion:
             return reg
+        return self.second_opinion(prev, cur, reg, t0=t0)
+
+    def second_opinion(self, prev: FallbackFeatures, cur: FallbackFeatures, reg: Registration, *,
+                       t0: float | None = None) -> Registration:
+        """The OpenCV registrar's try at a pair the torch registrar failed (``reg``, its result):
+        register()'s second half, for callers that first try many pairs without it."""
+        t0 = time.perf_counter() if t0 is None else t0
         second = self.fallback.register(self._fallback_features(prev), self._fallback_features(cur))
         if not second.ok:
             return replace(reg, extras={**reg.extras, 'fallback_opencv': 0.0},

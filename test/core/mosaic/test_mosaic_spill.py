@@ -88,8 +88,8 @@ def test_render_blocks_reassemble_render(blend: str, channels: int, tmp_path: Pa
     paint_flight(c, channels=channels)
     for region in (None, (-13, 4, 150, 201)):
         whole, cov = c.render(region)
-        for rows in (1, 33, 64, 1000):
-            strips = list(c.render_blocks(rows, region))
+        for rows, threads in ((1, 1), (33, 2), (64, 1), (1000, 3)):  # threads: a row's blocks rendered at once
+            strips = list(c.render_blocks(rows, region, threads=threads))
             assert [r for r, _, _ in strips] == list(range(0, whole.shape[0], rows))
             assert all(img.shape[0] == min(rows, whole.shape[0] - r) for r, img, _ in strips)
             assert all(img.shape[1:] == whole.shape[1:] for _, img, _ in strips)
