@@ -13,7 +13,7 @@ from srmosaic_ros.config import pipeline_config
 from srmosaic_ros.io.mosaic_files import read_frames_csv
 from srmosaic_ros.pipeline import Pipeline
 from srmosaic_ros.sim import SimConfig, simulate, write_flight
-from srmosaic_ros.sim.traffic import vehicle_mask
+from srmosaic_ros.sim.traffic import vehicle_mask, vehicles_shown
 
 CFG = SimConfig(frames=24, width=320, height=240, vehicles=14, vehicle_speed_m_s=8.0, rate_hz=4.0, seed=5)
 
@@ -37,27 +37,33 @@ def test_cars_are_kept_out_of_the_mosaic_background(flights: tuple) -> None:
     the figures for a longer flight)."""
     cars, empty = flights
 
-    def canvas_of(flight, moving: float):
+    def segment_of(flight, moving: float):
         pipe = Pipeline(pipeline_config({'georef.enabled': False, 'mosaic.moving': moving}))
         for frame in flight.frames:
             pipe.feed_frame(frame)
         seg = pipe.finish().main_segment
         assert len(seg.frames) == CFG.frames
-        return seg.canvas
+        return seg
 
-    shows = {}
+    shows, from_cars = {}, {}
+    times = [(f.stamp_ns - cars.truth.frames[0].stamp_ns) * 1e-9 for f in cars.truth.frames]
     for moving in (0.0, 0.05):
-        canvas = canvas_of(cars, moving)
+        seg = segment_of(cars, moving)
+        canvas = seg.canvas
         x0, y0, x1, y1 = region = canvas.bounds()
         image, covered = canvas.render(region)
-        clean, clean_covered = canvas_of(empty, moving).render(region)
+        clean, clean_covered = segment_of(empty, moving).canvas.render(region)
         h0 = cars.truth.frames[0].world_px_H_frame @ np.array([[1.0, 0, x0], [0, 1.0, y0], [0, 0, 1.0]])
         trail = trail_of(cars.truth, h0, (x1 - x0, y1 - y0)) & covered & clean_covered
         assert trail.sum() > 5000
         shows[moving] = float((np.abs(image - clean).max(axis=2)[trail] * 255.0 > 25.0).mean())
-    print(shows)
+        # the truth's own count: trail pixels taken from a frame in which a car is there
+        from_cars[moving] = float(vehicles_shown(canvas.labels(region), seg.frames, cars.truth.vehicles, times,
+                                                 h0)[trail].mean())
+    print(shows, from_cars)
     assert shows[0.0] > 0.05
     assert shows[0.05] < 0.03
+    assert from_cars[0.0] > 0.04 and from_cars[0.05] < 0.01
 
 
 def test_moving_png_marks_where_cars_drove(flights: tuple, tmp_path) -> None:

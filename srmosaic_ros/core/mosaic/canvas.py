@@ -638,6 +638,17 @@ class TiledCanvas:
             return np.zeros((region[3] - region[1], region[2] - region[0]), np.uint8)
         return self._gather(region, ('moved',))[0]
 
+    def labels(self, region: tuple[int, int, int, int] | None = None) -> np.ndarray:
+        """int32 (h, w) over ``region`` (default: bounds): the index (:attr:`PaintResult.frame_index`)
+        of the frame each mosaic pixel is taken from (eq. 4.7: the max-weight, or with the vote on
+        moving objects the consensus, frame), -1 where none; around seams multiband also blends in
+        its neighbours. CanvasError for a feather canvas (every frame is averaged: no such frame)."""
+        self._check_open()
+        if self._blend == 'feather':
+            msg = 'a feather canvas averages every frame over a pixel: it has no labels (blend bestview or multiband).'
+            raise CanvasError(msg)
+        return self._gather(self._region(region), ('best_id',))[0]
+
     def weights(self, region: tuple[int, int, int, int] | None = None) -> np.ndarray:
         """Feather weight sum ``sum_i W_H^i``, float32 (h, w), over ``region`` (default: bounds)."""
         self._check_open()

@@ -410,3 +410,20 @@ def test_render_preview_is_the_block_mean_and_incremental(blend: str, channels: 
     assert e.size == 0 and ec.size == 0
     with pytest.raises(CanvasError, match='max_side'):
         c.render_preview(0)
+
+
+@pytest.mark.parametrize('blend', ['bestview', 'multiband'])
+def test_labels_name_the_frame_each_pixel_comes_from(blend: str) -> None:
+    """Two frames side by side overlapping by half: each pixel's label is the frame whose centre is
+    nearer (eq. 4.7's closeness weight), -1 where none painted; a feather canvas has none."""
+    c = TiledCanvas(3, tile_size=32, blend=blend)
+    for k, shift in enumerate((0.0, 40.0)):
+        r = c.paint(texture(60, 80, seed=k), np.array([[1.0, 0, shift], [0, 1.0, 0], [0, 0, 1.0]]))
+        assert r.frame_index == k
+    labels = c.labels((0, 0, 120, 60))
+    assert labels.dtype == np.int32 and labels.shape == (60, 120)
+    assert (labels[5:55, 2:30] == 0).all() and (labels[5:55, 90:118] == 1).all()
+    assert set(np.unique(labels[:, 50:70])) == {0, 1}  # the seam between the centres 40 px apart
+    assert (c.labels((200, 0, 210, 10)) == -1).all()
+    with pytest.raises(CanvasError, match='no labels'):
+        TiledCanvas(3, tile_size=32, blend='feather').labels((0, 0, 4, 4))
