@@ -514,7 +514,6 @@ def _paint_and_write(out: Path, config: PipelineConfig, stills: list[SurveyStill
             if gsd[k] * cand <= g * 1.0001:
                 reduction[k] = cand
                 break
-
     with canvas, ThreadPoolExecutor(1, thread_name_prefix='survey-decode') as decoder:
         # the next still is decoded (OpenCV, without the GIL) while this one is painted
         decoded = collections.deque(decoder.submit(read_reduced, stills[k].file, reduction[k]) for k in placed[:1])
