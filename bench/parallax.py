@@ -42,7 +42,7 @@ from srmosaic_ros.sim import SimConfig, simulate
 from srmosaic_ros.sim.buildings import paint_roofs
 from srmosaic_ros.io.video import VideoReader, write_video
 from srmosaic_ros.sim.ortho_error import REGIONS, ortho_in_plane, region_errors, region_masks
-from srmosaic_ros.sim.traffic import vehicle_mask, vehicles_shown
+from srmosaic_ros.sim.traffic import vehicle_mask
 
 RUNS = {'feather': {'mosaic.blend': 'feather'}, 'multiband': {'mosaic.blend': 'multiband'},
         'bestview': {'mosaic.blend': 'bestview'},
@@ -124,10 +124,8 @@ def measure(flight, near_m: float, out_dir: Path, tag: str, regions_of=None, cle
         open_ground = masks['open'] & covered
         vs_truth = (f'{off[open_ground & trail].mean():.1%} / {off[open_ground & ~trail].mean():.1%}'
                     if (open_ground & trail).any() else '-')
-        if (open_ground & trail).any() and seg.canvas.blend != 'feather':  # the truth's count (sim/traffic.py)
-            shown = vehicles_shown(seg.canvas.labels((x0, y0, x1, y1)), seg.frames, truth.vehicles,
-                                   [(f.stamp_ns - truth.frames[0].stamp_ns) * 1e-9 for f in truth.frames],
-                                   world_H_region)
+        if (open_ground & trail).any() and seg.canvas.blend != 'feather':  # the truth's count (Truth.vehicles_shown)
+            shown = truth.vehicles_shown(seg.canvas.labels((x0, y0, x1, y1)), seg.frames, world_H_region)
             vs_truth += f' / {shown[open_ground & trail].mean():.2%}'
         corner = []
         for k, seg_H in seg.seg_H_frames.items():

@@ -10,7 +10,7 @@ ever covered (the floor: two mosaics of the same static ground differ there only
 frames' choice differs), the trail pixels seen by at least 3 frames (fewer cannot outvote a car),
 and PSNR of the whole mosaic against the traffic-free one. The truth's own count, without that
 floor: the trail pixels the mosaic takes from a frame in which a vehicle covers that ground
-(TiledCanvas.labels against the simulator's vehicle masks at each frame's time; best view and
+(TiledCanvas.labels and Truth.vehicles_shown: the simulator's vehicle masks at each frame's time; best view and
 multiband, whose pixels each come from one frame, blended with its neighbours across seams).
 
     python bench/traffic.py [--vehicles 30] [--frames 40]
@@ -30,7 +30,7 @@ sys.path.insert(0, str(ROOT))
 from srmosaic_ros.config import pipeline_config
 from srmosaic_ros.pipeline import Pipeline
 from srmosaic_ros.sim import SimConfig, simulate
-from srmosaic_ros.sim.traffic import vehicle_mask, vehicles_shown
+from srmosaic_ros.sim.traffic import vehicle_mask
 
 
 RUNS = {'feather': {'mosaic.blend': 'feather'}, 'multiband': {'mosaic.blend': 'multiband'},
@@ -71,11 +71,10 @@ def main() -> None:
         # trail: mosaic pixels some vehicle covered in some frame (frame 0's plane = the mosaic's)
         h0 = truth.frames[0].world_px_H_frame @ np.array([[1.0, 0, x0], [0, 1.0, y0], [0, 0, 1.0]])
         trail = np.zeros((y1 - y0, x1 - x0), bool)
-        times = [(f.stamp_ns - truth.frames[0].stamp_ns) * 1e-9 for f in truth.frames]
-        for t_s in times:
-            trail |= vehicle_mask(truth.vehicles, t_s, h0, (x1 - x0, y1 - y0))
+        for k in range(len(truth.frames)):
+            trail |= vehicle_mask(truth.vehicles, truth.time_s(k), h0, (x1 - x0, y1 - y0))
         # the truth's count: mosaic pixels taken from a frame in which a vehicle covers that ground
-        from_vehicle = (vehicles_shown(canvas.labels((x0, y0, x1, y1)), seg.frames, truth.vehicles, times, h0)
+        from_vehicle = (truth.vehicles_shown(canvas.labels((x0, y0, x1, y1)), seg.frames, h0)
                         if canvas.blend != 'feather' else np.zeros(trail.shape, bool))
         seen = np.zeros(trail.shape, np.int32)  # frames over each mosaic pixel (their true footprints)
         for f in truth.frames:

@@ -18,8 +18,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-__all__ = ['VEHICLE_SIZE_M', 'Vehicle', 'make_traffic', 'paint_vehicles', 'restore_world', 'vehicle_mask',
-           'vehicles_shown']
+__all__ = ['VEHICLE_SIZE_M', 'Vehicle', 'make_traffic', 'paint_vehicles', 'restore_world', 'vehicle_mask']
 
 #: Length and width of a simulated vehicle (m): a car.
 VEHICLE_SIZE_M = (4.5, 1.8)
@@ -117,21 +116,3 @@ def vehicle_mask(vehicles: list[Vehicle], t_s: float, world_px_H_frame: np.ndarr
         pts = np.round(p[:, :2] / p[:, 2:3] * (1 << _SHIFT)).astype(np.int32)
         cv2.fillConvexPoly(mask, pts, 1, lineType=cv2.LINE_8, shift=_SHIFT)
     return mask > 0
-
-
-def vehicles_shown(labels: np.ndarray, painted: list[int], vehicles: list[Vehicle], times_s: list[float],
-                   world_px_H_mosaic: np.ndarray) -> np.ndarray:
-    """bool (h, w): the mosaic pixels taken from a frame in which a vehicle covers that ground (the
-    truth's count of vehicle ghosts, without a comparison's floor).
-
-    ``labels``: int (h, w), the frame each mosaic pixel comes from (TiledCanvas.labels over the
-    region, -1: none); ``painted``: the flight's frame index of each label (label k is the k-th
-    frame painted, Segment.frames); ``times_s``: each flight frame's time; ``world_px_H_mosaic``:
-    world pixel of each pixel of the region."""
-    shown = np.zeros(labels.shape, bool)
-    size = (labels.shape[1], labels.shape[0])
-    for k, frame in enumerate(painted):
-        here = labels == k
-        if here.any():
-            shown |= here & vehicle_mask(vehicles, times_s[frame], world_px_H_mosaic, size)
-    return shown

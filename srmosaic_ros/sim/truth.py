@@ -130,8 +130,26 @@ class Truth:
     def vehicle_mask(self, index: int) -> np.ndarray:
         """bool (height, width) of frame ``index``: its pixels on a vehicle (all False without traffic)."""
         f = self.frames[index]
-        t_s = (f.stamp_ns - self.frames[0].stamp_ns) * 1e-9
-        return vehicle_mask(self.vehicles, t_s, f.world_px_H_frame, (self.camera.width, self.camera.height))
+        return vehicle_mask(self.vehicles, self.time_s(index), f.world_px_H_frame, (self.camera.width, self.camera.height))
+
+    def time_s(self, index: int) -> float:
+        """Seconds of frame ``index`` since the first frame (the vehicles' clock)."""
+        return (self.frames[index].stamp_ns - self.frames[0].stamp_ns) * 1e-9
+
+    def vehicles_shown(self, labels: np.ndarray, painted: list[int], world_px_H_mosaic: np.ndarray) -> np.ndarray:
+        """bool (h, w): the mosaic pixels taken from a frame in which a vehicle covers that ground (the
+        truth's count of vehicle ghosts, without a comparison's floor).
+
+        ``labels``: int (h, w), the frame each mosaic pixel comes from (TiledCanvas.labels over the
+        region, -1: none); ``painted``: this flight's frame index of each label (label k is the k-th
+        frame painted, Segment.frames); ``world_px_H_mosaic``: world pixel of each pixel of the region."""
+        shown = np.zeros(labels.shape, bool)
+        size = (labels.shape[1], labels.shape[0])
+        for k, frame in enumerate(painted):
+            here = labels == k
+            if here.any():
+                shown |= here & vehicle_mask(self.vehicles, self.time_s(frame), world_px_H_mosaic, size)
+        return shown
 
     @property
     def enu_H_world_px(self) -> np.ndarray:

@@ -14,8 +14,9 @@ std first: what the reference sees and the estimate misses is large and local (a
 seen from elsewhere); its noise is small everywhere, and adding it back would undo the averaging
 that the fusion did. When the residual's RMS is several times the noise, it is mostly structure
 (compression and chroma noise of real video, spatially correlated and below the threshold per
-pixel), and the threshold is scaled by the share of its power the noise accounts for
-(:func:`structure_threshold`). ``D B W_ref x_a`` then reproduces the reference in the
+pixel), and the threshold is scaled by the share of its power the noise accounts for and by how
+much neighbouring residual pixels correlate (white sensor noise does not; what compression leaves
+does: :func:`structure_threshold`). ``D B W_ref x_a`` then reproduces the reference in the
 band its LR pixels carry (up to the interpolation's own blur), and the tile keeps the detail above
 that band that only the fusion of several frames recovers. The tile thereby agrees with the mosaic
 around it: the same moving objects, the same side of a building, no seam at its border.
