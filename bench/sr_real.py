@@ -36,6 +36,7 @@ from srmosaic_ros.app.process import process_input
 SEQUENCES = ('caliterra', 'brighton_beach')
 RUNS: dict[str, dict[str, Any]] = {
     'default': {},
+    'anchor compression': {'sr.anchor_compression': True},
     'gate off': {'sr.consistency': 0.0},
     'noise cap 1': {'sr.lambda_noise_cap': 1.0},
     'psf 0.3': {'sr.psf_sigma': 0.3},

@@ -37,6 +37,7 @@ REAL = ROOT.parent / 'shared' / 'data' / 'real'
 VIDEOS = (REAL / 'klv' / 'aphill_short.ts', REAL / 'gopro' / 'karma.mp4')
 RUNS: dict[str, dict[str, Any]] = {
     'default': {},
+    'anchor compression': {'sr.anchor_compression': True},
     'no anchor': {'sr.anchor': False},
     'psf 0.3': {'sr.psf_sigma': 0.3},
     'psf 0.5': {'sr.psf_sigma': 0.5},

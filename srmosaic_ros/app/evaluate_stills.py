@@ -57,11 +57,13 @@ def _sample(img: np.ndarray, img_H_tile: np.ndarray, shape: tuple[int, int]) -> 
     return np.clip(out, 0, 255).astype(np.float64)
 
 
-def sr_errors_against_originals(out: Path, hr: dict[str, np.ndarray]) -> TileErrors:
+def sr_errors_against_originals(out: Path, hr: dict[str, np.ndarray],
+                                truth: dict[str, np.ndarray] | None = None) -> TileErrors:
     """Errors of every tile of ``out``/sr/tiles.json against the HR originals ``hr`` (name -> BGR
-    image, in the folder's frame order = sorted names, one per frames.csv row)."""
+    image, in the folder's frame order = sorted names, one per frames.csv row), or against
+    ``truth`` (the same names) where the originals are not the ground (:func:`tile_comparisons`)."""
     result: TileErrors = {}
-    for t in tile_comparisons(out, hr):
+    for t in tile_comparisons(out, hr, truth):
         result[t.file] = (float(((t.sr - t.truth) ** 2).sum()), float(((t.mosaic_bicubic - t.truth) ** 2).sum()),
                           t.truth.size, float(((t.frame_bicubic - t.truth) ** 2).sum()))
     return result
@@ -81,9 +83,13 @@ class TileComparison:
     frame_bicubic: np.ndarray
 
 
-def tile_comparisons(out: Path, hr: dict[str, np.ndarray]) -> Iterator[TileComparison]:
+def tile_comparisons(out: Path, hr: dict[str, np.ndarray],
+                     truth: dict[str, np.ndarray] | None = None) -> Iterator[TileComparison]:
     """Every tile of ``out``/sr/tiles.json beside its truth and baselines (module docstring); ``hr``
-    as :func:`sr_errors_against_originals` takes it. Tiles no frame holds whole are skipped."""
+    as :func:`sr_errors_against_originals` takes it. Tiles no frame holds whole are skipped.
+    ``truth``: what each frame should have shown, by the same names and size as ``hr``, when that is
+    known and differs from the originals (a simulated flight: the ground without the camera's blur,
+    noise and compression); the LR frames stay ``hr`` halved."""
     names = sorted(hr)
     rows = read_frames_csv(out / 'frames.csv')
     ok = [(names[i], r['mosaic_H_frame']) for i, r in enumerate(rows) if r['ok']]
@@ -107,7 +113,8 @@ def tile_comparisons(out: Path, hr: dict[str, np.ndarray]) -> Iterator[TileCompa
         frame_H_grid = np.linalg.inv(mosaic_H_frame) @ grid_H
         if name not in lr:
             lr[name] = cv2.resize(hr[name], size, interpolation=cv2.INTER_AREA)
-        yield TileComparison(entry['file'], name, _sample(hr[name], _HR_H_LR @ frame_H_grid, sr.shape[:2]), sr,
+        yield TileComparison(entry['file'], name, _sample((hr if truth is None else truth)[name], _HR_H_LR @ frame_H_grid,
+                                                          sr.shape[:2]), sr,
                              _sample(mosaic, grid_H, sr.shape[:2]), _sample(lr[name], frame_H_grid, sr.shape[:2]))
 
 

@@ -157,6 +157,9 @@ class SRConfig:
     anchor_noise: the reference's residual (and colour difference) is shrunk by this many noise
         stds first, scaled down where it is several times the noise (anchor.py
         ``structure_threshold``); 0: the tile takes the reference's band exactly.
+    anchor_compression: the threshold is also scaled down where the reference's residual is
+        spatially correlated (what compression leaves; anchor.py): the tile then reproduces the
+        reference frame as recorded, its compression included, instead of the ground.
     """
 
     psf_sigma: float = 0.5
@@ -184,6 +187,7 @@ class SRConfig:
     lm_inner: int = 8
     anchor: bool = True
     anchor_noise: float = 2.0
+    anchor_compression: bool = False
     local_align: str = 'affine'
     local_align_max_px: float = 1.5
     photometric: bool = True
@@ -584,9 +588,9 @@ def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames:
         d = d - luma(d)
         n_valid = max(float(ref_valid.sum()), 1.0)
         thr = torch.zeros((1, channels, 1, 1), dtype=d.dtype, device=d.device)
-        # the reference's colour-difference residual on its own LR pixels: its neighbours correlate
-        # where compression made it (structure_threshold; white sensor noise: |rho| < 0.04 on the
-        # simulator, real video 0.14 to 0.90); d above lives on the HR grid, correlated by the upsampling
+        # anchor_compression: the reference's colour-difference residual on its own LR pixels, whose
+        # neighbours correlate where compression made it (structure_threshold); d above lives on the
+        # HR grid, correlated by the upsampling
         ref_mask = stack.mask[ref:ref + 1]
         r_ref = (stack.y[ref:ref + 1] - stack.operator.apply(x0_rgb)[ref:ref + 1]) * ref_mask
         r_ref = r_ref - luma(r_ref)
@@ -594,8 +598,8 @@ def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames:
             # noise i.i.d. per channel: a colour difference c - Y is noisier than Y by CHROMA_NOISE[c]
             noise_c = CHROMA_NOISE[c] * noise
             d_rms = float(torch.sqrt((d[:, c].double() ** 2).sum() / n_valid))
-            thr[0, c] = structure_threshold(cfg.anchor_noise * noise_c, noise_c, d_rms,
-                                            neighbour_correlation(r_ref[:, c:c + 1], ref_mask))
+            rho = neighbour_correlation(r_ref[:, c:c + 1], ref_mask) if cfg.anchor_compression else 0.0
+            thr[0, c] = structure_threshold(cfg.anchor_noise * noise_c, noise_c, d_rms, rho)
         base = x0_rgb + torch.sign(d) * (d.abs() - thr).clamp_min(0.0) * ref_valid
     base_y = luma(base)
 
@@ -626,7 +630,7 @@ def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames:
                    'others).')
             raise SRFramesDisagree(msg)
         x_final, anchor_rms = anchor_to_frame(res.x, y_obs, stack, ref, s, threshold=cfg.anchor_noise * noise,
-                                              noise=noise)
+                                              noise=noise, compression=cfg.anchor_compression)
     if device.type == 'cuda':
         torch.cuda.synchronize(device)
     t3 = time.perf_counter()

@@ -272,3 +272,35 @@ def test_the_leave_one_out_check_refuses_a_tile_made_to_ring(world) -> None:
     reconstruct_checked_tile(st.frames, st.tile_H_frames, TILE, 2, SRConfig(device='cpu', psf_sigma=1.6, self_check=0))
     # two frames: nothing to hold out, the tile is made
     assert held_out_errors(st.frames[:2], st.tile_H_frames[:2], TILE, 2, right) == (0.0, 0.0, 0)
+
+
+
+def test_compression_in_the_reference_is_taken_back_only_when_asked(world, tile):
+    """sr.anchor_compression: blotches like those a DCT quantiser leaves (correlated, under two grey
+    levels) in the reference frame alone are the recorded frame's, not the ground's. By default the
+    anchoring threshold keeps most of them out of the tile; with the option the tile takes them back
+    whole: further from the truth, closer to the reference as recorded."""
+    import cv2
+
+    kw = {'iterations': 10, 'device': 'cpu', 'robust': False, 'consistency': 0}
+    ref = reconstruct_tile(tile.frames, tile.tile_H_frames, TILE, 2, **kw).reference
+    rng = np.random.default_rng(8)
+    h, w = tile.frames[ref].shape[:2]
+    blotches = cv2.GaussianBlur(rng.normal(0, 1, (h, w)).astype(np.float32), (0, 0), 1.2)
+    blotches *= 1.6 / blotches.std()
+    frames = [f.copy() for f in tile.frames]
+    add = blotches if frames[ref].ndim == 2 else blotches[..., None]
+    frames[ref] = np.clip(frames[ref].astype(np.float32) + add + 0.5, 0, 255).astype(np.uint8)
+    plain, taken = (reconstruct_tile(frames, tile.tile_H_frames, TILE, 2, anchor_compression=c, **kw)
+                    for c in (False, True))
+    assert plain.reference == taken.reference == ref
+    # the blotches as the HR tile sees them: HR pixel (u, v) is LR tile point ((u + 0.5) / 2 - 0.5, ...)
+    vs, us = np.mgrid[0:TILE[0] * 2, 0:TILE[1] * 2].astype(np.float64)
+    q = np.linalg.inv(tile.tile_H_frames[ref]) @ np.stack([(us + 0.5) / 2 - 0.5, (vs + 0.5) / 2 - 0.5, np.ones_like(us)]).reshape(3, -1)
+    seen = cv2.remap(blotches, (q[0] / q[2]).reshape(us.shape).astype(np.float32),
+                     (q[1] / q[2]).reshape(us.shape).astype(np.float32), cv2.INTER_LINEAR) / 255.0
+    recorded = tile.truth + (seen if tile.truth.ndim == 2 else seen[..., None])
+    to_truth = [psnr(hwc(r.image), tile.truth) for r in (plain, taken)]
+    to_recorded = [psnr(hwc(r.image), recorded) for r in (plain, taken)]
+    assert to_truth[0] > to_truth[1] + 0.3, to_truth
+    assert to_recorded[1] > to_recorded[0] + 0.3, to_recorded
