@@ -83,7 +83,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .ground_homography import apply_H, homography_from_corners
+from .ground_homography import apply_H, homographies_from_corners, homography_from_corners
 
 __all__ = ['CanvasSimilarity', 'DriftState', 'InformationRate', 'chain_jacobian', 'drift_init', 'drift_step',
            'pose_error_transition', 'similarity_homography', 'similarity_jacobian']
@@ -222,15 +222,12 @@ def chain_jacobian(placed_prev: np.ndarray, prev_H_cur: np.ndarray, corners: np.
     """(8, 8) d corners_k / d corners_(k-1): how an error of the previous placement's corners moves the
     corners of ``placed_prev @ prev_H_cur`` (central differences; the map is smooth)."""
     base = apply_H(placed_prev, corners).ravel()
-    q = apply_H(prev_H_cur, corners)
-    F = np.empty((_CORNERS, _CORNERS))
-    for i in range(_CORNERS):
-        d = np.zeros(_CORNERS)
-        d[i] = step_px
-        plus = apply_H(homography_from_corners(corners, (base + d).reshape(4, 2)), q).ravel()
-        minus = apply_H(homography_from_corners(corners, (base - d).reshape(4, 2)), q).ravel()
-        F[:, i] = (plus - minus) / (2.0 * step_px)
-    return F
+    q = np.c_[apply_H(prev_H_cur, corners), np.ones(4)]
+    d = step_px * np.eye(_CORNERS)
+    Hs = homographies_from_corners(corners, np.concatenate([base + d, base - d]).reshape(-1, 4, 2))
+    p = Hs @ q.T                                          # (16, 3, 4): the 8 shifted placements, + then -
+    moved = (p[:, :2] / p[:, 2:3]).transpose(0, 2, 1).reshape(2 * _CORNERS, _CORNERS)
+    return ((moved[:_CORNERS] - moved[_CORNERS:]) / (2.0 * step_px)).T
 
 
 def _local_jacobians(H: np.ndarray, points: np.ndarray) -> np.ndarray:

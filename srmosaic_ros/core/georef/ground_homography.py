@@ -18,6 +18,7 @@ __all__ = [
     'frame2_H_frame1',
     'apply_H',
     'normalize_H',
+    'homographies_from_corners',
     'homography_from_corners',
 ]
 
@@ -78,11 +79,22 @@ def frame2_H_frame1(K: np.ndarray, R1_enu_from_cam: np.ndarray, C1_enu: np.ndarr
 
 def homography_from_corners(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     """(3, 3) dst_H_src (h22 = 1) exactly mapping 4 points src (4, 2) to dst (4, 2), float64."""
-    A = np.zeros((8, 8))
-    b = np.zeros(8)
-    for i, ((x, y), (u, v)) in enumerate(zip(np.asarray(src, float), np.asarray(dst, float))):
-        A[2 * i] = (x, y, 1.0, 0.0, 0.0, 0.0, -u * x, -u * y)
-        A[2 * i + 1] = (0.0, 0.0, 0.0, x, y, 1.0, -v * x, -v * y)
-        b[2 * i], b[2 * i + 1] = u, v
-    h = np.linalg.solve(A, b)
-    return np.r_[h, 1.0].reshape(3, 3)
+    return homographies_from_corners(src, np.asarray(dst, float)[None])[0]
+
+
+def homographies_from_corners(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """(B, 3, 3) dst_H_src (h22 = 1) mapping the 4 points src (4, 2) to each of dst (B, 4, 2): one
+    batched solve of the B 8x8 systems (a Jacobian by differences needs 16 of them per frame)."""
+    x, y = (np.asarray(src, float)[:, k] for k in (0, 1))
+    dst = np.asarray(dst, float)
+    u, v = dst[..., 0], dst[..., 1]                       # (B, 4)
+    n = dst.shape[0]
+    one, zero = np.ones(4), np.zeros(4)
+    A = np.zeros((n, 8, 8))
+    A[:, 0::2, :6] = np.stack([x, y, one, zero, zero, zero], axis=1)
+    A[:, 1::2, :6] = np.stack([zero, zero, zero, x, y, one], axis=1)
+    A[:, 0::2, 6], A[:, 0::2, 7] = -u * x, -u * y
+    A[:, 1::2, 6], A[:, 1::2, 7] = -v * x, -v * y
+    b = dst.reshape(n, 8)                                 # u0, v0, u1, v1, ...
+    h = np.linalg.solve(A, b[..., None])[..., 0]
+    return np.concatenate([h, np.ones((n, 1))], axis=1).reshape(n, 3, 3)

@@ -195,3 +195,17 @@ def test_the_replaced_frame_count_key_is_refused_with_the_new_name() -> None:
     assert math.isnan(pipeline_config().georef.drift_pose_time_constant_s)
     with pytest.raises(ConfigError, match='drift_pose_time_constant_s'):
         pipeline_config({'georef.drift_pose_time_constant_s': -1.0})
+
+
+def test_homographies_from_corners_map_each_set_of_corners() -> None:
+    """The batched solve (the drift's chain Jacobian needs 16 per frame) maps the corners to each
+    target set exactly, as the single one does."""
+    from srmosaic_ros.core.georef.ground_homography import homographies_from_corners
+
+    rng = np.random.default_rng(3)
+    dst = CORNERS[None] + rng.normal(0.0, 20.0, (5, 4, 2))
+    Hs = homographies_from_corners(CORNERS, dst)
+    assert Hs.shape == (5, 3, 3)
+    for H, d in zip(Hs, dst, strict=True):
+        assert np.allclose(apply_H(H, CORNERS), d, atol=1e-8)
+        assert np.allclose(H, homography_from_corners(CORNERS, d), atol=1e-12)
