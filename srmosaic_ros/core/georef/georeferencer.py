@@ -791,23 +791,29 @@ class Georeferencer:
                            raster: GeoRaster | None) -> tuple[np.ndarray, np.ndarray]:
         """Raster corners (4, 2) of the frame placed by ``pose`` and their Jacobian (8, 7) with respect
         to (east, north, up, roll, pitch, yaw, ground_z_m) (numerical), corners flattened x0, y0, x1, ..."""
-        raster_H_enu = self.raster_H_enu(raster)
-
-        def corners_of(yg: np.ndarray) -> np.ndarray:
-            cp = self.mount.camera_pose(yg[:6])
-            H = raster_H_enu @ ground_H_image(cam.K, cp.R_enu_from_cam, cp.center_enu_m,
-                                              ground_z_m=float(yg[6]))
-            return apply_H(H, corners).ravel()
-
         y0 = np.r_[pose.pose6, _ground(pose)]
-        c0 = corners_of(y0)
         steps = np.array([0.1, 0.1, 0.1, 1e-4, 1e-4, 1e-4, 0.1])
-        J = np.empty((8, 7))
-        for i, h in enumerate(steps):
-            dy = np.zeros(7)
-            dy[i] = h
-            J[:, i] = (corners_of(y0 + dy) - corners_of(y0 - dy)) / (2.0 * h)
-        return c0.reshape(4, 2), J
+        ys = np.concatenate([y0[None], y0 + np.diag(steps), y0 - np.diag(steps)])     # (15, 7)
+        cp0 = self.mount.camera_pose(y0[:6])
+        R = np.empty((len(ys), 3, 3))
+        C = np.empty((len(ys), 3))
+        for k, yg in enumerate(ys):
+            if np.array_equal(yg[3:6], y0[3:6]):
+                # the body's position and the ground height do not turn the camera: its centre
+                # moves with the body (the lever arm turns with the attitude only)
+                R[k], C[k] = cp0.R_enu_from_cam, cp0.center_enu_m + (yg[:3] - y0[:3])
+            else:
+                cp = self.mount.camera_pose(yg[:6])
+                R[k], C[k] = cp.R_enu_from_cam, cp.center_enu_m
+        # image_H_ground = K R^T M (ground_homography.py), for all 15 poses at once
+        M = np.zeros((len(ys), 3, 3))
+        M[:, 0, 0] = M[:, 1, 1] = 1.0
+        M[:, 0, 2], M[:, 1, 2], M[:, 2, 2] = -C[:, 0], -C[:, 1], ys[:, 6] - C[:, 2]
+        H = self.raster_H_enu(raster) @ np.linalg.inv(np.asarray(cam.K, dtype=np.float64) @ R.transpose(0, 2, 1) @ M)
+        p = H @ np.c_[corners, np.ones(len(corners))].T                              # (15, 3, 4)
+        c = (p[:, :2] / p[:, 2:3]).transpose(0, 2, 1).reshape(len(ys), -1)           # (15, 8)
+        J = (c[1:8] - c[8:]).T / (2.0 * steps)
+        return c[0].reshape(4, 2), J
 
 
 def _ground(pose: FramePose) -> float:
