@@ -102,13 +102,23 @@ def play_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--loop', action='store_true', help='start again at the end (until Ctrl-C)')
     parser.add_argument('--delay', type=float, default=1.0,
                         help='at most this many seconds to wait for a subscriber on every topic before playing')
+    parser.add_argument('--subscribers', action='append', default=[], metavar='TOPIC=N',
+                        help='wait (up to --delay) for N subscribers on TOPIC (a bag topic; repeatable) instead of '
+                             'one: a graph whose nodes read the same topic starts to listen one node at a time')
 
 
 def run_play(args: argparse.Namespace) -> int:
     from .player import play_bag
 
+    counts = {}
+    for entry in args.subscribers:
+        topic, _, count = entry.rpartition('=')
+        if not topic or not count.isdigit() or int(count) < 1:
+            print(f'--subscribers takes TOPIC=N with N >= 1 (e.g. /camera/image_raw=2), got {entry!r}', file=sys.stderr)
+            return 2
+        counts[topic] = int(count)
     n = play_bag(args.bag, rate=args.rate, topics=args.topics, start_delay_s=args.delay, loop=args.loop,
-                 args=['player', *args.ros_args])
+                 args=['player', *args.ros_args], subscribers=counts)
     print(f'published {n} messages from {args.bag}')
     return 0
 

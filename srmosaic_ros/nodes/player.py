@@ -33,22 +33,29 @@ def _message_class(msgtype: str) -> type:
         raise BagError(msg) from None
 
 
-def _wait_for_subscribers(node: Node, publishers: dict, timeout_s: float) -> None:
-    """Wait until every publisher has a subscriber (or timeout_s passed), so the first messages are not lost."""
+def _wait_for_subscribers(node: Node, publishers: dict, timeout_s: float, counts: dict[str, int] | None = None) -> None:
+    """Wait until every publisher has its topic's count of subscribers in ``counts`` (1 for a topic
+    not named) or timeout_s passed, so the first messages are not lost: where several nodes read a
+    topic and start one after another, the first to subscribe is not enough."""
+    need = {t: (counts or {}).get(t, 1) for t in publishers}
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
-        if all(p.get_subscription_count() > 0 for p in publishers.values()):
+        if all(p.get_subscription_count() >= need[t] for t, p in publishers.items()):
             time.sleep(0.5)  # matching completes on the subscriber side too
             return
         time.sleep(0.05)
-    waiting = [t for t, p in publishers.items() if p.get_subscription_count() == 0]
+    waiting = [t for t, p in publishers.items() if p.get_subscription_count() < need[t]]
     if waiting:
-        node.get_logger().info(f'no subscriber yet on {waiting}; playing anyway')
+        node.get_logger().info(f'fewer subscribers than asked yet on {waiting}; playing anyway')
 
 
 def play_bag(path: Path, *, rate: float = 1.0, topics: list[str] | None = None, start_delay_s: float = 1.0,
-             loop: bool = False, remap: dict[str, str] | None = None, args: list[str] | None = None) -> int:
-    """Publish the bag; returns the number of messages published. Ctrl-C stops it cleanly."""
+             loop: bool = False, remap: dict[str, str] | None = None, args: list[str] | None = None,
+             subscribers: dict[str, int] | None = None) -> int:
+    """Publish the bag; returns the number of messages published. Ctrl-C stops it cleanly.
+
+    subscribers: bag topic -> subscribers to wait for (up to ``start_delay_s``) before playing; 1
+    for the others."""
     if rate <= 0:
         msg = f'--rate must be > 0, got {rate}.'
         raise BagError(msg)
@@ -66,7 +73,7 @@ def play_bag(path: Path, *, rate: float = 1.0, topics: list[str] | None = None, 
                   for t in selected}
     count = 0
     try:
-        _wait_for_subscribers(node, publishers, start_delay_s)
+        _wait_for_subscribers(node, publishers, start_delay_s, subscribers)
         while True:
             t_wall0 = time.monotonic()
             t_bag0 = None

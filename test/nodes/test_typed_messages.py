@@ -131,7 +131,8 @@ def test_graph_with_typed_messages(interfaces_env, ros_env, tmp_path):
     logs = {}
     try:
         player = subprocess.run([sys.executable, '-m', 'srmosaic_ros.nodes.executables', 'player', str(DEMO),
-                                 '--rate', '2', '--delay', '20', '--ros-args', '-r', '__ns:=/typed'],
+                                 '--rate', '2', '--delay', '60', '--subscribers', '/camera/image_raw/compressed=2',
+                                 '--ros-args', '-r', '__ns:=/typed'],
                                 env=env, capture_output=True, text=True, timeout=180)
         assert player.returncode == 0, player.stdout + player.stderr
         out, err = checker.communicate(timeout=480)  # polled: a loaded machine gets the time, a quiet one does not wait
