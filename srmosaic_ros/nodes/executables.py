@@ -95,6 +95,15 @@ def positive_float(text: str) -> float:
     return value
 
 
+def topic_count(text: str) -> tuple[str, int]:
+    """argparse type of ``--subscribers``: 'TOPIC=N' with N >= 1 -> (TOPIC, N)."""
+    topic, _, count = text.rpartition('=')
+    if not topic or not count.isdigit() or int(count) < 1:
+        msg = f'takes TOPIC=N with N >= 1 (e.g. /camera/image_raw=2), got {text!r}'
+        raise argparse.ArgumentTypeError(msg)
+    return topic, int(count)
+
+
 def play_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('bag', type=Path)
     parser.add_argument('--rate', type=positive_float, default=1.0, help='playback speed factor (2 = twice real time)')
@@ -102,7 +111,7 @@ def play_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--loop', action='store_true', help='start again at the end (until Ctrl-C)')
     parser.add_argument('--delay', type=float, default=1.0,
                         help='at most this many seconds to wait for a subscriber on every topic before playing')
-    parser.add_argument('--subscribers', action='append', default=[], metavar='TOPIC=N',
+    parser.add_argument('--subscribers', action='append', default=[], metavar='TOPIC=N', type=topic_count,
                         help='wait (up to --delay) for N subscribers on TOPIC (a bag topic; repeatable) instead of '
                              'one: a graph whose nodes read the same topic starts to listen one node at a time')
 
@@ -110,15 +119,8 @@ def play_arguments(parser: argparse.ArgumentParser) -> None:
 def run_play(args: argparse.Namespace) -> int:
     from .player import play_bag
 
-    counts = {}
-    for entry in args.subscribers:
-        topic, _, count = entry.rpartition('=')
-        if not topic or not count.isdigit() or int(count) < 1:
-            print(f'--subscribers takes TOPIC=N with N >= 1 (e.g. /camera/image_raw=2), got {entry!r}', file=sys.stderr)
-            return 2
-        counts[topic] = int(count)
     n = play_bag(args.bag, rate=args.rate, topics=args.topics, start_delay_s=args.delay, loop=args.loop,
-                 args=['player', *args.ros_args], subscribers=counts)
+                 args=['player', *args.ros_args], subscribers=dict(args.subscribers))
     print(f'published {n} messages from {args.bag}')
     return 0
 

@@ -521,4 +521,4 @@ def test_player_refuses_a_subscriber_count_it_cannot_read() -> None:
     for bad in ('2', '/camera/image_raw=0', '/fix=two'):
         run = subprocess.run([sys.executable, '-m', 'srmosaic_ros.nodes.executables', 'player', '--subscribers', bad,
                               str(DEMO)], capture_output=True, text=True, timeout=60)
-        assert run.returncode == 2 and '--subscribers takes TOPIC=N' in run.stderr, run.stderr
+        assert run.returncode == 2 and '--subscribers: takes TOPIC=N' in run.stderr, run.stderr

@@ -274,7 +274,6 @@ def test_the_leave_one_out_check_refuses_a_tile_made_to_ring(world) -> None:
     assert held_out_errors(st.frames[:2], st.tile_H_frames[:2], TILE, 2, right) == (0.0, 0.0, 0)
 
 
-
 def test_compression_in_the_reference_is_taken_back_only_when_asked(world, tile):
     """sr.anchor_compression: blotches like those a DCT quantiser leaves (correlated, under two grey
     levels) in the reference frame alone are the recorded frame's, not the ground's. By default the
