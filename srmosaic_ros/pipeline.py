@@ -32,6 +32,12 @@ When it does not (an oblique or forward-looking camera), the held frames are pla
 first frame's pixel plane through their registrations, no later segment is placed by its pose,
 and the mosaic is chained as without intrinsics (georeferenced afterwards by its geotags);
 ``pose_check`` says so, with a warning.
+
+Revisit spreading (`mosaic.revisit_spread_frames` N > 0): every frame is placed at once but painted
+N frames later. When a keyframe's registration to the mosaic moves it (a revisit of old ground),
+the frames placed since the last fixed placement and not painted yet take their share of that
+correction (core/mosaic/revisit.py) before they are painted; their records are decided when they
+are painted, N frames later (``FrameRecord.corrected_px`` says how far each was moved).
 """
 from __future__ import annotations
 
@@ -53,6 +59,7 @@ from .core.time_sync import SYNC_HOLD_FRAMES, telemetry_ready
 from .core.mosaic.best_view import clip_depth
 from .core.mosaic.keyframe import KeyframeResult, corner_shift_px, render_view
 from .core.mosaic.minify import area_factor, area_reduce, finest_stretch
+from .core.mosaic.revisit import spread_correction
 from .core.mosaic.scratch import scratch
 from .core.registration import Features, Registration, make_registrar
 from .core.registration.pyramid import PyramidRegistrar
@@ -95,6 +102,7 @@ class FrameRecord:
     pose: FramePose | None = None
     keyframe: KeyframeResult | None = None
     camera: CameraIntrinsics | None = None
+    corrected_px: float = 0.0  # largest corner move (px) of this frame by a later keyframe's correction spread back
 
     @property
     def painted(self) -> bool:
@@ -132,12 +140,12 @@ class _Held:
 
 
 #: Version of :meth:`Pipeline.state`: a checkpoint of another is refused (the run starts again).
-STATE_VERSION = 2
+STATE_VERSION = 3
 
 #: The attributes a resumed run needs (Pipeline.state); everything else is rebuilt from the config.
 _STATE = ('records', 'segments', 'fixes', 'imus', 'attitudes', 'georef', 'camera', 'clock', '_geo_canvas', '_active',
           '_last_good', '_orphan', '_channels', '_waiting', '_first_fix_wait_over', '_latest_telemetry_ns',
-          '_centres', '_settling', '_settling_seg', '_settled', '_fused', 'pose_check', '_settling_nis')
+          '_centres', '_settling', '_settling_seg', '_settled', '_fused', 'pose_check', '_settling_nis', '_unpainted', '_anchor')
 
 
 class Pipeline:
@@ -175,6 +183,10 @@ class Pipeline:
         self._fused: collections.deque[FrameRecord] = collections.deque(maxlen=1000)
         self.pose_check: PoseCheck | None = None  # decided when the first georeferenced segment settles
         self._settling_nis: list[float] = []  # drift-control NIS of the settling frames (pose_check.py)
+        # placed, painted later (revisit spreading): segment, frame (its image reduced to the mosaic's
+        # sampling: raw is then that image), frame_H_image (the reduction: painted at seg_H_frame @ it)
+        self._unpainted: collections.deque[tuple[Segment, _Held, np.ndarray]] = collections.deque()
+        self._anchor = -1  # record index of the last keyframe the mosaic placed: corrections spread back to it
         self.clock = StageClock()  # seconds per stage per input frame (the driver calls clock.end_frame())
 
     # -- input -------------------------------------------------------------------------------
@@ -351,7 +363,28 @@ class Pipeline:
         with self.clock.stage('register'):
             result = self._register_to_mosaic(seg, held, seg_H_frame)
         held.record.keyframe = result
-        return seg_H_frame if result.seg_H_frame is None else result.seg_H_frame
+        if result.seg_H_frame is None:
+            return seg_H_frame
+        self._spread_back(seg, held, seg_H_frame, result.seg_H_frame)
+        return result.seg_H_frame
+
+    def _spread_back(self, seg: Segment, held: _Held, predicted: np.ndarray, corrected: np.ndarray) -> None:
+        """The frames of ``seg`` placed after the last anchor and not painted yet take their share of
+        the keyframe's correction (revisit.py); the keyframe becomes the anchor."""
+        back = [h for s, h, _ in self._unpainted if s is seg and h.record.index > self._anchor
+                and h.record.seg_H_frame is not None]
+        self._anchor = held.record.index
+        if not back:
+            return
+        moved, shifts = spread_correction([h.record.seg_H_frame for h in back], [h.record.size for h in back],
+                                          predicted, corrected)
+        for h, m, shift in zip(back, moved, shifts, strict=True):
+            h.record.seg_H_frame = m
+            h.record.corrected_px = float(shift)
+            seg.seg_H_frames[h.record.index] = m
+        known = self._centres.get(seg.index)
+        if known:  # _revisits' centres of the moved frames: computed again
+            del known[seg.frames.index(back[0].record.index):]
 
     def _register_to_mosaic(self, seg: Segment, held: _Held, seg_H_frame: np.ndarray) -> KeyframeResult:
         """The keyframe's registration to the mosaic rendered where the chain puts it."""
@@ -374,6 +407,8 @@ class Pipeline:
                 shift = corner_shift_px(seg_H_frame, refined, w, h)
                 if shift > cfg.keyframe_max_correction_px:
                     result = KeyframeResult(None, coverage, shift, f'correction of {shift:.1f} px refused')
+                elif shift < cfg.keyframe_min_correction_px:  # within the noise of the rendered reference
+                    result = KeyframeResult(None, coverage, shift, f'correction of {shift:.1f} px below the minimum')
                 else:
                     result = KeyframeResult(refined / refined[2, 2], coverage, shift)
         return result
@@ -405,24 +440,22 @@ class Pipeline:
         return bool(near[:min(run, n - gap)].any())
 
     def _paint(self, seg: Segment, held: _Held, seg_H_frame: np.ndarray) -> bool:
-        if self._painter is not None:
-            return self._paint_later(seg, held, seg_H_frame)
-        with self.clock.stage('paint'):
-            try:
-                seg.canvas.check_placement(seg_H_frame, *held.record.size)
-                seg.canvas.paint(*self._paint_input(held.raw, seg_H_frame), finite=held.raw.dtype == np.uint8)
-            except CanvasError as exc:  # absurd footprint: refuse, never allocate a giant canvas
-                held.record.reason = f'not painted: {exc}'
-                return False
-            seg.place(held.record.index, seg_H_frame)
-        held.record.segment = seg.index
-        held.record.seg_H_frame = seg_H_frame
-        return True
-
-    def _paint_later(self, seg: Segment, held: _Held, seg_H_frame: np.ndarray) -> bool:
-        """_paint on the painter thread: the placement is checked and recorded now, the pixels follow."""
+        """Place the frame in ``seg`` at seg_H_frame and paint it: now, on the painter thread, or
+        mosaic.revisit_spread_frames frames later. False when the placement is refused (the record says why)."""
         record = held.record
-        try:
+        if self._painter is None and self.config.mosaic.revisit_spread_frames == 0:
+            with self.clock.stage('paint'):
+                try:
+                    seg.canvas.check_placement(seg_H_frame, *record.size)
+                    seg.canvas.paint(*self._paint_input(held.raw, seg_H_frame), finite=held.raw.dtype == np.uint8)
+                except CanvasError as exc:  # absurd footprint: refuse, never allocate a giant canvas
+                    record.reason = f'not painted: {exc}'
+                    return False
+                seg.place(record.index, seg_H_frame)
+            record.segment = seg.index
+            record.seg_H_frame = seg_H_frame
+            return True
+        try:  # placed now, painted later: the placement is checked and recorded now
             seg.canvas.check_placement(seg_H_frame, *record.size)
         except CanvasError as exc:
             record.reason = f'not painted: {exc}'
@@ -430,19 +463,47 @@ class Pipeline:
         seg.place(record.index, seg_H_frame)
         record.segment = seg.index
         record.seg_H_frame = seg_H_frame
-        raw = held.raw
+        if self.config.mosaic.revisit_spread_frames == 0:
+            self._paint_pixels(seg, held)
+        else:  # held at the mosaic's sampling: N frames of a 4K stream would take gigabytes as they came
+            frame_H_image = np.eye(3)
+            if held.raw.dtype == np.uint8:
+                h, w = held.raw.shape[:2]
+                k = area_factor(finest_stretch(seg_H_frame, w, h, clip_depth(seg_H_frame, w, h, self.config.mosaic.max_stretch)))
+                if k > 1:
+                    held.raw, frame_H_image = area_reduce(held.raw, frame_H_image, k)
+            self._unpainted.append((seg, held, frame_H_image))
+            self._paint_unpainted(keep=self.config.mosaic.revisit_spread_frames)
+        return True
+
+    def _paint_unpainted(self, keep: int = 0) -> None:
+        """Paint the oldest frames held by revisit spreading until ``keep`` remain; their records are decided."""
+        while len(self._unpainted) > keep:
+            seg, held, frame_H_image = self._unpainted.popleft()
+            if held.record.seg_H_frame is not None:
+                self._paint_pixels(seg, held, frame_H_image)
+            self._settled.append(held.record)
+
+    def _paint_pixels(self, seg: Segment, held: _Held, frame_H_image: np.ndarray | None = None) -> None:
+        """Paint a placed frame (its raw image, at its record's seg_H_frame @ frame_H_image), on the
+        painter thread when there is one. A paint refused after all (the canvas grew meanwhile)
+        unplaces it, as if never placed."""
+        record, raw = held.record, held.raw
+        seg_H_frame = record.seg_H_frame if frame_H_image is None else record.seg_H_frame @ frame_H_image
 
         def paint() -> None:
             with self.clock.stage('paint'):
                 try:
                     seg.canvas.paint(*self._paint_input(raw, seg_H_frame), finite=raw.dtype == np.uint8)  # from uint8: finite
-                except CanvasError as exc:  # refused after all (the canvas grew meanwhile): as if never placed
+                except CanvasError as exc:
                     seg.unplace(record.index)
                     record.segment, record.seg_H_frame = -1, None
                     record.reason = f'not painted: {exc}'
 
-        self._painter.submit(paint)
-        return True
+        if self._painter is not None:
+            self._painter.submit(paint)
+        else:
+            paint()
 
     def sync(self) -> None:
         """Wait for the frames being painted on the painter thread (paint_thread=True): the canvases
@@ -510,7 +571,7 @@ class Pipeline:
         record.time_s = time.perf_counter() - t0
         self._heap.tick()
         settled = self._take_settled()
-        later = {id(r) for r in settled} | {id(h.record) for h in self._settling}
+        later = {id(r) for r in settled} | {id(h.record) for h in self._settling} | {id(h.record) for _, h, _ in self._unpainted}
         return settled + [r for r in decided if id(r) not in later]
 
     def _try_new_segment(self, held: _Held) -> bool:
@@ -537,6 +598,7 @@ class Pipeline:
         paint the frames held for settling: every frame held back is decided."""
         decided = self._drain(all_frames=True)
         self._settle()
+        self._paint_unpainted()
         self.sync()
         return decided + self._take_settled()
 
@@ -547,15 +609,17 @@ class Pipeline:
 
     @property
     def held_back(self) -> int:
-        """Frames not decided yet: waiting for telemetry, or placed and held for settling."""
-        return len(self._waiting) + len(self._settling)
+        """Frames not decided yet: waiting for telemetry, placed and held for settling, or placed and
+        not painted yet (revisit spreading)."""
+        return len(self._waiting) + len(self._settling) + len(self._unpainted)
 
     @property
     def max_decision_lag_frames(self) -> int:
         """How many frames later than its own a frame's record may be returned, at most."""
         cfg = self.config.mosaic
         first_fix = FIRST_FIX_HOLD_FRAMES if self.config.georef_enabled else 0
-        return max(SYNC_HOLD_FRAMES, first_fix) + 3 + (cfg.settle_max_frames if cfg.settle_s > 0 else 0)
+        return (max(SYNC_HOLD_FRAMES, first_fix) + 3 + (cfg.settle_max_frames if cfg.settle_s > 0 else 0)
+                + cfg.revisit_spread_frames)
 
     def take_fused(self) -> list[FrameRecord]:
         """Records whose fused pose (record.pose) was computed since the last call, in order; a frame
@@ -606,7 +670,8 @@ class Pipeline:
         for h_k, frame in zip(placed, held, strict=True):
             if not self._paint(seg, frame, h_k):
                 frame.record.seg_H_frame = None
-            self._settled.append(frame.record)
+            if not any(h is frame for _, h, _ in self._unpainted):  # else decided when painted
+                self._settled.append(frame.record)
 
     def _poses_refused(self, seg: Segment) -> bool:
         """Decide pose_check when ``seg``, the first georeferenced segment, settles (module docstring);

@@ -5,6 +5,7 @@ import collections
 import errno
 import logging
 import math
+import re
 import shutil
 import time
 from pathlib import Path
@@ -100,6 +101,7 @@ def write_outputs(result: PipelineResult, out: Path, config: PipelineConfig, ext
             'median_ms': float(np.median([r.time_s for r in regs]) * 1e3) if regs else None,
         },
         'telemetry': {'fixes': len(result.fixes), 'imu': len(result.imus)},
+        'keyframes': keyframe_report(result.records),
         'georeferenced': geo or None,
         **({'pose_placement': result.pose_check.as_dict()} if result.pose_check is not None else {}),
         **({'moving': moving} if moving is not None else {}),
@@ -237,6 +239,24 @@ def _write_main_mosaic(out: Path, result: PipelineResult, config: PipelineConfig
     return {'method': 'filter', 'epsg': raster.epsg, 'gsd_m_per_px': raster.gsd_m_per_px,
             'geotransform': list(raster.geotransform), **anchoring, 'poses': len(poses),
             'skipped_telemetry': dict(georef.skipped)}
+
+
+def keyframe_report(records: list[Any]) -> dict[str, Any]:
+    """What the keyframe-to-mosaic registrations did (core/mosaic/keyframe.py): how many were tried
+    and applied, the corner shifts (px) of the applied corrections, why the others changed nothing,
+    and the frames given a share of a correction (Pipeline's revisit spreading)."""
+    results = [rec.keyframe for rec in records if rec.keyframe is not None]
+    shifts = [k.shift_px for k in results if not k.reason]
+    moved = [rec.corrected_px for rec in records if rec.corrected_px > 0]
+    return {
+        'tried': len(results),
+        'applied': len(shifts),
+        'shift_px_median': round(float(np.median(shifts)), 3) if shifts else None,
+        'shift_px_max': round(float(np.max(shifts)), 3) if shifts else None,
+        'not_applied': dict(collections.Counter(re.sub(r'\d+(\.\d+)?', '#', k.reason) for k in results if k.reason)),
+        'frames_moved_back': len(moved),  # mosaic.revisit_spread_frames: frames before a keyframe given a share of its correction
+        'moved_back_px_max': round(float(np.max(moved)), 3) if moved else None,
+    }
 
 
 def skipped_kinds(skipped: dict[str, int]) -> dict[str, int]:

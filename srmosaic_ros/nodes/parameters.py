@@ -57,6 +57,8 @@ _RANGES: dict[str, tuple[float, float]] = {
     'mosaic.max_tiles_in_memory': (0, 1000000),
     'mosaic.settle_s': (0.0, 600.0),
     'mosaic.settle_max_frames': (1, 1000),
+    'mosaic.revisit_spread_frames': (0, 1000),
+    'mosaic.keyframe_min_correction_px': (0.0, 1000.0),
     'mosaic.max_width': (0, 100000),
     'live.queue_size': (1, 100),
     'live.torch_threads': (0, 256),

@@ -27,7 +27,9 @@ def flight() -> list:
 
 def _run(items: list, **mosaic: object) -> tuple[Pipeline, list[tuple[int, int]]]:
     """Feed the flight; returns the pipeline and (index of the frame fed last, record index) per
-    decided record, in the order they were returned."""
+    decided record, in the order they were returned. Settling alone: frames are painted as soon as
+    they are placed or settled (revisit spreading off) unless ``mosaic`` says otherwise."""
+    mosaic.setdefault('revisit_spread_frames', 0)
     config = PipelineConfig()
     config = replace(config, mosaic=replace(config.mosaic, **mosaic))
     pipe = Pipeline(config)
@@ -65,6 +67,12 @@ def test_settled_start_has_no_seam_and_records_come_once_and_late(flight):
     first = [fed for fed, i in decided if i < 12]
     assert len(set(first)) == 1 and first[0] >= 12, decided[:14]
     assert all(fed - i <= SYNC_HOLD_FRAMES + 1 for fed, i in decided0)   # at once: only the telemetry wait
+    # with revisit spreading too (the default), each record once, within the pipeline's stated lag
+    spread, decided30 = _run(flight, revisit_spread_frames=30)
+    assert sorted(i for _, i in decided30) == list(range(60))
+    assert max(fed - i for fed, i in decided30) >= 30
+    assert all(fed - i <= spread.max_decision_lag_frames for fed, i in decided30)
+    np.testing.assert_allclose(_errors(spread), err, atol=1e-9)  # no revisit here: the same placements
 
 
 def test_take_fused_gives_every_pose_once_in_order(flight):

@@ -25,9 +25,11 @@ class MosaicConfig:
     keyframe_interval: int = 10  # register every n-th frame of a segment to the mosaic (0: never); see keyframe.py
     keyframe_revisit_frames: int = 20  # only where the frame revisits ground painted this many frames before (0: always)
     keyframe_min_coverage: float = 0.5  # fraction of the frame's view the mosaic must cover
-    keyframe_max_correction_px: float = 10.0  # larger corner corrections are refused (prediction kept)
+    keyframe_min_correction_px: float = 2.0  # smaller corner corrections are not applied: within the noise of a registration to the mosaic
+    keyframe_max_correction_px: float = 40.0  # larger corner corrections are refused (prediction kept)
     settle_s: float = 3.0  # a georeferenced segment's first frames are painted once this span of them is placed (0: at once)
     settle_max_frames: int = 30  # ... or once this many are held, whichever comes first
+    revisit_spread_frames: int = 30  # frames painted this many frames late, so a revisit correction reaches back over them (revisit.py; 0: at once)
     max_width: int = 1280  # frames wider are painted at the coarser ground sampling that brings them to this width (0: their own)
 
     def __post_init__(self) -> None:
@@ -77,6 +79,11 @@ class MosaicConfig:
         if not 0.0 < self.keyframe_min_coverage <= 1.0:
             msg = f'mosaic.keyframe_min_coverage must be in (0, 1], got {self.keyframe_min_coverage}.'
             raise ValueError(msg)
+        if not (isinstance(self.keyframe_min_correction_px, (int, float)) and 0.0 <= self.keyframe_min_correction_px
+                < self.keyframe_max_correction_px):
+            msg = (f'mosaic.keyframe_min_correction_px must be >= 0 and below keyframe_max_correction_px '
+                   f'({self.keyframe_max_correction_px}), got {self.keyframe_min_correction_px!r}.')
+            raise ValueError(msg)
         if not self.keyframe_max_correction_px > 0.0:
             msg = f'mosaic.keyframe_max_correction_px must be > 0, got {self.keyframe_max_correction_px}.'
             raise ValueError(msg)
@@ -90,6 +97,11 @@ class MosaicConfig:
         if isinstance(self.settle_max_frames, bool) or not isinstance(self.settle_max_frames, int) \
                 or not 1 <= self.settle_max_frames <= 1000:
             msg = f'mosaic.settle_max_frames must be an integer in 1 .. 1000, got {self.settle_max_frames!r}.'
+            raise ValueError(msg)
+        if isinstance(self.revisit_spread_frames, bool) or not isinstance(self.revisit_spread_frames, int) \
+                or not 0 <= self.revisit_spread_frames <= 1000:
+            msg = (f'mosaic.revisit_spread_frames must be an integer in 0 .. 1000 (0: paint every frame at once), '
+                   f'got {self.revisit_spread_frames!r}.')
             raise ValueError(msg)
         if not isinstance(self.spill_dir, str):
             msg = f"mosaic.spill_dir must be a directory path or '' (a temporary directory), got {self.spill_dir!r}."

@@ -17,8 +17,9 @@ with the previous frame. The next frames chain from the corrected keyframe. By d
 painted at least `keyframe_revisit_frames` frames before: along a straight leg the rendered
 (blended, twice resampled) view is a slightly worse reference than the previous frame itself
 (bench/drift.py compares the settings). A correction larger than `keyframe_max_correction_px` at
-the frame corners, a view the mosaic covers too little, or a failed registration leaves the
-predicted placement as it was (and is counted).
+the frame corners or smaller than `keyframe_min_correction_px` (the rendered view's own error), a
+view the mosaic covers too little, or a failed registration leaves the predicted placement as it
+was (and is counted).
 """
 from __future__ import annotations
 
