@@ -593,12 +593,14 @@ class Pipeline:
         self._last_good = held
         return True
 
-    def flush(self) -> list[FrameRecord]:
+    def flush(self, *, paint_held: bool = True) -> list[FrameRecord]:
         """Process every frame still waiting for telemetry (live: when telemetry stopped coming) and
-        paint the frames held for settling: every frame held back is decided."""
+        paint the frames held for settling: every frame held back is decided. ``paint_held`` False
+        keeps the frames held for revisit corrections (a live input's short pause)."""
         decided = self._drain(all_frames=True)
         self._settle()
-        self._paint_unpainted()
+        if paint_held:
+            self._paint_unpainted()
         self.sync()
         return decided + self._take_settled()
 

@@ -67,6 +67,10 @@ from .parameters import MOSAIC_PARAMETERS, declare_pipeline_parameters, on_param
 
 __all__ = ['MosaicNode', 'REGISTRATION_LAYOUT', 'main']
 
+#: The input paused this long (s): the frames held for revisit corrections (mosaic.revisit_spread_frames)
+#: are painted too; shorter pauses (frames a second apart) only end the waits for telemetry and settling.
+IDLE_PAINT_S = 5.0
+
 class MosaicNode(ManagedNode):
     """Registration + mosaic stage (see module docstring), a managed (lifecycle) node.
 
@@ -220,6 +224,7 @@ class MosaicNode(ManagedNode):
 
     # -- worker ---------------------------------------------------------------------------------
     def _work(self) -> None:
+        idle_since = time.monotonic()
         while True:
             with self._wake:
                 idle = False
@@ -230,6 +235,8 @@ class MosaicNode(ManagedNode):
                 if self._stop and not self._queue:
                     return
                 frame = self._queue.popleft() if self._queue else None
+            if frame is not None or not idle:
+                idle_since = time.monotonic()
             t0 = time.perf_counter()
             with self._lock:
                 records = []
@@ -239,8 +246,9 @@ class MosaicNode(ManagedNode):
                     if frame is not None:
                         records += self.pipeline.feed(frame)
                         self.pipeline.clock.end_frame()
-                    elif idle and self.pipeline.held_back:
-                        records += self.pipeline.flush()  # input paused: do not hold frames forever
+                    elif idle and self.pipeline.held_back:  # input paused: do not hold frames forever; those
+                        # held for revisit corrections wait IDLE_PAINT_S (frames a second apart keep them)
+                        records += self.pipeline.flush(paint_held=time.monotonic() - idle_since >= IDLE_PAINT_S)
                 except SrMosaicError as exc:
                     self.warn(f'pipeline: {type(exc).__name__}', f'frame skipped: {exc}')
                     continue
