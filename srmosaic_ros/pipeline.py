@@ -264,9 +264,7 @@ class Pipeline:
     def _paint_input(self, raw: np.ndarray, seg_H_frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(float32 image, seg_H_image) to paint for a frame: a frame much finer than the mosaic is
         averaged down to the mosaic's sampling first, on its integer pixels (minify.area_reduce)."""
-        h, w = raw.shape[:2]
-        cfg = self.config.mosaic
-        k = area_factor(finest_stretch(seg_H_frame, w, h, clip_depth(seg_H_frame, w, h, cfg.max_stretch)))
+        k = self._area_factor(raw, seg_H_frame)
         if k == 1:
             return self._as_canvas_image(raw), seg_H_frame
         if raw.dtype == np.uint8:
@@ -274,6 +272,11 @@ class Pipeline:
             return self._as_canvas_image(small), seg_H_small
         small, seg_H_small = area_reduce(self._as_canvas_image(raw), seg_H_frame, k)
         return np.ascontiguousarray(small, dtype=np.float32), seg_H_small
+
+    def _area_factor(self, image: np.ndarray, seg_H_frame: np.ndarray) -> int:
+        """The block size (minify.area_factor) a frame at seg_H_frame is averaged down by before it is painted."""
+        h, w = image.shape[:2]
+        return area_factor(finest_stretch(seg_H_frame, w, h, clip_depth(seg_H_frame, w, h, self.config.mosaic.max_stretch)))
 
     def _as_canvas_image(self, image: np.ndarray) -> np.ndarray:
         """Edge image -> float32 (H, W, C) in [0, 1] with the channel count of the first frame. A uint8
@@ -467,11 +470,9 @@ class Pipeline:
             self._paint_pixels(seg, held)
         else:  # held at the mosaic's sampling: N frames of a 4K stream would take gigabytes as they came
             frame_H_image = np.eye(3)
-            if held.raw.dtype == np.uint8:
-                h, w = held.raw.shape[:2]
-                k = area_factor(finest_stretch(seg_H_frame, w, h, clip_depth(seg_H_frame, w, h, self.config.mosaic.max_stretch)))
-                if k > 1:
-                    held.raw, frame_H_image = area_reduce(held.raw, frame_H_image, k)
+            k = self._area_factor(held.raw, seg_H_frame) if held.raw.dtype == np.uint8 else 1
+            if k > 1:
+                held.raw, frame_H_image = area_reduce(held.raw, frame_H_image, k)
             self._unpainted.append((seg, held, frame_H_image))
             self._paint_unpainted(keep=self.config.mosaic.revisit_spread_frames)
         return True
