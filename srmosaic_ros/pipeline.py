@@ -59,7 +59,7 @@ from .core.time_sync import SYNC_HOLD_FRAMES, telemetry_ready
 from .core.mosaic.best_view import clip_depth
 from .core.mosaic.keyframe import KeyframeResult, corner_shift_px, render_view
 from .core.mosaic.minify import area_factor, area_reduce, finest_stretch
-from .core.mosaic.revisit import spread_correction
+from .core.mosaic.revisit import footprint_pose, spread_correction
 from .core.mosaic.scratch import scratch
 from .core.registration import Features, Registration, make_registrar
 from .core.registration.pyramid import PyramidRegistrar
@@ -142,10 +142,14 @@ class _Held:
 #: Version of :meth:`Pipeline.state`: a checkpoint of another is refused (the run starts again).
 STATE_VERSION = 3
 
+#: A frame turned by more than this (degrees) from the frames centred near it views their ground
+#: from another direction: a new pass over it (Pipeline._revisits).
+PASS_TURN_DEG = 45.0
+
 #: The attributes a resumed run needs (Pipeline.state); everything else is rebuilt from the config.
 _STATE = ('records', 'segments', 'fixes', 'imus', 'attitudes', 'georef', 'camera', 'clock', '_geo_canvas', '_active',
           '_last_good', '_orphan', '_channels', '_waiting', '_first_fix_wait_over', '_latest_telemetry_ns',
-          '_centres', '_settling', '_settling_seg', '_settled', '_fused', 'pose_check', '_settling_nis', '_unpainted', '_anchor')
+          '_settling', '_settling_seg', '_settled', '_fused', 'pose_check', '_settling_nis', '_unpainted', '_anchor')
 
 
 class Pipeline:
@@ -176,7 +180,9 @@ class Pipeline:
         self.undistorter = Undistorter(self.config.undistort)
         self._latest_telemetry_ns: int | None = None
         self._heap = HeapTrimmer()  # long runs: return freed heap pages (malloc_tuning.py)
-        self._centres: dict[int, list[np.ndarray]] = {}  # segment -> centres of its painted frames (_revisits)
+        # segment -> (x, y, heading rad) of its painted frames' centres (_revisits; rebuilt from the
+        # segments on resume, so not in the state)
+        self._footprints: dict[int, list[np.ndarray]] = {}
         self._settling: list[_Held] = []  # the first frames of the active segment, placed, not painted yet
         self._settling_seg: Segment | None = None
         self._settled: list[FrameRecord] = []  # records decided by the last settle (returned by _process)
@@ -385,8 +391,8 @@ class Pipeline:
             h.record.seg_H_frame = m
             h.record.corrected_px = float(shift)
             seg.seg_H_frames[h.record.index] = m
-        known = self._centres.get(seg.index)
-        if known:  # _revisits' centres of the moved frames: computed again
+        known = self._footprints.get(seg.index)
+        if known:  # _revisits' footprints of the moved frames: computed again
             del known[seg.frames.index(back[0].record.index):]
 
     def _register_to_mosaic(self, seg: Segment, held: _Held, seg_H_frame: np.ndarray) -> KeyframeResult:
@@ -419,26 +425,26 @@ class Pipeline:
     def _revisits(self, seg: Segment, seg_H_frame: np.ndarray, w: int, h: int) -> bool:
         """Whether the frame flies over ground an earlier pass painted: its predicted centre lies within
         half its smaller side of the centre of a frame painted at least mosaic.keyframe_revisit_frames
-        frames earlier that is not part of the current pass (the unbroken run of such nearby frames
-        just before it). At a high frame rate a straight pass keeps overlapping frames many frames
-        back; those are not a revisit, and registering to the mosaic there costs a live node a frame
-        period for nothing the chain does not already have."""
+        frames earlier that is not part of the current pass (the unbroken run just before it of
+        frames centred nearby and facing the same way, within PASS_TURN_DEG). At a high frame rate a
+        straight pass keeps overlapping frames many frames back; those are not a revisit, and
+        registering to the mosaic there costs a live node a frame period for nothing the chain does
+        not already have. An orbit looking at its centre keeps every footprint there and turns: once
+        it has turned, the frames before the turn are an earlier pass over the same ground."""
         n = len(seg.frames)
         gap = self.config.mosaic.keyframe_revisit_frames
         if n <= gap:
             return False
-        c = np.array([w / 2, h / 2, 1.0])
-        p = seg_H_frame @ c
-        p = p[:2] / p[2]
-        # Centres of the segment's painted frames, computed once each (long flights: O(1) per frame).
-        cache = self._centres
-        known = cache.setdefault(seg.index, [])
-        for i in seg.frames[len(known):]:
-            m = seg.seg_H_frames[i] @ c
-            known.append(m[:2] / m[2])
-        near = np.linalg.norm(np.asarray(known) - p, axis=1) < 0.5 * min(w, h)
+        now = footprint_pose(seg_H_frame, w, h)
+        # Footprints of the segment's painted frames, computed once each (long flights: O(1) per frame).
+        known = self._footprints.setdefault(seg.index, [])
+        known.extend(footprint_pose(seg.seg_H_frames[i], w, h) for i in seg.frames[len(known):])
+        done = np.asarray(known)
+        near = np.linalg.norm(done[:, :2] - now[:2], axis=1) < 0.5 * min(w, h)
+        turn = np.abs(np.angle(np.exp(1j * (done[:, 2] - now[2]))))
+        same_pass = near & (turn < math.radians(PASS_TURN_DEG))
         run = n
-        while run > 0 and near[run - 1]:
+        while run > 0 and same_pass[run - 1]:
             run -= 1
         return bool(near[:min(run, n - gap)].any())
 

@@ -123,7 +123,8 @@ def test_checkpoint_holds_the_pipeline_state_by_name(tmp_path):
     # pipeline._STATE (or here, when the config rebuilds it), or a resumed run would silently lose it
     from srmosaic_ros.pipeline import _STATE
 
-    rebuilt = {'config', 'registrar', 'undistorter', '_painter', '_heap'}
+    # (_footprints: a cache of the segments' placements, filled again from them on demand)
+    rebuilt = {'config', 'registrar', 'undistorter', '_painter', '_heap', '_footprints'}
     assert set(vars(first)) == set(_STATE) | rebuilt, set(vars(first)) ^ (set(_STATE) | rebuilt)
     resumed = Pipeline.from_state(pickle.loads(pickle.dumps(state)))
     for item in items[cut:]:

@@ -14,12 +14,13 @@ the frame is registered to that view (view_H_cur, by the same registrar as frame
 places the frame where it agrees with everything painted under it (old legs included), not only
 with the previous frame. The next frames chain from the corrected keyframe. By default a keyframe
 (every `keyframe_interval`-th frame of a segment) is registered only where it revisits ground
-painted at least `keyframe_revisit_frames` frames before: along a straight leg the rendered
-(blended, twice resampled) view is a slightly worse reference than the previous frame itself
-(bench/drift.py compares the settings). A correction larger than `keyframe_max_correction_px` at
-the frame corners or smaller than `keyframe_min_correction_px` (the rendered view's own error), a
-view the mosaic covers too little, or a failed registration leaves the predicted placement as it
-was (and is counted).
+painted at least `keyframe_revisit_frames` frames before by another pass (one that ended by moving
+away, or by turning: an orbit looking at its centre; Pipeline._revisits): along a straight leg the
+rendered (blended, twice resampled) view is a slightly worse reference than the previous frame
+itself (bench/drift.py compares the settings). A correction larger than
+`keyframe_max_correction_px` at the frame corners or smaller than `keyframe_min_correction_px`
+(the rendered view's own error), a view the mosaic covers too little, or a failed registration
+leaves the predicted placement as it was (and is counted).
 """
 from __future__ import annotations
 

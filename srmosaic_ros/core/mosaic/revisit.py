@@ -20,12 +20,21 @@ import numpy as np
 from ..georef.ground_homography import homographies_from_corners
 from ..homography import apply_homography
 
-__all__ = ['spread_correction']
+__all__ = ['footprint_pose', 'spread_correction']
 
 
 def _corners(width: int, height: int) -> np.ndarray:
     """(4, 2) frame corners (pixel centres at integers), as corner_shift_px measures them."""
     return np.array([[0.0, 0.0], [width - 1.0, 0.0], [width - 1.0, height - 1.0], [0.0, height - 1.0]])
+
+
+def footprint_pose(seg_H_frame: np.ndarray, width: int, height: int) -> np.ndarray:
+    """(3,) where a frame lies on the mosaic: its centre (x, y, mosaic px) and the direction of its
+    x axis there (radians, counter-clockwise from the mosaic's x axis in image coordinates), from
+    seg_H_frame (3, 3) and its size in px."""
+    centre_and_right = apply_homography(seg_H_frame, np.array([[width / 2, height / 2], [width * 0.75, height / 2]]))
+    dx, dy = centre_and_right[1] - centre_and_right[0]
+    return np.array([*centre_and_right[0], np.arctan2(dy, dx)])
 
 
 def spread_correction(seg_H_frames: list[np.ndarray], sizes: list[tuple[int, int]], predicted: np.ndarray,

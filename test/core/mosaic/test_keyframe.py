@@ -17,7 +17,7 @@ from srmosaic_ros.core.mosaic.keyframe import corner_shift_px, render_view
 from srmosaic_ros.core.types import Frame
 from srmosaic_ros.pipeline import Pipeline
 
-from imagery import translation, view
+from imagery import similarity, translation, view
 
 W, H = 320, 240
 
@@ -53,12 +53,12 @@ def test_config_refuses_bad_keyframe_settings():
 
 
 class DriftingRegistrar:
-    """The pipeline's registrar with a bias of `bias_px` per frame pair (cur -> prev shifted in x),
-    as chained registration errors add up; registrations to the rendered mosaic (float32 views,
-    not uint8 frames) are left unbiased, so keyframes see the truth of the mosaic."""
+    """The pipeline's registrar with a bias per frame pair (cur -> prev shifted by `bias_px` in x, or
+    the homography `bias`), as chained registration errors add up; registrations to the rendered
+    mosaic (float32 views, not uint8 frames) are left unbiased, so keyframes see the truth of the mosaic."""
 
-    def __init__(self, inner, bias_px: float) -> None:
-        self.inner, self.bias = inner, translation(bias_px, 0.0)
+    def __init__(self, inner, bias_px: float = 0.0, bias: np.ndarray | None = None) -> None:
+        self.inner, self.bias = inner, translation(bias_px, 0.0) if bias is None else bias
         self.frame_features: set[int] = set()
 
     def describe(self, image: np.ndarray):
@@ -196,3 +196,30 @@ def test_corrections_below_the_minimum_are_not_applied_and_reported():
     assert report['tried'] > 0 and report['applied'] == 0 and report['frames_moved_back'] == 0
     assert report['not_applied'] == {'correction of # px below the minimum': report['tried']}
     assert all(r.keyframe is None or r.keyframe.shift_px < 30.0 for r in recs)
+
+
+def test_a_camera_turning_over_its_ground_closes_the_loop():
+    """An orbit looking at its centre keeps every footprint on the same ground and turns with the
+    aircraft: the frames before a turn of more than PASS_TURN_DEG are an earlier pass over it, so
+    keyframes register to the mosaic there (centre distance alone never ended the pass). Here a
+    camera turns 10 degrees a frame about one ground point, 1.1 turns, each pair's rotation biased by
+    0.4 degrees: 54 px of chained drift at the corners by the last frame."""
+    bias = similarity(0.4, 1.0, 0, 0, W / 2, H / 2)
+    cfg = pipeline_config({'device': 'cpu', 'georef.enabled': False, 'mosaic.keyframe_interval': 5,
+                           'mosaic.keyframe_revisit_frames': 10, 'mosaic.revisit_spread_frames': 8})
+    pipe = Pipeline(cfg)
+    pipe.registrar = DriftingRegistrar(pipe.registrar, bias=bias)
+    truths = [translation(500, 375) @ similarity(10.0 * k, 1.0, 0, 0) @ translation(-W / 2, -H / 2) for k in range(40)]
+    for k, t in enumerate(truths):
+        pipe.feed(Frame(k * 100_000_000, view(t, W, H, noise=2, seed=k)))
+    recs = pipe.finish().records
+    assert all(r.painted and r.segment == 0 for r in recs)
+    applied = [r.index for r in recs if r.keyframe is not None and r.keyframe.seg_H_frame is not None]
+    # every 5th frame more than 10 frames on (turned over 100 degrees by then) is a revisit
+    assert [r.index for r in recs if r.keyframe is not None] == [15, 20, 25, 30, 35]
+    assert len(applied) >= 4
+    drift = corner_error_px(np.linalg.matrix_power(bias, 39), np.eye(3), W, H)
+    est = np.linalg.inv(recs[0].seg_H_frame) @ recs[-1].seg_H_frame
+    error = corner_error_px(est, np.linalg.inv(truths[0]) @ truths[-1], W, H)
+    assert drift > 50.0
+    assert error < 0.3 * drift, (error, drift)

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from srmosaic_ros.core.homography import apply_homography, translation
-from srmosaic_ros.core.mosaic.revisit import spread_correction
+from srmosaic_ros.core.mosaic.revisit import footprint_pose, spread_correction
 
 W, H = 320, 240
 CORNERS = np.array([[0.0, 0.0], [W - 1.0, 0.0], [W - 1.0, H - 1.0], [0.0, H - 1.0]])
@@ -45,3 +45,15 @@ def test_frames_of_other_sizes_and_none():
     np.testing.assert_allclose(moved[1], translation(7.0, 0.0), atol=1e-9)   # two thirds
     np.testing.assert_allclose(shifts, [1.0, 2.0])
     assert spread_correction([], [], np.eye(3), np.eye(3))[0] == []
+
+
+def test_footprint_pose_is_the_centre_and_the_direction_the_frame_faces():
+    np.testing.assert_allclose(footprint_pose(np.eye(3), W, H), [W / 2, H / 2, 0.0], atol=1e-12)
+    angle = np.radians(120.0)
+    c, s = np.cos(angle), np.sin(angle)
+    turned = translation(500.0, 300.0) @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ translation(-W / 2, -H / 2)
+    np.testing.assert_allclose(footprint_pose(turned, W, H), [500.0, 300.0, angle], atol=1e-9)
+    # projective: the centre is the mapped centre, not the mean of the mapped corners
+    tilted = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 1e-3, 1.0]])
+    expected = apply_homography(tilted, np.array([W / 2, H / 2]))
+    np.testing.assert_allclose(footprint_pose(tilted, W, H)[:2], expected, atol=1e-9)
