@@ -23,6 +23,7 @@ INSTALL_REQUIRES = [
     'rasterio==1.4.4',  # GeoTIFF output that GDAL-based tools open in place
     'av==18.1.0',      # PyAV: video decoding with picture types (I-frame selection) and H.264 encoding; KLV and GPMF data streams
     'Pillow==13.0.0',  # EXIF and XMP of stills, read without decoding the pixels (io/exif.py)
+    'PyMaxflow==1.3.2',  # Boykov-Kolmogorov max-flow: seams where frames agree (core/mosaic/seam_cut.py)
 ]
 
 setup(

@@ -46,6 +46,8 @@ from srmosaic_ros.sim.traffic import vehicle_mask
 
 RUNS = {'feather': {'mosaic.blend': 'feather'}, 'multiband': {'mosaic.blend': 'multiband'},
         'bestview': {'mosaic.blend': 'bestview'},
+        'bestview, cut': {'mosaic.blend': 'bestview', 'mosaic.seams': 'cut'},
+        'bestview, tukey, cut': {'mosaic.blend': 'bestview', 'registration.photometric_loss': 'tukey', 'mosaic.seams': 'cut'},
         'bestview, tukey': {'mosaic.blend': 'bestview', 'registration.photometric_loss': 'tukey'},
         'bestview, tukey, moving 0.05': {'mosaic.blend': 'bestview', 'registration.photometric_loss': 'tukey',
                                          'mosaic.moving': 0.05},

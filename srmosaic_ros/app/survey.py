@@ -503,7 +503,7 @@ def _paint_and_write(out: Path, config: PipelineConfig, stills: list[SurveyStill
     max_tiles = tiles_in_memory(config.mosaic.max_tiles_in_memory, config.mosaic.tile_size,
                                 [_footprint_px(corners[k], raster_H_local) for k in placed])
     canvas = TiledCanvas(3, config.mosaic.tile_size, blend=scfg.blend, max_canvas_side_px=config.mosaic.max_canvas_side_px,
-                         max_tiles_in_memory=max_tiles, spill_dir=config.mosaic.spill_dir)
+                         max_tiles_in_memory=max_tiles, spill_dir=config.mosaic.spill_dir, seams=config.mosaic.seams)
     canvas_H = {}
     refused: dict[int, str] = {}
     t_start = time.perf_counter()

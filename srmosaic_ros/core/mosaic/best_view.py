@@ -24,7 +24,9 @@ only a frame that disagrees (misregistration, parallax, something that moved) re
 of one scene that line up (a turret staring at a point) are thus averaged and their noise and
 compression go down as in a feather blend, while the frames that disagree stay out of each other.
 
-Seams lie where the winner changes. Rendering (Table 2, as in :func:`.blend.multiband_blend`)
+Seams lie where the winner changes: where the scores cross, or, with ``seams: cut``, where a graph
+cut moved them to let the frames meet where they agree (seam_cut.py; the frame then leads where
+the cut says, by at most a factor of 2 in view quality). Rendering (Table 2, as in :func:`.blend.multiband_blend`)
 replaces the reference's feather composite by the two-frame composite ``T = (best + second) / 2``
 (``best`` where no second frame covers the pixel): the output is the winner's pixel away from
 seams, and across a seam every band switches from one frame to the other over about 2**l pixels.
@@ -48,6 +50,7 @@ import numpy as np
 
 from .blend import copy_where
 from .scratch import scratch
+from .seam_cut import combine
 
 __all__ = ['clip_depth', 'clipped_polygon', 'depth_map', 'magnified_somewhere', 'resolution_factor', 'transition_image',
            'update_best']
@@ -136,7 +139,8 @@ def _box_mean_abs_max(delta: np.ndarray) -> np.ndarray:
 
 
 def update_best(tile: object, loc: tuple[slice, slice], colour: np.ndarray, q: np.ndarray, index: int,
-                recency_frames: int, agree: float, moving: float = 0.0) -> None:
+                recency_frames: int, agree: float, moving: float = 0.0,
+                cut: tuple[np.ndarray, np.ndarray] | None = None) -> None:
     """Offer a frame's warped pixels to a best-view tile.
 
     tile: a :class:`.tile_store.Tile` of the best-view layout; loc: the tile slices written;
@@ -150,15 +154,19 @@ def update_best(tile: object, loc: tuple[slice, slice], colour: np.ndarray, q: n
     runner-up if it beats that one. moving: the vote against each pixel's background (0: none; the
     tile must have a ``hist``, TileLayout.history > 0; :func:`_moving_vote`): a frame that saw
     something move at a pixel is kept out of it whatever its score; a winner (runner-up) that saw
-    something move where the frame agrees with the background is replaced by the frame.
+    something move where the frame agrees with the background is replaced by the frame. cut: the
+    seams' graph cut (:mod:`.seam_cut`), (free, take) bool (h, w): where free, the frame leads
+    where it sees the pixel and take says so, not where its score is higher; the scores stay the
+    frames' own.
     """
     with np.errstate(divide='ignore'):  # log 0 = -inf: not seen, beaten by every score and beating none
         score = np.log(q, out=scratch('score', q.shape))  # lives until this update returns
     score += np.float32(index / recency_frames if recency_frames > 0 else 0.0)
+    lead = None if cut is None else combine(score > tile.best_w[loc], q > 0, *cut)  # type: ignore[attr-defined]
     best, best_w, best_id, best_q = tile.best[loc], tile.best_w[loc], tile.best_id[loc], tile.best_q[loc]  # type: ignore[attr-defined]
     second, second_w = tile.second[loc], tile.second_w[loc]  # type: ignore[attr-defined]
     if not (agree > 0 or moving > 0):
-        _update_scores_only(score, colour, q, index, best, best_w, best_id, best_q, second, second_w)
+        _update_scores_only(score, colour, q, index, best, best_w, best_id, best_q, second, second_w, lead)
         return
     seen = q > 0
     fresh = best_id < 0
@@ -167,7 +175,7 @@ def update_best(tile: object, loc: tuple[slice, slice], colour: np.ndarray, q: n
     best_moved, frame_moved, second_moved = none, none, none
     if moving > 0 and getattr(tile, 'hist', None) is not None:
         best_moved, frame_moved, second_moved = _moving_vote(tile, loc, colour, q, fresh, np.float32(moving))
-    lead = ((score > best_w) & ~frame_moved) | best_moved
+    lead = (((score > best_w) if lead is None else lead) & ~frame_moved) | best_moved
     # consensus: the 5 x 5 mean of the signed difference, where noise averages out and a misregistration's does not
     joins = seen & ~fresh & (d_cb <= np.float32(agree)) & ~best_moved if (agree > 0 and d_cb is not None) else none
     take = lead & ~joins
@@ -283,11 +291,11 @@ def _moving_vote(tile: object, loc: tuple[slice, slice], colour: np.ndarray, q: 
 
 def _update_scores_only(score: np.ndarray, colour: np.ndarray, q: np.ndarray, index: int, best: np.ndarray,
                         best_w: np.ndarray, best_id: np.ndarray, best_q: np.ndarray, second: np.ndarray,
-                        second_w: np.ndarray) -> None:
+                        second_w: np.ndarray, lead: np.ndarray | None = None) -> None:
     """update_best without consensus or moving vote: the frame leads where it scores higher (the
     winner becomes the runner-up) and is the runner-up where it beats that one only. The same
     updates as the general path, without its masks (the scores of unseen pixels are -inf)."""
-    lead = score > best_w
+    lead = score > best_w if lead is None else lead
     if lead.any():
         replaced = lead & (best_id >= 0)
         copy_where(second, best, replaced)

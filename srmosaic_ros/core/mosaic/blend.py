@@ -53,6 +53,8 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
+from .seam_cut import combine
+
 if TYPE_CHECKING:
     from .tile_store import Tile
 
@@ -268,16 +270,21 @@ def feather_divide(acc: np.ndarray, wsum: np.ndarray, out: np.ndarray) -> np.nda
     return covered
 
 
-def update_max_weight(tile: Tile, loc: tuple[slice, slice], colour: np.ndarray, weight: np.ndarray, index: int) -> None:
+def update_max_weight(tile: Tile, loc: tuple[slice, slice], colour: np.ndarray, weight: np.ndarray, index: int,
+                      cut: tuple[np.ndarray, np.ndarray] | None = None) -> None:
     """Offer a frame's warped pixels to the max-weight composite of a multiband tile (eq. 4.7).
 
     loc: the tile slices written; colour (h, w, C) and weight (h, w) the frame's warped colour and
     feather weight there; index: the frame's label. Where ``weight`` exceeds the tile's ``best_w``
-    the frame wins: ``best``, ``best_w`` and ``best_id`` take its colour, weight and index.
+    the frame wins: ``best``, ``best_w`` and ``best_id`` take its colour, weight and index. cut: the
+    seams' graph cut (:mod:`.seam_cut`), (free, take) bool (h, w): where free, the frame wins where
+    it sees the pixel and take says so, not where its weight is larger.
     """
     assert tile.best is not None and tile.best_w is not None and tile.best_id is not None
     best_w = tile.best_w[loc]
     upd = weight > best_w  # eq. 4.7: the frame of largest weight wins; ties keep the first
+    if cut is not None:
+        upd = combine(upd, weight > 0, *cut)
     if upd.any():
         copy_where(tile.best[loc], colour, upd)
         copy_where(best_w, weight, upd)

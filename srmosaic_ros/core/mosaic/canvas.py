@@ -63,6 +63,7 @@ from .blend import auto_bands, feather_divide, feather_weight, multiband_blend, 
 from .canvas_settings import settings_problem
 from .preview import assemble, block_sums, preview_factor
 from .scratch import scratch
+from .seam_cut import block_means, block_size, cut_nodes, expand
 from .tile_store import TileKey, TileLayout, TileStore, TileStoreError
 
 __all__ = ['CanvasError', 'PaintResult', 'TileKey', 'TileStoreError', 'TiledCanvas']
@@ -169,6 +170,8 @@ class TiledCanvas:
             :func:`.best_view.update_best`.
         moving_history: best view with ``moving``: colour samples kept per mosaic pixel (odd); their
             median is the background (K C + 2 bytes per pixel more).
+        seams: best view and multiband: 'score' (a frame wins where its score or weight is higher)
+            or 'cut' (a graph cut moves the seams to where the frames agree, :mod:`.seam_cut`).
         max_tiles_in_memory: at most this many tiles are kept in memory, the least recently
             painted ones are spilled to disk (0: no bound, nothing is ever written). One tile
             holds ``4 T^2 (C + 1)`` bytes (feather), ``4 T^2 (2 C + 3)`` (multiband) or
@@ -199,18 +202,20 @@ class TiledCanvas:
         agree: float = 0.0,
         moving: float = 0.0,
         moving_history: int = 5,
+        seams: str = 'score',
     ) -> None:
         msg = settings_problem(channels, tile_size, blend=blend, feather_profile=feather_profile, feather_power=feather_power,
                                max_canvas_side_px=max_canvas_side_px, max_area_ratio=max_area_ratio, bands=bands,
                                max_tiles_in_memory=max_tiles_in_memory, max_stretch=max_stretch,
                                recency_frames=recency_frames, agree=agree, moving=moving,
-                               moving_history=moving_history)
+                               moving_history=moving_history, seams=seams)
         if msg is not None:
             raise CanvasError(msg)
         self._max_stretch = float(max_stretch)
         self._recency_frames = int(recency_frames)
         self._agree = float(agree)
         self._moving = float(moving)
+        self._seam_cut = blend in ('bestview', 'multiband') and seams == 'cut'
         self._channels = int(channels)
         self._tile_size = int(tile_size)
         self._blend = blend
@@ -545,14 +550,16 @@ class TiledCanvas:
         tiles = [self._store.get(key, create=True) for key, _, _ in jobs]
         self._frames += 1
         touched: list[TileKey] = []
+        cut = self._cut(jobs, tiles, img_w, w_w, index) if self._seam_cut else None
         for (key, box, loc), tile in zip(jobs, tiles):
             sub_w = w_w[box]
             _add_into(tile.acc[loc], _times_weight(img_w[box], sub_w))  # per tile: the product stays in cache
             _add_into(tile.wsum[loc], sub_w)
             if best_view:
-                update_best(tile, loc, img_w[box], sub_w, index, self._recency_frames, self._agree, self._moving)
+                update_best(tile, loc, img_w[box], sub_w, index, self._recency_frames, self._agree, self._moving,
+                            cut=None if cut is None else (cut[0][box], cut[1][box]))
             if multiband:
-                update_max_weight(tile, loc, img_w[box], sub_w, index)
+                update_max_weight(tile, loc, img_w[box], sub_w, index, cut=None if cut is None else (cut[0][box], cut[1][box]))
             self._tile_frames[key] = self._tile_frames.get(key, 0) + 1
             touched.append(key)
         del tiles
@@ -564,6 +571,36 @@ class TiledCanvas:
             max(gx1, self._bounds[2]), max(gy1, self._bounds[3]))
         self._store.trim()  # back to the bound; may raise TileStoreError (the frame is painted)
         return PaintResult(index, tuple(sorted(touched, key=lambda k: (k[1], k[0]))), footprint, bbox)
+
+    def _cut(self, jobs: list[tuple[TileKey, tuple[slice, slice], tuple[slice, slice]]], tiles: list[Any],
+             img_w: np.ndarray, w_w: np.ndarray, index: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """The seams' graph cut (:mod:`.seam_cut`) between the warped frame (img_w, its quality w_w,
+        over the paint's box) and the winners of the tiles under it (``jobs``, ``tiles``), on blocks:
+        (free, take) bool over the box, where the cut decides and where the frame leads there; None
+        where the scores decide everywhere."""
+        bh, bw = w_w.shape
+        s = block_size(bh, bw)
+        best = np.zeros((bh, bw, self._channels), np.float32)
+        best_view = self._blend == 'bestview'  # best_w: log scores (-inf: none); multiband: weights (0: none)
+        best_w = np.full((bh, bw), -1e30 if best_view else 0.0, np.float32)
+        for (_, box, loc), tile in zip(jobs, tiles):
+            best[box] = tile.best[loc]
+            if best_view:
+                np.maximum(tile.best_w[loc], np.float32(-1e30), out=best_w[box])  # no winner: never free
+            else:
+                best_w[box] = tile.best_w[loc]
+        score = np.log(np.maximum(block_means(w_w, s), np.float32(1e-30)))
+        if best_view:
+            score += np.float32(index / self._recency_frames if self._recency_frames > 0 else 0.0)
+            winners = block_means(best_w, s)
+        else:  # the log of the mean weight, as the frame's; a block with a pixel no frame won is never free
+            winners = np.log(np.maximum(block_means(best_w, s), np.float32(1e-30)))
+            winners[block_means(best_w <= 0, s) > 0] = -1e30
+        diff = block_means(img_w, s) - block_means(best, s)
+        free, take = cut_nodes(score, winners, diff.reshape(*score.shape, -1), s)
+        if not free.any():
+            return None
+        return expand(free, s, (bh, bw)), expand(take, s, (bh, bw))
 
     # ------------------------------------------------------------------ render
     def _region(self, region: tuple[int, int, int, int] | None) -> tuple[int, int, int, int]:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 
 from .blend import FEATHER_PROFILES
-from .config import BLEND_MODES
+from .config import BLEND_MODES, SEAM_MODES
 
 __all__ = ['settings_problem']
 
@@ -30,6 +30,7 @@ def settings_problem(
     agree: float,
     moving: float,
     moving_history: int = 5,
+    seams: str = 'score',
 ) -> str | None:
     """The message of the first invalid ``TiledCanvas`` argument, None when all are valid."""
     if int(channels) != channels or channels < 1:
@@ -38,6 +39,8 @@ def settings_problem(
         return f'tile_size must be an integer in 16..4096, got {tile_size!r}.'
     if blend not in BLEND_MODES:
         return f"blend must be one of {', '.join(BLEND_MODES)}, got {blend!r}."
+    if seams not in SEAM_MODES:
+        return f"seams must be one of {', '.join(SEAM_MODES)}, got {seams!r}."
     if feather_profile not in FEATHER_PROFILES:
         return f"feather_profile must be one of {', '.join(FEATHER_PROFILES)}, got {feather_profile!r}."
     if not (math.isfinite(feather_power) and feather_power > 0):

@@ -4,9 +4,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-__all__ = ['MosaicConfig', 'BLEND_MODES']
+__all__ = ['MosaicConfig', 'BLEND_MODES', 'SEAM_MODES']
 
 BLEND_MODES = ('feather', 'multiband', 'bestview')
+SEAM_MODES = ('cut', 'score')
 
 
 @dataclass(frozen=True)
@@ -15,6 +16,7 @@ class MosaicConfig:
     blend: str = 'bestview'
     max_stretch: float = 4.0  # frame pixels this many times coarser than the frame's finest are not painted (0: all)
     recency_frames: int = 90  # bestview: a frame this many frames newer wins over an e-fold better view (0: none)
+    seams: str = 'score'  # bestview, multiband: 'score' (where view scores cross) | 'cut' (graph cut: where frames agree, seam_cut.py)
     agree: float = 0.0  # bestview: frames within this of the winner (intensity) are averaged into it (0: none)
     moving: float = 0.0  # bestview: moving objects kept out where a frame differs from the pixel's background by this (intensity; 0: off)
     moving_history: int = 5  # bestview with moving: colour samples kept per pixel; their median is the background (odd, 3..31)
@@ -46,6 +48,9 @@ class MosaicConfig:
             raise ValueError(msg)
         if isinstance(self.recency_frames, bool) or not isinstance(self.recency_frames, int) or self.recency_frames < 0:
             msg = f'mosaic.recency_frames must be an integer >= 0 (0: no preference for newer frames), got {self.recency_frames!r}.'
+            raise ValueError(msg)
+        if self.seams not in SEAM_MODES:
+            msg = f"mosaic.seams must be one of {', '.join(SEAM_MODES)} (cut: seams where frames agree), got {self.seams!r}."
             raise ValueError(msg)
         if not (isinstance(self.agree, (int, float)) and 0.0 <= self.agree < 1.0):
             msg = f'mosaic.agree must be in [0, 1) (intensity; 0: one frame per pixel), got {self.agree!r}.'
