@@ -25,13 +25,14 @@ of one scene that line up (a turret staring at a point) are thus averaged and th
 compression go down as in a feather blend, while the frames that disagree stay out of each other.
 
 Seams lie where the winner changes: where the scores cross, or, with ``seams: cut``, where a graph
-cut moved them to let the frames meet where they agree (seam_cut.py; the frame then leads where
-the cut says, by at most a factor of 2 in view quality). Rendering (Table 2, as in :func:`.blend.multiband_blend`)
-replaces the reference's feather composite by the two-frame composite ``T = (best + second) / 2``
-(``best`` where no second frame covers the pixel): the output is the winner's pixel away from
-seams, and across a seam every band switches from one frame to the other over about 2**l pixels.
-Only the two frames that meet at a seam are mixed, never the average of every frame that saw the
-ground, so a misregistered or moving-camera frame cannot blur the rest of the mosaic.
+cut moved them to let the frames meet where they agree (seam_cut.py; the frame then leads where the
+cut says, among views within a factor of 2 in quality). Rendering (Table 2, as in
+:func:`.blend.multiband_blend`) replaces the reference's feather composite by the two-frame
+composite ``T = (best + second) / 2`` (``best`` where no second frame covers the pixel): the output
+is the winner's pixel away from seams, and across a seam every band switches from one frame to the
+other over about 2**l pixels. Only the two frames that meet at a seam are mixed, never the average
+of every frame that saw the ground, so a misregistered or moving-camera frame cannot blur the rest
+of the mosaic.
 
 Far field and sky (``max_stretch``): a frame whose view reaches the horizon maps the pixels near it
 onto huge mosaic areas (the stretch grows as depth**-1.5, depth being the homography's third row

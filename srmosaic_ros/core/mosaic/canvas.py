@@ -553,13 +553,14 @@ class TiledCanvas:
         cut = self._cut(jobs, tiles, img_w, w_w, index) if self._seam_cut else None
         for (key, box, loc), tile in zip(jobs, tiles):
             sub_w = w_w[box]
+            tile_cut = None if cut is None else (cut[0][box], cut[1][box])
             _add_into(tile.acc[loc], _times_weight(img_w[box], sub_w))  # per tile: the product stays in cache
             _add_into(tile.wsum[loc], sub_w)
             if best_view:
                 update_best(tile, loc, img_w[box], sub_w, index, self._recency_frames, self._agree, self._moving,
-                            cut=None if cut is None else (cut[0][box], cut[1][box]))
+                            cut=tile_cut)
             if multiband:
-                update_max_weight(tile, loc, img_w[box], sub_w, index, cut=None if cut is None else (cut[0][box], cut[1][box]))
+                update_max_weight(tile, loc, img_w[box], sub_w, index, cut=tile_cut)
             self._tile_frames[key] = self._tile_frames.get(key, 0) + 1
             touched.append(key)
         del tiles

@@ -33,7 +33,7 @@ import cv2
 import maxflow
 import numpy as np
 
-__all__ = ['SEAM_SLACK', 'block_means', 'block_size', 'combine', 'cut_lead', 'cut_nodes', 'expand']
+__all__ = ['SEAM_SLACK', 'block_means', 'block_size', 'combine', 'cut_nodes', 'expand']
 
 #: Largest score difference (log view quality) the cut may overrule: a view twice as good wins anyway.
 SEAM_SLACK = math.log(2.0)
@@ -99,25 +99,6 @@ def block_means(a: np.ndarray, s: int) -> np.ndarray:
         return a
     crop = a[:h // s * s, :w // s * s]
     return cv2.resize(crop, (w // s, h // s), interpolation=cv2.INTER_AREA)  # exact block means at an integer factor
-
-
-def cut_lead(score: np.ndarray, best_w: np.ndarray, diff: np.ndarray) -> np.ndarray:
-    """Where the new frame takes the pixel: bool (h, w), from per-pixel inputs (the canvas reduces
-    its tiles to blocks itself, :meth:`TiledCanvas._cut`).
-
-    score: the new frame's score (h, w) float32 (-inf: not seen); best_w: the winner's (-inf: no
-    winner); diff: the new frame's colour minus the winner's (h, w, C) float32. Without a cut, the
-    answer would be ``score > best_w``; with it, the same outside the corridor.
-    """
-    h, w = score.shape
-    s = block_size(h, w)
-    seen = np.isfinite(score)
-    q = np.exp(np.where(seen, score, -np.inf))
-    score_n = np.log(np.maximum(block_means(q, s), 1e-30))
-    best_n = block_means(np.maximum(best_w, -1e30), s)
-    diff_n = block_means(np.where((seen & np.isfinite(best_w))[..., None], diff, 0.0), s)
-    free, take = cut_nodes(score_n, best_n, diff_n.reshape(*score_n.shape, -1), s)
-    return combine(score > best_w, seen, expand(free, s, (h, w)), expand(take, s, (h, w)))
 
 
 def expand(nodes: np.ndarray, s: int, shape: tuple[int, int]) -> np.ndarray:

@@ -8,7 +8,7 @@ import pytest
 from imagery import translation, view
 from srmosaic_ros.core.mosaic import TiledCanvas
 from srmosaic_ros.core.mosaic.config import MosaicConfig
-from srmosaic_ros.core.mosaic.seam_cut import SEAM_SLACK, cut_lead
+from srmosaic_ros.core.mosaic.seam_cut import SEAM_SLACK, combine, cut_nodes, expand
 
 W, H = 240, 180
 
@@ -56,21 +56,28 @@ def test_a_seam_is_moved_around_what_the_frames_disagree_on(blend: str) -> None:
     assert all(len(r) >= 1 and 90 < r[0] < 210 for r in rows), rows
 
 
-def test_unseen_pixels_never_lead_unpainted_ones_always_and_far_scores_decide() -> None:
+def test_unseen_pixels_never_lead_unpainted_ones_always() -> None:
+    """Frame 1 overlaps frame 0 by half and reaches over ground nobody painted: it takes all of that,
+    and the cut never gives it a pixel outside its own footprint."""
+    canvas = TiledCanvas(3, tile_size=64, blend='bestview', recency_frames=0, seams='cut')
+    canvas.paint(frame_at(100, 200, seed=1), np.eye(3))
+    canvas.paint(frame_at(220, 260, seed=2), translation(120, 60))
+    labels = canvas.labels((0, 0, 360, 240))
+    assert (labels[:60, :120] == 0).all()  # frame 0's alone (frame 1 does not see it)
+    assert (labels[H + 1:, :] != 0).all() and (labels[:, W + 1:] != 0).all()  # frame 0 does not see it either
+    assert (labels[H + 1:, 121:] == 1).all() and (labels[61:, W + 1:] == 1).all()  # only frame 1 painted it
+
+
+def test_far_scores_leave_nothing_to_the_cut() -> None:
+    """Blocks whose scores differ by more than SEAM_SLACK are not free: the scores decide."""
     rng = np.random.default_rng(0)
-    h, w = 120, 160
-    ramp = np.linspace(-1.0, 1.0, w, dtype=np.float32)[None, :].repeat(h, axis=0)
-    score, best_w = ramp.copy(), -ramp  # view qualities vary smoothly; they cross at the middle
-    score[:, :20] = -np.inf  # the frame does not see these
-    best_w[:, -20:] = -np.inf  # no frame painted these yet
-    colour = rng.random((h, w, 3), dtype=np.float32)
-    best = rng.random((h, w, 3), dtype=np.float32)
-    lead = cut_lead(score, best_w, colour - best)
-    assert not lead[:, :20].any() and lead[:, -20:].all()
-    assert 0.2 < lead[:, 20:-20].mean() < 0.8  # the new frame on its better side, with the seam moved by the colours
-    # no block within SEAM_SLACK of the winners: the scores' decision exactly
-    far = best_w + np.where(np.arange(w) < w // 2, -1.0, 1.0).astype(np.float32) * 2 * SEAM_SLACK
-    np.testing.assert_array_equal(cut_lead(far, best_w, colour - best), far > best_w)
+    best = rng.normal(0.0, 1.0, (30, 40))
+    score = best + np.where(np.arange(40) < 20, -2.0, 2.0) * SEAM_SLACK
+    free, take = cut_nodes(score, best, rng.random((30, 40, 3)), 4)
+    assert not free.any() and not take.any()
+    by_score = rng.random((120, 160)) < 0.5
+    seen = rng.random((120, 160)) < 0.9
+    np.testing.assert_array_equal(combine(by_score, seen, expand(free, 4, (120, 160)), expand(take, 4, (120, 160))), by_score)
 
 
 def test_seams_setting_is_checked() -> None:
