@@ -63,6 +63,7 @@ from .core.mosaic.revisit import footprint_pose, spread_correction
 from .core.mosaic.scratch import scratch
 from .core.registration import Features, Registration, make_registrar
 from .core.registration.pyramid import PyramidRegistrar
+from .core.registration.tracking import MotionTracker
 from .core.georef.georeferencer import FramePose, Georeferencer
 from .core.georef.pose_check import PoseCheck, check_pose_placement
 from .core.serial_worker import SerialWorker
@@ -140,7 +141,7 @@ class _Held:
 
 
 #: Version of :meth:`Pipeline.state`: a checkpoint of another is refused (the run starts again).
-STATE_VERSION = 3
+STATE_VERSION = 4
 
 #: A frame turned by more than this (degrees) from the frames centred near it views their ground
 #: from another direction: a new pass over it (Pipeline._revisits).
@@ -149,7 +150,8 @@ PASS_TURN_DEG = 45.0
 #: The attributes a resumed run needs (Pipeline.state); everything else is rebuilt from the config.
 _STATE = ('records', 'segments', 'fixes', 'imus', 'attitudes', 'georef', 'camera', 'clock', '_geo_canvas', '_active',
           '_last_good', '_orphan', '_channels', '_waiting', '_first_fix_wait_over', '_latest_telemetry_ns',
-          '_settling', '_settling_seg', '_settled', '_fused', 'pose_check', '_settling_nis', '_unpainted', '_anchor')
+          '_settling', '_settling_seg', '_settled', '_fused', 'pose_check', '_settling_nis', '_unpainted', '_anchor',
+          '_tracker')
 
 
 class Pipeline:
@@ -163,6 +165,8 @@ class Pipeline:
         registrar = make_registrar(self.config.registration, self.config.device)
         max_width = self.config.registration.max_width
         self.registrar = PyramidRegistrar(registrar, max_width) if max_width > 0 else registrar
+        # consecutive frames registered by photometric tracking (core/registration/tracking.py)
+        self._tracker = MotionTracker(self.config.registration.track_frames if getattr(registrar, 'tracks', False) else 0)
         self.records: list[FrameRecord] = []
         self.segments: list[Segment] = []
         self.fixes: list[GeoFix] = []
@@ -545,7 +549,9 @@ class Pipeline:
             record.time_s = time.perf_counter() - t0
             return [record]
         with self.clock.stage('describe'):
-            features = self.registrar.describe(frame.image)
+            # keypoints only when a registration needs them (frames that are tracked need none)
+            features = self.registrar.describe(frame.image, keypoints=False) if self._tracker.frames > 1 else \
+                self.registrar.describe(frame.image)
         if self._channels is None:  # the canvas's, from the first frame (later ones are converted to it)
             self._channels = 1 if frame.image.ndim == 2 else frame.image.shape[2]
         held = _Held(features, record, frame.camera or self.camera, frame.image)
@@ -561,18 +567,21 @@ class Pipeline:
             if record.seg_H_frame is not None:  # placed (its placement refused: the next frame starts anew)
                 self._last_good = held
         else:
+            last = self._last_good
             with self.clock.stage('register'):
-                reg = self.registrar.register(self._last_good.features, held.features)
+                reg = self._register_next(last, held)
             record.registration = reg
-            self._fuse(held, reg, self._last_good)
+            self._fuse(held, reg, last)
             if reg.ok and self._place(self._active, held, self._keyframe(
-                    self._active, held, self._chained(self._active, self._last_good.record.seg_H_frame, reg, held))):
+                    self._active, held, self._chained(self._active, last.record.seg_H_frame, reg, held))):
+                self._tracker.placed(reg, last.record.index, last.record.stamp_ns, record.index, record.stamp_ns)
                 self._last_good = held
                 self._orphan = None
             elif self._orphan is not None and self._try_new_segment(held):
                 decided.insert(0, self._orphan.record)
                 self._orphan = None
             else:
+                self._tracker.lost()
                 record.reason = record.reason or reg.reason
                 self._orphan = held
         record.time_s = time.perf_counter() - t0
@@ -598,7 +607,23 @@ class Pipeline:
             return False
         self._active = seg
         self._last_good = held
+        self._tracker.placed(reg, orphan.record.index, orphan.record.stamp_ns, held.record.index, held.record.stamp_ns)
         return True
+
+    def _register_next(self, last: _Held, held: _Held) -> Registration:
+        """``held`` registered to the last placed frame: tracked from the previous pair's motion when
+        the tracker predicts it and the tracking is accepted, otherwise by features
+        (extras['track_refused'] = 1 when tracking was tried first)."""
+        predicted = self._tracker.prediction(last.record.index, last.record.stamp_ns, held.record.index,
+                                             held.record.stamp_ns)
+        if predicted is not None:
+            tracked = self.registrar.track(last.features, held.features, predicted, max_rms=self._tracker.max_rms())
+            if tracked.ok:
+                return tracked
+        reg = self.registrar.register(last.features, held.features)
+        if predicted is not None:
+            reg.extras['track_refused'] = 1.0
+        return reg
 
     def flush(self, *, paint_held: bool = True) -> list[FrameRecord]:
         """Process every frame still waiting for telemetry (live: when telemetry stopped coming) and

@@ -30,6 +30,7 @@ from ..io.mosaic_video import MosaicVideoRecorder
 from ..pipeline import Pipeline, PipelineResult
 from ..core.device import cores_left_for_torch
 from ..core.image_ops import to_float01
+from ..core.registration import Registration
 from ..core.stage_clock import StageClock
 from ..core.types import Frame
 
@@ -40,6 +41,20 @@ __all__ = ['open_source', 'process_input', 'write_outputs']
 
 #: Input items read ahead by a background thread while the pipeline works (io/prefetch.py).
 READ_AHEAD = 8
+
+def registration_report(regs: list[Registration]) -> dict[str, Any]:
+    """report.json's `registration`: medians over the pairs registered by features (inliers, RMS in
+    px), over all placed pairs (ms), the pairs tracked (photometric alone: no inliers, RMS NaN) and
+    the pairs whose tracking was refused (then registered by features)."""
+    feats = [r for r in regs if not r.extras.get('tracked')]
+    return {
+        'median_inliers': float(np.median([r.inliers for r in feats])) if feats else None,
+        'median_rms_px': float(np.median([r.rms_px for r in feats])) if feats else None,
+        'median_ms': float(np.median([r.time_s for r in regs]) * 1e3) if regs else None,
+        'tracked': len(regs) - len(feats),
+        'track_refused': sum(1 for r in regs if r.extras.get('track_refused')),
+    }
+
 
 def write_outputs(result: PipelineResult, out: Path, config: PipelineConfig, extra: dict[str, Any], *,
                   meta_centres: dict[int, tuple[float, float]] | None = None) -> dict[str, Any]:
@@ -95,11 +110,7 @@ def write_outputs(result: PipelineResult, out: Path, config: PipelineConfig, ext
         'frames_painted_any_segment': int(sum(rec.painted for rec in result.records)),
         'segments': segments_report,
         'failure_reasons': dict(failures),
-        'registration': {
-            'median_inliers': float(np.median([r.inliers for r in regs])) if regs else None,
-            'median_rms_px': float(np.median([r.rms_px for r in regs])) if regs else None,
-            'median_ms': float(np.median([r.time_s for r in regs]) * 1e3) if regs else None,
-        },
+        'registration': registration_report(regs),
         'telemetry': {'fixes': len(result.fixes), 'imu': len(result.imus)},
         'keyframes': keyframe_report(result.records),
         'georeferenced': geo or None,

@@ -51,6 +51,7 @@ _RANGES: dict[str, tuple[float, float]] = {
     'registration.max_perspective': (0.001, 10.0),
     'registration.guided_radius_px': (0.0, 100.0),
     'registration.max_width': (0, 100000),
+    'registration.track_frames': (0, 100000),
     'mosaic.tile_size': (64, 4096),
     'mosaic.max_canvas_side_px': (256, 10000000),
     'mosaic.preview_max_side_px': (16, 16384),

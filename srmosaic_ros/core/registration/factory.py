@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
@@ -42,6 +43,8 @@ class FallbackRegistrar:
 
     #: register() takes second_opinion (callers of optional registrations turn it off)
     has_second_opinion = True
+    #: track() and describe(keypoints=False) exist (TorchRegistrar.track)
+    tracks = True
 
     def __init__(self, primary: TorchRegistrar, fallback: Registrar) -> None:
         self.primary = primary
@@ -49,9 +52,15 @@ class FallbackRegistrar:
         self.config = primary.config
         self.device = primary.device
 
-    def describe(self, image: np.ndarray) -> FallbackFeatures:
-        """Torch features of a frame ((H, W) or (H, W, 3), uint8/uint16/float), the frame kept."""
-        return FallbackFeatures(self.primary.describe(image), image)
+    def describe(self, image: np.ndarray, **kwargs: Any) -> FallbackFeatures:
+        """Torch features of a frame ((H, W) or (H, W, 3), uint8/uint16/float), the frame kept
+        (kwargs: TorchRegistrar.describe's, e.g. keypoints)."""
+        return FallbackFeatures(self.primary.describe(image, **kwargs), image)
+
+    def track(self, prev: FallbackFeatures, cur: FallbackFeatures, predicted: np.ndarray, **kwargs: Any) -> Registration:
+        """The torch registrar's photometric tracking (TorchRegistrar.track); no second opinion (a
+        pair it fails is registered by register, which has one)."""
+        return self.primary.track(prev.primary, cur.primary, predicted, **kwargs)
 
     def _fallback_features(self, features: FallbackFeatures) -> Features:
         if features.fallback is None:

@@ -111,12 +111,24 @@ class PyramidRegistrar:
         self.config = inner.config
         self.device = getattr(inner, 'device', None)
         self.has_second_opinion = getattr(inner, 'has_second_opinion', False)
+        self.tracks = getattr(inner, 'tracks', False)
 
-    def describe(self, image: np.ndarray) -> LevelFeatures:
-        """Features of a frame ((H, W) or (H, W, 3), uint8/uint16/float) on its level."""
+    def describe(self, image: np.ndarray, **kwargs: Any) -> LevelFeatures:
+        """Features of a frame ((H, W) or (H, W, 3), uint8/uint16/float) on its level (kwargs: the
+        inner registrar's, e.g. keypoints)."""
         h, w = image.shape[:2]
         level = level_for_width(w, self.max_width)
-        return LevelFeatures(self.inner.describe(reduce_image(image, level)), level, (w, h))
+        return LevelFeatures(self.inner.describe(reduce_image(image, level), **kwargs), level, (w, h))
+
+    def track(self, prev: LevelFeatures, cur: LevelFeatures, predicted: np.ndarray, **kwargs: Any) -> Registration:
+        """The inner registrar's track (photometric, from ``predicted``: full-size prev_H_cur) on the
+        frames' level; the result in full-size pixels."""
+        if prev.level != cur.level:
+            return Registration(False, None, reason=f'frames described on pyramid levels {prev.level} and {cur.level} '
+                                'cannot be tracked')
+        t = full_from_level(prev.level)
+        level_H = np.linalg.inv(t) @ np.asarray(predicted, dtype=np.float64) @ t
+        return to_full(self.inner.track(prev.inner, cur.inner, level_H, **kwargs), prev.level)
 
     def register(self, prev: LevelFeatures, cur: LevelFeatures, **kwargs: Any) -> Registration:
         """prev_H_cur of the full-size frames (kwargs: the inner registrar's, e.g. second_opinion)."""

@@ -38,6 +38,10 @@ class RegistrationConfig:
     registers frames wider than this on the pyramid level that brings them to it or less
     (pyramid.PyramidRegistrar; 0: full size); the pixel thresholds are then in pixels of that level.
     photometric_loss: the torch backend's photometric refinement loss, 'huber' or 'tukey' (torch_refine).
+    track_frames: the pipeline registers consecutive video frames by photometric tracking alone
+    (torch backend: TorchRegistrar.track, from the previous pair's motion; tracking.py) for up to
+    this many pairs in a row minus one, then one pair by features again; 0 or 1: every pair by
+    features. The opencv backend does not track.
     """
 
     backend: str = 'torch'
@@ -56,6 +60,7 @@ class RegistrationConfig:
     guided_radius_px: float = 3.0
     max_width: int = 1280
     photometric_loss: str = 'huber'
+    track_frames: int = 10
 
     def __post_init__(self) -> None:
         checks = {
@@ -74,6 +79,7 @@ class RegistrationConfig:
             'guided_radius_px': self.guided_radius_px >= 0.0,
             'max_width': self.max_width == 0 or self.max_width >= 64,
             'photometric_loss': self.photometric_loss in ('huber', 'tukey'),
+            'track_frames': self.track_frames >= 0,
         }
         bad = [name for name, ok in checks.items() if not ok]
         if bad:

@@ -79,6 +79,8 @@ __all__ = ['TorchFeatures', 'TorchRegistrar', 'TorchRegistrarOptions']
 
 _LM_TOL = 1e-8              # relative cost decrease at which Levenberg-Marquardt stops
 _GUIDED_MIN_GROWTH = 0.05   # guided matching iterates while the inlier set grows by more than this
+#: track: the least share of the template that must land inside the other frame
+TRACK_MIN_VALID = 0.75
 
 
 @dataclass(frozen=True)
@@ -108,6 +110,9 @@ class TorchRegistrarOptions:
         static_candidates: scale-space candidates kept per octave with fixed shapes (the strongest;
         640x480 frames have 400 to 550).
     seed: RANSAC sampling seed (reset at every register call: results do not depend on history).
+    track_radius_px: the largest corner move from the prediction that :meth:`TorchRegistrar.track`
+        accepts (pixels of the registered level): the full-resolution refinement's basin is a few
+        pixels, a larger move means the prediction was outside it.
     """
 
     features: FeatureOptions = field(default_factory=FeatureOptions)
@@ -125,6 +130,7 @@ class TorchRegistrarOptions:
     cuda_graphs: bool = False
     static_candidates: int = 2048
     seed: int = 0
+    track_radius_px: float = 4.0
 
     def __post_init__(self) -> None:
         checks = {
@@ -136,6 +142,7 @@ class TorchRegistrarOptions:
             'max_refine_shift_px': self.max_refine_shift_px > 0.0,
             'max_refine_shift_converged_px': self.max_refine_shift_converged_px >= self.max_refine_shift_px,
             'static_candidates': self.static_candidates >= 16,
+            'track_radius_px': self.track_radius_px > 0.0,
         }
         bad = [name for name, ok in checks.items() if not ok]
         if bad:
@@ -150,15 +157,37 @@ class TorchFeatures(Features):
     (N, 2) and descriptors (N, 128), size (w, h)) plus what stays on the device for the next pair:
     keypoints (KeypointSet), the luminance pyramid [(1, 1, h_l, w_l)], the photometric templates
     (coarse to fine) and the scale-space candidates not yet described (the registrar describes
-    more of them, once, when a pair fails with the first keypoints; the object is then updated)."""
+    more of them, once, when a pair fails with the first keypoints; the object is then updated).
 
-    keypoints: KeypointSet
+    A frame described with ``keypoints=False`` (TorchRegistrar.describe) has its pyramid and
+    templates only: keypoints_px, descriptors, keypoints and candidates are None until
+    :meth:`ensure_keypoints` detects them on ``detect_level`` with ``feature_options`` (register
+    does; a frame that is only tracked never needs them)."""
+
+    keypoints: KeypointSet | None
     pyramid: list[torch.Tensor]
     templates: list[PhotometricTemplate]
-    candidates: ScaleSpaceCandidates
+    candidates: ScaleSpaceCandidates | None
+    detect_level: int = 0
+    feature_options: FeatureOptions | None = None
+
+    def __len__(self) -> int:
+        self.ensure_keypoints()
+        return len(self.keypoints_px)
+
+    def ensure_keypoints(self) -> None:
+        """Detect and describe the keypoints of a frame described without them (no-op otherwise)."""
+        if self.keypoints is not None:
+            return
+        assert self.feature_options is not None
+        self.candidates = detect(self.pyramid[self.detect_level], self.detect_level, self.feature_options)
+        self.keypoints = describe_candidates(self.candidates, 0, self.feature_options.max_keypoints)
+        self.keypoints_px = self.keypoints.xy.cpu().numpy()
+        self.descriptors = self.keypoints.descriptors.cpu().numpy()
 
     def extend(self, count: int) -> bool:
         """Describe candidates until `count` keypoints exist; False when none were added."""
+        self.ensure_keypoints()
         have = len(self.keypoints)
         if count <= have or len(self.candidates) <= have:
             return False
@@ -178,6 +207,9 @@ def _fail(reason: str, t0: float, matches: int = 0, inliers: int = 0, H: np.ndar
 class TorchRegistrar:
     """Detects features and registers frame pairs with torch ops. Stateless between calls: callers
     cache the Features of the previous frame (describe once per frame)."""
+
+    #: track() and describe(keypoints=False) exist
+    tracks = True
 
     def __init__(self, config: RegistrationConfig | None = None, *, device: str | torch.device = 'auto',
                  options: TorchRegistrarOptions | None = None) -> None:
@@ -209,8 +241,12 @@ class TorchRegistrar:
     def __setstate__(self, state: dict) -> None:
         self.__init__(state['config'], device=state['device'], options=state['options'])
 
-    def describe(self, image: np.ndarray | torch.Tensor) -> TorchFeatures:
-        """Features of a frame: numpy (H, W) / (H, W, 3) uint8, uint16 or float, or a tensor in [0, 1]."""
+    def describe(self, image: np.ndarray | torch.Tensor, *, keypoints: bool = True) -> TorchFeatures:
+        """Features of a frame: numpy (H, W) / (H, W, 3) uint8, uint16 or float, or a tensor in [0, 1].
+
+        keypoints False: the pyramid and photometric templates only (what :meth:`track` needs); the
+        keypoints are detected when a registration first needs them (TorchFeatures.ensure_keypoints).
+        Fixed-shape describing (static_shapes) always detects them."""
         gray = image_to_gray_tensor(image, self.device)
         _, _, h, w = gray.shape
         if self._static is not None:
@@ -219,15 +255,16 @@ class TorchRegistrar:
             return TorchFeatures(kps.xy.cpu().numpy(), kps.descriptors.cpu().numpy(), (w, h), kps, out.pyramid,
                                  out.templates, out.candidates)
         pyr = build_pyramid(gray, self._levels, sigma=self.options.pyramid_sigma)
-        lvl = self._features.level_for(w)
-        cands = detect(pyr[lvl], lvl, self._features)
-        kps = describe_candidates(cands, 0, self._features.max_keypoints)
         templates: list[PhotometricTemplate] = []
         ph = self.options.photometric
         if ph is not None:
             for level, points in zip(ph.levels, ph.points, strict=True):
                 templates.append(make_template(pyr[level], level, points=points))
-        return TorchFeatures(kps.xy.cpu().numpy(), kps.descriptors.cpu().numpy(), (w, h), kps, pyr, templates, cands)
+        features = TorchFeatures(None, None, (w, h), None, pyr, templates, None,  # type: ignore[arg-type]
+                                 detect_level=self._features.level_for(w), feature_options=self._features)
+        if keypoints:
+            features.ensure_keypoints()
+        return features
 
     def register(self, prev: Features, cur: Features) -> Registration:
         """Estimate prev_H_cur from the features of two frames (both from this registrar's describe).
@@ -240,6 +277,8 @@ class TorchRegistrar:
             msg = ('TorchRegistrar.register needs Features from TorchRegistrar.describe (not from another registrar): '
                    'describe both frames with the registrar that registers them.')
             raise RegistrationError(msg)
+        prev.ensure_keypoints()
+        cur.ensure_keypoints()
         reg = self._register_once(prev, cur, t0)
         if not reg.ok and reg.reason.startswith('too few') and len(prev.keypoints) >= 4 and len(cur.keypoints) >= 4:
             grew_prev = prev.extend(self.config.max_features)
@@ -248,6 +287,59 @@ class TorchRegistrar:
                 reg = self._register_once(prev, cur, t0)
                 reg.extras['retry_keypoints'] = float(min(len(prev.keypoints), len(cur.keypoints)))
         return reg
+
+    def track(self, prev: Features, cur: Features, predicted: np.ndarray, *, max_rms: float) -> Registration:
+        """prev_H_cur by the photometric refinement alone (step 7), started from ``predicted`` (3, 3)
+        instead of a feature estimate: consecutive video frames whose motion the previous pair
+        predicts to within the refinement's basin need no keypoints. The estimate is accepted only
+        when the refinement converged, kept at least TRACK_MIN_VALID of its template inside the
+        other frame, moved no frame corner more than options.track_radius_px from the prediction
+        (beyond that the prediction was outside the basin), left a robust intensity RMS of at most
+        ``max_rms`` (the caller's reference: a pair verified by features; a false minimum leaves
+        more) and passes validity.check_homography; otherwise ok is False with the reason (callers
+        then register the pair by features). The result carries the refinement's covariance,
+        extras['tracked'] = 1, no matches or inliers and rms_px NaN (no feature residuals)."""
+        t0 = time.perf_counter()
+        cfg, ph = self.config, self.options.photometric
+        if not isinstance(prev, TorchFeatures) or not isinstance(cur, TorchFeatures):
+            msg = 'TorchRegistrar.track needs Features from TorchRegistrar.describe: describe both frames with it.'
+            raise RegistrationError(msg)
+        if ph is None or prev.size != cur.size or not prev.templates or not cur.templates:
+            return _fail('no photometric templates to track with (photometric refinement off or frame sizes differ)', t0)
+        H = np.asarray(predicted, dtype=np.float64)
+        H = H / H[2, 2]
+        w, h = cur.size
+        # Template = the frame with the finer ground sampling, as in register.
+        scale = float(np.sqrt(abs(np.linalg.det(H[:2, :2]))))
+        if scale > 1.0:
+            res = refine_photometric(cur.pyramid, prev.templates, np.linalg.inv(H), ph)
+            H_ref = np.linalg.inv(res.image_H_template)
+            cov = inverse_covariance(res.image_H_template, res.covariance) if res.covariance is not None else None
+        else:
+            res = refine_photometric(prev.pyramid, cur.templates, H, ph)
+            H_ref, cov = res.image_H_template, res.covariance
+        H_ref = H_ref / H_ref[2, 2]
+        shift = corner_shift_px(H_ref, H, w, h) if np.all(np.isfinite(H_ref)) else float('inf')
+        extras = {'tracked': 1.0, 'refined': 1.0, 'photometric_iterations': float(res.iterations),
+                  'photometric_rms': res.rms, 'photometric_valid': res.valid_fraction, 'track_shift_px': shift}
+        radius = self.options.track_radius_px
+        if not res.converged:
+            reason = f'photometric tracking did not converge in {res.iterations} iterations'
+        elif res.valid_fraction < TRACK_MIN_VALID:
+            reason = f'only {res.valid_fraction:.0%} of the template inside the other frame'
+        elif shift > radius:
+            reason = f'tracking moved the frame {shift:.1f} px from the prediction (more than {radius:g} px)'
+        elif not res.rms <= max_rms:
+            reason = f'tracking residual {res.rms:.4f} above {max_rms:.4f}'
+        elif self.options.covariance and cov is None:
+            reason = 'tracking left the estimate without a covariance'
+        else:
+            reason = check_homography(H_ref, w, h, max_scale_change=cfg.max_scale_change,
+                                      max_perspective=cfg.max_perspective)
+        if reason:
+            return Registration(False, H_ref, 0, 0, float('nan'), reason, None, time.perf_counter() - t0, extras)
+        return Registration(True, H_ref, 0, 0, float('nan'), '', cov if self.options.covariance else None,
+                            time.perf_counter() - t0, extras)
 
     def _refinement_trusted(self, shift: float, converged: bool, H_ref: np.ndarray, src: torch.Tensor,
                             dst: torch.Tensor, rms_feat: float) -> bool:
