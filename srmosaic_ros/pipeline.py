@@ -8,6 +8,10 @@
 
 Nodes and the CLI drive this class; it knows nothing of ROS, bags or files.
 
+Each frame is registered to the last placed one: by photometric tracking from the previous pair's
+motion when the frames are consecutive video frames and tracking is accepted (`registration.track_frames`,
+core/registration/tracking.py), otherwise by features (keypoints are detected only then).
+
 Telemetry and frames are associated by time (approximate-time synchronisation): a frame waits
 until telemetry at or after its stamp has been seen (or until `SYNC_HOLD_FRAMES` more frames
 arrived with no telemetry at all), so the georeferencing filter always has the fixes and IMU
@@ -166,7 +170,7 @@ class Pipeline:
         max_width = self.config.registration.max_width
         self.registrar = PyramidRegistrar(registrar, max_width) if max_width > 0 else registrar
         # consecutive frames registered by photometric tracking (core/registration/tracking.py)
-        self._tracker = MotionTracker(self.config.registration.track_frames if getattr(registrar, 'tracks', False) else 0)
+        self._tracker = MotionTracker(self.config.registration.track_frames)
         self.records: list[FrameRecord] = []
         self.segments: list[Segment] = []
         self.fixes: list[GeoFix] = []
@@ -550,7 +554,7 @@ class Pipeline:
             return [record]
         with self.clock.stage('describe'):
             # keypoints only when a registration needs them (frames that are tracked need none)
-            features = self.registrar.describe(frame.image, keypoints=False) if self._tracker.frames > 1 else \
+            features = self.registrar.describe(frame.image, keypoints=False) if self._tracking() else \
                 self.registrar.describe(frame.image)
         if self._channels is None:  # the canvas's, from the first frame (later ones are converted to it)
             self._channels = 1 if frame.image.ndim == 2 else frame.image.shape[2]
@@ -610,12 +614,17 @@ class Pipeline:
         self._tracker.placed(reg, orphan.record.index, orphan.record.stamp_ns, held.record.index, held.record.stamp_ns)
         return True
 
+    def _tracking(self) -> bool:
+        """Whether frames may be registered by tracking: the setting, and a registrar that tracks
+        (the opencv backend does not; tests may put their own registrar in place)."""
+        return self._tracker.frames > 1 and getattr(self.registrar, 'tracks', False)
+
     def _register_next(self, last: _Held, held: _Held) -> Registration:
         """``held`` registered to the last placed frame: tracked from the previous pair's motion when
         the tracker predicts it and the tracking is accepted, otherwise by features
         (extras['track_refused'] = 1 when tracking was tried first)."""
         predicted = self._tracker.prediction(last.record.index, last.record.stamp_ns, held.record.index,
-                                             held.record.stamp_ns)
+                                             held.record.stamp_ns) if self._tracking() else None
         if predicted is not None:
             tracked = self.registrar.track(last.features, held.features, predicted, max_rms=self._tracker.max_rms())
             if tracked.ok:
