@@ -66,15 +66,16 @@ def test_oblique_orbit_with_its_imu_is_not_checked(tmp_path) -> None:
 
 def test_nadir_flight_without_attitude_is_placed_by_its_poses_from_the_start(tmp_path) -> None:
     """GPS only over a nadir camera: the check passes (median NIS 1.8 against the gate 37.3) and the
-    frames are on the map from the first one, as before it existed (0.048 px, 0.97 m)."""
+    frames are on the map from the first one, as before it existed (0.048 px, 0.97 m; with
+    consecutive frames tracked photometrically, registration.track_frames, 0.044 px, 1.03 m)."""
     result, report, fig = _run(SimConfig(**NADIR), tmp_path)
     assert result.pose_check is not None and result.pose_check.used
     assert result.pose_check.median_nis < 5.0
     assert [seg.georeferenced for seg in result.segments] == [True]
     assert report['georeferenced']['method'] == 'filter' and report['pose_placement']['used'] is True
     assert fig['frames_registered'] == 20
-    assert fig['corner_error_mean_px'] == pytest.approx(0.0475, abs=0.005), fig
-    assert fig['georef_error_rms_m'] == pytest.approx(0.973, abs=0.01), fig
+    assert fig['corner_error_mean_px'] == pytest.approx(0.0437, abs=0.005), fig
+    assert fig['georef_error_rms_m'] == pytest.approx(1.031, abs=0.01), fig
 
 
 def test_the_rule_is_the_median_innovation_against_the_filters_gate() -> None:
