@@ -65,6 +65,7 @@ from .torch_matching import descriptor_sq_distances, guided_matches, mutual_rati
 from .torch_ransac import dlt_homography, ransac_homography, refine_lm
 from .torch_refine import (
     PhotometricOptions,
+    PhotometricResult,
     PhotometricTemplate,
     inverse_covariance,
     make_template,
@@ -309,16 +310,8 @@ class TorchRegistrar:
         H = np.asarray(predicted, dtype=np.float64)
         H = H / H[2, 2]
         w, h = cur.size
-        # Template = the frame with the finer ground sampling, as in register.
-        scale = float(np.sqrt(abs(np.linalg.det(H[:2, :2]))))
-        if scale > 1.0:
-            res = refine_photometric(cur.pyramid, prev.templates, np.linalg.inv(H), ph)
-            H_ref = np.linalg.inv(res.image_H_template)
-            cov = inverse_covariance(res.image_H_template, res.covariance) if res.covariance is not None else None
-        else:
-            res = refine_photometric(prev.pyramid, cur.templates, H, ph)
-            H_ref, cov = res.image_H_template, res.covariance
-        H_ref = H_ref / H_ref[2, 2]
+        res, H_ref, template_prev = self._refine(prev, cur, H)
+        cov = self._refined_covariance(res, template_prev)
         shift = corner_shift_px(H_ref, H, w, h) if np.all(np.isfinite(H_ref)) else float('inf')
         extras = {'tracked': 1.0, 'refined': 1.0, 'photometric_iterations': float(res.iterations),
                   'photometric_rms': res.rms, 'photometric_valid': res.valid_fraction, 'track_shift_px': shift}
@@ -340,6 +333,28 @@ class TorchRegistrar:
             return Registration(False, H_ref, 0, 0, float('nan'), reason, None, time.perf_counter() - t0, extras)
         return Registration(True, H_ref, 0, 0, float('nan'), '', cov if self.options.covariance else None,
                             time.perf_counter() - t0, extras)
+
+    def _refine(self, prev: TorchFeatures, cur: TorchFeatures, H: np.ndarray) -> tuple[PhotometricResult, np.ndarray, bool]:
+        """(result, prev_H_cur refined (h22 = 1), whether prev was the template) of the photometric
+        refinement from prev_H_cur ``H``. Template = the frame with the finer ground sampling
+        (prev_H_cur scales up: prev), so that the other is sampled densely."""
+        ph = self.options.photometric
+        assert ph is not None
+        template_prev = float(np.sqrt(abs(np.linalg.det(H[:2, :2])))) > 1.0
+        if template_prev:
+            res = refine_photometric(cur.pyramid, prev.templates, np.linalg.inv(H), ph)
+            H_ref = np.linalg.inv(res.image_H_template)
+        else:
+            res = refine_photometric(prev.pyramid, cur.templates, H, ph)
+            H_ref = res.image_H_template
+        return res, H_ref / H_ref[2, 2], template_prev
+
+    @staticmethod
+    def _refined_covariance(res: PhotometricResult, template_prev: bool) -> np.ndarray | None:
+        """(8, 8) covariance of the refined prev_H_cur's h, from the refinement's (of image_H_template)."""
+        if res.covariance is None or not template_prev:
+            return res.covariance
+        return inverse_covariance(res.image_H_template, res.covariance)
 
     def _refinement_trusted(self, shift: float, converged: bool, H_ref: np.ndarray, src: torch.Tensor,
                             dst: torch.Tensor, rms_feat: float) -> bool:
@@ -425,19 +440,11 @@ class TorchRegistrar:
         extras['refined'] = 0.0
         ph = opt.photometric
         if ph is not None and prev.size == cur.size and cur.templates and prev.templates:
-            # Template = the frame with the finer ground sampling (prev_H_cur scales up: prev).
-            scale = float(np.sqrt(abs(np.linalg.det(H_feat[:2, :2]))))
-            if scale > 1.0:
-                res = refine_photometric(cur.pyramid, prev.templates, np.linalg.inv(H_feat), ph)
-                H_ref = np.linalg.inv(res.image_H_template)
-            else:
-                res = refine_photometric(prev.pyramid, cur.templates, H_feat, ph)
-                H_ref = res.image_H_template
-            H_ref = H_ref / H_ref[2, 2]
+            res, H_ref, template_prev = self._refine(prev, cur, H_feat)
             shift = corner_shift_px(H_ref, H_feat, w, h) if np.all(np.isfinite(H_ref)) else float('inf')
             extras.update(photometric_iterations=float(res.iterations), photometric_rms=res.rms,
                           photometric_valid=res.valid_fraction, refine_shift_px=shift,
-                          photometric_template_prev=float(scale > 1.0))
+                          photometric_template_prev=float(template_prev))
             if self._refinement_trusted(shift, res.converged, H_ref, src, dst, rms_feat) and not check_homography(
                     H_ref, w, h, max_scale_change=cfg.max_scale_change, max_perspective=cfg.max_perspective):
                 H_out = H_ref
@@ -445,7 +452,7 @@ class TorchRegistrar:
                 if opt.covariance and res.covariance is not None:
                     # The returned estimate is the photometric one: its Gauss-Newton covariance
                     # (the feature covariance above bounds it from above).
-                    cov = res.covariance if scale <= 1.0 else inverse_covariance(res.image_H_template, res.covariance)
+                    cov = self._refined_covariance(res, template_prev)
                     extras['covariance_from'] = 1.0
         if opt.covariance and cov is None:
             # The feature estimate is returned (or the refinement gave no covariance): its UT
