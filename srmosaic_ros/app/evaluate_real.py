@@ -13,9 +13,10 @@ judged against its own input, re-read in frame order:
   frames and blur all lower it. It is not an absolute registration error.
 - Sharpness: per frame, the gradient energy (mean squared 3x3 Sobel gradient of the grey image,
   intensities in [0, 1]) of the mosaic over that of the warped frame, in the same footprint (its
-  mosaic alpha eroded by 1 px more, so that no gradient reads a transparent pixel). 1.0: the
-  composite is as sharp as the frames; below: it is blurred, by averaging frames that do not
-  line up, or by resampling.
+  mosaic alpha eroded by 1 px more, so that no gradient reads a transparent pixel), the frame's
+  taken at the mosaic's mean level there (energy scales with the square of an exposure gain, and
+  the mosaic may have matched the frames' exposures). 1.0: the composite is as sharp as the frames;
+  below: it is blurred, by averaging frames that do not line up, or by resampling.
 - Position error, when mosaic.tif exists and frames.csv carries ``meta_latitude,meta_longitude``
   (WGS84 degrees, where the footage's own metadata puts the frame centre on the ground): each
   frame's centre pixel ((w - 1) / 2, (h - 1) / 2) through mosaic_H_frame and mosaic.tif's
@@ -240,6 +241,9 @@ def _agreement(stamp_ns: int, grey: np.ndarray, mosaic_H_frame: np.ndarray,
     sharp_mask = mask & (cv2.erode(covered, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_CONSTANT,
                                    borderValue=0) > 0)
     e_frame, e_mosaic = _gradient_energy(warped, sharp_mask), _gradient_energy(m_grey, sharp_mask)
+    if sharp_mask.any():  # the frame at the mosaic's level: an exposure gain is not blur
+        level = float(warped[sharp_mask].mean())
+        e_frame *= (float(m_grey[sharp_mask].mean()) / level) ** 2 if level > 1e-6 else 1.0
     ratio = e_mosaic / e_frame if e_frame > 1e-12 else math.nan
     note = '' if math.isfinite(ncc) and math.isfinite(ratio) else 'flat footprint (no contrast)'
     return FrameAgreement(stamp_ns, ncc, ratio, n, scale, note)

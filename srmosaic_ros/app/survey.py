@@ -49,6 +49,7 @@ from ..core.georef.frames import R_enu_from_cam_aviation
 from ..core.georef.georeferencer import GeoRaster, utm_epsg
 from ..core.georef.geotag_fit import GEOTAG_MIN_EXTENT_M, geotags_at
 from ..core.mosaic.canvas import CanvasError, TiledCanvas
+from ..core.mosaic.exposure import exposure_gains
 from ..core.mosaic.scratch import release as release_scratch
 from ..core.registration import make_registrar
 from ..core.survey.global_align import (PairConstraint, SurveyPriors, attitude_ground_H, estimate_scale,
@@ -59,8 +60,8 @@ from ..io.image_folder import ImageFolderReader
 from ..io.metadata import RECORDED_ATTITUDE_SIGMA_DEG
 from ..malloc_tuning import trim_heap
 
-__all__ = ['SurveyStill', 'output_threads', 'process_survey', 'read_reduced', 'reduction_for', 'survey_stills',
-           'tiles_in_memory', 'use_global_alignment']
+__all__ = ['SurveyStill', 'output_threads', 'process_survey', 'read_reduced', 'reduction_for', 'still_gains',
+           'survey_stills', 'tiles_in_memory', 'use_global_alignment']
 
 _LOG = logging.getLogger(__name__)
 _REDUCED = {1: cv2.IMREAD_COLOR, 2: cv2.IMREAD_REDUCED_COLOR_2, 4: cv2.IMREAD_REDUCED_COLOR_4,
@@ -72,6 +73,8 @@ MOSAIC_TIF_ZLEVEL = 3
 #: A pair by footprint that the torch registrar fails gets the OpenCV registrar's second opinion
 #: when one of its stills has fewer registered pairs than this.
 SECOND_OPINION_BELOW_PAIRS = 3
+#: Longest side of the thumbnails whose overlaps give the exposure gains (pixels).
+THUMB_MAX_SIDE_PX = 256
 #: The canvas keeps this many stills' footprints of tiles in memory (at least mosaic.max_tiles_in_memory).
 TILES_PER_FOOTPRINT = 2.0
 #: Unknown focal length: the normalised coordinates use this many pixels per unit of the longer
@@ -268,6 +271,37 @@ def tiles_in_memory(configured: int, tile_size: int, footprints_px: list[float])
         return configured
     per_still = float(np.median(footprints_px)) / tile_size**2
     return max(configured, math.ceil(TILES_PER_FOOTPRINT * per_still))
+
+
+def still_gains(stills: list[SurveyStill], placed: list[int], raster_H_frame: list[np.ndarray],
+                mode: str) -> np.ndarray:
+    """Exposure gains (len(placed), 3) float32 of the placed stills, RGB (core/mosaic/exposure.py).
+
+    raster_H_frame: per placed still the (3, 3) homography full-size pixel -> mosaic raster pixel.
+    Each still is decoded at the largest JPEG reduction (8) and shrunk to THUMB_MAX_SIDE_PX: the
+    gains compare means over overlaps, which need no detail. A still that cannot be decoded keeps
+    gain 1 (painting reports it).
+    """
+    if mode == 'none' or len(placed) < 2:
+        return np.ones((len(placed), 3), np.float32)
+
+    def thumb(k: int) -> tuple[np.ndarray | None, np.ndarray | None]:
+        try:
+            img = read_reduced(stills[k].file, 8)
+        except InputError:
+            return None, None
+        f = min(1.0, THUMB_MAX_SIDE_PX / max(img.shape[:2]))
+        if f < 1.0:
+            img = cv2.resize(img, (max(1, round(img.shape[1] * f)), max(1, round(img.shape[0] * f))),
+                             interpolation=cv2.INTER_AREA)
+        sx, sy = stills[k].size[0] / img.shape[1], stills[k].size[1] / img.shape[0]
+        full_H_thumb = np.array([[sx, 0.0, (sx - 1) / 2.0], [0.0, sy, (sy - 1) / 2.0], [0.0, 0.0, 1.0]])
+        return img, full_H_thumb
+
+    with ThreadPoolExecutor(output_threads(), thread_name_prefix='survey-thumbs') as pool:
+        thumbs = list(pool.map(thumb, placed))
+    return exposure_gains([t for t, _ in thumbs],
+                          [None if h is None else H @ h for (_, h), H in zip(thumbs, raster_H_frame)], mode)
 
 
 def _working_K(still: SurveyStill, r: int) -> np.ndarray:
@@ -506,6 +540,10 @@ def _paint_and_write(out: Path, config: PipelineConfig, stills: list[SurveyStill
                          max_tiles_in_memory=max_tiles, spill_dir=config.mosaic.spill_dir, seams=config.mosaic.seams)
     canvas_H = {}
     refused: dict[int, str] = {}
+    t_exposure = time.perf_counter()
+    gains = still_gains(stills, placed, [raster_H_local @ sol.ground_H_frame[k] @ np.linalg.inv(stills[k].K)
+                                         for k in placed], scfg.exposure)
+    t_exposure = time.perf_counter() - t_exposure
     t_start = time.perf_counter()
     reduction = {}
     for k in placed:
@@ -526,7 +564,9 @@ def _paint_and_write(out: Path, config: PipelineConfig, stills: list[SurveyStill
                 r = reduction[k]
                 try:
                     image = decoded.popleft().result().astype(np.float32)
-                    np.multiply(image, np.float32(1.0 / 255.0), out=image)  # in place: no second full-size copy
+                    # in place: no second full-size copy
+                    np.multiply(image, gains[i] / np.float32(255.0), out=image)
+                    np.minimum(image, np.float32(1.0), out=image)
                     canvas.paint(image, H @ _full_from_reduced(r))
                     del image
                     canvas_H[k] = H
@@ -569,6 +609,9 @@ def _paint_and_write(out: Path, config: PipelineConfig, stills: list[SurveyStill
         'georeferenced': ({'method': 'global alignment', 'epsg': mosaic_raster.epsg, 'gsd_m_per_px': mosaic_raster.gsd_m_per_px,
                            'geotransform': list(mosaic_raster.geotransform)} if has_gps else None),
         'canvas': canvas_stats,
+        'exposure': {'mode': scfg.exposure, 'time_s': round(t_exposure, 3),
+                     'gain_min': [round(float(v), 4) for v in gains.min(axis=0)],
+                     'gain_max': [round(float(v), 4) for v in gains.max(axis=0)]},
         'paint_s': round(paint_s, 3),
         'write_s': round(write_s, 3),
     }

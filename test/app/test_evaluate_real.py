@@ -175,15 +175,17 @@ def test_position_is_zero_where_metadata_is_the_map_itself(caliterra_run: tuple[
 
 def test_frame_alone_under_itself_scores_one(tmp_path: Path) -> None:
     """A one-frame "run" whose mosaic is exactly the canvas's warp of a real still (at full scale and,
-    magnified 2.5x past MAX_COMPARE_PX, on every k-th pixel): NCC 1 and sharpness 1 (pixel conventions)."""
+    magnified 2.5x past MAX_COMPARE_PX, on every k-th pixel): NCC 1 and sharpness 1 (pixel conventions);
+    the same mosaic at 70 % exposure (as exposure compensation may leave it) is as sharp, a blurred
+    one is not."""
     src = next((CALITERRA / 'images').iterdir())
     (tmp_path / 'input').mkdir()
     shutil.copy(src, tmp_path / 'input' / src.name)
     frame = cv2.imread(str(src))
     h, w = frame.shape[:2]
     got = []
-    for zoom in (1.0, 2.5):
-        out = tmp_path / f'out_{zoom}'
+    for zoom, gain, blur in ((1.0, 1.0, 0.0), (2.5, 1.0, 0.0), (1.0, 0.7, 0.0), (1.0, 1.0, 1.5)):
+        out = tmp_path / f'out_{zoom}_{gain}_{blur}'
         out.mkdir()
         c, s = math.cos(0.3) * zoom, math.sin(0.3) * zoom
         H = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
@@ -192,6 +194,8 @@ def test_frame_alone_under_itself_scores_one(tmp_path: Path) -> None:
         far = apply_homography(H, np.array([[0, 0], [w - 1, 0], [w - 1, h - 1], [0, h - 1]], float)).max(axis=0)
         size = (int(far[0]) + 8, int(far[1]) + 8)
         mosaic = cv2.warpPerspective(frame, H, size, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        mosaic = np.clip(np.round(mosaic * gain), 0, 255).astype(np.uint8)
+        mosaic = cv2.GaussianBlur(mosaic, (0, 0), blur) if blur else mosaic
         alpha = cv2.warpPerspective(np.full((h, w), 255, np.uint8), H, size, flags=cv2.INTER_NEAREST)
         cv2.imwrite(str(out / 'mosaic.png'), np.dstack([mosaic, alpha]))
         row = {'stamp_ns': '0', 'ok': '1', 'inliers': '0', 'rms_px': 'nan',
@@ -203,6 +207,8 @@ def test_frame_alone_under_itself_scores_one(tmp_path: Path) -> None:
     assert got[0]['scale'] == 1.0 and got[1]['scale'] < 1.0
     assert got[0]['ncc'] > 0.9999 and got[0]['sharpness_ratio'] == pytest.approx(1.0, abs=5e-3)
     assert got[1]['ncc'] > 0.9999 and got[1]['sharpness_ratio'] == pytest.approx(1.0, abs=5e-3)
+    assert got[2]['ncc'] > 0.999 and got[2]['sharpness_ratio'] == pytest.approx(1.0, abs=0.02)  # raw: 0.49
+    assert got[3]['sharpness_ratio'] < 0.6, got[3]
 
 
 def test_errors(caliterra_run: tuple[Path, dict], tmp_path: Path) -> None:

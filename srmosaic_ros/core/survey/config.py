@@ -4,6 +4,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from ..mosaic.exposure import EXPOSURE_MODES
+
 __all__ = ['SURVEY_MODES', 'SurveyConfig']
 
 SURVEY_MODES = ('auto', 'global', 'chain')
@@ -31,6 +33,8 @@ class SurveyConfig:
         distortion, relief), added to each registered point's own.
     tilt_allowance_deg: without a camera attitude, the optical axis is taken as vertical within
         this; its offset on the ground (height x tan) widens each GPS position's sd.
+    exposure: stills' exposures matched before painting (core/mosaic/exposure.py): 'channels' (a
+        gain per colour channel: exposure and white balance), 'gain' (one per still) or 'none'.
     """
 
     mode: str = 'auto'
@@ -43,6 +47,7 @@ class SurveyConfig:
     feature_cache_frames: int = 48
     model_px: float = 1.0
     tilt_allowance_deg: float = 5.0
+    exposure: str = 'channels'
 
     def __post_init__(self) -> None:
         checks = {
@@ -56,11 +61,12 @@ class SurveyConfig:
             'feature_cache_frames': isinstance(self.feature_cache_frames, int) and self.feature_cache_frames >= 2,
             'model_px': self.model_px > 0.0,
             'tilt_allowance_deg': 0.0 <= self.tilt_allowance_deg < 45.0,
+            'exposure': self.exposure in EXPOSURE_MODES,
         }
         bad = [name for name, ok in checks.items() if not ok]
         if bad:
             values = ', '.join(f'survey.{name}={getattr(self, name)!r}' for name in bad)
             msg = (f'invalid survey parameters: {values} (mode auto|global|chain, working_megapixels 0.05..100, '
                    'min_overlap [0, 1), max_pairs_per_frame >= 0, mosaic_gsd_m > 0 or NaN, max_mosaic_megapixels >= 1, blend feather|multiband, '
-                   'feature_cache_frames >= 2, model_px > 0, tilt_allowance_deg [0, 45)).')
+                   'feature_cache_frames >= 2, model_px > 0, tilt_allowance_deg [0, 45), exposure channels|gain|none).')
             raise ValueError(msg)
