@@ -13,8 +13,11 @@ interleaved (baseline, new, baseline, new... ``--repeat`` times each) so that bo
 load on a shared machine; figures.json then holds every run, the medians, their spread (min..max)
 and the ratios new / baseline, and whether the two mosaics have the same pixels.
 
+With ``--sim`` the stills are a simulated lawnmower of 172 stills at that size (a DJI's EXIF/XMP)
+instead: a survey of 150 to 200 stills, which the repository's real data does not hold.
+
     .venv/bin/python bench/survey_scale.py [--out bench/out/survey_scale] [--megapixels 12]
-        [--baseline REV] [--new REV] [--repeat N] [--stills 37,75]
+        [--baseline REV] [--new REV] [--repeat N] [--stills 37,75] [--sim]
 """
 from __future__ import annotations
 
@@ -45,6 +48,34 @@ def make_folder(dst: Path, files: list[Path], width: int) -> Path:
             exif = im.info.get('exif', b'')
             h = round(im.height * width / im.width)
             im.resize((width, h), Image.Resampling.BICUBIC).save(target, quality=92, exif=exif)
+    return dst / 'images'
+
+
+def sim_survey(dst: Path, width: int) -> list[Path]:
+    """A simulated lawnmower of stills of width x 3/4 width (EXIF/XMP of a DJI: GPS, gimbal angles,
+    focal length), 100 m up over the caliterra world (0.1 m): 10 legs of 220 m eastwards, 18 m apart,
+    a still every 14.3 m (footprints 115 m along the legs, 87 m across: 79 % side, 88 % forward
+    overlap), 172 stills; written once under ``dst``."""
+    from srmosaic_ros.sim import SimConfig, save_truth, simulate
+    from srmosaic_ros.sim.record import write_drone_stills
+
+    folder = dst / 'survey'
+    if not (dst / 'truth.json').is_file():
+        flight = simulate(SimConfig(width=width, height=round(width * 3 / 4), trajectory='lawnmower', legs=10,
+                                    leg_length_m=220.0, leg_spacing_m=18.0, speed_m_s=10.0, rate_hz=0.7,
+                                    fix_rate_hz=0.7, gust_deg=1.0, max_supersample=1, seed=7))
+        write_drone_stills(flight, folder)
+        save_truth(flight.truth, dst / 'truth.json')
+    return sorted((folder / 'images').iterdir())
+
+
+def link_folder(dst: Path, files: list[Path]) -> Path:
+    """A folder of links to ``files`` (the first n stills of a survey)."""
+    (dst / 'images').mkdir(parents=True, exist_ok=True)
+    for f in files:
+        target = dst / 'images' / f.name
+        if not target.exists():
+            target.symlink_to(f.resolve())
     return dst / 'images'
 
 
@@ -113,9 +144,11 @@ def main() -> int:
     ap.add_argument('--new', metavar='REV', help='measure this revision as the new one (default: this working tree)')
     ap.add_argument('--repeat', type=int, default=1, help='runs of each (default 1)')
     ap.add_argument('--stills', default='', help='comma-separated numbers of stills (default: half and all)')
+    ap.add_argument('--sim', action='store_true',
+                    help='a simulated lawnmower of 172 stills (with truth) instead of the caliterra stills')
     args = ap.parse_args()
-    files = sorted(SURVEY.iterdir())
     width = round((args.megapixels * 1e6 * 4 / 3) ** 0.5)
+    files = sim_survey(args.out / f'sim_{width}', width) if args.sim else sorted(SURVEY.iterdir())
     counts = [int(n) for n in args.stills.split(',')] if args.stills else [len(files) // 2, len(files)]
     sources: dict[str, Path] = {}
     for label, rev in (('baseline', args.baseline), ('new', args.new)):
@@ -125,7 +158,8 @@ def main() -> int:
     figures: dict = {'baseline': args.baseline, 'new': args.new or 'working tree', 'runs': []}
     try:
         for n in counts:
-            folder = make_folder(args.out / f'stills_{n}', files[:n], width)
+            folder = (link_folder(args.out / f'sim_{width}' / f'stills_{n}', files[:n]) if args.sim
+                      else make_folder(args.out / f'stills_{n}', files[:n], width))
             for rep in range(args.repeat):
                 for label, source in sources.items():  # interleaved: the same load for both
                     r = run(folder, args.out / f'out_{n}_{label}', source)

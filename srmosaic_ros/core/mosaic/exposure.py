@@ -1,20 +1,20 @@
 """Exposure compensation: one gain per frame (and colour channel) so that overlapping frames agree.
 
-Stills of a survey are exposed one by one (auto exposure, auto white balance): neighbours differ by
-several percent (caliterra: 0.94 to 1.08 between consecutive stills, 0.75 to 1.07 over the survey),
-and a mosaic composited by best view shows each still's exposure as a patch with a step at every
-seam. As in Brown and Lowe (IJCV 2007, sec. 6) the gains g make the overlaps' means agree,
+Stills are exposed one by one (auto exposure, auto white balance), and a mosaic composited by best
+view shows each still's exposure as a patch with a step at every seam. As in Brown and Lowe (IJCV
+2007, sec. 6) the gains g make the overlaps agree,
 
     g_i I_ij = g_j I_ji   for every overlapping pair (i, j),
 
-with I_ij frame i over its overlap with frame j (here the median of the log ratio over the overlap,
-weighted by the overlap's size: a car or a roof's parallax does not move it); in logarithms,
-x = log g, x_i - x_j = log(I_ji / I_ij), solved by robust (Huber) least squares with
-a weak prior x = 0, then shifted so that the median frame keeps its exposure. Brown and Lowe's prior (sigma_g 0.1 against
-sigma_N 10 grey levels, what OpenCV's compensators use) pulls every gain towards 1 as hard as the
-data, leaving a 30 % exposure step 0.15 wide, and sets the level by the mean, so that a few dark stills
-darken all the others; the level is all a prior has to set, and the median sets it. The means
-need no detail: the frames are compared as thumbnails warped onto a coarse common raster.
+with I_ij frame i over its overlap with frame j. Here, in logarithms x = log g,
+x_i - x_j = log(I_ji / I_ij), the right side the median of the log ratio over the overlap (a car or
+a roof's parallax does not move it), each pair weighted by its overlap's size, solved by robust
+(Huber) least squares with a weak prior x = 0, then shifted so that the median frame keeps its
+exposure. Brown and Lowe's prior (sigma_g 0.1 against sigma_N 10 grey levels, which OpenCV's
+compensators use) pulls every gain towards 1 as hard as the data, so a large step is only partly
+undone, and its mean level lets a few dark frames darken all the others; the level is all a prior
+has to set. The ratios need no detail: frames are compared as thumbnails warped onto a coarse
+common raster.
 """
 from __future__ import annotations
 
