@@ -146,9 +146,17 @@ def main() -> int:
     ap.add_argument('--stills', default='', help='comma-separated numbers of stills (default: half and all)')
     ap.add_argument('--sim', action='store_true',
                     help='a simulated lawnmower of 172 stills (with truth) instead of the caliterra stills')
+    ap.add_argument('--generate', action='store_true', help=argparse.SUPPRESS)  # the child that writes --sim
     args = ap.parse_args()
+    args.out = args.out.resolve()  # the runs of --baseline work in their own checkout
     width = round((args.megapixels * 1e6 * 4 / 3) ** 0.5)
+    if args.sim and not (args.out / f'sim_{width}' / 'truth.json').is_file():
+        # in a child: this process forks the runs, and a child's peak RSS starts at its parent's
+        subprocess.run([sys.executable, __file__, '--sim', '--generate', '--out', str(args.out),
+                        '--megapixels', str(args.megapixels)], check=True)
     files = sim_survey(args.out / f'sim_{width}', width) if args.sim else sorted(SURVEY.iterdir())
+    if args.generate:
+        return 0
     counts = [int(n) for n in args.stills.split(',')] if args.stills else [len(files) // 2, len(files)]
     sources: dict[str, Path] = {}
     for label, rev in (('baseline', args.baseline), ('new', args.new)):
