@@ -566,7 +566,8 @@ def _paint_and_write(out: Path, config: PipelineConfig, stills: list[SurveyStill
                     image = decoded.popleft().result().astype(np.float32)
                     # in place: no second full-size copy
                     np.multiply(image, gains[i] / np.float32(255.0), out=image)
-                    np.minimum(image, np.float32(1.0), out=image)
+                    if gains[i].max() > 1.0:  # only a gain above 1 can saturate
+                        np.minimum(image, np.float32(1.0), out=image)
                     canvas.paint(image, H @ _full_from_reduced(r))
                     del image
                     canvas_H[k] = H
