@@ -168,13 +168,13 @@ def sim_textureless(dst: Path, every: int = 5) -> dict:
     """The simulated survey with every ``every``-th still made textureless (even grey, EXIF/XMP
     kept): the others' corner errors against the truth, and each textureless still's centre on
     the ground against the truth beside its own GPS tag's error."""
-    import csv
     import shutil
 
     import rasterio
     from PIL import Image
     from pyproj import Transformer
 
+    from srmosaic_ros.app.evaluate_real import read_meta_positions
     from srmosaic_ros.app.process import process_input
     from srmosaic_ros.config import pipeline_config
     from srmosaic_ros.core.georef.geodetic import LocalTangentPlane
@@ -195,10 +195,8 @@ def sim_textureless(dst: Path, every: int = 5) -> dict:
     truth = load_truth(root / 'truth.json')
     by_stamp = {f.stamp_ns: f for f in truth.frames}
     rows = read_frames_csv(out / 'frames.csv')
-    with open(out / 'frames.csv', newline='') as handle:
-        placed_by = [r['placed_by'] for r in csv.DictReader(handle)]
-        handle.seek(0)
-        meta = [(float(r['meta_latitude']), float(r['meta_longitude'])) for r in csv.DictReader(handle)]
+    placed_by = [r['placed_by'] for r in rows]
+    meta = read_meta_positions(out / 'frames.csv')
     w, h = truth.camera.width, truth.camera.height
     reg = [k for k, r in enumerate(rows) if r['ok'] and placed_by[k] == 'registration']
     err, _ = mosaic_corner_errors([rows[k]['mosaic_H_frame'] for k in reg],
@@ -218,7 +216,8 @@ def sim_textureless(dst: Path, every: int = 5) -> dict:
         lat, lon, _ = ltp.geodetic_from_enu(np.c_[enu, np.zeros(1)])
         true_xy = np.array(to_utm.transform(lon, lat)).ravel()
         cam = np.array(to_utm.transform(f.longitude_deg, f.latitude_deg))
-        gps = np.array(to_utm.transform(meta[k][1], meta[k][0]))
+        lat_tag, lon_tag = meta[r['stamp_ns']]
+        gps = np.array(to_utm.transform(lon_tag, lat_tag))
         flat.append({'index': k, 'placed_by': placed_by[k],
                      'centre_error_m': None if est is None else round(float(np.linalg.norm(est - true_xy)), 2),
                      'gps_error_m': round(float(np.linalg.norm(gps - cam)), 2)})
