@@ -276,14 +276,15 @@ class Pipeline:
         return decided
 
     def _paint_input(self, raw: np.ndarray, seg_H_frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(float32 image, seg_H_image) to paint for a frame: a frame much finer than the mosaic is
-        averaged down to the mosaic's sampling first, on its integer pixels (minify.area_reduce)."""
+        """(image, seg_H_image) to paint for a frame: a frame much finer than the mosaic is averaged
+        down to the mosaic's sampling first, on its integer pixels (minify.area_reduce). float32,
+        or uint8 as it came when its channels are the canvas's (the canvas warps integers faster)."""
         k = self._area_factor(raw, seg_H_frame)
         if k == 1:
-            return self._as_canvas_image(raw), seg_H_frame
+            return self._as_paintable(raw), seg_H_frame
         if raw.dtype == np.uint8:
             small, seg_H_small = area_reduce(raw, seg_H_frame, k)
-            return self._as_canvas_image(small), seg_H_small
+            return self._as_paintable(small), seg_H_small
         small, seg_H_small = area_reduce(self._as_canvas_image(raw), seg_H_frame, k)
         return np.ascontiguousarray(small, dtype=np.float32), seg_H_small
 
@@ -291,6 +292,12 @@ class Pipeline:
         """The block size (minify.area_factor) a frame at seg_H_frame is averaged down by before it is painted."""
         h, w = image.shape[:2]
         return area_factor(finest_stretch(seg_H_frame, w, h, clip_depth(seg_H_frame, w, h, self.config.mosaic.max_stretch)))
+
+    def _as_paintable(self, image: np.ndarray) -> np.ndarray:
+        """A uint8 image with the canvas's channel count as it is, else :meth:`_as_canvas_image`."""
+        if image.dtype == np.uint8 and (image.shape[2] if image.ndim == 3 else 1) == (self._channels or 0):
+            return image
+        return self._as_canvas_image(image)
 
     def _as_canvas_image(self, image: np.ndarray) -> np.ndarray:
         """Edge image -> float32 (H, W, C) in [0, 1] with the channel count of the first frame. A uint8

@@ -537,7 +537,8 @@ def _paint_and_write(out: Path, config: PipelineConfig, stills: list[SurveyStill
     max_tiles = tiles_in_memory(config.mosaic.max_tiles_in_memory, config.mosaic.tile_size,
                                 [_footprint_px(corners[k], raster_H_local) for k in placed])
     canvas = TiledCanvas(3, config.mosaic.tile_size, blend=scfg.blend, max_canvas_side_px=config.mosaic.max_canvas_side_px,
-                         max_tiles_in_memory=max_tiles, spill_dir=config.mosaic.spill_dir, seams=config.mosaic.seams)
+                         max_tiles_in_memory=max_tiles, spill_dir=config.mosaic.spill_dir, seams=config.mosaic.seams,
+                         threads=min(output_threads(), 2))  # a still's tiles on two cores (the decoder mostly waits)
     canvas_H = {}
     refused: dict[int, str] = {}
     t_exposure = time.perf_counter()
@@ -563,12 +564,8 @@ def _paint_and_write(out: Path, config: PipelineConfig, stills: list[SurveyStill
                 H = raster_H_local @ sol.ground_H_frame[k] @ np.linalg.inv(stills[k].K)
                 r = reduction[k]
                 try:
-                    image = decoded.popleft().result().astype(np.float32)
-                    # in place: no second full-size copy
-                    np.multiply(image, gains[i] / np.float32(255.0), out=image)
-                    if gains[i].max() > 1.0:  # only a gain above 1 can saturate
-                        np.minimum(image, np.float32(1.0), out=image)
-                    canvas.paint(image, H @ _full_from_reduced(r))
+                    image = decoded.popleft().result()  # uint8: warped as integers, then exposed
+                    canvas.paint(image, H @ _full_from_reduced(r), scale=gains[i])
                     del image
                     canvas_H[k] = H
                 except (InputError, CanvasError) as exc:

@@ -109,6 +109,36 @@ def _fill_invalid(img: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return np.where(valid[..., None], clean, fill).astype(np.float32, copy=False)
 
 
+def _to_float(image: np.ndarray, gains: np.ndarray | None, out: np.ndarray | None = None) -> np.ndarray:
+    """float32 (h, w, C) of uint8 (h, w, C): values / 255, times ``gains`` (C,) per channel and
+    clipped to 1 where a gain exceeds 1 (None: no gains); into ``out`` when given."""
+    h, w, c = image.shape
+    factor = np.full(c, 1.0 / 255.0, np.float32) if gains is None else gains / np.float32(255.0)
+    if out is None:
+        out = np.empty(image.shape, np.float32)
+    if c <= 4:  # OpenCV's per-channel scalar product, about twice numpy's broadcast (same values)
+        shape = (h, w, c) if c > 1 else (h, w)  # OpenCV takes (h, w, 1) as (h, w)
+        scalar = tuple(float(f) for f in factor) + (0.0,) * (4 - c)
+        res = cv2.multiply(image.reshape(shape), scalar, dst=out.reshape(shape), dtype=cv2.CV_32F)
+        if gains is not None and float(gains.max()) > 1.0:  # only a gain above 1 can saturate
+            res = cv2.min(res, (1.0, 1.0, 1.0, 1.0), dst=res)  # a 4-tuple: every channel (a bare 1.0 is channel 0's)
+        if not np.shares_memory(res, out):  # a layout OpenCV could not write in place
+            out[...] = res.reshape(out.shape)
+        return out
+    np.multiply(image, factor, out=out, dtype=np.float32)  # one rounding: as astype, then the product
+    if gains is not None and float(gains.max()) > 1.0:
+        np.minimum(out, np.float32(1.0), out=out)
+    return out
+
+
+def _scaled(image: np.ndarray, gains: np.ndarray) -> np.ndarray:
+    """float32 (H, W, C) image times ``gains`` (C,), clipped to 1 where a gain exceeds 1 (a new array)."""
+    out = np.multiply(image, gains, dtype=np.float32)
+    if float(gains.max()) > 1.0:
+        np.minimum(out, np.float32(1.0), out=out)
+    return out
+
+
 def _times_weight(colour: np.ndarray, weight: np.ndarray) -> np.ndarray:
     """float32 (h, w, C) ``colour * weight[..., None]`` of colour (h, w, C) and weight (h, w), in this
     thread's scratch array 'weighted' (:mod:`.scratch`).
@@ -176,12 +206,16 @@ class TiledCanvas:
             painted ones are spilled to disk (0: no bound, nothing is ever written). One tile
             holds ``4 T^2 (C + 1)`` bytes (feather), ``4 T^2 (2 C + 3)`` (multiband) or
             ``4 T^2 (3 C + 5)`` (best view): 1 MiB, 2.25 MiB and 3.5 MiB for T = 256, C = 3.
+        threads: tiles a paint writes on this many threads at once (1: on the caller's). For a
+            caller with a core to spare (a survey's stills, one at a time); the mosaic is the same.
         spill_dir: directory under which the spill directory of this canvas is created ('':
             $TMPDIR, else /var/tmp, see :func:`.tile_store.default_spill_root`); created on the
             first spill, removed by ``close()``.
 
     Not thread-safe: paint and render from one thread (or hold a lock around both).
     """
+
+    _threads = 1  # canvases pickled before the setting existed
 
     def __init__(
         self,
@@ -203,6 +237,7 @@ class TiledCanvas:
         moving: float = 0.0,
         moving_history: int = 5,
         seams: str = 'score',
+        threads: int = 1,
     ) -> None:
         msg = settings_problem(channels, tile_size, blend=blend, feather_profile=feather_profile, feather_power=feather_power,
                                max_canvas_side_px=max_canvas_side_px, max_area_ratio=max_area_ratio, bands=bands,
@@ -211,6 +246,10 @@ class TiledCanvas:
                                moving_history=moving_history, seams=seams)
         if msg is not None:
             raise CanvasError(msg)
+        if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
+            msg = f'threads must be an integer >= 1, got {threads!r}.'
+            raise CanvasError(msg)
+        self._threads = threads
         self._max_stretch = float(max_stretch)
         self._recency_frames = int(recency_frames)
         self._agree = float(agree)
@@ -357,11 +396,12 @@ class TiledCanvas:
 
     # ------------------------------------------------------------------ paint
     def _as_image(self, image: np.ndarray) -> np.ndarray:
+        """(H, W, C) C-contiguous float32, or uint8 as given."""
         if not isinstance(image, np.ndarray):
             msg = f'image must be a numpy array, got {type(image).__name__}.'
             raise CanvasError(msg)
-        if not np.issubdtype(image.dtype, np.floating):
-            msg = (f'image dtype {image.dtype} is not floating point; convert it to float32 in [0, 1] '
+        if not (np.issubdtype(image.dtype, np.floating) or image.dtype == np.uint8):
+            msg = (f'image dtype {image.dtype} is neither floating point nor uint8; convert it to float32 in [0, 1] '
                    '(e.g. core.image_ops.to_float01).')
             raise CanvasError(msg)
         if image.ndim == 2 and self._channels == 1:
@@ -373,7 +413,17 @@ class TiledCanvas:
         if image.shape[0] < 1 or image.shape[1] < 1:
             msg = f'image shape {image.shape} is empty.'
             raise CanvasError(msg)
-        return np.ascontiguousarray(image, dtype=np.float32)
+        return np.ascontiguousarray(image, dtype=np.uint8 if image.dtype == np.uint8 else np.float32)
+
+    def _as_scale(self, scale: np.ndarray | None) -> np.ndarray | None:
+        """(C,) float32 positive finite multipliers, or None."""
+        if scale is None:
+            return None
+        g = np.asarray(scale, dtype=np.float64).reshape(-1)
+        if g.shape != (self._channels,) or not np.all(np.isfinite(g)) or not np.all(g > 0):
+            msg = f'scale must be {self._channels} positive finite multipliers (one per channel), got {scale!r}.'
+            raise CanvasError(msg)
+        return g.astype(np.float32)
 
     def _as_mask(self, mask: np.ndarray | None, img: np.ndarray, finite: bool = False) -> np.ndarray | None:
         """Valid-pixel mask (bool (H, W)) or None when every pixel is valid and finite (``finite``: the
@@ -467,17 +517,24 @@ class TiledCanvas:
         *,
         mask: np.ndarray | None = None,
         finite: bool = False,
+        scale: np.ndarray | None = None,
     ) -> PaintResult:
         """Warp a frame into the canvas and accumulate it with its feather weight.
 
         Args:
             image: float32 (H, W, C) or, for C == 1, (H, W); values nominally in [0, 1].
-                Non-finite pixels are treated as invalid.
+                Non-finite pixels are treated as invalid. Or uint8 (values / 255): warped as
+                integers (OpenCV's fixed-point bilinear, about twice as fast as on floats) and
+                converted on the mosaic, so no float copy of the frame is made; the warped values
+                are rounded to integers before the conversion (at most 0.5 / 255 apart from a float
+                warp's).
             mosaic_H_frame: (3, 3) float64 homography from frame pixels to mosaic pixels (pixel
                 centres at integers): frame pixel (u, v) lands at ``mosaic_H_frame @ (u, v, 1)``.
             mask: optional bool (H, W), True where the pixel is valid; invalid pixels weigh 0.
             finite: the caller guarantees that every pixel of ``image`` is finite (converted from
                 integers): the check, a pass over the frame, is skipped.
+            scale: optional (C,) multipliers of the image's values in [0, 1] (exposure gains);
+                values they take above 1 are clipped to 1.
 
         Returns:
             PaintResult: the frame index, the tiles written, the footprint and its bbox.
@@ -488,14 +545,19 @@ class TiledCanvas:
             the frame or making the canvas exceed ``max_canvas_side_px``).
         """
         self._check_open()
+        gains = self._as_scale(scale)
         img = self._as_image(image)
         h, w = img.shape[:2]
         m = self._as_homography(mosaic_H_frame, w, h)
-        valid = self._as_mask(mask, img, finite)
+        if img.dtype != np.uint8 and gains is not None:
+            img = _scaled(img, gains)
+        valid = self._as_mask(mask, img, finite or img.dtype == np.uint8)
         footprint, _ = project_points(m, np.array([[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5], [-0.5, h - 0.5]]))
         x0, y0, x1, y1 = self._placement(m, w, h)
         level = minify_level(m, w, h, clip_depth(m, w, h, self._max_stretch))
         if level:  # a frame shrinking on the mosaic is reduced first, not point-sampled (minify.py)
+            if img.dtype == np.uint8:  # reduced as floats
+                img = _to_float(img, gains)
             if valid is not None:
                 img = _fill_invalid(img, valid)
             img, valid, m = reduce_frame(img, valid, m, level)
@@ -515,13 +577,13 @@ class TiledCanvas:
             r = resolution_factor(m, depth)
             weight = cv2.multiply(weight, r, dst=r)
         if valid is not None:
+            if img.dtype == np.uint8:  # filled as floats
+                img = _to_float(img, gains)
             img = _fill_invalid(img, valid)
         bw, bh = x1 - x0, y1 - y0
         box_h_frame = np.array([[1.0, 0.0, -x0], [0.0, 1.0, -y0], [0.0, 0.0, 1.0]]) @ m
         src = img[:, :, 0] if self._channels == 1 else img
         # into this thread's scratch arrays: they live until paint returns (the tiles keep copies)
-        img_w = cv2.warpPerspective(src, box_h_frame, (bw, bh), dst=scratch('colour', (bh, bw, *src.shape[2:])),
-                                    flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(bh, bw, self._channels)
         w_w = cv2.warpPerspective(weight, box_h_frame, (bw, bh), dst=scratch('weight', (bh, bw)), flags=cv2.INTER_LINEAR,
                                   borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
         index = self._frames
@@ -549,20 +611,38 @@ class TiledCanvas:
         # Every tile first (loading spilled ones may fail: then nothing is written), then write.
         tiles = [self._store.get(key, create=True) for key, _, _ in jobs]
         self._frames += 1
-        touched: list[TileKey] = []
-        cut = self._cut(jobs, tiles, img_w, w_w, index) if self._seam_cut else None
-        for (key, box, loc), tile in zip(jobs, tiles):
+        # The colour over the whole box at once (what the seams' cut compares), or, painting on
+        # threads, warped tile by tile: each in cache through its updates, no box-sized array
+        img_w = None
+        if self._seam_cut or self._threads == 1:
+            img_w = self._warp_colour(src, box_h_frame, (slice(0, bh), slice(0, bw)), gains, 'colour')
+        cut = self._cut(jobs, tiles, img_w, w_w, index) if self._seam_cut and img_w is not None else None
+
+        def offer(job: tuple[TileKey, tuple[slice, slice], tuple[slice, slice]], tile: Any) -> None:
+            _, box, loc = job
             sub_w = w_w[box]
+            # a tile's colour warped on its own stays in cache through the updates below
+            colour = img_w[box] if img_w is not None else self._warp_colour(src, box_h_frame, box, gains, 'tile_colour')
             tile_cut = None if cut is None else (cut[0][box], cut[1][box])
-            _add_into(tile.acc[loc], _times_weight(img_w[box], sub_w))  # per tile: the product stays in cache
+            _add_into(tile.acc[loc], _times_weight(colour, sub_w))  # per tile: the product stays in cache
             _add_into(tile.wsum[loc], sub_w)
             if best_view:
-                update_best(tile, loc, img_w[box], sub_w, index, self._recency_frames, self._agree, self._moving,
+                update_best(tile, loc, colour, sub_w, index, self._recency_frames, self._agree, self._moving,
                             cut=tile_cut)
             if multiband:
-                update_max_weight(tile, loc, img_w[box], sub_w, index, cut=tile_cut)
+                update_max_weight(tile, loc, colour, sub_w, index, cut=tile_cut)
+
+        workers = min(self._threads, len(jobs))
+        if workers > 1:  # tiles are independent; OpenCV and numpy release the GIL on their arrays
+            with ThreadPoolExecutor(workers, thread_name_prefix='paint') as pool:
+                for _ in pool.map(offer, jobs, tiles):
+                    pass
+        else:
+            for job, tile in zip(jobs, tiles):
+                offer(job, tile)
+        touched: list[TileKey] = [key for key, _, _ in jobs]
+        for key in touched:
             self._tile_frames[key] = self._tile_frames.get(key, 0) + 1
-            touched.append(key)
         del tiles
         self._touched.update(touched)
         self._preview_dirty.update(touched)
@@ -572,6 +652,20 @@ class TiledCanvas:
             max(gx1, self._bounds[2]), max(gy1, self._bounds[3]))
         self._store.trim()  # back to the bound; may raise TileStoreError (the frame is painted)
         return PaintResult(index, tuple(sorted(touched, key=lambda k: (k[1], k[0]))), footprint, bbox)
+
+    def _warp_colour(self, src: np.ndarray, box_h_frame: np.ndarray, box: tuple[slice, slice], gains: np.ndarray | None,
+                     name: str) -> np.ndarray:
+        """float32 (h, w, C) colour of the frame ``src`` (float32, or uint8: warped as integers, then
+        converted with ``gains``) over ``box`` (slices of the paint's box, whose homography from the
+        frame is ``box_h_frame``), in this thread's scratch array ``name``."""
+        ys, xs = box
+        h, w, c = ys.stop - ys.start, xs.stop - xs.start, self._channels
+        m = np.array([[1.0, 0.0, -xs.start], [0.0, 1.0, -ys.start], [0.0, 0.0, 1.0]]) @ box_h_frame
+        if src.dtype == np.uint8:  # gains (if any) applied after the warp
+            warped = cv2.warpPerspective(src, m, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            return _to_float(warped.reshape(h, w, c), gains, scratch(name, (h, w, c)))
+        return cv2.warpPerspective(src, m, (w, h), dst=scratch(name, (h, w, *src.shape[2:])), flags=cv2.INTER_LINEAR,
+                                   borderMode=cv2.BORDER_REPLICATE).reshape(h, w, c)
 
     def _cut(self, jobs: list[tuple[TileKey, tuple[slice, slice], tuple[slice, slice]]], tiles: list[Any],
              img_w: np.ndarray, w_w: np.ndarray, index: int) -> tuple[np.ndarray, np.ndarray] | None:

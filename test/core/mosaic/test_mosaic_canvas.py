@@ -1,6 +1,8 @@
 """Tests of the growing tiled mosaic canvas (srmosaic_ros.core.mosaic.canvas / blend)."""
 from __future__ import annotations
 
+import itertools
+
 import cv2
 import numpy as np
 import pytest
@@ -75,10 +77,65 @@ def test_identity_reproduces_frame(blend: str, channels: int) -> None:
     assert c.memory_bytes == len(c.tile_keys()) * 32 * 32 * 4 * per_px
 
 
+@pytest.mark.parametrize('blend', ['feather', 'multiband', 'bestview'])
+def test_uint8_frames_paint_as_their_float_values_with_gains_after_the_warp(blend: str) -> None:
+    """A uint8 frame is warped as integers and converted on the mosaic: the same mosaic as its
+    float values (values / 255) within the warp's rounding (0.5 / 255), under a rotation, an
+    oblique view cut by max_stretch and a reduced (shrinking) frame; ``scale`` multiplies each
+    channel after the warp and clips at 1, as multiplying the float frame first does."""
+    frame8 = (texture(90, 120) * 255).round().astype(np.uint8)
+    oblique = np.array([[1.0, 0.1, 40.0], [0.05, 1.2, 30.0], [0.0, 0.004, 1.0]])
+    views = (rotation(17.0, 60, 45, 30, 20), oblique, np.diag([0.3, 0.3, 1.0]) @ translation(40, 40))
+    for m, gains in itertools.product(views, (np.array([1.0, 0.8, 0.6]), np.array([1.4, 1.0, 0.7]))):
+        out = {}
+        for kind in ('float', 'uint8'):
+            c = TiledCanvas(3, 32, blend=blend, max_stretch=2.0)
+            if kind == 'uint8':
+                c.paint(frame8, m, scale=gains)
+            else:
+                c.paint(np.minimum(frame8.astype(np.float32) / 255 * gains.astype(np.float32), 1.0), m)
+            out[kind] = c.render()
+        np.testing.assert_array_equal(out['uint8'][1], out['float'][1])
+        diff = np.abs(out['uint8'][0] - out['float'][0])[out['float'][1]]
+        assert out['uint8'][0].max() <= 1.0
+        if gains.max() <= 1.0:
+            assert diff.max() <= 0.5 / 255 + 1e-6, (blend, diff.max())
+            assert diff.mean() > 0 or m[0, 0] == 0.3  # integers were warped (rounded), not the floats
+        else:  # clipped after the warp, not before: apart only next to saturated pixels
+            assert np.median(diff) <= 0.5 / 255 * 1.4, (blend, np.median(diff))
+
+
+@pytest.mark.parametrize('blend', ['feather', 'multiband', 'bestview'])
+def test_tiles_painted_on_threads_give_the_same_mosaic(blend: str) -> None:
+    """threads=2 (each tile's colour warped on its own, tiles on two threads) paints the mosaic of
+    threads=1 (the frame's colour warped over its box at once): the same coverage, labels and
+    tiles, colours within one integer step of the warp (OpenCV rounds a tile's own coordinates)."""
+    frames = [((texture(90, 120, seed=k) * 255).round().astype(np.uint8), rotation(7.0 * k, 60, 45, 25 * k, 10 * k))
+              for k in range(4)]
+    out = {}
+    for threads in (1, 2):
+        c = TiledCanvas(3, 32, blend=blend, threads=threads)
+        for img, m in frames:
+            c.paint(img, m, scale=np.array([1.2, 1.0, 0.9]))
+        out[threads] = (c.render(), c.tile_keys(), None if blend == 'feather' else c.labels())
+    np.testing.assert_allclose(out[2][0][0], out[1][0][0], rtol=0, atol=1.2 / 255 + 1e-6)
+    assert np.mean(out[2][0][0] != out[1][0][0]) < 0.05
+    np.testing.assert_array_equal(out[2][0][1], out[1][0][1])
+    assert out[2][1] == out[1][1]
+    if blend != 'feather':
+        np.testing.assert_array_equal(out[2][2], out[1][2])
+    for bad in (0, 1.5, True):
+        with pytest.raises(CanvasError, match='threads'):
+            TiledCanvas(3, 32, blend=blend, threads=bad)
+
+
 def test_refuses_bad_images_and_settings() -> None:
     c = TiledCanvas(3)
     with pytest.raises(CanvasError, match='float32'):
-        c.paint(np.zeros((10, 10, 3), np.uint8), np.eye(3))
+        c.paint(np.zeros((10, 10, 3), np.int16), np.eye(3))
+    for bad in ([1.0, 1.0], [1.0, 0.0, 1.0], [1.0, np.nan, 1.0]):
+        with pytest.raises(CanvasError, match='scale'):
+            c.paint(np.zeros((10, 10, 3), np.uint8), np.eye(3), scale=np.array(bad))
     with pytest.raises(CanvasError, match=r'\(H, W, 3\)'):
         c.paint(np.zeros((10, 10), np.float32), np.eye(3))
     with pytest.raises(CanvasError, match='mask shape'):
