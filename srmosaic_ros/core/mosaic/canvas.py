@@ -216,6 +216,13 @@ class TiledCanvas:
     """
 
     _threads = 1  # canvases pickled before the setting existed
+    _pool = None
+
+    def __getstate__(self) -> dict[str, Any]:
+        """Pickled without its painting threads (started again by the next paint)."""
+        state = dict(self.__dict__)
+        state['_pool'] = None
+        return state
 
     def __init__(
         self,
@@ -250,6 +257,7 @@ class TiledCanvas:
             msg = f'threads must be an integer >= 1, got {threads!r}.'
             raise CanvasError(msg)
         self._threads = threads
+        self._pool: ThreadPoolExecutor | None = None  # the painting threads, started by the first paint that uses them
         self._max_stretch = float(max_stretch)
         self._recency_frames = int(recency_frames)
         self._agree = float(agree)
@@ -374,6 +382,9 @@ class TiledCanvas:
 
     def close(self) -> None:
         """Release every tile and remove the spill files. The canvas cannot be used afterwards."""
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None
         self._store.close()
 
     def __enter__(self) -> TiledCanvas:
@@ -634,9 +645,10 @@ class TiledCanvas:
 
         workers = min(self._threads, len(jobs))
         if workers > 1:  # tiles are independent; OpenCV and numpy release the GIL on their arrays
-            with ThreadPoolExecutor(workers, thread_name_prefix='paint') as pool:
-                for _ in pool.map(offer, jobs, tiles):
-                    pass
+            if self._pool is None:  # the same threads (and their scratch arrays) from paint to paint
+                self._pool = ThreadPoolExecutor(self._threads, thread_name_prefix='paint')
+            for _ in self._pool.map(offer, jobs, tiles):
+                pass
         else:
             for job, tile in zip(jobs, tiles):
                 offer(job, tile)
