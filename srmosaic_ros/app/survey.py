@@ -51,6 +51,7 @@ from ..core.georef.geotag_fit import GEOTAG_MIN_EXTENT_M, geotags_at
 from ..core.mosaic.canvas import CanvasError, TiledCanvas
 from ..core.mosaic.exposure import exposure_gains
 from ..core.mosaic.scratch import release as release_scratch
+from ..core.mosaic.tile_store import TileLayout
 from ..core.registration import make_registrar
 from ..core.survey.global_align import (PairConstraint, SurveyPriors, attitude_ground_H, estimate_scale,
                                        pair_constraint, solve_survey)
@@ -77,6 +78,9 @@ SECOND_OPINION_BELOW_PAIRS = 3
 THUMB_MAX_SIDE_PX = 256
 #: The canvas keeps this many stills' footprints of tiles in memory (at least mosaic.max_tiles_in_memory).
 TILES_PER_FOOTPRINT = 2.0
+#: ... but no more tile bytes than this (stills of 20 MP and more at their own sampling would pass
+#: the 3 GB goal of a whole run: the rest of a run takes about 1 GB); beyond it tiles spill.
+TILE_MEMORY_BUDGET_BYTES = 3 << 29  # 1.5 GiB
 #: Unknown focal length: the normalised coordinates use this many pixels per unit of the longer
 #: side (about a 55 deg field of view); the scale the solve finds is then not a height.
 NOMINAL_FOCAL_PER_SIDE = 1.0
@@ -261,16 +265,20 @@ def _footprint_px(corners_local: np.ndarray, raster_H_local: np.ndarray) -> floa
     return float(np.prod(xy.max(axis=1) - xy.min(axis=1)))
 
 
-def tiles_in_memory(configured: int, tile_size: int, footprints_px: list[float]) -> int:
+def tiles_in_memory(configured: int, tile_size: int, footprints_px: list[float], tile_bytes: int = 0) -> int:
     """The canvas's bound on tiles in memory: mosaic.max_tiles_in_memory, raised to TILES_PER_FOOTPRINT
     times the tiles of the median still's footprint (a 12 MP still at its own GSD covers ~190 tiles
     of 256 px: with 256 in memory the tiles of the still before last are spilled and read back as
     the next line overlaps them); 0 stays 0 (no bound). The bound does not grow with the number of
-    stills, only with their size."""
+    stills, only with their size, and is raised no further than TILE_MEMORY_BUDGET_BYTES of tiles of
+    ``tile_bytes`` each (0: no budget)."""
     if configured <= 0 or not footprints_px:
         return configured
     per_still = float(np.median(footprints_px)) / tile_size**2
-    return max(configured, math.ceil(TILES_PER_FOOTPRINT * per_still))
+    raised = math.ceil(TILES_PER_FOOTPRINT * per_still)
+    if tile_bytes > 0:  # within the budget; the configured bound stands whatever it costs (the user's)
+        raised = min(raised, TILE_MEMORY_BUDGET_BYTES // tile_bytes)
+    return max(configured, raised)
 
 
 def still_gains(stills: list[SurveyStill], placed: list[int], raster_H_frame: list[np.ndarray],
@@ -534,8 +542,9 @@ def _paint_and_write(out: Path, config: PipelineConfig, stills: list[SurveyStill
         g *= math.sqrt(area_px / (scfg.max_mosaic_megapixels * 1e6))
     raster = GeoRaster(epsg or 32631, g, origin[0] + float(e_min), origin[1] + float(n_max))
     raster_H_local = raster.raster_H_utm @ np.array([[1.0, 0, origin[0]], [0, 1.0, origin[1]], [0, 0, 1]])
+    tile_bytes = TileLayout(config.mosaic.tile_size, 3, scfg.blend == 'multiband').nbytes
     max_tiles = tiles_in_memory(config.mosaic.max_tiles_in_memory, config.mosaic.tile_size,
-                                [_footprint_px(corners[k], raster_H_local) for k in placed])
+                                [_footprint_px(corners[k], raster_H_local) for k in placed], tile_bytes)
     canvas = TiledCanvas(3, config.mosaic.tile_size, blend=scfg.blend, max_canvas_side_px=config.mosaic.max_canvas_side_px,
                          max_tiles_in_memory=max_tiles, spill_dir=config.mosaic.spill_dir, seams=config.mosaic.seams,
                          threads=min(output_threads(), 2))  # a still's tiles on two cores (the decoder mostly waits)

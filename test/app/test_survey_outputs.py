@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from srmosaic_ros.app.survey import TILES_PER_FOOTPRINT, output_threads, tiles_in_memory
+from srmosaic_ros.app.survey import TILE_MEMORY_BUDGET_BYTES, TILES_PER_FOOTPRINT, output_threads, tiles_in_memory
+from srmosaic_ros.core.mosaic.tile_store import TileLayout
 from srmosaic_ros.io.geotiff import _to_u8
 
 
@@ -17,6 +18,13 @@ def test_the_tile_bound_follows_the_footprint_not_the_number_of_stills() -> None
     assert tiles_in_memory(256, 256, [640 * 480.0] * 10) == 256  # small stills: the configured bound
     assert tiles_in_memory(0, 256, [still_12mp]) == 0  # no bound stays no bound
     assert tiles_in_memory(256, 512, [still_12mp]) < bound  # larger tiles, fewer of them
+    tile = TileLayout(256, 3, multiband=True).nbytes  # 2.25 MiB
+    assert tiles_in_memory(256, 256, [still_12mp] * 10, tile) == bound  # 1.3 GB of tiles: within the budget
+    still_24mp = 6000 * 4000 * 1.3
+    big = tiles_in_memory(256, 256, [still_24mp] * 10, tile)
+    assert big * tile <= TILE_MEMORY_BUDGET_BYTES < tiles_in_memory(256, 256, [still_24mp] * 10) * tile
+    assert tiles_in_memory(256, 256, [still_24mp] * 1000, tile) == big  # still flat in the number of stills
+    assert tiles_in_memory(2000, 256, [still_24mp], tile) == 2000  # a configured bound stands
 
 
 def test_output_threads() -> None:
