@@ -208,8 +208,10 @@ class TiledCanvas:
             painted ones are spilled to disk (0: no bound, nothing is ever written). One tile
             holds ``4 T^2 (C + 1)`` bytes (feather), ``4 T^2 (2 C + 3)`` (multiband) or
             ``4 T^2 (3 C + 5)`` (best view): 1 MiB, 2.25 MiB and 3.5 MiB for T = 256, C = 3.
-        threads: tiles a paint writes on this many threads at once (1: on the caller's). For a
-            caller with a core to spare (a survey's stills, one at a time); the mosaic is the same.
+        threads: tiles a paint writes on this many threads at once (1: on the caller's), each
+            tile's colour warped on its own. For a caller with a core to spare (a survey's stills,
+            one at a time); the mosaic is the same but for rounding (OpenCV rounds each tile's own
+            coordinates: uint8 frames within one 8-bit step).
         spill_dir: directory under which the spill directory of this canvas is created ('':
             $TMPDIR, else /var/tmp, see :func:`.tile_store.default_spill_root`); created on the
             first spill, removed by ``close()``.
