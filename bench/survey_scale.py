@@ -150,7 +150,7 @@ def main() -> int:
     args = ap.parse_args()
     args.out = args.out.resolve()  # the runs of --baseline work in their own checkout
     width = round((args.megapixels * 1e6 * 4 / 3) ** 0.5)
-    if args.sim and not (args.out / f'sim_{width}' / 'truth.json').is_file():
+    if args.sim and not args.generate and not (args.out / f'sim_{width}' / 'truth.json').is_file():
         # in a child: this process forks the runs, and a child's peak RSS starts at its parent's
         subprocess.run([sys.executable, __file__, '--sim', '--generate', '--out', str(args.out),
                         '--megapixels', str(args.megapixels)], check=True)

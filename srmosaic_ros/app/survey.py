@@ -56,6 +56,7 @@ from ..core.registration import make_registrar
 from ..core.survey.global_align import (PairConstraint, SurveyPriors, attitude_ground_H, estimate_scale,
                                        pair_constraint, solve_survey)
 from ..core.survey.pairs import predicted_pairs
+from ..core.survey.paint_plan import tiles_to_paint
 from ..errors import InputError
 from ..io.image_folder import ImageFolderReader
 from ..io.metadata import RECORDED_ATTITUDE_SIGMA_DEG
@@ -562,6 +563,12 @@ def _paint_and_write(out: Path, config: PipelineConfig, stills: list[SurveyStill
             if gsd[k] * cand <= g * 1.0001:
                 reduction[k] = cand
                 break
+    plan = None
+    t_plan = time.perf_counter()
+    if scfg.blend == 'multiband' and scfg.paint_rank > 0:
+        plan = tiles_to_paint([raster_H_local @ sol.ground_H_frame[k] @ np.linalg.inv(stills[k].K) for k in placed],
+                              [stills[k].size for k in placed], config.mosaic.tile_size, rank=scfg.paint_rank)
+    t_plan = time.perf_counter() - t_plan
     with canvas, ThreadPoolExecutor(1, thread_name_prefix='survey-decode') as decoder:
         # the next still is decoded (OpenCV, without the GIL) while this one is painted
         decoded = collections.deque(decoder.submit(read_reduced, stills[k].file, reduction[k]) for k in placed[:1])
@@ -574,7 +581,8 @@ def _paint_and_write(out: Path, config: PipelineConfig, stills: list[SurveyStill
                 r = reduction[k]
                 try:
                     image = decoded.popleft().result()  # uint8: warped as integers, then exposed
-                    canvas.paint(image, H @ _full_from_reduced(r), scale=gains[i])
+                    canvas.paint(image, H @ _full_from_reduced(r), scale=gains[i],
+                                 tiles=None if plan is None else plan.tiles[i])
                     del image
                     canvas_H[k] = H
                 except (InputError, CanvasError) as exc:
@@ -619,6 +627,8 @@ def _paint_and_write(out: Path, config: PipelineConfig, stills: list[SurveyStill
         'exposure': {'mode': scfg.exposure, 'time_s': round(t_exposure, 3),
                      'gain_min': [round(float(v), 4) for v in gains.min(axis=0)],
                      'gain_max': [round(float(v), 4) for v in gains.max(axis=0)]},
+        'paint_plan': ({'rank': scfg.paint_rank, 'tiles_painted': sum(len(p) for p in plan.tiles),
+                        'tiles_touched': plan.touched, 'time_s': round(t_plan, 3)} if plan is not None else None),
         'paint_s': round(paint_s, 3),
         'write_s': round(write_s, 3),
     }

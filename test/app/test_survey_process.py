@@ -242,3 +242,32 @@ def test_stills_exposed_differently_are_matched_before_painting(drone_survey: Pa
     assert np.all(off[:4] / ref[:4] < 0.87), off / ref
     cast = off[4] / ref[4]
     assert cast[2] / cast[0] > 1.05, cast
+
+
+def test_stills_painted_where_they_can_win_give_the_mosaic_of_painting_all(drone_survey: Path, tmp_path: Path) -> None:
+    """survey.paint_rank (core/survey/paint_plan.py) against 0 (every still wherever it falls), on
+    64 px tiles (a 320 x 240 still spans about 5 x 4): the same coverage and nearly the same pixels
+    from fewer tile paints."""
+    base = pipeline_config()
+    base = dataclasses.replace(base, mosaic=dataclasses.replace(base.mosaic, tile_size=64))
+    every = dataclasses.replace(base, survey=dataclasses.replace(base.survey, paint_rank=0))
+    a = process_input(drone_survey / 'survey', tmp_path / 'plan', base, progress=False)
+    b = process_input(drone_survey / 'survey', tmp_path / 'all', every, progress=False)
+    assert b['paint_plan'] is None
+    # two legs of ten stills: little of the ground is seen three times or more
+    assert a['paint_plan']['rank'] == 2 and a['paint_plan']['tiles_painted'] < a['paint_plan']['tiles_touched']
+    pa = cv2.imread(str(tmp_path / 'plan' / 'mosaic.png'), cv2.IMREAD_UNCHANGED)
+    pb = cv2.imread(str(tmp_path / 'all' / 'mosaic.png'), cv2.IMREAD_UNCHANGED)
+    assert pa.shape == pb.shape
+    cov = pb[..., 3] > 0
+    inner = cv2.erode(cov.view(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    assert (pa[..., 3][inner] > 0).all()  # no hole
+    diff = np.abs(pa[..., :3].astype(float) - pb[..., :3])[inner]
+    assert 10 * np.log10(255.0**2 / np.mean(diff**2)) > 35.0
+
+
+def test_bad_survey_settings_are_refused() -> None:
+    from srmosaic_ros.core.survey.config import SurveyConfig
+
+    with pytest.raises(ValueError, match=r'survey.paint_rank=-1'):
+        SurveyConfig(paint_rank=-1)

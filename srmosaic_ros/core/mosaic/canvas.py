@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Iterator
+from collections.abc import Collection, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import nullcontext
 from dataclasses import dataclass, field
@@ -457,6 +457,21 @@ class TiledCanvas:
                 valid = finite if valid is None else valid & finite
         return valid
 
+    @staticmethod
+    def _as_tiles(tiles: Collection[TileKey]) -> tuple[frozenset[TileKey], tuple[int, int, int, int] | None]:
+        """(``tiles`` as a frozenset, their (min tx, min ty, max tx, max ty) or None when empty);
+        CanvasError when a key is not a pair of integers."""
+        try:
+            keys = frozenset((int(tx), int(ty)) for tx, ty in tiles)
+        except (TypeError, ValueError) as exc:
+            msg = f'tiles must be (tx, ty) pairs of integers: {exc}'
+            raise CanvasError(msg) from exc
+        if not keys:
+            return keys, None
+        a = np.array(list(keys), np.int64)
+        lo, hi = a.min(axis=0), a.max(axis=0)
+        return keys, (int(lo[0]), int(lo[1]), int(hi[0]), int(hi[1]))
+
     def _as_homography(self, mosaic_h_frame: np.ndarray, w: int, h: int) -> np.ndarray:
         """Checked float64 homography with positive projective depth over the frame."""
         m = np.asarray(mosaic_h_frame, dtype=np.float64)
@@ -533,6 +548,7 @@ class TiledCanvas:
         mask: np.ndarray | None = None,
         finite: bool = False,
         scale: np.ndarray | None = None,
+        tiles: Collection[TileKey] | None = None,
     ) -> PaintResult:
         """Warp a frame into the canvas and accumulate it with its feather weight.
 
@@ -550,6 +566,8 @@ class TiledCanvas:
                 integers): the check, a pass over the frame, is skipped.
             scale: optional (C,) multipliers of the image's values in [0, 1] (exposure gains);
                 values they take above 1 are clipped to 1.
+            tiles: optional tile keys (tx, ty): the frame is painted on these tiles only (a survey
+                that knows where it cannot win, core/survey/paint_plan.py); None: wherever it falls.
 
         Returns:
             PaintResult: the frame index, the tiles written, the footprint and its bbox.
@@ -569,6 +587,15 @@ class TiledCanvas:
         valid = self._as_mask(mask, img, finite or img.dtype == np.uint8)
         footprint, _ = project_points(m, np.array([[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5], [-0.5, h - 0.5]]))
         x0, y0, x1, y1 = self._placement(m, w, h)
+        t = self._tile_size
+        if tiles is not None:
+            tiles, keys = self._as_tiles(tiles)
+            if keys is not None:  # the box shrinks to those tiles: no weight warped where none is painted
+                x0, y0 = max(x0, keys[0] * t), max(y0, keys[1] * t)
+                x1, y1 = min(x1, (keys[2] + 1) * t), min(y1, (keys[3] + 1) * t)
+            if keys is None or x1 <= x0 or y1 <= y0:
+                self._frames += 1
+                return PaintResult(self._frames - 1, (), footprint, (0, 0, 0, 0))
         level = minify_level(m, w, h, clip_depth(m, w, h, self._max_stretch))
         if level:  # a frame shrinking on the mosaic is reduced first, not point-sampled (minify.py)
             if img.dtype == np.uint8:  # reduced as floats
@@ -611,12 +638,13 @@ class TiledCanvas:
         c0, c1, r0, r1 = int(cols[0]), int(cols[-1]) + 1, int(rows[0]), int(rows[-1]) + 1
         multiband = self._blend == 'multiband'
 
-        t = self._tile_size
         jobs: list[tuple[TileKey, tuple[slice, slice], tuple[slice, slice]]] = []
         gx0, gy0, gx1, gy1 = x0 + c0, y0 + r0, x0 + c1, y0 + r1
         for ty in range(gy0 // t, (gy1 - 1) // t + 1):
             ys, ye = max(gy0, ty * t), min(gy1, (ty + 1) * t)
             for tx in range(gx0 // t, (gx1 - 1) // t + 1):
+                if tiles is not None and (tx, ty) not in tiles:
+                    continue
                 xs, xe = max(gx0, tx * t), min(gx1, (tx + 1) * t)
                 box = (slice(ys - y0, ye - y0), slice(xs - x0, xe - x0))
                 if not w_w[box].any():

@@ -35,6 +35,9 @@ class SurveyConfig:
         this; its offset on the ground (height x tan) widens each GPS position's sd.
     exposure: stills' exposures matched before painting (core/mosaic/exposure.py): 'channels' (a
         gain per colour channel: exposure and white balance), 'gain' (one per still) or 'none'.
+    paint_rank: with blend multiband, a still is painted only on the tiles where its weight ranks
+        among the first paint_rank at some sample of the tile or its neighbours, and where it alone
+        covers ground (core/survey/paint_plan.py); 0: every still wherever it falls.
     """
 
     mode: str = 'auto'
@@ -48,6 +51,7 @@ class SurveyConfig:
     model_px: float = 1.0
     tilt_allowance_deg: float = 5.0
     exposure: str = 'channels'
+    paint_rank: int = 2
 
     def __post_init__(self) -> None:
         checks = {
@@ -62,11 +66,13 @@ class SurveyConfig:
             'model_px': self.model_px > 0.0,
             'tilt_allowance_deg': 0.0 <= self.tilt_allowance_deg < 45.0,
             'exposure': self.exposure in EXPOSURE_MODES,
+            'paint_rank': isinstance(self.paint_rank, int) and self.paint_rank >= 0,
         }
         bad = [name for name, ok in checks.items() if not ok]
         if bad:
             values = ', '.join(f'survey.{name}={getattr(self, name)!r}' for name in bad)
             msg = (f'invalid survey parameters: {values} (mode auto|global|chain, working_megapixels 0.05..100, '
                    'min_overlap [0, 1), max_pairs_per_frame >= 0, mosaic_gsd_m > 0 or NaN, max_mosaic_megapixels >= 1, blend feather|multiband, '
-                   'feature_cache_frames >= 2, model_px > 0, tilt_allowance_deg [0, 45), exposure channels|gain|none).')
+                   'feature_cache_frames >= 2, model_px > 0, tilt_allowance_deg [0, 45), exposure channels|gain|none, '
+                   'paint_rank >= 0).')
             raise ValueError(msg)
