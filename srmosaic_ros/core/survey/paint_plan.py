@@ -10,6 +10,9 @@ the first ``rank`` at some sample of the tile or of its eight neighbours (the wi
 seams, with a tile of margin for the blend), and on any tile where the stills so chosen would leave
 some of its footprint uncovered (the mosaic's edges), so the mosaic's coverage is unchanged.
 
+The plan assumes what the survey's canvas does: every still painted over its whole frame (no mask,
+no far-field cut: max_stretch 0), with the canvas's feather profile as its weight (multiband).
+
 Pixels: mosaic pixels (x right, y down, pixel centres at integers); frame pixels likewise, the
 frame covering [-0.5, w - 0.5] x [-0.5, h - 0.5]; tile (tx, ty) covers x in [tx T, (tx + 1) T).
 """
