@@ -56,14 +56,16 @@ import numpy as np
 
 from .config import PipelineConfig
 from .malloc_tuning import HeapTrimmer
+from .core.homography import project_points
 from .core.image_ops import to_float01
 from .core.mosaic.canvas import CanvasError
 from .core.mosaic.segments import Segment
 from .core.time_sync import SYNC_HOLD_FRAMES, telemetry_ready
-from .core.mosaic.best_view import clip_depth
+from .core.mosaic.best_view import clip_depth, clipped_polygon
 from .core.mosaic.keyframe import KeyframeResult, corner_shift_px, render_view
 from .core.mosaic.minify import area_factor, area_reduce, finest_stretch
 from .core.mosaic.revisit import footprint_pose, spread_correction
+from .core.mosaic.thinning import PaintThinning
 from .core.mosaic.scratch import scratch
 from .core.registration import Features, Registration, make_registrar
 from .core.registration.pyramid import PyramidRegistrar
@@ -124,6 +126,8 @@ class PipelineResult:
     attitudes: list[CameraAttitude] = field(default_factory=list)
     georef_note: str = ''  # why the offline fallback (the fit to geotags) did not place the mosaic
     pose_check: PoseCheck | None = None  # whether the poses of an unmeasured attitude placed the mosaic
+    frames_thinned: int = 0  # placed frames whose pixels were left to their neighbours' (mosaic.paint_stride)
+    frames_painted_in_part: int = 0  # ... but for the tiles where they reach beyond them
 
     @property
     def main_segment(self) -> Segment | None:
@@ -155,7 +159,10 @@ PASS_TURN_DEG = 45.0
 _STATE = ('records', 'segments', 'fixes', 'imus', 'attitudes', 'georef', 'camera', 'clock', '_geo_canvas', '_active',
           '_last_good', '_orphan', '_channels', '_waiting', '_first_fix_wait_over', '_latest_telemetry_ns',
           '_settling', '_settling_seg', '_settled', '_fused', 'pose_check', '_settling_nis', '_unpainted', '_anchor',
-          '_tracker')
+          '_tracker', '_thin')
+
+#: attributes of _STATE a state of the same version may lack (written before they existed)
+_STATE_NEWER = ('_thin',)
 
 
 class Pipeline:
@@ -201,6 +208,8 @@ class Pipeline:
         # sampling: raw is then that image), frame_H_image (the reduction: painted at seg_H_frame @ it)
         self._unpainted: collections.deque[tuple[Segment, _Held, np.ndarray]] = collections.deque()
         self._anchor = -1  # record index of the last keyframe the mosaic placed: corrections spread back to it
+        self._thin = PaintThinning(self.config.mosaic.paint_stride, self.config.mosaic.paint_shift_px,
+                                   self.config.mosaic.tile_size)
         self.clock = StageClock()  # seconds per stage per input frame (the driver calls clock.end_frame())
 
     # -- input -------------------------------------------------------------------------------
@@ -467,7 +476,7 @@ class Pipeline:
         """Place the frame in ``seg`` at seg_H_frame and paint it: now, on the painter thread, or
         mosaic.revisit_spread_frames frames later. False when the placement is refused (the record says why)."""
         record = held.record
-        if self._painter is None and self.config.mosaic.revisit_spread_frames == 0:
+        if self._painter is None and self.config.mosaic.revisit_spread_frames == 0 and self._thin.stride == 1:
             with self.clock.stage('paint'):
                 try:
                     seg.canvas.check_placement(seg_H_frame, *record.size)
@@ -508,15 +517,34 @@ class Pipeline:
 
     def _paint_pixels(self, seg: Segment, held: _Held, frame_H_image: np.ndarray | None = None) -> None:
         """Paint a placed frame (its raw image, at its record's seg_H_frame @ frame_H_image), on the
-        painter thread when there is one. A paint refused after all (the canvas grew meanwhile)
-        unplaces it, as if never placed."""
+        painter thread when there is one, unless the paint thinning holds it back (core/mosaic/thinning.py:
+        then it is painted only if no later frame of its segment is). A paint refused after all (the
+        canvas grew meanwhile) unplaces it, as if never placed."""
+        if self._thin.stride == 1:
+            self._paint_now(seg, held, frame_H_image)
+            return
+        m, (w, h) = held.record.seg_H_frame, held.record.size
+        u = np.array([[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5], [-0.5, h - 0.5]])
+        corners, _ = project_points(m, u)
+        footprint, _ = project_points(m, clipped_polygon(m, u, clip_depth(m, w, h, self.config.mosaic.max_stretch)))
+        for (s, hd, f_H_i), tiles in self._thin.offer(seg.index, (seg, held, frame_H_image), corners, footprint):
+            self._paint_now(s, hd, f_H_i, tiles)
+
+    def _paint_held_back(self) -> None:
+        """Paint the frames the paint thinning holds back (the last of each segment)."""
+        for (seg, held, frame_H_image), tiles in self._thin.release():
+            self._paint_now(seg, held, frame_H_image, tiles)
+
+    def _paint_now(self, seg: Segment, held: _Held, frame_H_image: np.ndarray | None = None,
+                   tiles: frozenset[tuple[int, int]] | None = None) -> None:
         record, raw = held.record, held.raw
         seg_H_frame = record.seg_H_frame if frame_H_image is None else record.seg_H_frame @ frame_H_image
 
         def paint() -> None:
             with self.clock.stage('paint'):
                 try:
-                    seg.canvas.paint(*self._paint_input(raw, seg_H_frame), finite=raw.dtype == np.uint8)  # from uint8: finite
+                    seg.canvas.paint(*self._paint_input(raw, seg_H_frame), finite=raw.dtype == np.uint8,  # from uint8: finite
+                                     tiles=tiles)
                 except CanvasError as exc:
                     seg.unplace(record.index)
                     record.segment, record.seg_H_frame = -1, None
@@ -649,6 +677,7 @@ class Pipeline:
         self._settle()
         if paint_held:
             self._paint_unpainted()
+            self._paint_held_back()
         self.sync()
         return decided + self._take_settled()
 
@@ -682,7 +711,8 @@ class Pipeline:
         """Process the frames still waiting for telemetry, paint those held for settling, and return everything."""
         self.flush()
         return PipelineResult(self.records, self.segments, self.fixes, self.imus, self.georef, self.attitudes,
-                              pose_check=self.pose_check)
+                              pose_check=self.pose_check, frames_thinned=self._thin.thinned,
+                              frames_painted_in_part=self._thin.in_part)
 
     # -- settling --------------------------------------------------------------------------------
     def _place(self, seg: Segment, held: _Held, seg_H_frame: np.ndarray) -> bool:
@@ -787,10 +817,11 @@ class Pipeline:
             version = state.get('version') if isinstance(state, dict) else type(state).__name__
             msg = f'pipeline state of version {version!r}; this version reads version {STATE_VERSION}.'
             raise ValueError(msg)
-        if missing := [name for name in ('config', *_STATE) if name not in state]:
+        if missing := [name for name in ('config', *_STATE) if name not in state and name not in _STATE_NEWER]:
             msg = f'pipeline state without {missing}.'
             raise ValueError(msg)
         pipe = cls(state['config'], paint_thread=paint_thread)
         for name in _STATE:
-            setattr(pipe, name, state[name])
+            if name in state:  # a state written before _STATE_NEWER's attributes keeps their fresh values
+                setattr(pipe, name, state[name])
         return pipe

@@ -108,6 +108,9 @@ def write_outputs(result: PipelineResult, out: Path, config: PipelineConfig, ext
         'frames_in': len(result.records),
         'frames_registered': int(sum(r['ok'] for r in rows)),
         'frames_painted_any_segment': int(sum(rec.painted for rec in result.records)),
+        # placed, their pixels left to their neighbours' (mosaic.paint_stride, core/mosaic/thinning.py)
+        'frames_thinned': int(getattr(result, 'frames_thinned', 0)),
+        'frames_painted_in_part': int(getattr(result, 'frames_painted_in_part', 0)),
         'segments': segments_report,
         'failure_reasons': dict(failures),
         'registration': registration_report(regs),

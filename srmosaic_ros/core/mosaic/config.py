@@ -32,6 +32,8 @@ class MosaicConfig:
     settle_s: float = 3.0  # a georeferenced segment's first frames are painted once this span of them is placed (0: at once)
     settle_max_frames: int = 30  # ... or once this many are held, whichever comes first
     revisit_spread_frames: int = 30  # frames painted this many frames late, so a revisit correction reaches back over them (revisit.py; 0: at once)
+    paint_stride: int = 3  # a frame within paint_shift_px of the last painted one is painted only every paint_stride-th (thinning.py; 1: every frame)
+    paint_shift_px: float = 16.0  # ... a frame whose footprint corners moved this far (mosaic px) is always painted
     max_width: int = 1280  # frames wider are painted at the coarser ground sampling that brings them to this width (0: their own)
 
     def __post_init__(self) -> None:
@@ -107,6 +109,12 @@ class MosaicConfig:
                 or not 0 <= self.revisit_spread_frames <= 1000:
             msg = (f'mosaic.revisit_spread_frames must be an integer in 0 .. 1000 (0: paint every frame at once), '
                    f'got {self.revisit_spread_frames!r}.')
+            raise ValueError(msg)
+        if isinstance(self.paint_stride, bool) or not isinstance(self.paint_stride, int) or not 1 <= self.paint_stride <= 100:
+            msg = f'mosaic.paint_stride must be an integer in 1 .. 100 (1: paint every frame), got {self.paint_stride!r}.'
+            raise ValueError(msg)
+        if not 0.0 <= self.paint_shift_px <= 1e6:
+            msg = f'mosaic.paint_shift_px must be in 0 .. 1e6 mosaic pixels, got {self.paint_shift_px!r}.'
             raise ValueError(msg)
         if not isinstance(self.spill_dir, str):
             msg = f"mosaic.spill_dir must be a directory path or '' (a temporary directory), got {self.spill_dir!r}."
