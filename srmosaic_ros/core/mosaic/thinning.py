@@ -10,6 +10,9 @@ ground lies between theirs. The frames held back at the end of a segment are pai
 another segment paints, and at the end (:meth:`PaintThinning.release`). Every frame is still
 registered, placed and fused; only its pixels are left to its neighbours'.
 
+The caller decides which frames may be held back at all (Pipeline: near-nadir views only, whose
+neighbours see the ground as they do; an oblique view's parallax and far field make each view count).
+
 Footprints are convex polygons (N, 2) in mosaic pixels (x right, y down), as the canvas paints them
 (its far-field cut included); tile (tx, ty) covers x in [tx T, (tx + 1) T).
 """
@@ -47,19 +50,21 @@ class PaintThinning:
         self.thinned = 0  # frames left wholly unpainted so far (frames held back count until painted)
         self.in_part = 0  # frames held back, then painted on the tiles where they reach beyond their neighbours
 
-    def offer(self, segment: int, item: Any, corners: np.ndarray, footprint: np.ndarray) -> list[tuple[Any, Any]]:
+    def offer(self, segment: int, item: Any, corners: np.ndarray, footprint: np.ndarray, *,
+              force: bool = False) -> list[tuple[Any, Any]]:
         """What to paint now for a frame ``item`` of ``segment`` placed with frame ``corners`` (4, 2)
         and ``footprint`` (N, 2) in mosaic pixels: [(frame, tiles)] in order, tiles None for the
         whole frame or a frozenset of tile keys: the frames held back by other segments, this
         segment's frames held back where they reach beyond their painted neighbours, then ``item``
-        (unless it is held back)."""
+        (unless it is held back; ``force``: never)."""
         out = [(frame, None) for key in [k for k in self._held if k != segment] for frame, _ in self._held.pop(key)]
         self.thinned -= len(out)
         if self.stride == 1:
             return [*out, (item, None)]
         corners = np.asarray(corners, np.float64)
         last = self._last.get(segment)
-        if last is not None and last[2] + 1 < self.stride and float(np.abs(corners - last[0]).max()) < self.shift_px:
+        if not force and last is not None and last[2] + 1 < self.stride \
+                and float(np.abs(corners - last[0]).max()) < self.shift_px:
             self._held.setdefault(segment, []).append((item, footprint))
             self._last[segment] = (last[0], last[1], last[2] + 1)
             self.thinned += 1
