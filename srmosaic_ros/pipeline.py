@@ -162,8 +162,8 @@ _STATE = ('records', 'segments', 'fixes', 'imus', 'attitudes', 'georef', 'camera
           '_tracker', '_thin')
 
 #: A frame is left to its painted neighbours (mosaic.paint_stride) only when the depths of its
-#: corners differ by at most this ratio: a view within about 12 deg of nadir for a 60 deg lens.
-THIN_MAX_DEPTH_RATIO = 1.3
+#: corners differ by at most this ratio: a view within about 7 deg of nadir for a 60 deg lens.
+THIN_MAX_DEPTH_RATIO = 1.15
 
 #: attributes of _STATE a state of the same version may lack (written before they existed)
 _STATE_NEWER = ('_thin',)
@@ -546,7 +546,7 @@ class Pipeline:
             self._paint_now(seg, held, frame_H_image, tiles)
 
     def _paint_now(self, seg: Segment, held: _Held, frame_H_image: np.ndarray | None = None,
-                   tiles: frozenset[tuple[int, int]] | None = None) -> None:
+                   tiles: dict[tuple[int, int], tuple[int, int, int, int]] | None = None) -> None:
         record, raw = held.record, held.raw
         seg_H_frame = record.seg_H_frame if frame_H_image is None else record.seg_H_frame @ frame_H_image
 

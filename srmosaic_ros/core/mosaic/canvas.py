@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Collection, Iterator
+from collections.abc import Collection, Iterator, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import nullcontext
 from dataclasses import dataclass, field
@@ -472,6 +472,18 @@ class TiledCanvas:
         lo, hi = a.min(axis=0), a.max(axis=0)
         return keys, (int(lo[0]), int(lo[1]), int(hi[0]), int(hi[1]))
 
+    @staticmethod
+    def _as_rects(tiles: Mapping[TileKey, tuple[int, int, int, int]]) -> dict[TileKey, tuple[int, int, int, int]]:
+        """{(tx, ty): (x0, y0, x1, y1)} as integers; CanvasError when a rectangle is not 4 integers."""
+        try:
+            out = {(int(k[0]), int(k[1])): tuple(int(v) for v in r) for k, r in tiles.items()}
+            if any(len(r) != 4 for r in out.values()):
+                raise ValueError('a rectangle of other than 4 numbers')
+            return out  # type: ignore[return-value]
+        except (TypeError, ValueError) as exc:
+            msg = f'tiles must map (tx, ty) to (x0, y0, x1, y1) integers: {exc}'
+            raise CanvasError(msg) from exc
+
     def _as_homography(self, mosaic_h_frame: np.ndarray, w: int, h: int) -> np.ndarray:
         """Checked float64 homography with positive projective depth over the frame."""
         m = np.asarray(mosaic_h_frame, dtype=np.float64)
@@ -548,7 +560,7 @@ class TiledCanvas:
         mask: np.ndarray | None = None,
         finite: bool = False,
         scale: np.ndarray | None = None,
-        tiles: Collection[TileKey] | None = None,
+        tiles: Collection[TileKey] | Mapping[TileKey, tuple[int, int, int, int]] | None = None,
     ) -> PaintResult:
         """Warp a frame into the canvas and accumulate it with its feather weight.
 
@@ -567,7 +579,9 @@ class TiledCanvas:
             scale: optional (C,) multipliers of the image's values in [0, 1] (exposure gains);
                 values they take above 1 are clipped to 1.
             tiles: optional tile keys (tx, ty): the frame is painted on these tiles only (a survey
-                that knows where it cannot win, core/survey/paint_plan.py); None: wherever it falls.
+                that knows where it cannot win, core/survey/paint_plan.py); or a mapping of tile key
+                to the mosaic pixels (x0, y0, x1, y1) painted in it (a video frame painted where it
+                sees what its neighbours do not, core/mosaic/thinning.py); None: wherever it falls.
 
         Returns:
             PaintResult: the frame index, the tiles written, the footprint and its bbox.
@@ -588,11 +602,17 @@ class TiledCanvas:
         footprint, _ = project_points(m, np.array([[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5], [-0.5, h - 0.5]]))
         x0, y0, x1, y1 = self._placement(m, w, h)
         t = self._tile_size
+        rects: dict[TileKey, tuple[int, int, int, int]] | None = None
         if tiles is not None:
+            rects = self._as_rects(tiles) if isinstance(tiles, Mapping) else None
             tiles, keys = self._as_tiles(tiles)
             if keys is not None:  # the box shrinks to those tiles: no weight warped where none is painted
                 x0, y0 = max(x0, keys[0] * t), max(y0, keys[1] * t)
                 x1, y1 = min(x1, (keys[2] + 1) * t), min(y1, (keys[3] + 1) * t)
+            if rects:  # ... and to the pixels asked for in them
+                r = np.array(list(rects.values()))
+                x0, y0 = max(x0, int(r[:, 0].min())), max(y0, int(r[:, 1].min()))
+                x1, y1 = min(x1, int(r[:, 2].max())), min(y1, int(r[:, 3].max()))
             if keys is None or x1 <= x0 or y1 <= y0:
                 self._frames += 1
                 return PaintResult(self._frames - 1, (), footprint, (0, 0, 0, 0))
@@ -646,10 +666,16 @@ class TiledCanvas:
                 if tiles is not None and (tx, ty) not in tiles:
                     continue
                 xs, xe = max(gx0, tx * t), min(gx1, (tx + 1) * t)
-                box = (slice(ys - y0, ye - y0), slice(xs - x0, xe - x0))
+                rs, re_ = ys, ye
+                if rects is not None:
+                    rx0, ry0, rx1, ry1 = rects[(tx, ty)]
+                    xs, xe, rs, re_ = max(xs, rx0), min(xe, rx1), max(rs, ry0), min(re_, ry1)
+                    if xs >= xe or rs >= re_:
+                        continue
+                box = (slice(rs - y0, re_ - y0), slice(xs - x0, xe - x0))
                 if not w_w[box].any():
                     continue
-                loc = (slice(ys - ty * t, ye - ty * t), slice(xs - tx * t, xe - tx * t))
+                loc = (slice(rs - ty * t, re_ - ty * t), slice(xs - tx * t, xe - tx * t))
                 jobs.append(((tx, ty), box, loc))
         # Every tile first (loading spilled ones may fail: then nothing is written), then write.
         tiles = [self._store.get(key, create=True) for key, _, _ in jobs]

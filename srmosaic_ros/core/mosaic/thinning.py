@@ -4,9 +4,9 @@ the mosaic's largest share of the work and adds next to nothing to a best-view c
 A placed frame is painted when its segment has none painted yet, when its footprint's corners moved
 at least ``shift_px`` mosaic pixels from those of the last frame painted in its segment, or when
 ``stride - 1`` frames in a row were held back; otherwise it is held back. When the next frame of the
-segment is painted, each frame held back is painted on the tiles where its footprint reaches beyond
-the two painted around it (a gust's sideways jitter at the swath's edge), and on no others: its
-ground lies between theirs. The frames held back at the end of a segment are painted whole when
+segment is painted, each frame held back is painted where its footprint reaches beyond the two
+painted around it (a gust's sideways jitter at the swath's edge: per tile, the box of those pixels
+and MARGIN_PX more), and nowhere else: its ground lies between theirs. The frames held back at the end of a segment are painted whole when
 another segment paints, and at the end (:meth:`PaintThinning.release`). Every frame is still
 registered, placed and fused; only its pixels are left to its neighbours'.
 
@@ -23,7 +23,11 @@ from typing import Any
 import cv2
 import numpy as np
 
-__all__ = ['PaintThinning']
+__all__ = ['MARGIN_PX', 'PaintThinning']
+
+#: a frame painted where it reaches beyond its neighbours is painted this many pixels further
+#: (mosaic pixels): its seam with them is blended, not cut at its own edge
+MARGIN_PX = 4
 
 
 def _inside(points: np.ndarray, polygon: np.ndarray) -> bool:
@@ -54,7 +58,8 @@ class PaintThinning:
               force: bool = False) -> list[tuple[Any, Any]]:
         """What to paint now for a frame ``item`` of ``segment`` placed with frame ``corners`` (4, 2)
         and ``footprint`` (N, 2) in mosaic pixels: [(frame, tiles)] in order, tiles None for the
-        whole frame or a frozenset of tile keys: the frames held back by other segments, this
+        whole frame or {tile key: (x0, y0, x1, y1) mosaic pixels to paint in it}
+        (TiledCanvas.paint's ``tiles``): the frames held back by other segments, this
         segment's frames held back where they reach beyond their painted neighbours, then ``item``
         (unless it is held back; ``force``: never)."""
         out = [(frame, None) for key in [k for k in self._held if k != segment] for frame, _ in self._held.pop(key)]
@@ -78,11 +83,13 @@ class PaintThinning:
         self._last[segment] = (corners, np.asarray(footprint, np.float64), 0)
         return [*out, (item, None)]
 
-    def _beyond(self, footprint: np.ndarray, before: np.ndarray, after: np.ndarray) -> frozenset[tuple[int, int]]:
-        """Tiles where ``footprint`` reaches more than a pixel beyond both ``before`` and ``after``."""
+    def _beyond(self, footprint: np.ndarray, before: np.ndarray, after: np.ndarray) -> dict[tuple[int, int], tuple[int, int, int, int]]:
+        """{tile: (x0, y0, x1, y1)}: where ``footprint`` reaches more than a pixel beyond both
+        ``before`` and ``after``, per tile the box of those pixels widened by MARGIN_PX (the blend
+        across the seam; clipped to the tile)."""
         fp = np.asarray(footprint, np.float64)
         if _inside(fp, before) or _inside(fp, after):
-            return frozenset()
+            return {}
         x0, y0 = np.floor(fp.min(axis=0)).astype(int) - 1
         x1, y1 = np.ceil(fp.max(axis=0)).astype(int) + 2
         shape = (y1 - y0, x1 - x0)
@@ -96,8 +103,20 @@ class PaintThinning:
         covered = cv2.bitwise_or(mask(before), mask(after))
         inner = cv2.erode(mask(fp), np.ones((3, 3), np.uint8))  # its edge pixels: rounding, not ground
         ys, xs = np.nonzero(inner & (covered == 0))
-        t = self.tile_size
-        return frozenset(zip(((xs + x0) // t).tolist(), ((ys + y0) // t).tolist()))
+        if xs.size == 0:
+            return {}
+        t, gx, gy = self.tile_size, xs + x0, ys + y0
+        key = (gy // t) * (1 << 31) + gx // t
+        order = np.argsort(key, kind='stable')
+        key, gx, gy = key[order], gx[order], gy[order]
+        starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+        out = {}
+        for a, lo_x, hi_x, lo_y, hi_y in zip(starts, np.minimum.reduceat(gx, starts), np.maximum.reduceat(gx, starts),
+                                             np.minimum.reduceat(gy, starts), np.maximum.reduceat(gy, starts)):
+            tx, ty = int(gx[a] // t), int(gy[a] // t)
+            out[(tx, ty)] = (max(int(lo_x) - MARGIN_PX, tx * t), max(int(lo_y) - MARGIN_PX, ty * t),
+                             min(int(hi_x) + 1 + MARGIN_PX, (tx + 1) * t), min(int(hi_y) + 1 + MARGIN_PX, (ty + 1) * t))
+        return out
 
     def release(self) -> list[tuple[Any, Any]]:
         """The frames held back, [(frame, None)] to paint whole now: the end of the input."""

@@ -51,6 +51,9 @@ def test_a_held_frame_reaching_beyond_both_neighbours_is_painted_there_only() ->
     cols = {tx for tx, _ in tiles}
     # rows 150 .. 189 only: tiles 4 and 5 down (y 128 .. 191); across its width (x 4 .. 203: tiles 0 .. 6)
     assert rows == {4, 5} and cols == set(range(7))
+    # in each, the box of those pixels (the frame's edge row left out) and a margin of 4
+    assert tiles[(1, 4)] == (32, 147, 64, 160) and tiles[(1, 5)] == (32, 160, 64, 192)
+    assert tiles[(0, 4)][0] == 1 and tiles[(6, 5)] == (192, 160, 208, 192)
     assert thin.thinned == 0
 
 

@@ -108,3 +108,13 @@ def test_canvas_paints_only_the_tiles_given() -> None:
     assert empty.touched_tiles == () and empty.frame_index == 1 and c.frames_painted == 2
     with pytest.raises(CanvasError, match='pairs of integers'):
         c.paint(frames(1)[0], Hk, tiles=[(1, 'a')])
+    # a mapping: the pixels (x0, y0, x1, y1) painted in each tile
+    d = TiledCanvas(3, tile_size=T, blend='multiband')
+    res = d.paint(frames(1)[0], Hk, tiles={(1, 1): (40, 36, 50, 60), (3, 1): (96, 32, 128, 64), (5, 5): (0, 0, 1, 1)})
+    assert set(res.touched_tiles) == {(1, 1), (3, 1)}
+    lab = d.labels((0, 0, 160, 96))
+    want = np.zeros(lab.shape, bool)
+    want[36:60, 40:50] = want[32:64, 96:128] = True
+    assert ((lab == 0) == want).all()
+    with pytest.raises(CanvasError, match='x0, y0, x1, y1'):
+        d.paint(frames(1)[0], Hk, tiles={(1, 1): (1, 2, 3)})
