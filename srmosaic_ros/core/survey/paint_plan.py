@@ -131,15 +131,18 @@ def tiles_to_paint(mosaic_H_frames: list[np.ndarray], sizes: list[tuple[int, int
         hit = (ranked == k).any(axis=2)
         if hit.any():  # dilated by a tile: the seams' blend reaches past the sample grid
             kept[k] = cv2.dilate(hit.view(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    def tile_rect(tx: int, ty: int) -> np.ndarray:
+        """float32 (4, 2) corners of grid tile (tx, ty) (pixel edges at half integers)."""
+        x0, y0 = (lo[0] + tx) * t - 0.5, (lo[1] + ty) * t - 0.5
+        return np.array([[x0, y0], [x0 + t, y0], [x0 + t, y0 + t], [x0, y0 + t]], np.float32)
+
     # tiles each footprint touches (a tile's corners, centre and the quad's vertices tested)
     touches = np.zeros((n, ny, nx), bool)
     for k, (bx0, by0, bx1, by1) in enumerate(boxes):
         poly = quads[k].astype(np.float32)
         for ty in range(by0, by1 + 1):
             for tx in range(bx0, bx1 + 1):
-                x0, y0 = (lo[0] + tx) * t - 0.5, (lo[1] + ty) * t - 0.5
-                rect = np.array([[x0, y0], [x0 + t, y0], [x0 + t, y0 + t], [x0, y0 + t]], np.float32)
-                area, _ = cv2.intersectConvexConvex(poly, rect)
+                area, _ = cv2.intersectConvexConvex(poly, tile_rect(tx, ty))
                 touches[k, ty, tx] = area > 0
     kept &= touches
     # coverage: a touched tile where no kept still covers the footprint's part in it keeps that still
@@ -149,8 +152,7 @@ def tiles_to_paint(mosaic_H_frames: list[np.ndarray], sizes: list[tuple[int, int
             if users.size == 0:
                 continue
             chosen = [k for k in users if kept[k, ty, tx]]
-            x0, y0 = (lo[0] + tx) * t - 0.5, (lo[1] + ty) * t - 0.5
-            rect = np.array([[x0, y0], [x0 + t, y0], [x0 + t, y0 + t], [x0, y0 + t]], np.float32)
+            rect = tile_rect(tx, ty)
             if any(_inside(inv[k], rect.astype(np.float64), *sizes[k], margin_px).all() for k in chosen):
                 continue  # the whole tile inside one kept still
             for k in users:
