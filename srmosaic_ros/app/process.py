@@ -24,7 +24,7 @@ from ..io.bags import TopicConfig, read_flight
 from ..io.metadata import merge_by_time
 from ..io.prefetch import prefetched
 from ..io.mosaic_files import write_counts_png, write_frames_csv, write_json, write_png
-from ..io.outputs import StripPreview, peak_rss_mb, write_canvas
+from ..io.outputs import MOSAIC_TIF_ZLEVEL, StripPreview, output_threads, peak_rss_mb, write_canvas
 from ..errors import InputError, OutputError, SrMosaicError
 from ..io.mosaic_video import MosaicVideoRecorder
 from ..pipeline import Pipeline, PipelineResult
@@ -84,7 +84,7 @@ def write_outputs(result: PipelineResult, out: Path, config: PipelineConfig, ext
                 moving = _write_moving(out, seg.canvas, (x0, y0, x1, y1))
             elif len(seg.frames) >= 2:
                 written[id(seg.canvas)] = f'segments/segment_{seg.index:03d}.png'
-                write_canvas(seg.canvas, None, out / written[id(seg.canvas)])
+                write_canvas(seg.canvas, None, out / written[id(seg.canvas)], threads=output_threads())
         segments_report.append({'index': seg.index, 'frames': len(seg.frames), 'file': written.get(id(seg.canvas), ''),
                                 'georeferenced': seg.georeferenced,
                                 'size_px': [int(x1 - x0), int(y1 - y0)], 'origin_px': [int(x0), int(y0)]})
@@ -235,7 +235,7 @@ def _write_main_mosaic(out: Path, result: PipelineResult, config: PipelineConfig
     if not (main.georeferenced and georef is not None and georef.raster is not None):
         fit = geotag_fit_of_main(result, (x0, y0), config) if config.georef_enabled else None
         write_canvas(canvas, out / 'mosaic.tif' if fit else None, out / 'mosaic.png', fit.raster if fit else None,
-                      preview)
+                     preview, threads=output_threads(), zlevel=MOSAIC_TIF_ZLEVEL)
         write_png(out / 'preview.png', preview.image())
         if fit is None:
             return {}
@@ -246,7 +246,8 @@ def _write_main_mosaic(out: Path, result: PipelineResult, config: PipelineConfig
 
     poses = georef.smoothed_poses()
     raster, anchoring = anchored_raster(result, poses, (x0, y0))
-    write_canvas(canvas, out / 'mosaic.tif', out / 'mosaic.png', raster, preview)
+    write_canvas(canvas, out / 'mosaic.tif', out / 'mosaic.png', raster, preview, threads=output_threads(),
+                 zlevel=MOSAIC_TIF_ZLEVEL)
     write_png(out / 'preview.png', preview.image())
     write_kml_for_raster(out / 'mosaic.kml', 'mosaic.png', raster, x1 - x0, y1 - y0)
     write_poses_csv(out / 'poses.csv', poses)

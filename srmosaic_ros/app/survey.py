@@ -32,7 +32,6 @@ from __future__ import annotations
 import collections
 import logging
 import math
-import os
 import re
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -60,18 +59,15 @@ from ..core.survey.paint_plan import tiles_to_paint
 from ..errors import InputError
 from ..io.image_folder import ImageFolderReader
 from ..io.metadata import RECORDED_ATTITUDE_SIGMA_DEG
+from ..io.outputs import MOSAIC_TIF_ZLEVEL, output_threads
 from ..malloc_tuning import trim_heap
 
-__all__ = ['SurveyStill', 'output_threads', 'process_survey', 'read_reduced', 'reduction_for', 'still_gains',
+__all__ = ['SurveyStill', 'process_survey', 'read_reduced', 'reduction_for', 'still_gains',
            'survey_stills', 'tiles_in_memory', 'use_global_alignment']
 
 _LOG = logging.getLogger(__name__)
 _REDUCED = {1: cv2.IMREAD_COLOR, 2: cv2.IMREAD_REDUCED_COLOR_2, 4: cv2.IMREAD_REDUCED_COLOR_4,
             8: cv2.IMREAD_REDUCED_COLOR_8}
-#: Most threads that write the mosaic files (io/outputs.write_canvas).
-OUTPUT_THREADS_MAX = 4
-#: DEFLATE level of mosaic.tif (GDAL's default, 6, makes the 37-still 12 MP survey's 9 % smaller: 69.0 vs 75.8 MB).
-MOSAIC_TIF_ZLEVEL = 3
 #: A pair by footprint that the torch registrar fails gets the OpenCV registrar's second opinion
 #: when one of its stills has fewer registered pairs than this.
 SECOND_OPINION_BELOW_PAIRS = 3
@@ -248,15 +244,6 @@ def _compact(features: Any, max_features: int) -> Any:
                                                  octave=c.octave[:0].clone(), response=c.response[:0].clone(),
                                                  tall=c.tall[:, :, :0].clone(), count=None)
     return features
-
-
-def output_threads() -> int:
-    """Threads writing the mosaic files (the CPUs this process may use, at most OUTPUT_THREADS_MAX)."""
-    try:
-        cpus = len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):
-        cpus = os.cpu_count() or 1
-    return max(1, min(cpus, OUTPUT_THREADS_MAX))
 
 
 def _footprint_px(corners_local: np.ndarray, raster_H_local: np.ndarray) -> float:

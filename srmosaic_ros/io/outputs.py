@@ -3,6 +3,7 @@ downscaled on the way, and the process's peak memory for the report."""
 from __future__ import annotations
 
 import math
+import os
 import resource
 from collections.abc import Iterator
 from pathlib import Path
@@ -14,7 +15,22 @@ if TYPE_CHECKING:
     from ..core.georef import GeoRaster
     from ..core.mosaic import TiledCanvas
 
-__all__ = ['STRIP_ROWS', 'StripPreview', 'peak_rss_mb', 'preview_image', 'write_canvas']
+__all__ = ['MOSAIC_TIF_ZLEVEL', 'OUTPUT_THREADS_MAX', 'STRIP_ROWS', 'StripPreview', 'output_threads', 'peak_rss_mb',
+           'preview_image', 'write_canvas']
+
+#: Most threads that write the mosaic files (write_canvas).
+OUTPUT_THREADS_MAX = 4
+#: DEFLATE level of mosaic.tif (GDAL's default, 6, makes the 37-still 12 MP survey's 9 % smaller: 69.0 vs 75.8 MB).
+MOSAIC_TIF_ZLEVEL = 3
+
+
+def output_threads() -> int:
+    """Threads writing the mosaic files (the CPUs this process may use, at most OUTPUT_THREADS_MAX)."""
+    try:
+        cpus = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        cpus = os.cpu_count() or 1
+    return max(1, min(cpus, OUTPUT_THREADS_MAX))
 
 
 def peak_rss_mb() -> float:

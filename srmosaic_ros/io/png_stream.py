@@ -17,15 +17,18 @@ top to bottom. The file is written under a temporary name and renamed into place
 from __future__ import annotations
 
 import collections
+import errno
 import os
 import struct
 import zlib
 from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import ExitStack
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ..errors import OutputError
 from .mosaic_files import atomic_path
 
 __all__ = ['PNG_COLOUR_TYPES', 'StreamingPngWriter']
@@ -68,6 +71,7 @@ class StreamingPngWriter:
             msg = f'a PNG of {width}x{height} px with {channels} channels cannot be written.'
             raise ValueError(msg)
         self.width, self.height, self.channels, self.level = int(width), int(height), int(channels), int(level)
+        self._name = Path(path).name
         self._stack = ExitStack()
         self._tmp = self._stack.enter_context(atomic_path(path))
         self._file = self._stack.enter_context(open(self._tmp, 'wb'))
@@ -78,8 +82,7 @@ class StreamingPngWriter:
         self._adler = 1
         self.rows_written = 0
         ihdr = struct.pack('>IIBBBBB', self.width, self.height, 8, PNG_COLOUR_TYPES[self.channels], 0, 0, 0)
-        self._file.write(_SIGNATURE + _chunk(b'IHDR', ihdr))
-        self._file.write(_chunk(b'IDAT', b'\x78\x01'))  # the zlib header (deflate, 32 KiB window)
+        self._put(_SIGNATURE + _chunk(b'IHDR', ihdr) + _chunk(b'IDAT', b'\x78\x01'))  # the zlib header (deflate, 32 KiB window)
 
     def __enter__(self) -> StreamingPngWriter:
         return self
@@ -127,7 +130,22 @@ class StreamingPngWriter:
             item = self._pending.popleft()
             data = item if isinstance(item, bytes) else item.result()
             if data:
-                self._file.write(_chunk(b'IDAT', data))
+                self._put(_chunk(b'IDAT', data))
+
+    def _put(self, data: bytes | None) -> None:
+        """Write ``data`` to the file (None: close it, flushing its buffer); a full disk or a file size
+        limit is an OutputError naming the file."""
+        try:
+            if data is None:
+                self._file.close()
+            else:
+                self._file.write(data)
+        except OSError as exc:
+            if exc.errno not in (errno.ENOSPC, errno.EFBIG, errno.EDQUOT):
+                raise
+            msg = (f'{self._name} could not be written ({exc.strerror}): the disk is full or a file size limit was '
+                   'reached; free space, or give --out elsewhere.')
+            raise OutputError(msg) from None
 
     def close(self) -> None:
         """Finish the stream and move the file into place; every row must have been written."""
@@ -137,11 +155,14 @@ class StreamingPngWriter:
             self._abort()
             msg = f'the PNG got {self.rows_written} of its {self.height} rows; it is not written.'
             raise ValueError(msg)
-        self._drain(0)
-        tail = zlib.compressobj(self.level, zlib.DEFLATED, -15, 9).flush(zlib.Z_FINISH)  # an empty final block
-        self._file.write(_chunk(b'IDAT', tail + struct.pack('>I', self._adler)))
-        self._file.write(_chunk(b'IEND', b''))
-        self._file.close()
+        try:
+            self._drain(0)
+            tail = zlib.compressobj(self.level, zlib.DEFLATED, -15, 9).flush(zlib.Z_FINISH)  # an empty final block
+            self._put(_chunk(b'IDAT', tail + struct.pack('>I', self._adler)) + _chunk(b'IEND', b''))
+            self._put(None)
+        except BaseException:
+            self._abort()
+            raise
         self._stack.close()  # the pool, then the rename
 
     def _abort(self) -> None:
@@ -150,7 +171,10 @@ class StreamingPngWriter:
             if isinstance(item, Future):
                 item.cancel()
         self._pending.clear()
-        self._file.close()
+        try:
+            self._file.close()
+        except OSError:  # its buffer could not be flushed: the file is dropped all the same
+            pass
         try:
             self._stack.__exit__(RuntimeError, RuntimeError('aborted'), None)  # atomic_path: no rename
         except RuntimeError:

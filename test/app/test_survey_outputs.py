@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from srmosaic_ros.app.survey import TILE_MEMORY_BUDGET_BYTES, TILES_PER_FOOTPRINT, output_threads, tiles_in_memory
+from srmosaic_ros.app.survey import TILE_MEMORY_BUDGET_BYTES, TILES_PER_FOOTPRINT, tiles_in_memory
+from srmosaic_ros.io.outputs import output_threads
 from srmosaic_ros.core.mosaic.tile_store import TileLayout
 from srmosaic_ros.io.geotiff import _to_u8
 

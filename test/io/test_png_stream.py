@@ -81,3 +81,33 @@ def test_bad_rows_are_refused(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match='1 to 4 channels'):
         StreamingPngWriter(tmp_path / 'x.png', 8, 4, 5)
     assert sorted(p.name for p in tmp_path.iterdir()) == ['m.png']
+
+
+@pytest.mark.parametrize('limit', [20_000, 200_000])
+def test_a_full_disk_is_an_output_error_naming_the_file_and_leaves_none(limit: int, tmp_path: Path) -> None:
+    """A file size limit (as a full disk: EFBIG) met early or late in the stream (the 360 kB of
+    noise do not compress) is an OutputError that names the file and says what to do; no file and
+    no temporary file is left."""
+    import subprocess
+    import sys
+
+    script = f'''
+import resource, signal
+import numpy as np
+from srmosaic_ros.errors import OutputError
+from srmosaic_ros.io.png_stream import StreamingPngWriter
+img = (np.random.default_rng(0).random((400, 300, 3)) * 255).astype(np.uint8)
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+resource.setrlimit(resource.RLIMIT_FSIZE, ({limit}, {limit}))
+try:
+    with StreamingPngWriter({str(tmp_path / 'm.png')!r}, 300, 400, 3, threads=2) as png:
+        for r in range(0, 400, 50):
+            png.write(img[r:r + 50])
+except OutputError as exc:
+    print('OutputError:', exc)
+'''
+    run = subprocess.run([sys.executable, '-c', script], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.startswith('OutputError: m.png could not be written (File too large)'), run.stdout
+    assert 'free space' in run.stdout
+    assert list(tmp_path.iterdir()) == []

@@ -102,20 +102,22 @@ class PaintThinning:
 
         covered = cv2.bitwise_or(mask(before), mask(after))
         inner = cv2.erode(mask(fp), np.ones((3, 3), np.uint8))  # its edge pixels: rounding, not ground
-        ys, xs = np.nonzero(inner & (covered == 0))
-        if xs.size == 0:
+        beyond = cv2.subtract(inner, covered)  # 1 where it sees ground neither neighbour sees
+        if not cv2.countNonZero(beyond):
             return {}
-        t, gx, gy = self.tile_size, xs + x0, ys + y0
-        key = (gy // t) * (1 << 31) + gx // t
-        order = np.argsort(key, kind='stable')
-        key, gx, gy = key[order], gx[order], gy[order]
-        starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
-        out = {}
-        for a, lo_x, hi_x, lo_y, hi_y in zip(starts, np.minimum.reduceat(gx, starts), np.maximum.reduceat(gx, starts),
-                                             np.minimum.reduceat(gy, starts), np.maximum.reduceat(gy, starts)):
-            tx, ty = int(gx[a] // t), int(gy[a] // t)
-            out[(tx, ty)] = (max(int(lo_x) - MARGIN_PX, tx * t), max(int(lo_y) - MARGIN_PX, ty * t),
-                             min(int(hi_x) + 1 + MARGIN_PX, (tx + 1) * t), min(int(hi_y) + 1 + MARGIN_PX, (ty + 1) * t))
+        # Per tile the box of those pixels: cv2.boundingRect of the tile's part of the mask (a C pass
+        # over the few tiles the footprint spans, not a Python pass over its pixels).
+        t, out = self.tile_size, {}
+        for ty in range(y0 // t, (y1 - 1) // t + 1):
+            for tx in range(x0 // t, (x1 - 1) // t + 1):
+                ax, ay = max(tx * t, x0), max(ty * t, y0)
+                part = beyond[ay - y0:min((ty + 1) * t, y1) - y0, ax - x0:min((tx + 1) * t, x1) - x0]
+                bx, by, bw, bh = cv2.boundingRect(part)
+                if bw == 0:
+                    continue
+                lo_x, lo_y = ax + bx, ay + by
+                out[(tx, ty)] = (max(lo_x - MARGIN_PX, tx * t), max(lo_y - MARGIN_PX, ty * t),
+                                 min(lo_x + bw + MARGIN_PX, (tx + 1) * t), min(lo_y + bh + MARGIN_PX, (ty + 1) * t))
         return out
 
     def release(self) -> list[tuple[Any, Any]]:
