@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ['apply_homography', 'corner_shift_px', 'project_points', 'translation']
+__all__ = ['apply_homography', 'corner_shift_px', 'homography_power', 'project_points', 'translation']
 
 
 def project_points(H: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -33,3 +33,64 @@ def corner_shift_px(a: np.ndarray, b: np.ndarray, width: int, height: int) -> fl
 def translation(dx: float, dy: float) -> np.ndarray:
     """(3, 3) homography of a shift by (dx, dy) px."""
     return np.array([[1.0, 0.0, dx], [0.0, 1.0, dy], [0.0, 0.0, 1.0]])
+
+
+def homography_power(H: np.ndarray, r: float) -> np.ndarray | None:
+    """H**r (3, 3), scaled to [2, 2] = 1: the motion H continued at its own rate over r times its
+    interval (H = expm(A) up to scale, H**r = expm(r A); r = 2 is H @ H). None when H has no real
+    logarithm (det <= 0: a reflection; a half turn)."""
+    H = np.asarray(H, dtype=np.float64)
+    det = float(np.linalg.det(H))
+    if not np.isfinite(det) or det <= 0.0:
+        return None
+    M = H / np.cbrt(det)  # det 1: the scale H is defined up to is left out of the log
+    # In units where the shift is at most 1/8 (a similarity: (S M S^-1)**r = S M**r S^-1), a video
+    # pair's motion is close to the identity and the log and exp series converge in a few terms
+    # (scipy's logm takes about a millisecond of Python for a 3 x 3).
+    s = max(1.0, 8.0 * float(np.abs(M[:2, 2]).max()))
+    M = M.copy()
+    M[:2, 2] /= s
+    M[2, :2] *= s
+    log = _log_near_identity(M)
+    if log is None:
+        from scipy.linalg import logm
+
+        log = logm(M)
+        if np.iscomplexobj(log):
+            if float(np.abs(log.imag).max()) > 1e-9:
+                return None
+            log = log.real
+    out = _exp(float(r) * log)
+    out[:2, 2] *= s
+    out[2, :2] /= s
+    return out / out[2, 2] if np.all(np.isfinite(out)) and abs(out[2, 2]) > 1e-12 else None
+
+
+def _log_near_identity(M: np.ndarray) -> np.ndarray | None:
+    """log(M) by its series sum (-1)^(k+1) X^k / k, X = M - I, when |X| < 0.5 (else None)."""
+    X = M - np.eye(3)
+    if float(np.linalg.norm(X)) >= 0.5:
+        return None
+    out, power = X.copy(), X
+    for k in range(2, 80):
+        power = power @ X
+        term = power / k
+        out = out - term if k % 2 == 0 else out + term
+        if float(np.abs(term).max()) < 1e-17:
+            break
+    return out
+
+
+def _exp(L: np.ndarray) -> np.ndarray:
+    """expm(L) by its Taylor series when |L| < 1, else scipy's."""
+    if float(np.linalg.norm(L)) >= 1.0:
+        from scipy.linalg import expm
+
+        return expm(L)
+    out, term = np.eye(3) + L, L
+    for k in range(2, 40):
+        term = term @ L / k
+        out = out + term
+        if float(np.abs(term).max()) < 1e-17:
+            break
+    return out

@@ -10,8 +10,10 @@ registered by features. Every ``frames``-th pair is registered by features anywa
 slowly growing error cannot go on unseen and the reference follows the scene.
 
 A prediction is made only for the frame right after the last one placed, when the pair before was
-also consecutive and the two frame intervals differ by at most TRACK_MAX_DT_RATIO (a dropped frame
-doubles the motion).
+also consecutive and the two frame intervals differ by at most TRACK_MAX_DT_RATIO: the pair before's
+motion continued over the new interval (prev_H_cur ** (dt / dt_before): a dropped frame doubles the
+motion). A live node that drops frames from its queue sees irregular intervals; without the scaling
+nearly every pair would go to features, which is slower, which drops more frames.
 """
 from __future__ import annotations
 
@@ -19,14 +21,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..homography import homography_power
 from .registrar import Registration
 
-__all__ = ['TRACK_MAX_DT_RATIO', 'TRACK_RMS_FACTOR', 'MotionTracker']
+__all__ = ['TRACK_MAX_DT_RATIO', 'TRACK_RMS_FACTOR', 'TRACK_SAME_DT', 'MotionTracker']
 
 #: a tracked pair may leave this many times the residual RMS of the last pair registered by features
 TRACK_RMS_FACTOR = 1.5
 #: frame intervals of the predicting pair and the tracked one may differ by this factor at most
-TRACK_MAX_DT_RATIO = 1.5
+TRACK_MAX_DT_RATIO = 4.0
+#: intervals within this fraction of each other are the same (stamps rounded to ns or to the
+#: stream's time base: 33333333 and 33333334 ns at 30 fps); the motion is then taken as it is
+TRACK_SAME_DT = 0.01
 
 
 @dataclass
@@ -54,7 +60,8 @@ class MotionTracker:
         dt_before, dt = m_stamp - m_prev_stamp, stamp_ns - prev_stamp_ns
         if dt_before <= 0 or dt <= 0 or not 1.0 / TRACK_MAX_DT_RATIO <= dt / dt_before <= TRACK_MAX_DT_RATIO:
             return None
-        return prev_H_cur
+        ratio = dt / dt_before
+        return prev_H_cur if abs(ratio - 1.0) <= TRACK_SAME_DT else homography_power(prev_H_cur, ratio)
 
     def max_rms(self) -> float:
         """The largest photometric RMS a tracked pair may leave."""

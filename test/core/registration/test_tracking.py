@@ -97,7 +97,11 @@ def test_tracker_policy():
     np.testing.assert_array_equal(t.prediction(1, 40 * MS, 2, 80 * MS), translation(3.0, 0.0))
     assert t.max_rms() == pytest.approx(TRACK_RMS_FACTOR * 0.01)
     assert t.prediction(1, 40 * MS, 3, 120 * MS) is None       # not the next frame
-    assert t.prediction(1, 40 * MS, 2, 120 * MS) is None       # twice the interval (a dropped frame)
+    # twice the interval (a dropped frame): the motion continued over it
+    np.testing.assert_allclose(t.prediction(1, 40 * MS, 2, 120 * MS), translation(6.0, 0.0), atol=1e-9)
+    np.testing.assert_allclose(t.prediction(1, 40 * MS, 2, 60 * MS), translation(1.5, 0.0), atol=1e-9)  # half
+    assert t.prediction(1, 40 * MS, 2, 40 * MS + 4 * 40 * MS + 1) is None  # more than TRACK_MAX_DT_RATIO times
+    assert t.prediction(1, 40 * MS, 2, 80 * MS + 1) is t.motion[3]  # a rounding of the stamps: the motion as it is
     for k in (2, 3, 4):  # frames - 1 pairs tracked, then one by features
         assert t.prediction(k - 1, (k - 1) * 40 * MS, k, k * 40 * MS) is not None
         t.placed(_reg(True), k - 1, (k - 1) * 40 * MS, k, k * 40 * MS)
@@ -152,3 +156,33 @@ def test_report_medians_over_feature_pairs_and_counts():
     assert r['median_inliers'] == 90.0 and r['median_rms_px'] == pytest.approx(0.5)
     assert r['tracked'] == 2 and r['track_refused'] == 1 and r['median_ms'] == pytest.approx(15.0)
     assert registration_report([tracked])['median_rms_px'] is None
+
+
+def test_homography_power_continues_a_motion():
+    from scipy.linalg import expm
+
+    from srmosaic_ros.core.homography import homography_power
+    A = np.array([[2e-3, 1e-2, 12.0], [-9e-3, -1e-3, -4.0], [2e-6, -1e-6, 0.0]])  # a frame interval's motion
+    for r in (0.5, 1.0, 2.0, 3.7):
+        want = expm(r * A)
+        np.testing.assert_allclose(homography_power(7.0 * expm(A), r), want / want[2, 2], rtol=0, atol=1e-9)
+    assert homography_power(np.diag([-1.0, 1.0, 1.0]), 2.0) is None  # a reflection has no real logarithm
+    assert homography_power(np.zeros((3, 3)), 2.0) is None
+
+
+def test_pipeline_tracks_across_irregular_drops():
+    """A live node drops frames from its queue when it falls behind: the intervals between the frames
+    it processes vary (40, 80, 120 ms...). The motion is continued over each interval, so such pairs
+    are tracked (before: every pair after an interval change went to features) and placed as well as
+    features place them."""
+    keep = [0, 1, 2, 4, 5, 8, 9, 11, 13, 14, 17, 18, 20, 21, 23, 26, 27, 29]  # stream frames the node took
+    offsets = [(100 + 4 * i + 0.03 * i * i, 120 + 1.5 * i) for i in range(30)]
+    frames = [f for i, f in enumerate(_flight(offsets)) if i in keep]
+    kept = [offsets[i] for i in keep]
+    tracked, features = _run(frames, 10), _run(frames, 0)
+    regs = [r.registration for r in tracked.records[1:]]
+    assert sum(bool(r.extras.get('tracked')) for r in regs) >= 10
+    for a, b, o in zip(tracked.records, features.records, kept):
+        truth = translation(o[0] - kept[0][0], o[1] - kept[0][1])
+        assert a.painted and corner_error_px(a.seg_H_frame, truth, W, H) < 0.3
+        assert corner_error_px(a.seg_H_frame, b.seg_H_frame, W, H) < 0.1
