@@ -6,7 +6,10 @@ Every message says what was wrong and what to try. Offline commands turn any
 """
 from __future__ import annotations
 
+import errno
+
 __all__ = [
+    'FULL_DISK_ERRNOS',
     'SrMosaicError',
     'ConfigError',
     'MessageError',
@@ -17,6 +20,10 @@ __all__ = [
     'RegistrationError',
     'SimulationError',
 ]
+
+
+#: OSError numbers of a write that found no room: a full disk, a file size limit, a quota.
+FULL_DISK_ERRNOS = (errno.ENOSPC, errno.EFBIG, errno.EDQUOT)
 
 
 class SrMosaicError(Exception):

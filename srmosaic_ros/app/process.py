@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import collections
-import errno
 import logging
 import math
 import re
@@ -25,7 +24,7 @@ from ..io.metadata import merge_by_time
 from ..io.prefetch import prefetched
 from ..io.mosaic_files import write_counts_png, write_frames_csv, write_json, write_png
 from ..io.outputs import MOSAIC_TIF_ZLEVEL, StripPreview, output_threads, peak_rss_mb, write_canvas
-from ..errors import InputError, OutputError, SrMosaicError
+from ..errors import FULL_DISK_ERRNOS, InputError, OutputError, SrMosaicError
 from ..io.mosaic_video import MosaicVideoRecorder
 from ..pipeline import Pipeline, PipelineResult
 from ..core.device import cores_left_for_torch
@@ -318,7 +317,7 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
                               mosaic_video=mosaic_video, checkpoint_every=checkpoint_every, resume=resume,
                               sr_factor=sr_factor, progress=progress, overlap=overlap, deinterlace=deinterlace)
         except OSError as exc:
-            if exc.errno not in (errno.ENOSPC, errno.EFBIG, errno.EDQUOT):
+            if exc.errno not in FULL_DISK_ERRNOS:
                 raise
             msg = (f'{out}: an output could not be written ({exc.strerror}); free space, or give --out elsewhere '
                    '(the earlier run there is untouched).')

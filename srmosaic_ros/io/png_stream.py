@@ -17,7 +17,6 @@ top to bottom. The file is written under a temporary name and renamed into place
 from __future__ import annotations
 
 import collections
-import errno
 import os
 import struct
 import zlib
@@ -28,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import OutputError
+from ..errors import FULL_DISK_ERRNOS, OutputError
 from .mosaic_files import atomic_path
 
 __all__ = ['PNG_COLOUR_TYPES', 'StreamingPngWriter']
@@ -141,7 +140,7 @@ class StreamingPngWriter:
             else:
                 self._file.write(data)
         except OSError as exc:
-            if exc.errno not in (errno.ENOSPC, errno.EFBIG, errno.EDQUOT):
+            if exc.errno not in FULL_DISK_ERRNOS:
                 raise
             msg = (f'{self._name} could not be written ({exc.strerror}): the disk is full or a file size limit was '
                    'reached; free space, or give --out elsewhere.')
