@@ -9,7 +9,9 @@ georeferences the mosaic (poses, homography updates, drift control) as in a real
 SYNC_HOLD_FRAMES newer frames before processing, which adds that many frame periods of latency),
 and listens to /srmosaic/registration (one message per processed frame), /srmosaic/pose and
 /srmosaic/sr_tile. Prints, per layout: frames offered / processed / dropped, processed frames per
-second, latency from image publish to the registration result (median, p95), poses and SR tiles,
+second, latency from image publish to the frame's fused pose on /srmosaic/pose (registered and
+placed: what a live consumer gets first) and to its registration result (published when the frame is
+painted, mosaic.revisit_spread_frames frames later by design), median and p95, poses and SR tiles,
 and the bytes per second of every output topic and of the camera images (what a link between an
 onboard mosaic node and a ground station would carry; README, "Across machines").
 
@@ -19,6 +21,7 @@ Layouts (`--graph`, repeatable; default all three):
   split     mosaic | georef (live.georef_standalone) | sr, three processes (launch description)
 
     .venv/bin/python bench/live.py [--fps 25] [--seconds 20] [--graph split] [--compressed] [--width 1280 --height 720]
+        [--params-file params/live_hd.yaml] [--flight-cache /tmp/flight.pkl]
 
 The mosaic node's own diagnostics are printed too: frames it received (the rest were lost by
 best-effort DDS before reaching it), frames its bounded queue dropped, and its median processing
@@ -60,9 +63,12 @@ def _message_type(name: str) -> type:
     return getattr(importlib.import_module(f'{package}.msg'), cls)
 
 
-def graph_command(layout: str, workdir: Path) -> list[str]:
+def graph_command(layout: str, workdir: Path, params_file: Path | None = None) -> list[str]:
     base = [sys.executable, '-m', 'srmosaic_ros.cli']
-    ros = ['--ros-args', '-p', f'live.preview_period_s:={float(os.environ.get("BENCH_PREVIEW_PERIOD_S", "1.0"))}']
+    ros = ['--ros-args']
+    if params_file is not None:  # before the -p below, which override it (rcl: the last one wins)
+        ros += ['--params-file', str(params_file)]
+    ros += ['-p', f'live.preview_period_s:={float(os.environ.get("BENCH_PREVIEW_PERIOD_S", "1.0"))}']
     for assignment in os.environ.get('BENCH_ROS_PARAMS', '').split():   # e.g. "live.queue_size:=4"
         ros += ['-p', assignment]
     if layout == 'mosaic':
@@ -84,11 +90,13 @@ def run_layout(layout: str, args: argparse.Namespace, flight, domain: int) -> di
     from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, NavSatFix
     from std_msgs.msg import Float64MultiArray
 
+    from srmosaic_ros.nodes.mosaic_node import IDLE_PAINT_S
+
     from msg_adapters import fix_to_navsat, intrinsics_to_camera_info, numpy_to_compressed, numpy_to_image, sample_to_imu
 
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
     workdir = Path(tempfile.mkdtemp(prefix='srmosaic_bench_live_'))
-    graph = subprocess.Popen(graph_command(layout, workdir), env=env, stdout=subprocess.DEVNULL,
+    graph = subprocess.Popen(graph_command(layout, workdir, args.params_file), env=env, stdout=subprocess.DEVNULL,
                              stderr=subprocess.DEVNULL)
     os.environ.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
     context = rclpy.Context()
@@ -100,6 +108,7 @@ def run_layout(layout: str, args: argparse.Namespace, flight, domain: int) -> di
     pub_imu = node.create_publisher(Imu, '/imu/data', qos_profile_sensor_data)
     pub_info = node.create_publisher(CameraInfo, '/camera/camera_info', qos_profile_sensor_data)
     latencies: list[float] = []
+    pose_latencies: dict[int, float] = {}  # frame stamp -> ms from publish to its first fused pose
     done_at: list[float] = []
     counts = {'poses': 0, 'tiles': 0}
 
@@ -126,8 +135,12 @@ def run_layout(layout: str, args: argparse.Namespace, flight, domain: int) -> di
                         counts[kv.key] = kv.value
 
     node.create_subscription(DiagnosticArray, '/srmosaic/diagnostics', on_diag, 100)
-    node.create_subscription(PoseWithCovarianceStamped, '/srmosaic/pose',
-                             lambda _m: counts.__setitem__('poses', counts['poses'] + 1), 1000)
+    def on_pose(msg: PoseWithCovarianceStamped) -> None:
+        counts['poses'] += 1
+        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        pose_latencies.setdefault(stamp_ns, (time.time_ns() - stamp_ns) * 1e-6)
+
+    node.create_subscription(PoseWithCovarianceStamped, '/srmosaic/pose', on_pose, 1000)
     node.create_subscription(Image, '/srmosaic/sr_tile', lambda _m: counts.__setitem__('tiles', counts['tiles'] + 1),
                              100)
     # What would cross an onboard -> ground link: the serialized bytes of every output topic
@@ -195,7 +208,9 @@ def run_layout(layout: str, args: argparse.Namespace, flight, domain: int) -> di
         offered += 1
         time.sleep(max(0.0, t0_wall + offered * period - time.monotonic()))
     published_s = time.monotonic() - t0_wall
-    time.sleep(3.0)
+    # The last mosaic.revisit_spread_frames frames are painted (and their registration published) once
+    # the input has paused IDLE_PAINT_S: wait for them, they are processed frames.
+    time.sleep(IDLE_PAINT_S + 3.0)
     stop = True
     spinner.join()
     graph.send_signal(signal.SIGINT)
@@ -210,11 +225,33 @@ def run_layout(layout: str, args: argparse.Namespace, flight, domain: int) -> di
     link_rates[topic + ' (in)'] = (offered, image_bytes)
     span = (done_at[-1] - done_at[0]) if len(done_at) > 1 else float('nan')
     lat = np.array(latencies) if latencies else np.array([np.nan])
+    pose_lat = np.array(list(pose_latencies.values())) if pose_latencies else np.array([np.nan])
     return {'layout': layout, 'offered': offered, 'processed': processed,
+            'pose_lat_median_ms': float(np.median(pose_lat)), 'pose_lat_p95_ms': float(np.percentile(pose_lat, 95)),
             'fps': (processed - 1) / span if processed > 1 else float('nan'),
             'lat_median_ms': float(np.median(lat)), 'lat_p95_ms': float(np.percentile(lat, 95)), 'link': link_rates,
             'seconds': published_s,
             **counts}
+
+
+def rendered_flight(config, cache: Path | None):
+    """The simulated flight of ``config``; with ``cache``, read from that pickle when it holds this
+    config's flight, else rendered and written there."""
+    import pickle
+
+    from srmosaic_ros.sim import simulate
+
+    if cache is not None and cache.is_file():
+        with cache.open('rb') as fh:
+            cached_config, flight = pickle.load(fh)  # the bench's own file
+        if cached_config == config:
+            return flight
+        print(f'{cache} holds another flight: rendering this one', flush=True)
+    flight = simulate(config)
+    if cache is not None:
+        with cache.open('wb') as fh:
+            pickle.dump((config, flight), fh, protocol=pickle.HIGHEST_PROTOCOL)
+    return flight
 
 
 def _stamped(cdr: bytes, stamp_ns: int) -> bytes:
@@ -241,6 +278,12 @@ def main() -> int:
     ap.add_argument('--compressed', action='store_true', help='publish JPEG CompressedImage instead of raw')
     ap.add_argument('--graph', action='append', choices=LAYOUTS, help='layouts to run (default: all)')
     ap.add_argument('--telemetry', choices=('sim', 'none'), default='sim')
+    ap.add_argument('--params-file', type=Path, default=None,
+                    help='a parameter file for every node (e.g. params/live_hd.yaml), as `--ros-args --params-file`')
+    ap.add_argument('--flight-cache', type=Path, default=None,
+                    help='pickle of the rendered flight: written when missing, read when present (a 60 s '
+                         '720p30 flight: 5 GB on disk, 4 minutes of rendering saved per run); it must have been '
+                         'rendered with the same flight options')
     ap.add_argument('--no-fastdds-profile', action='store_true',
                     help='leave Fast DDS at its defaults (512 KiB shared-memory segments: raw frames go over '
                          'fragmented UDP and about half are lost at 25 fps) instead of params/fastdds_large_images.xml')
@@ -251,8 +294,10 @@ def main() -> int:
         os.environ.setdefault('FASTRTPS_DEFAULT_PROFILES_FILE', profile)
         os.environ.setdefault('FASTDDS_DEFAULT_PROFILES_FILE', profile)
 
-    from srmosaic_ros.sim import SimConfig, simulate
+    from srmosaic_ros.sim import SimConfig
 
+    if args.params_file is not None and not args.params_file.is_file():
+        ap.error(f'--params-file {args.params_file}: no such file')
     if args.frames <= 0:
         args.frames = int(math.ceil(args.fps * args.seconds)) + 1
     print(f'rendering {args.frames} frames ...', flush=True)  # (the trajectory is printed below)
@@ -260,8 +305,8 @@ def main() -> int:
     if trajectory == 'auto':
         trajectory = 'line' if args.speed * args.frames / args.fps <= 250.0 else 'lawnmower'
     shape = {'trajectory': 'lawnmower', 'legs': 4, 'leg_length_m': 150.0, 'leg_spacing_m': 50.0} if trajectory == 'lawnmower' else {}
-    flight = simulate(SimConfig(frames=args.frames, rate_hz=args.fps, speed_m_s=args.speed, width=args.width,
-                                height=args.height, **shape))
+    flight = rendered_flight(SimConfig(frames=args.frames, rate_hz=args.fps, speed_m_s=args.speed, width=args.width,
+                                       height=args.height, **shape), args.flight_cache)
     results = []
     for i, layout in enumerate(args.graph or LAYOUTS):
         print(f'{layout}: publishing {args.fps} frames/s for {args.seconds} s ...', flush=True)
@@ -270,7 +315,8 @@ def main() -> int:
         print(f"{layout}: offered {r['offered']}, processed {r['processed']}, dropped {r['offered'] - r['processed']} "
               f"({100.0 * (r['offered'] - r['processed']) / max(r['offered'], 1):.1f}%); "
               f"{r['fps']:.2f} frames/s; latency publish -> registration median {r['lat_median_ms']:.0f} ms, "
-              f"p95 {r['lat_p95_ms']:.0f} ms; {r['poses']} poses, {r['tiles']} SR tiles; mosaic node diagnostics: "
+              f"p95 {r['lat_p95_ms']:.0f} ms (to its pose: {r['pose_lat_median_ms']:.0f} / {r['pose_lat_p95_ms']:.0f} ms); "
+              f"{r['poses']} poses, {r['tiles']} SR tiles; mosaic node diagnostics: "
               f"received {r.get('frames_received', '?')}, dropped by its queue {r.get('dropped_frames', '?')}, "
               f"processing median {r.get('processing_ms_median', '?')} ms", flush=True)
     for r in results:

@@ -737,3 +737,25 @@ def test_command_line_overrides_beat_the_parameter_files(tmp_path):
         node.destroy_node()
     finally:
         rclpy.shutdown(context=context)
+
+
+LIVE_HD_CHECK = """
+import json, sys, rclpy
+from srmosaic_ros.nodes.mosaic_node import MosaicNode
+rclpy.init(args=['--ros-args', '--params-file', sys.argv[1]])
+node = MosaicNode()
+print(json.dumps({'registration_width': node.config.registration.max_width, 'mosaic_width': node.config.mosaic.max_width,
+                  'track_frames': node.config.registration.track_frames, 'queue': node._queue.maxlen}))
+node.finish()
+node.destroy_node()
+rclpy.shutdown()
+"""
+
+
+def test_live_hd_parameter_file_configures_the_mosaic_node(ros_env):
+    """params/live_hd.yaml, as a user gives it to the node, reaches its pipeline and its queue."""
+    run = subprocess.run([sys.executable, '-c', LIVE_HD_CHECK, str(REPO / 'params' / 'live_hd.yaml')], env=ros_env,
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    got = json.loads(run.stdout.strip().splitlines()[-1])
+    assert got == {'registration_width': 640, 'mosaic_width': 640, 'track_frames': 30, 'queue': 16}
