@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+import cv2
 import numpy as np
 
 from .blend import feather_divide
@@ -41,8 +42,19 @@ def block_sums(tile: Tile, f: int, tile_size: int, channels: int) -> tuple[np.nd
         acc, wts = tile.best * seen[..., None], seen
     else:
         acc, wts = tile.acc, tile.wsum
-    return (acc.reshape(n, f, n, f, c).sum(axis=(1, 3), dtype=np.float32),
-            wts.reshape(n, f, n, f).sum(axis=(1, 3), dtype=np.float32))
+    return _sums(acc, f, n, c).reshape(n, n, c), _sums(wts, f, n, 1).reshape(n, n)
+
+
+def _sums(a: np.ndarray, f: int, n: int, c: int) -> np.ndarray:
+    """Sums over f x f blocks of ``a`` (T, T[, c]) float32, a new array: OpenCV's area average
+    times f^2 (a third of the time of numpy's strided reduction, and outside the GIL: the live
+    preview holds the pipeline while it runs), numpy's beyond OpenCV's 4 channels."""
+    if f == 1:
+        return np.array(a, np.float32)
+    if c > 4:
+        return a.reshape(n, f, n, f, c).sum(axis=(1, 3), dtype=np.float32)
+    out = cv2.resize(np.ascontiguousarray(a, np.float32), (n, n), interpolation=cv2.INTER_AREA)
+    return np.multiply(out, np.float32(f * f), out=out)
 
 
 def assemble(sums: dict[TileKey, tuple[np.ndarray, np.ndarray]], bounds: tuple[int, int, int, int], f: int,

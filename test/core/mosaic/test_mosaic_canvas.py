@@ -488,3 +488,24 @@ def test_labels_name_the_frame_each_pixel_comes_from(blend: str) -> None:
     assert (c.labels((200, 0, 210, 10)) == -1).all()
     with pytest.raises(CanvasError, match='no labels'):
         TiledCanvas(3, tile_size=32, blend='feather').labels((0, 0, 4, 4))
+
+
+@pytest.mark.parametrize('channels', [1, 3, 5])
+def test_preview_block_sums_are_the_sums_of_the_blocks(channels: int) -> None:
+    """block_sums (OpenCV's area average times f^2 up to 4 channels) gives the sums over f x f blocks of
+    the colour and the weight, not only their ratio, and copies: the tile painted later leaves them."""
+    from types import SimpleNamespace
+
+    from srmosaic_ros.core.mosaic.preview import block_sums
+
+    rng = np.random.default_rng(channels)
+    t = 64
+    tile = SimpleNamespace(best_view_tile=False, acc=rng.random((t, t, channels), dtype=np.float32),
+                           wsum=rng.random((t, t), dtype=np.float32))
+    for f in (1, 2, 4, 8):
+        n = t // f
+        acc, w = block_sums(tile, f, t, channels)
+        assert acc.shape == (n, n, channels) and w.shape == (n, n) and acc.dtype == w.dtype == np.float32
+        np.testing.assert_allclose(acc, tile.acc.reshape(n, f, n, f, channels).sum(axis=(1, 3)), rtol=1e-5)
+        np.testing.assert_allclose(w, tile.wsum.reshape(n, f, n, f).sum(axis=(1, 3)), rtol=1e-5)
+        assert not np.shares_memory(acc, tile.acc) and not np.shares_memory(w, tile.wsum)
