@@ -251,6 +251,21 @@ def test_uint8_frames_convert_for_the_canvas_as_to_float01():
     np.testing.assert_array_equal(pipe._as_canvas_image(floats), floats)
 
 
+def test_canvas_float_conversion_is_the_same_with_or_without_gains():
+    """The canvas's uint8 -> float32 conversion (numpy's scalar product without gains, OpenCV's
+    per-channel one with them) gives to_float01's values for every grey level, gains of 1 included."""
+    from srmosaic_ros.core.image_ops import to_float01
+    from srmosaic_ros.core.mosaic.canvas import _to_float
+
+    levels = np.arange(256, dtype=np.uint8).reshape(16, 16)
+    rgb = np.stack([levels, levels[::-1], levels.T], axis=-1)
+    plain = _to_float(rgb, None)
+    np.testing.assert_array_equal(plain, to_float01(rgb))
+    np.testing.assert_array_equal(_to_float(rgb, np.ones(3, np.float32)), plain)
+    out = np.full(rgb.shape, np.nan, np.float32)
+    assert _to_float(rgb, None, out) is out and np.array_equal(out, plain)
+
+
 # -- paint thinning ----------------------------------------------------------------------------------
 
 def test_thinned_painting_keeps_the_records_and_the_mosaic(tmp_path, one_torch_thread):

@@ -118,7 +118,9 @@ def _to_float(image: np.ndarray, gains: np.ndarray | None, out: np.ndarray | Non
     factor = np.full(c, 1.0 / 255.0, np.float32) if gains is None else gains / np.float32(255.0)
     if out is None:
         out = np.empty(image.shape, np.float32)
-    if c <= 4:  # OpenCV's per-channel scalar product, about twice numpy's broadcast (same values)
+    if gains is None:  # one factor: numpy's scalar product, about twice OpenCV's (same values, all 256 checked)
+        return np.multiply(image, np.float32(1.0 / 255.0), out=out, dtype=np.float32)
+    if c <= 4:  # OpenCV's per-channel scalar product, about three times numpy's broadcast (same values)
         shape = (h, w, c) if c > 1 else (h, w)  # OpenCV takes (h, w, 1) as (h, w)
         scalar = tuple(float(f) for f in factor) + (0.0,) * (4 - c)
         res = cv2.multiply(image.reshape(shape), scalar, dst=out.reshape(shape), dtype=cv2.CV_32F)
