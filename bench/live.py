@@ -136,6 +136,7 @@ def run_layout(layout: str, args: argparse.Namespace, flight, domain: int) -> di
                         counts[kv.key] = kv.value
 
     node.create_subscription(DiagnosticArray, '/srmosaic/diagnostics', on_diag, 100)
+
     def on_pose(msg: PoseWithCovarianceStamped) -> None:
         counts['poses'] += 1
         stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec

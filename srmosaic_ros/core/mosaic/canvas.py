@@ -115,22 +115,23 @@ def _to_float(image: np.ndarray, gains: np.ndarray | None, out: np.ndarray | Non
     """float32 (h, w, C) of uint8 (h, w, C): values / 255, times ``gains`` (C,) per channel and
     clipped to 1 where a gain exceeds 1 (None: no gains); into ``out`` when given."""
     h, w, c = image.shape
-    factor = np.full(c, 1.0 / 255.0, np.float32) if gains is None else gains / np.float32(255.0)
     if out is None:
         out = np.empty(image.shape, np.float32)
     if gains is None:  # one factor: numpy's scalar product, about twice OpenCV's (same values, all 256 checked)
         return np.multiply(image, np.float32(1.0 / 255.0), out=out, dtype=np.float32)
+    factor = gains / np.float32(255.0)
+    saturates = float(gains.max()) > 1.0  # only a gain above 1 can saturate
     if c <= 4:  # OpenCV's per-channel scalar product, about three times numpy's broadcast (same values)
         shape = (h, w, c) if c > 1 else (h, w)  # OpenCV takes (h, w, 1) as (h, w)
         scalar = tuple(float(f) for f in factor) + (0.0,) * (4 - c)
         res = cv2.multiply(image.reshape(shape), scalar, dst=out.reshape(shape), dtype=cv2.CV_32F)
-        if gains is not None and float(gains.max()) > 1.0:  # only a gain above 1 can saturate
+        if saturates:
             res = cv2.min(res, (1.0, 1.0, 1.0, 1.0), dst=res)  # a 4-tuple: every channel (a bare 1.0 is channel 0's)
         if not np.shares_memory(res, out):  # a layout OpenCV could not write in place
             out[...] = res.reshape(out.shape)
         return out
     np.multiply(image, factor, out=out, dtype=np.float32)  # one rounding: as astype, then the product
-    if gains is not None and float(gains.max()) > 1.0:
+    if saturates:
         np.minimum(out, np.float32(1.0), out=out)
     return out
 

@@ -47,7 +47,7 @@ def block_sums(tile: Tile, f: int, tile_size: int, channels: int) -> tuple[np.nd
 
 def _sums(a: np.ndarray, f: int, n: int, c: int) -> np.ndarray:
     """Sums over f x f blocks of ``a`` (T, T[, c]) float32, a new array: OpenCV's area average
-    times f^2 (a third of the time of numpy's strided reduction, and outside the GIL: the live
+    times f^2 (a twentieth of the time of numpy's strided reduction at f = 2, and outside the GIL: the live
     preview holds the pipeline while it runs), numpy's beyond OpenCV's 4 channels."""
     if f == 1:
         return np.array(a, np.float32)
