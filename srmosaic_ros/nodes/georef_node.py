@@ -21,14 +21,21 @@ painted frame, the homography's covariance), and publishes /srmosaic/pose
 /srmosaic/fix (NavSatFix) and /srmosaic/odom (nav_msgs/Odometry), one per registered frame, plus /srmosaic/diagnostics. Exactly one node of
 a graph publishes the poses in either mode.
 
-Synchronisation: telemetry is fed to the filter as it arrives (the filter buffers it and fuses it
-at its own stamp); a registration waits until telemetry at or after its stamp has been seen, or
-until SYNC_HOLD_FRAMES newer registrations arrived, or `live.sync_timeout_s` passed (the same
-approximate-time rule as the Pipeline). Bad input (NaN fix, time going backwards, malformed
-registration) is logged once per kind and skipped.
+Synchronisation: the inputs are merged by stamp, as `srmosaic process` reads a bag. Telemetry waits
+in the node until a registration at or after its stamp is fused (registrations come
+mosaic.revisit_spread_frames frames late by design, 7.5 s at 4 fps with the defaults: fed at once,
+the telemetry would run past the filter's telemetry_buffer_s and the filter would bridge a camera
+dropout that is not one), or until it is TELEMETRY_HOLD_S older than the newest. A registration
+waits until every telemetry stream still coming has delivered what it stamps up to the
+registration's (core/time_sync.TelemetryStreams: under load a fast Imu backlog
+drains behind a slow fix stream, and a frame fused early misses its gyro samples), or until it waited
+SYNC_TIMEOUT_S of the node's own running time (a node stopped by the scheduler does not time out the
+telemetry waiting in its queues), or REGISTRATION_HOLD registrations wait. Bad input (NaN fix, time
+going backwards, malformed registration) is logged once per kind and skipped.
 """
 from __future__ import annotations
 
+import collections
 import time
 from typing import Any
 
@@ -40,7 +47,7 @@ from msg_adapters import camera_info_to_intrinsics, imu_to_sample, navsat_to_fix
 from ..core.georef.georeferencer import Georeferencer
 from ..core.undistort import Undistorter
 from ..errors import SrMosaicError
-from ..core.time_sync import telemetry_ready
+from ..core.time_sync import TelemetryStreams
 from .common import (TELEMETRY_QOS_DEPTH, DiagnosticsPublisher, PosePublisher, RegistrationMsg, StreamOrder, WarnOnce,
                      input_qos, subscribe_input)
 from .messages import Messages, message_kind
@@ -49,8 +56,17 @@ from .parameters import GEOREF_PARAMETERS, declare_pipeline_parameters, on_param
 
 __all__ = ['GeorefNode', 'main']
 
-#: Seconds a registration waits for telemetry after its stamp before it is fused without.
+#: Seconds (of the node running) a registration waits for its telemetry before it is fused without.
 SYNC_TIMEOUT_S = 1.0
+#: Registrations that may wait; one more and the oldest is fused without its telemetry (memory bound:
+#: they come in bursts, up to mosaic.revisit_spread_frames at once, so the offline SYNC_HOLD_FRAMES is too few).
+REGISTRATION_HOLD = 200
+#: Seconds of telemetry (by stamp) the node holds for registrations still to come; older telemetry
+#: goes to the filter (which bridges frames that never came). Above revisit_spread_frames frame periods.
+TELEMETRY_HOLD_S = 60.0
+#: Period of the timer that applies the timeout (s); a longer gap between its calls is time the
+#: process did not run.
+TICK_S = 0.2
 
 
 class GeorefNode(ManagedNode):
@@ -79,8 +95,11 @@ class GeorefNode(ManagedNode):
         self.messages = Messages(message_kind(self))  # portable or typed registrations
         self.georef: Georeferencer | None = None
         self._camera = None
-        self._pending: list[tuple[float, RegistrationMsg]] = []  # (arrival monotonic s, registration)
-        self._latest_telemetry_ns: int | None = None
+        self._pending: list[tuple[float, RegistrationMsg]] = []  # (arrival on the running clock s, registration)
+        self._streams = TelemetryStreams(quiet_s=SYNC_TIMEOUT_S)
+        self._held: dict[str, collections.deque[Any]] = {}  # kind -> telemetry not fed yet, by stamp
+        self._running_s = 0.0  # seconds this node has been running (stalls of the process left out)
+        self._last_tick = time.monotonic()
         self._order = StreamOrder(self, self.warn, self.config.stamp_tolerance_s)  # stamps off the clock or backwards
         self._ref_stamp: int | None = None  # the last painted frame fed: what prev_H_cur maps into
         self._last_pose = None
@@ -103,7 +122,7 @@ class GeorefNode(ManagedNode):
         subscribe_input(self, self.messages.registration_type, 'registration', self._on_registration, input_qos(True, 200), group)
         self.pub_poses = PosePublisher(self)
         period = float(self.get_parameter('live.preview_period_s').value)
-        self.create_timer(0.2, self._on_tick, callback_group=group)
+        self.create_timer(TICK_S, self._on_tick, callback_group=group)
         self._periodic = self.create_timer(period, self._publish_diagnostics,
                                                     callback_group=MutuallyExclusiveCallbackGroup())
         self.configured = True
@@ -123,11 +142,20 @@ class GeorefNode(ManagedNode):
             return
         if not self._in_order(kind, item.stamp_ns):
             return
-        if self.georef is None:
-            self.georef = Georeferencer(self.config.georef, self._camera)
-        (self.georef.feed_fix if kind == 'fix' else self.georef.feed_imu)(item)
-        self._latest_telemetry_ns = max(self._latest_telemetry_ns or item.stamp_ns, item.stamp_ns)
+        self._held.setdefault(kind, collections.deque()).append(item)
+        self._streams.seen(kind, item.stamp_ns, time.monotonic())
         self._drain()
+
+    def _feed_telemetry(self, through_ns: int) -> None:
+        """Feed the filter the held telemetry stamped up to ``through_ns``, in stamp order."""
+        items = []
+        for kind, held in self._held.items():
+            while held and held[0].stamp_ns <= through_ns:
+                items.append((kind, held.popleft()))
+        if items and self.georef is None:
+            self.georef = Georeferencer(self.config.georef, self._camera)
+        for kind, item in sorted(items, key=lambda ki: ki[1].stamp_ns):
+            (self.georef.feed_fix if kind == 'fix' else self.georef.feed_imu)(item)
 
     def _on_fix(self, msg: NavSatFix) -> None:
         self._telemetry('fix', navsat_to_fix, msg)
@@ -153,23 +181,31 @@ class GeorefNode(ManagedNode):
             return
         if not self._in_order('registration', reg.stamp_ns):
             return
-        self._pending.append((time.monotonic(), reg))
+        self._pending.append((self._running_s, reg))
         self._drain()
 
     def _on_tick(self) -> None:
+        now = time.monotonic()
+        # A tick much later than due: the process was not scheduled (a loaded machine) and its
+        # queues filled meanwhile; that time is not waiting for telemetry.
+        self._running_s += min(now - self._last_tick, 2 * TICK_S)
+        self._last_tick = now
         self._drain(timeout=True)
 
     # -- fusion -----------------------------------------------------------------------------------
     def _drain(self, *, timeout: bool = False) -> None:
         """Fuse the waiting registrations whose telemetry has arrived (approximate-time association)."""
-        now = time.monotonic()
         while self._pending:
             arrived, reg = self._pending[0]
-            late = timeout and now - arrived > SYNC_TIMEOUT_S
-            if not telemetry_ready(reg.stamp_ns, self._latest_telemetry_ns, len(self._pending), late=late):
+            late = timeout and self._running_s - arrived > SYNC_TIMEOUT_S
+            if not (self._streams.covers(reg.stamp_ns) or late or len(self._pending) > REGISTRATION_HOLD):
                 break
             self._pending.pop(0)
+            self._feed_telemetry(reg.stamp_ns)
             self._fuse(reg)
+        newest = max((held[-1].stamp_ns for held in self._held.values() if held), default=None)
+        if newest is not None:
+            self._feed_telemetry(newest - int(TELEMETRY_HOLD_S * 1e9))
 
     def _fuse(self, reg: RegistrationMsg) -> None:
         if self.georef is None:
@@ -219,7 +255,9 @@ class GeorefNode(ManagedNode):
         self.configured = False
         if self.standalone:
             while self._pending:
-                self._fuse(self._pending.pop(0)[1])
+                reg = self._pending.pop(0)[1]
+                self._feed_telemetry(reg.stamp_ns)
+                self._fuse(reg)
         release(self._entities)
         self._entities, self._periodic, self.georef = [], None, None
 
