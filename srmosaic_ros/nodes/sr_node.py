@@ -226,6 +226,8 @@ class SRNode(Node):
             return self._pool.submit(reconstruct_live_tile_image, plan, images, seg_H_frames, self.factor,
                                      self.config.sr, segment).result()
         except BrokenProcessPool:
+            if self._stop:  # finish() ended the worker process
+                raise SRError('the node is stopping: the tile in progress was abandoned') from None
             self.warn('sr worker died', 'the SR worker process died (out of memory or killed); it is restarted '
                       'and the tile skipped')
             self._pool.shutdown(wait=False, cancel_futures=True)
@@ -363,10 +365,19 @@ class SRNode(Node):
         return self.pub_diag.array(message, values, level)
 
     def finish(self) -> None:
-        """Stop the worker (a tile in progress completes first, up to 60 s), then its process."""
+        """Stop the worker. A tile in progress in the worker process is abandoned (the process is
+        ended: a tile takes seconds, a minute on a loaded machine, and once the graph stops it reaches
+        nobody; Ctrl-C must not wait for it); with `live.sr_worker: thread` it completes first (up to
+        60 s)."""
         with self._wake:
             self._stop = True
             self._wake.notify()
+        if self._pool is not None:
+            # ProcessPoolExecutor has no way to stop a running call before Python 3.14's
+            # terminate_workers(); its worker processes are in _processes (pid -> Process).
+            processes = getattr(self._pool, '_processes', None) or {}
+            for proc in list(processes.values()):
+                proc.terminate()
         self._worker.join(timeout=60)
         if self._pool is not None:
             self._pool.shutdown(wait=not self._worker.is_alive(), cancel_futures=True)

@@ -484,6 +484,67 @@ def test_sr_node_refreshes_a_tile_when_more_frames_cover_it(ros_env):
         assert all(m[-1] <= 1.05 * m[0] for m in maes.values()), dict(maes)
 
 
+
+@pytest.mark.skipif(not Path('/proc/self/task').is_dir(), reason='reads child processes from /proc (Linux)')
+def test_ctrl_c_abandons_the_sr_tile_in_progress(ros_env):
+    """SIGINT while the SR worker process is inside a tile that would take a minute (tol 0, 10000
+    iterations): the node ends within seconds, cleanly, says the tile was abandoned, and leaves no
+    worker. It used to wait 60 s for the tile and then, at exit, for the worker (75 s on a loaded
+    machine, past the launcher's and the tests' patience)."""
+    from sensor_msgs.msg import Image
+    from std_msgs.msg import Float64MultiArray
+
+    from imagery import view
+    from msg_adapters import numpy_to_image
+    from srmosaic_ros.nodes.common import encode_registration
+
+    node = srmosaic('node', 'sr', '--ros-args', '-p', 'live.sr_period_s:=0.2', '-p', 'sr_tiles.tile_size:=64',
+                    '-p', 'sr.iterations:=10000', '-p', 'sr.tol:=0.0', '-p', 'sr.self_check:=0', env=ros_env)
+    listener = Listener()
+    try:
+        assert listener.wait_for(lambda: listener.diag_value('frames_received', SR) is not None or node.poll() is not None,
+                                 60) and node.poll() is None, f'no SR node: {node.communicate()[0] if node.poll() is not None else ""}'
+        images = listener.publisher(Image, '/camera/image_raw')
+        regs = listener.publisher(Float64MultiArray, '/srmosaic/registration')
+        time.sleep(1.0)  # discovery of the two publishers
+        for k in range(4):
+            shift = np.array([10.0, 10.0]) + [0.37 * k % 2.0, 0.61 * k % 2.0]
+            stamp = 1_000_000_000 * (k + 1)
+            images.publish(numpy_to_image(view(_translation(*(np.array([300.0, 200.0]) + shift)), 200, 140, seed=k),
+                                          'rgb8', stamp_ns=stamp, frame_id='camera'))
+            time.sleep(0.05)
+            regs.publish(encode_registration(stamp, True, 100, 0.1, 0, _translation(*shift), np.eye(3), True, None))
+        workers = [w for w in _children(node.pid) if 'spawn_main' in _cmdline(w)]
+        assert workers, 'no SR worker process'
+
+        def busy_s() -> float:  # CPU seconds the workers have used (utime + stime)
+            total = 0
+            for w in workers:
+                with contextlib.suppress(OSError), open(f'/proc/{w}/stat') as handle:
+                    total += sum(int(v) for v in handle.read().rsplit(') ', 1)[1].split()[11:13])
+            return total / os.sysconf('SC_CLK_TCK')
+
+        start = busy_s()
+        assert listener.wait_for(lambda: busy_s() > start + 3.0, 120), 'the worker never got to work on a tile'
+        t0 = time.monotonic()
+        node.send_signal(signal.SIGINT)
+        out, _ = node.communicate(timeout=60)
+        took = time.monotonic() - t0
+    finally:
+        if node.poll() is None:
+            node.kill()
+            node.communicate()
+        listener.close()
+    assert node.returncode == 0, out
+    assert took < 20, (took, out)
+    assert 'the tile in progress was abandoned' in out, out
+    assert not listener.tiles
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline and any(_running(w) for w in workers):
+        time.sleep(0.2)
+    assert not any(_running(w) for w in workers), 'the SR worker outlived its node'
+
+
 def test_sr_node_removes_lens_distortion_like_the_mosaic_node(ros_env):
     """Frames through a wide barrel lens (k1 = -0.35: 5 px at 60 px from the centre) with their
     CameraInfo: the registrations refer to the undistorted pinhole frames (as the mosaic node's
