@@ -12,10 +12,12 @@ import collections
 import itertools
 import statistics
 
-__all__ = ['SYNC_HOLD_FRAMES', 'TelemetryStreams', 'telemetry_ready']
+__all__ = ['COVER_JITTER', 'SYNC_HOLD_FRAMES', 'TelemetryStreams', 'telemetry_ready']
 
 #: Frames that may wait for their telemetry; one more and the oldest goes without it.
 SYNC_HOLD_FRAMES = 3
+#: Share of a telemetry stream's period by which its next stamp may come early (TelemetryStreams).
+COVER_JITTER = 0.2
 
 
 def telemetry_ready(stamp_ns: int, latest_telemetry_ns: int | None, waiting: int, *, late: bool = False) -> bool:
@@ -37,9 +39,11 @@ class TelemetryStreams:
     one (and the late samples are gated against the state fused without them).
 
     A frame stamped t is covered when every stream still coming has delivered all it will stamp up to
-    t: its newest stamp is within half its period of t (the period is the median spacing of its
-    recent stamps). A stream silent for ``quiet_s`` plus two of its periods while another one went on
-    (a dead GPS) no longer holds frames; silence of all of them is the caller's timeout. Times are
+    t: its next message, a period after its newest (the median spacing of its recent stamps, less
+    COVER_JITTER of it for jitter), would be stamped after t. So a 1 Hz GPS holds a frame only in the
+    last fifth of a second before its next fix, and a 50 Hz Imu until it has a sample within 16 ms
+    before the frame. A stream silent for ``quiet_s`` plus two of its periods while another one went
+    on (a dead GPS) no longer holds frames; silence of all of them is the caller's timeout. Times are
     arrival times in seconds of any monotonic clock.
     """
 
@@ -71,6 +75,6 @@ class TelemetryStreams:
             period = self.period_ns(stream)
             if newest_arrival - self._arrival_s[stream] > self.quiet_s + 2e-9 * period:
                 continue  # silent while the others go on: not waited for
-            if stamps[-1] + period // 2 < stamp_ns:
+            if stamps[-1] + int((1.0 - COVER_JITTER) * period) <= stamp_ns:
                 return False
         return True

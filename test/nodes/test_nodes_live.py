@@ -452,6 +452,11 @@ def test_sr_node_refreshes_a_tile_when_more_frames_cover_it(ros_env):
         regs = listener.publisher(Float64MultiArray, '/srmosaic/registration')
         time.sleep(1.0)  # discovery of the two publishers
         origin = np.array([300.0, 200.0])
+
+        def state() -> str:
+            return ', '.join(f'{k} {listener.diag_value(k, SR)}' for k in (
+                'frames_received', 'frames_kept', 'registrations_without_image', 'tiles_published', 'tiles_refreshed'))
+
         for k in range(12):
             shift = np.array([10.0, 10.0]) + [0.37 * k % 2.0, 0.61 * k % 2.0]  # sub-pixel hovering
             plane_H_frame = _translation(*shift)
@@ -461,9 +466,14 @@ def test_sr_node_refreshes_a_tile_when_more_frames_cover_it(ros_env):
             time.sleep(0.05)
             regs.publish(encode_registration(stamp, True, 100, 0.1, 0, plane_H_frame, np.eye(3), True, None))
             listener.wait_for(lambda: False, 0.6)
-        assert listener.wait_for(lambda: int(listener.diag_value('tiles_refreshed', SR) or 0) >= 2, 30), \
-            {k: listener.diag_value(k, SR) for k in ('frames_received', 'frames_kept', 'images_waiting_for_registration',
-                                                    'registrations_without_image', 'tiles_published', 'tiles_refreshed')}
+            # The node's pace, not the test's: on a loaded machine a round may end after more frames
+            # came, and a tile first published from 7 would never see the 14 that refresh it.
+            if k == 2:
+                assert listener.wait_for(lambda: int(listener.diag_value('tiles_published', SR) or 0) >= 2, 60), \
+                    state()
+            if k == 5:
+                assert listener.wait_for(lambda: int(listener.diag_value('tiles_refreshed', SR) or 0) >= 2, 60), \
+                    state()
         placements = collections.Counter(t.header.frame_id for t in listener.tiles)
         assert set(placements) == {'srmosaic_segment_0;x0=64;y0=64;width=64;height=64;factor=2',
                                    'srmosaic_segment_0;x0=128;y0=64;width=64;height=64;factor=2'}, placements
