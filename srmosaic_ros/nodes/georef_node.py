@@ -152,10 +152,15 @@ class GeorefNode(ManagedNode):
         for kind, held in self._held.items():
             while held and held[0].stamp_ns <= through_ns:
                 items.append((kind, held.popleft()))
-        if items and self.georef is None:
-            self.georef = Georeferencer(self.config.georef, self._camera)
         for kind, item in sorted(items, key=lambda ki: ki[1].stamp_ns):
-            (self.georef.feed_fix if kind == 'fix' else self.georef.feed_imu)(item)
+            georef = self._filter()
+            (georef.feed_fix if kind == 'fix' else georef.feed_imu)(item)
+
+    def _filter(self) -> Georeferencer:
+        """The filter, made at its first input (with the camera known by then)."""
+        if self.georef is None:
+            self.georef = Georeferencer(self.config.georef, self._camera)
+        return self.georef
 
     def _on_fix(self, msg: NavSatFix) -> None:
         self._telemetry('fix', navsat_to_fix, msg)
@@ -208,11 +213,10 @@ class GeorefNode(ManagedNode):
             self._feed_telemetry(newest - int(TELEMETRY_HOLD_S * 1e9))
 
     def _fuse(self, reg: RegistrationMsg) -> None:
-        if self.georef is None:
-            self.georef = Georeferencer(self.config.georef, self._camera)
+        georef = self._filter()
         use = reg.ok and reg.reg_ok and reg.prev_H_cur is not None and self._ref_stamp is not None
         try:
-            pose = self.georef.feed_frame(
+            pose = georef.feed_frame(
                 reg.stamp_ns, reg.prev_H_cur if use else None, reg.covariance if use else None,
                 rms_px=reg.rms_px if use else float('nan'), inliers=reg.inliers if use else 0, camera=self._camera,
                 ref_stamp_ns=self._ref_stamp if use else None)

@@ -345,6 +345,8 @@ def test_standalone_filter_stopped_by_the_scheduler_fuses_as_if_it_had_run(ros_e
     registrations (which come mosaic.revisit_spread_frames frames late) that the filter bridged a
     camera dropout that was not one: poses 40 m off, or none. Its fixes are then those of the filter
     inside the mosaic node (the default graph, not stopped) to the millimetre."""
+    from msg_adapters import stamp_to_ns
+
     description = tmp_path / 'split.yaml'
     description.write_text('processes:\n  - {name: onboard, nodes: [mosaic]}\n  - {name: georef, nodes: [georef]}\n')
     graph = srmosaic('launch', str(description), '--ros-args', '-p', 'live.georef_standalone:=true',
@@ -374,7 +376,7 @@ def test_standalone_filter_stopped_by_the_scheduler_fuses_as_if_it_had_run(ros_e
         skipped = {kv.key: kv.value for msg in listener.diagnostics for status in msg.status
                    if status.name == GEOREF for kv in status.values if kv.key.startswith('filter skipped')}
         assert not skipped, skipped
-    standalone = {_stamp_ns(f.header): f for f in listener.fixes}
+    standalone = {stamp_to_ns(f.header.stamp): f for f in listener.fixes}
     graph = srmosaic('launch', '--ros-args', '-p', 'live.reliable_inputs:=true', '-p', 'live.queue_size:=100', env=ros_env)
     with supervised(graph=graph) as sup:
         listener = sup.listener
@@ -383,16 +385,12 @@ def test_standalone_filter_stopped_by_the_scheduler_fuses_as_if_it_had_run(ros_e
         out, _ = player.communicate(timeout=120)
         assert player.returncode == 0, out
         assert listener.wait_for(lambda: len(listener.fixes) >= 30, 60), f'{len(listener.fixes)} fixes'
-    in_node = {_stamp_ns(f.header): f for f in listener.fixes}
+    in_node = {stamp_to_ns(f.header.stamp): f for f in listener.fixes}
     common = sorted(set(standalone) & set(in_node))
     assert len(common) >= 30, (len(standalone), len(in_node))
     worst = max(math.hypot((a.latitude - b.latitude) * 111_320.0, (a.longitude - b.longitude) * 111_320.0 * math.cos(math.radians(a.latitude)),
                            a.altitude - b.altitude) for a, b in ((standalone[t], in_node[t]) for t in common))
     assert worst < 0.01, worst
-
-
-def _stamp_ns(header: Any) -> int:
-    return header.stamp.sec * 1_000_000_000 + header.stamp.nanosec
 
 
 def _children(pid: int) -> list[int]:
