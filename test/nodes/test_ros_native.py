@@ -362,9 +362,9 @@ def test_mosaic_node_lifecycle(ros_env, tmp_path):
     def transition(tid: int) -> None:
         assert _call(listener, change_state.call_async(ChangeState.Request(transition=Transition(id=tid)))).success
 
-    def play() -> None:
+    def play(rate: int = 2) -> None:  # ignored frames are only counted: played faster
         player = subprocess.run([sys.executable, '-m', 'srmosaic_ros.nodes.executables', 'player', str(DEMO), '--rate',
-                                 '2', '--delay', '15', '--ros-args', '-r', '__ns:=/lc'], env=ros_env,
+                                 str(rate), '--delay', '15', '--ros-args', '-r', '__ns:=/lc'], env=ros_env,
                                 capture_output=True, text=True, timeout=120)
         assert player.returncode == 0, player.stdout + player.stderr
 
@@ -377,7 +377,7 @@ def test_mosaic_node_lifecycle(ros_env, tmp_path):
         assert state() == State.PRIMARY_STATE_UNCONFIGURED
         transition(Transition.TRANSITION_CONFIGURE)
         assert state() == State.PRIMARY_STATE_INACTIVE
-        play()
+        play(8)
         assert listener.wait_for(lambda: int(value('frames_while_inactive') or 0) >= 50, 30), value('frames_while_inactive')
         assert listener.got['registration'] == [] and value('frames_processed') == '0'
         assert 'inactive' in listener.statuses()[f'lc/{MOSAIC}'].message
@@ -388,7 +388,7 @@ def test_mosaic_node_lifecycle(ros_env, tmp_path):
         # the next diagnostics after the transition carry the count (one may still be on its way)
         assert listener.wait_for(lambda: value('frames_while_inactive') is not None, 10)
         ignored = int(value('frames_while_inactive'))
-        play()  # paused: ignored, and the mosaic kept
+        play(8)  # paused: ignored, and the mosaic kept
         assert listener.wait_for(lambda: int(value('frames_while_inactive')) >= ignored + 50, 30)
         kept = int(value('frames_in_mosaic'))
         status = listener.statuses()[f'lc/{MOSAIC}']
@@ -438,8 +438,8 @@ def test_georef_node_lifecycle(ros_env):
         request = ChangeState.Request(transition=Transition(id=tid))
         assert _call(listener, clients[name][1].call_async(request)).success, (name, tid)
 
-    def play() -> None:
-        player = subprocess.run([*start, 'player', str(DEMO), '--rate', '2', '--delay', '15', '--ros-args', '-r',
+    def play(rate: int = 2) -> None:  # ignored inputs are only counted: played faster
+        player = subprocess.run([*start, 'player', str(DEMO), '--rate', str(rate), '--delay', '15', '--ros-args', '-r',
                                  '__ns:=/glc'], env=ros_env, capture_output=True, text=True, timeout=120)
         assert player.returncode == 0, player.stdout + player.stderr
 
@@ -453,7 +453,7 @@ def test_georef_node_lifecycle(ros_env):
             assert state(name) == State.PRIMARY_STATE_UNCONFIGURED
             transition(name, Transition.TRANSITION_CONFIGURE)
         assert state('georef') == State.PRIMARY_STATE_INACTIVE
-        play()  # both inactive: ignored, and taken again when replayed
+        play(8)  # both inactive: ignored, and taken again when replayed
         assert listener.wait_for(lambda: int(value('inputs_while_inactive') or 0) >= 50, 30), value('inputs_while_inactive')
         assert listener.got['pose'] == [] and value('frames_fused') == '0'
         for name in procs:
