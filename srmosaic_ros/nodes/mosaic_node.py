@@ -71,6 +71,13 @@ __all__ = ['MosaicNode', 'REGISTRATION_LAYOUT', 'main']
 #: are painted too; shorter pauses (frames a second apart) only end the waits for telemetry and settling.
 IDLE_PAINT_S = 5.0
 
+#: said once when the queue first drops a frame (then counted; diagnostics WARN while it goes on)
+FALLING_BEHIND = ('frames arrive faster than this node processes them: the oldest queued frame is dropped '
+                  '(live.queue_size). Register and paint fewer pixels (params/live_hd.yaml: registration.max_width, '
+                  'mosaic.max_width), lower the camera rate, or give the node more CPU; a larger live.queue_size '
+                  'only rides out bursts, at the cost of latency')
+
+
 class MosaicNode(ManagedNode):
     """Registration + mosaic stage (see module docstring), a managed (lifecycle) node.
 
@@ -124,6 +131,7 @@ class MosaicNode(ManagedNode):
         self._camera = None
         self._order = StreamOrder(self, self.warn, config.stamp_tolerance_s)  # stamps off the clock or backwards
         self._latency_ms: collections.deque[float] = collections.deque(maxlen=500)
+        self._dropped_reported = self.warn.snapshot().get('dropped_frames', 0)  # as the last diagnostics said it
         self._last_record: FrameRecord | None = None
 
         # Sensor-data QoS (best effort, volatile) as camera and GNSS drivers publish it, with room for
@@ -191,7 +199,7 @@ class MosaicNode(ManagedNode):
             return
         with self._wake:
             if len(self._queue) == self._queue.maxlen:
-                self.warn.count('dropped_frames')
+                self.warn.note('dropped_frames', FALLING_BEHIND)
             self._queue.append(Frame(stamp_ns, image, camera, frame_id))
             self._wake.notify()
 
@@ -355,8 +363,14 @@ class MosaicNode(ManagedNode):
         message = 'registering'
         if rec is not None and not rec.painted:
             level, message = DiagnosticStatus.WARN, f'last frame not registered: {rec.reason}'
-        if stats.get('dropped_frames', 0):
-            message += f"; {stats['dropped_frames']} frames dropped (falling behind)"
+        dropped = stats.get('dropped_frames', 0)
+        if dropped > self._dropped_reported:  # WARN while frames are being dropped, not for ever after
+            level = DiagnosticStatus.WARN
+            message += (f'; falling behind: {dropped - self._dropped_reported} frames dropped since the last report '
+                        f'({dropped} in all; processing median {values["processing_ms_median"]} ms a frame)')
+        elif dropped:
+            message += f'; {dropped} frames dropped (falling behind) earlier'
+        self._dropped_reported = dropped
         if not self.active:
             message = 'inactive (lifecycle): inputs ignored, the mosaic kept'
             values['frames_while_inactive'] = stats.get('frames_while_inactive', 0)

@@ -762,6 +762,34 @@ def test_one_future_stamp_costs_one_message_offline_and_live(ros_env, tmp_path):
     assert sup.logs['graph'].count('stamp_tolerance_s') == 2, sup.logs['graph']  # once per stream
 
 
+def test_a_node_falling_behind_says_so_and_how_to_catch_up(ros_env):
+    """Frames faster than the node processes them (the demo bag at 20x into a queue of one): the
+    dropped frames are counted, the log says once what to do, and the diagnostics WARN while frames
+    are being dropped and go back to OK (the count kept) once the node has caught up."""
+    from diagnostic_msgs.msg import DiagnosticStatus
+
+    graph = srmosaic('node', 'mosaic', '--ros-args', '-p', 'live.reliable_inputs:=true', '-p', 'live.queue_size:=1',
+                     '-p', 'live.preview_period_s:=0.3', env=ros_env)
+    with supervised(graph=graph) as sup:
+        listener = sup.listener
+        assert listener.wait_for(lambda: listener.diagnostics, 30), 'no diagnostics'
+        player = srmosaic('play', str(DEMO), '--rate', '20.0', '--delay', '15', env=ros_env)
+        out, _ = player.communicate(timeout=120)
+        assert player.returncode == 0, out
+        assert listener.wait_for(lambda: int(listener.diag_value('frames_received') or 0) == 60, 60)
+        dropped = int(listener.diag_value('dropped_frames'))
+        assert 0 < dropped < 60
+        n = len(listener.diagnostics)
+        assert listener.wait_for(lambda: len(listener.diagnostics) >= n + 3, 10)  # reports after the input stopped
+        statuses = [st for msg in list(listener.diagnostics) for st in msg.status if st.name == MOSAIC]
+        behind = [st for st in statuses if st.level == DiagnosticStatus.WARN and 'falling behind' in st.message]
+        assert behind and 'frames dropped since the last report' in behind[0].message, [st.message for st in statuses]
+        last = statuses[-1]
+        assert last.level == DiagnosticStatus.OK and f'{dropped} frames dropped (falling behind) earlier' in last.message
+    assert sup.logs['graph'].count('frames arrive faster than this node processes them') == 1, sup.logs['graph']
+    assert 'registration.max_width' in sup.logs['graph']
+
+
 @pytest.mark.parametrize(('override', 'name'), [('registration.ratio:=3.0', 'ratio'),
                                                  ('live.sr_frames_kept:=0', 'sr_frames_kept'),
                                                  ('live.sr_worker:=fork', 'sr_worker'),
