@@ -132,7 +132,7 @@ def run_layout(layout: str, args: argparse.Namespace, flight, domain: int) -> di
         for status in msg.status:
             if 'registration and mosaic' in status.name:
                 for kv in status.values:
-                    if kv.key in ('frames_received', 'dropped_frames', 'processing_ms_median'):
+                    if kv.key in ('frames_received', 'dropped_frames', 'frames_skipped_by_rate', 'processing_ms_median'):
                         counts[kv.key] = kv.value
 
     node.create_subscription(DiagnosticArray, '/srmosaic/diagnostics', on_diag, 100)
@@ -317,12 +317,13 @@ def main() -> int:
         print(f'{layout}: publishing {args.fps} frames/s for {args.seconds} s ...', flush=True)
         r = run_layout(layout, args, flight, 200 + (os.getpid() + i) % 30)
         results.append(r)
-        print(f"{layout}: offered {r['offered']}, processed {r['processed']}, dropped {r['offered'] - r['processed']} "
+        print(f"{layout}: offered {r['offered']}, processed {r['processed']}, not processed {r['offered'] - r['processed']} "
               f"({100.0 * (r['offered'] - r['processed']) / max(r['offered'], 1):.1f}%); "
               f"{r['fps']:.2f} frames/s; latency publish -> registration median {r['lat_median_ms']:.0f} ms, "
               f"p95 {r['lat_p95_ms']:.0f} ms (to its pose: {r['pose_lat_median_ms']:.0f} / {r['pose_lat_p95_ms']:.0f} ms); "
               f"{r['poses']} poses, {r['tiles']} SR tiles; mosaic node diagnostics: "
               f"received {r.get('frames_received', '?')}, dropped by its queue {r.get('dropped_frames', '?')}, "
+              f"skipped by live.max_rate_hz {r.get('frames_skipped_by_rate', '?')}, "
               f"processing median {r.get('processing_ms_median', '?')} ms", flush=True)
     for r in results:
         print(f"\n{r['layout']}: bytes on each topic over the {r['seconds']:.1f} s of the run (what an onboard -> "

@@ -22,6 +22,8 @@ plane of seg_H_frame (and of the SR tiles' placements) lies on the map.
 Back-pressure: image callbacks only convert and enqueue into a bounded queue (parameter
 `live.queue_size`); when it is full the oldest frame is dropped and counted (`dropped_frames` in the
 diagnostics). One worker thread runs the pipeline; the queue never grows without bound.
+`live.max_rate_hz` takes at most that many frames per second by their stamps (the rest skipped
+evenly and counted), for a camera faster than the node: a steady rate instead of random drops.
 Bad input (wrong encoding, empty image, NaN fix, time going backwards) is logged once per kind
 and skipped; the node keeps spinning.
 """
@@ -29,6 +31,7 @@ from __future__ import annotations
 
 import collections
 import dataclasses
+import math
 import threading
 import traceback
 import time
@@ -71,10 +74,13 @@ __all__ = ['MosaicNode', 'REGISTRATION_LAYOUT', 'main']
 #: are painted too; shorter pauses (frames a second apart) only end the waits for telemetry and settling.
 IDLE_PAINT_S = 5.0
 
+#: live.max_rate_hz: a frame this fraction of the interval before it is due is taken as on time
+RATE_SLACK = 0.4
+
 #: said once when the queue first drops a frame (then counted; diagnostics WARN while it goes on)
 FALLING_BEHIND = ('frames arrive faster than this node processes them: the oldest queued frame is dropped '
                   '(live.queue_size). Register and paint fewer pixels (params/live_hd.yaml: registration.max_width, '
-                  'mosaic.max_width), lower the camera rate, or give the node more CPU; a larger live.queue_size '
+                  'mosaic.max_width), take fewer frames (live.max_rate_hz), or give the node more CPU; a larger live.queue_size '
                   'only rides out bursts, at the cost of latency')
 
 
@@ -99,6 +105,12 @@ class MosaicNode(ManagedNode):
         config = read_pipeline_config(self, self._defaults)  # ConfigError refuses bad values at start
         queue_size = int(self.get_parameter('live.queue_size').value)
         period = float(self.get_parameter('live.preview_period_s').value)
+        max_rate = float(self.get_parameter('live.max_rate_hz').value)
+        if not 0.0 <= max_rate <= 1000.0 or not math.isfinite(max_rate):
+            msg = f'live.max_rate_hz must be in 0..1000 frames/s (0: every frame), got {max_rate}.'
+            raise SrMosaicError(msg)
+        self._rate_interval_ns = int(1e9 / max_rate) if max_rate > 0 else 0
+        self._next_due_ns: int | None = None  # stamp from which the next frame is due (live.max_rate_hz)
         if not 1 <= queue_size <= 100 or not 0.05 <= period <= 3600:
             msg = f'live.queue_size must be in 1..100 and live.preview_period_s in 0.05..3600 (got {queue_size}, {period}).'
             raise SrMosaicError(msg)
@@ -181,6 +193,18 @@ class MosaicNode(ManagedNode):
     def _monotonic_locked(self, stream: str, stamp_ns: int) -> bool:
         return self._order.accept(stream, stamp_ns)
 
+    def _due(self, stamp_ns: int) -> bool:
+        """live.max_rate_hz: whether the frame of this stamp is taken. Frames are due one interval
+        apart on the stamps' clock (30 fps at 20 Hz: two of three), a frame within RATE_SLACK of
+        an interval early counting as on time (stamp jitter must not skip it); after a gap in the
+        input the schedule starts again. Called by the image callback only."""
+        interval, due = self._rate_interval_ns, self._next_due_ns
+        if due is not None and stamp_ns < due - RATE_SLACK * interval:
+            return False
+        restart = due is None or stamp_ns - due >= interval
+        self._next_due_ns = (stamp_ns if restart else due) + interval
+        return True
+
     def _on_image(self, msg: Image | CompressedImage) -> None:
         self.warn.count('frames_received')
         if not self.active:  # inactive (lifecycle): paused, before the stamp order so a replay is taken later
@@ -196,6 +220,9 @@ class MosaicNode(ManagedNode):
             return
         image, camera = decoded
         if not self._monotonic('image', stamp_ns):
+            return
+        if self._rate_interval_ns and not self._due(stamp_ns):
+            self.warn.count('frames_skipped_by_rate')
             return
         with self._wake:
             if len(self._queue) == self._queue.maxlen:
@@ -349,6 +376,7 @@ class MosaicNode(ManagedNode):
             'frames_received': stats.get('frames_received', 0),
             'frames_processed': stats.get('frames_processed', 0),
             'dropped_frames': stats.get('dropped_frames', 0),
+            'frames_skipped_by_rate': stats.get('frames_skipped_by_rate', 0),
             'frames_in_mosaic': sum(len(s.frames) for s in self.pipeline.segments),
             'segments': len(self.pipeline.segments),
             'last_ok': int(rec.painted) if rec else 0,

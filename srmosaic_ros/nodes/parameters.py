@@ -30,7 +30,7 @@ __all__ = ['MOSAIC_PARAMETERS', 'GEOREF_PARAMETERS', 'SR_PARAMETERS', 'declare_p
 _POSE_OUTPUT = ('live.map_frame', 'live.body_frame', 'live.georef_standalone', 'live.reliable_inputs', 'live.preview_period_s',
                 'live.message_types')
 MOSAIC_PARAMETERS = ('device', 'undistort', 'stamp_tolerance_s', 'registration', 'mosaic', 'georef', *_POSE_OUTPUT,
-                     'live.queue_size', 'live.torch_threads', 'live.output_dir', 'live.autostart')
+                     'live.queue_size', 'live.max_rate_hz', 'live.torch_threads', 'live.output_dir', 'live.autostart')
 GEOREF_PARAMETERS = ('undistort', 'stamp_tolerance_s', 'georef', *_POSE_OUTPUT, 'live.autostart')
 SR_PARAMETERS = ('device', 'undistort', 'stamp_tolerance_s', 'sr', 'sr_tiles', 'live.reliable_inputs', 'live.torch_threads',
                  'live.sr_period_s', 'live.sr_tiles_per_round', 'live.sr_refresh_growth', 'live.sr_frames_kept',
@@ -62,6 +62,7 @@ _RANGES: dict[str, tuple[float, float]] = {
     'mosaic.keyframe_min_correction_px': (0.0, 1000.0),
     'mosaic.max_width': (0, 100000),
     'live.queue_size': (1, 100),
+    'live.max_rate_hz': (0.0, 1000.0),
     'live.torch_threads': (0, 256),
     'live.preview_period_s': (0.05, 3600.0),
     'live.sr_period_s': (0.1, 3600.0),
