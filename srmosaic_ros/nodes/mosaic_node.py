@@ -75,7 +75,7 @@ __all__ = ['MosaicNode', 'REGISTRATION_LAYOUT', 'main']
 IDLE_PAINT_S = 5.0
 
 #: live.max_rate_hz: a frame this fraction of the interval before it is due is taken as on time
-RATE_SLACK = 0.4
+RATE_SLACK = 0.25
 
 #: said once when the queue first drops a frame (then counted; diagnostics WARN while it goes on)
 FALLING_BEHIND = ('frames arrive faster than this node processes them: the oldest queued frame is dropped '

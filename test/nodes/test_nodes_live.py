@@ -809,6 +809,30 @@ def test_max_rate_takes_every_other_frame_by_stamp(ros_env):
     assert refused.returncode == 2 and 'live.max_rate_hz' in out, out
 
 
+def test_max_rate_schedule_is_even_tolerates_jitter_and_restarts_after_a_gap():
+    """The rule of live.max_rate_hz on its own: frames due one interval apart on the stamps' clock."""
+    import random
+    import types
+
+    from srmosaic_ros.nodes.mosaic_node import MosaicNode
+
+    def taken(fps: float, hz: float, stamps_s: list[float] | None = None, jitter_s: float = 0.0) -> list[int]:
+        rng = random.Random(0)
+        node = types.SimpleNamespace(_rate_interval_ns=int(1e9 / hz), _next_due_ns=None)
+        stamps_s = stamps_s or [k / fps for k in range(300)]
+        return [k for k, t in enumerate(stamps_s) if MosaicNode._due(node, int((t + rng.uniform(-jitter_s, jitter_s)) * 1e9))]
+
+    assert taken(30, 15) == list(range(0, 300, 2))
+    assert taken(30, 15, jitter_s=0.008) == list(range(0, 300, 2))   # stamps 8 ms off either way
+    assert len(taken(30, 20)) == 200 and len(taken(30, 20, jitter_s=0.008)) == 200
+    assert len(taken(30, 30, jitter_s=0.003)) == 300 and len(taken(30, 45)) == 300
+    # a 2 s gap in the input: the schedule starts again at the next frame, no burst after it
+    stamps = [k / 30 for k in range(30)] + [3.0 + k / 30 for k in range(30)]
+    got = taken(30, 10, stamps)
+    first, second = [k for k in got if k < 30], [k - 30 for k in got if k >= 30]
+    assert first == second == list(range(0, 30, 3)), got
+
+
 @pytest.mark.parametrize(('override', 'name'), [('registration.ratio:=3.0', 'ratio'),
                                                  ('live.sr_frames_kept:=0', 'sr_frames_kept'),
                                                  ('live.sr_worker:=fork', 'sr_worker'),
