@@ -152,12 +152,17 @@ class LiveFrameStore:
         self._frames: collections.deque[LiveFrame] = collections.deque(maxlen=int(kept))
         self.added = 0  # registered frames ever added (a change means new work for the planner)
         self.missed = 0  # registrations whose image was not (or no longer) in the store
+        # of those, registrations of an image the store had dropped for room (pending too small for
+        # how late the registrations come), as far as the newest stamp dropped tells
+        self.missed_dropped = 0
+        self._dropped_newest: int | None = None
 
     def add_image(self, stamp_ns: int, payload: Any) -> None:
         self._pending[int(stamp_ns)] = payload
         self._pending.move_to_end(int(stamp_ns))
         while len(self._pending) > self._pending_max:
-            self._pending.popitem(last=False)
+            dropped, _ = self._pending.popitem(last=False)
+            self._dropped_newest = max(dropped, self._dropped_newest or dropped)
 
     def add_registration(self, stamp_ns: int, segment: int, seg_H_frame: np.ndarray | None) -> bool:
         """The mosaic placed (segment >= 0, finite seg_H_frame) or skipped the frame at stamp_ns.
@@ -168,6 +173,8 @@ class LiveFrameStore:
             return False
         if payload is None:
             self.missed += 1
+            if self._dropped_newest is not None and int(stamp_ns) <= self._dropped_newest:
+                self.missed_dropped += 1
             return False
         if self._frames and self._frames[-1].segment != segment:
             keep = [f for f in self._frames if f.segment == segment]

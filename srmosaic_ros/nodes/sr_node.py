@@ -197,7 +197,14 @@ class SRNode(Node):
             self.warn('registration', f'registration skipped: {exc}')
             return
         with self._store_lock:
+            before = self._store.missed_dropped
             self._store.add_registration(reg.stamp_ns, reg.segment if reg.ok else -1, reg.seg_H_frame)
+            dropped = self._store.missed_dropped > before
+        if dropped:  # counted as a rejection: WARN while it goes on, the way out logged once
+            self.warn('registration after its image was dropped',
+                      'a registration came after its image had been dropped from the images waiting for theirs '
+                      '(live.sr_images_pending): raise it to the camera frames of (mosaic.revisit_spread_frames + '
+                      'live.queue_size) registered frames, times camera rate / live.max_rate_hz when that is set')
 
     def _on_timer(self) -> None:
         with self._wake:

@@ -866,6 +866,8 @@ def test_sr_placement_and_live_planning_without_ros():
         store.add_image(k, f'image {k}')
     assert store.pending == 3  # the oldest went
     assert not store.add_registration(0, 0, np.eye(3)) and store.missed == 1
+    assert store.missed_dropped == 1  # dropped for room: the store is too small for the registrations' delay
+    assert not store.add_registration(9, 0, np.eye(3)) and (store.missed, store.missed_dropped) == (2, 1)  # never came
     assert not store.add_registration(1, -1, None)  # not painted: dropped
     for k in range(2, 10):
         store.add_image(k, f'image {k}')
