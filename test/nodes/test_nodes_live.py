@@ -448,6 +448,41 @@ def test_a_launch_child_killed_is_named_and_leaves_no_sr_worker(ros_env, tmp_pat
     assert not any(_running(w) for w in workers), 'the SR worker outlived its node'
 
 
+def test_sr_node_says_when_registrations_come_after_their_images_were_dropped(ros_env):
+    """The SR node alone with room for 3 images waiting for their registration: 6 images, then the
+    registration of the first (dropped for room) and of the last: the first is counted as a rejection
+    (diagnostics WARN, naming it), the way out is logged once, and the last still makes a frame."""
+    from diagnostic_msgs.msg import DiagnosticStatus
+    from sensor_msgs.msg import Image
+    from std_msgs.msg import Float64MultiArray
+
+    from msg_adapters import numpy_to_image
+    from srmosaic_ros.nodes.common import encode_registration
+
+    node = srmosaic('node', 'sr', '--ros-args', '-p', 'live.sr_period_s:=0.2', '-p', 'live.sr_worker:=thread',
+                    '-p', 'live.sr_images_pending:=3', '-p', 'live.reliable_inputs:=true', env=ros_env)
+    kind = 'rejected: registration after its image was dropped'
+    with supervised(node=node) as sup:
+        listener = sup.listener
+        assert listener.wait_for(lambda: listener.diag_value('frames_received', SR) is not None, 60), 'no SR node'
+        images = listener.publisher(Image, '/camera/image_raw')
+        regs = listener.publisher(Float64MultiArray, '/srmosaic/registration')
+        time.sleep(1.0)  # discovery of the two publishers
+        stamps = [1_000_000_000 * (k + 1) for k in range(6)]
+        for k, stamp in enumerate(stamps):
+            images.publish(numpy_to_image(np.full((48, 64, 3), 20 * k, np.uint8), 'rgb8', stamp_ns=stamp, frame_id='camera'))
+        assert listener.wait_for(lambda: listener.diag_value('frames_received', SR) == '6', 20), \
+            listener.diag_value('frames_received', SR)
+        for stamp in (stamps[0], stamps[-1]):
+            regs.publish(encode_registration(stamp, True, 100, 0.1, 0, np.eye(3), np.eye(3), True, None))
+        assert listener.wait_for(lambda: listener.diag_value(kind, SR) == '1', 20), listener.diag_value(kind, SR)
+        assert listener.wait_for(lambda: listener.diag_value('frames_kept', SR) == '1', 20)
+        warned = [st for msg in list(listener.diagnostics) for st in msg.status
+                  if st.name == SR and st.level == DiagnosticStatus.WARN and 'registration after its image' in st.message]
+        assert warned, 'diagnostics never said it'
+    assert sup.logs['node'].count('raise it to the camera frames') == 1, sup.logs['node']
+
+
 def test_sr_node_refreshes_a_tile_when_more_frames_cover_it(ros_env):
     """The SR node alone, fed frames and registrations over DDS by this test: an aircraft hovering
     over one spot. Each tile is published once 3 frames cover it, then again (same placement) once
