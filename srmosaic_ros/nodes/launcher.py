@@ -20,7 +20,8 @@ params/default.yaml on the default topics. A description is a YAML file:
 
 Each process of a description is a child `srmosaic node ...`; --params FILE and --ros-args given
 to `srmosaic launch` apply to every child. Ctrl-C (SIGINT) or SIGTERM is forwarded to all of them
-and the launcher waits for their clean shutdown; when one child fails, the others are stopped.
+and the launcher waits for their clean shutdown (a second one kills those still running); when one
+child fails, the others are stopped.
 """
 from __future__ import annotations
 
@@ -224,9 +225,33 @@ def _supervise(commands: list[tuple[str, list[str]]], driver: Any = None) -> int
             if child.poll() is None:
                 child.send_signal(signal.SIGINT)
 
-    signal.signal(signal.SIGINT, forward)
-    signal.signal(signal.SIGTERM, forward)
+    def running() -> str:
+        return ', '.join(label for (label, _), c in zip(commands, children) if c.poll() is None)
+
+    user_stops = 0
     status = 0
+
+    def on_signal(signum: int, frame: Any) -> None:
+        # Ctrl-C / SIGTERM: the children stop cleanly (they write their outputs at shutdown, which
+        # takes a while after a long flight, and ignore further signals meanwhile); a second one
+        # kills those still running, as the user asked.
+        nonlocal user_stops, status
+        user_stops += 1
+        if user_stops == 1:
+            forward(signum, frame)
+            _say(f'stopping; waiting for {running()} to finish (outputs are written at shutdown); '
+                 'Ctrl-C again to kill them')
+            return
+        names = running()
+        for child in children:
+            if child.poll() is None:
+                child.kill()
+        if names:
+            _say(f'killed {names} (outputs being written may be incomplete)')
+            status = status or 1
+
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
     try:
         while any(c.poll() is None for c in children):
             if driver is not None and driver.failure:
@@ -235,7 +260,7 @@ def _supervise(commands: list[tuple[str, list[str]]], driver: Any = None) -> int
                 forward(signal.SIGINT, None)
                 break
             failed = [(label, c.returncode) for (label, _), c in zip(commands, children) if c.poll() not in (None, 0)]
-            if failed:  # one failed: say which, stop the others
+            if failed and user_stops < 2:  # one failed: say which, stop the others
                 label, code = failed[0]
                 how = f'was killed by {signal.Signals(-code).name}' if code < 0 else f'exited with status {code}'
                 _say(f'{label} {how}; stopping the others')

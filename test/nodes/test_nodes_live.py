@@ -448,6 +448,42 @@ def test_a_launch_child_killed_is_named_and_leaves_no_sr_worker(ros_env, tmp_pat
     assert not any(_running(w) for w in workers), 'the SR worker outlived its node'
 
 
+def test_a_second_ctrl_c_kills_the_launch_children_still_running(ros_env, tmp_path):
+    """Ctrl-C to `srmosaic launch` stops the children cleanly and waits for them (they write their
+    outputs); a child that does not finish (here: stopped by SIGSTOP) kept the launcher waiting for
+    ever. Now the launcher says whom it waits for, and a second Ctrl-C kills them, named (status 1)."""
+    description = tmp_path / 'one.yaml'
+    description.write_text('processes:\n  - {name: ground, nodes: [georef]}\n')
+    graph = srmosaic('launch', str(description), env=ros_env)
+    child = None
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and child is None:
+            child = next((c for c in _children(graph.pid) if ' node georef' in _cmdline(c)), None)
+            time.sleep(0.3)
+        assert child is not None, 'no georef child'
+        time.sleep(3.0)  # past its start
+        os.kill(child, signal.SIGSTOP)  # a child that never finishes its shutdown
+        graph.send_signal(signal.SIGINT)
+        time.sleep(2.0)
+        assert graph.poll() is None, 'the launcher did not wait for its child'
+        graph.send_signal(signal.SIGINT)
+        out, _ = graph.communicate(timeout=30)
+    finally:
+        if child is not None and _running(child):
+            os.kill(child, signal.SIGKILL)
+        if graph.poll() is None:
+            graph.kill()
+            graph.communicate()
+    assert 'srmosaic launch: stopping; waiting for ground to finish' in out, out
+    assert 'srmosaic launch: killed ground' in out, out
+    assert graph.returncode == 1, out
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline and _running(child):
+        time.sleep(0.2)
+    assert not _running(child)
+
+
 def test_sr_node_says_when_registrations_come_after_their_images_were_dropped(ros_env):
     """The SR node alone with room for 3 images waiting for their registration: 6 images, then the
     registration of the first (dropped for room) and of the last: the first is counted as a rejection
