@@ -19,7 +19,7 @@ in the main mosaic and the peak memory. The figures go to --work/throughput.json
 
     OMP_NUM_THREADS=2 python bench/throughput.py [--sizes 640x480,1280x720,1920x1080,3840x2160]
                                                  [--frames 150] [--baseline REF] [--work DIR] [--fresh]
-                                                 [--set KEY=VALUE ...]
+                                                 [--set KEY=VALUE ...] [--set-baseline-too]
 
 Simulating takes longer than processing (about 20 s per 150 frames at 640x480, 45 s at 1080p and
 3 minutes at 4K); later runs with the same settings reuse the videos (--fresh redoes them).
@@ -121,6 +121,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument('--fresh', action='store_true', help='simulate again even if the flights exist')
     ap.add_argument('--set', action='append', default=[], metavar='KEY=VALUE',
                     help='parameter for this tree\'s runs (e.g. registration.level=0); repeatable')
+    ap.add_argument('--set-baseline-too', action='store_true',
+                    help='the --set parameters for the baseline\'s runs as well (a code change under the same settings)')
     args = ap.parse_args(argv)
     sizes = args.sizes.split(',')
     bad = [s for s in sizes if s not in SIZES]
@@ -155,7 +157,7 @@ def main(argv: list[str] | None = None) -> int:
             for name, code in codes.items():
                 out = args.work / f'out_{size}_{name}'
                 print(f'{size}: process ({name}) ...', flush=True)
-                report = run_process(code, video, sidecar, out, params if name == 'this' else None)
+                report = run_process(code, video, sidecar, out, params if name == 'this' or args.set_baseline_too else None)
                 rows.append(row(name, size, report, truth, out))
                 print(f"  {rows[-1]['fps']:.1f} frames/s, error {rows[-1]['corner_error_mean_px']:.3f} px", flush=True)
     finally:

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ['apply_homography', 'corner_shift_px', 'homography_power', 'project_points', 'translation']
+__all__ = ['apply_homography', 'corner_shift_px', 'h8_jacobian', 'homography_power', 'project_points', 'translation']
 
 
 def project_points(H: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -28,6 +28,22 @@ def corner_shift_px(a: np.ndarray, b: np.ndarray, width: int, height: int) -> fl
     frame (pixel centres at integers) under the homographies a and b (3, 3)."""
     c = np.array([[0.0, 0.0], [width - 1.0, 0.0], [width - 1.0, height - 1.0], [0.0, height - 1.0]])
     return float(np.linalg.norm(apply_homography(a, c) - apply_homography(b, c), axis=1).max())
+
+
+#: (row, column) of the 8 free entries h00..h21 of a homography with h22 = 1
+_ROWS, _COLS = np.divmod(np.arange(8), 3)
+
+
+def h8_jacobian(A: np.ndarray, B: np.ndarray, F0: np.ndarray) -> np.ndarray:
+    """(8, 8) Jacobian d h8(F) / d p of a homography F(p) whose derivative along parameter k is
+    A E_k B (A, B (3, 3); E_k the unit matrix of entry k of h00..h21), at F(0) = F0, with
+    h8(F) = the first 8 entries of F / F[2, 2]. Exact (no finite differences):
+    d(F / F22) = dF / F22 - F dF22 / F22^2.
+    E.g. F = t X(h) t^-1: A = t, B = t^-1; F = X(h)^-1: A = -X^-1, B = X^-1."""
+    dF = A[:, _ROWS].T[:, :, None] * B[_COLS, :][:, None, :]                        # (8, 3, 3)
+    f22 = F0[2, 2]
+    dN = dF / f22 - F0[None] * (dF[:, 2, 2] / f22**2)[:, None, None]
+    return dN.reshape(8, 9)[:, :8].T
 
 
 def translation(dx: float, dy: float) -> np.ndarray:

@@ -21,6 +21,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from ..homography import h8_jacobian
 from .registrar import Registration
 
 __all__ = ['LevelFeatures', 'PyramidRegistrar', 'level_for_width']
@@ -67,21 +68,11 @@ def to_full(reg: Registration, level: int) -> Registration:
         return reg
     t = full_from_level(level)
     t_inv = np.linalg.inv(t)
-
-    def conj(h8: np.ndarray) -> np.ndarray:
-        return _h8(t @ _H(h8) @ t_inv)
-
-    h_level = _h8(np.asarray(reg.prev_H_cur, dtype=np.float64))
-    h_full = conj(h_level)
+    full = t @ _H(_h8(np.asarray(reg.prev_H_cur, dtype=np.float64))) @ t_inv
+    h_full = _h8(full)
     cov = reg.covariance
     if cov is not None:
-        # J = d h_full / d h_level by central differences (the map is smooth and 8 x 8: cheap, exact enough)
-        jac = np.empty((8, 8))
-        for k in range(8):
-            step = 1e-6 * max(1.0, abs(h_level[k]))
-            d = np.zeros(8)
-            d[k] = step
-            jac[:, k] = (conj(h_level + d) - conj(h_level - d)) / (2.0 * step)
+        jac = h8_jacobian(t, t_inv, full)  # d h_full / d h_level, exact
         cov = jac @ np.asarray(cov, dtype=np.float64) @ jac.T
     s = float(1 << level)
     return replace(reg, prev_H_cur=_H(h_full), covariance=cov, rms_px=reg.rms_px * s,

@@ -40,6 +40,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from ..homography import h8_jacobian
+
 __all__ = ['PhotometricOptions', 'PhotometricResult', 'PhotometricTemplate', 'make_template', 'refine_photometric']
 
 
@@ -117,46 +119,30 @@ class PhotometricResult:
 RESIDUAL_CORRELATION_VARIANCE_FACTOR = 2.0
 
 
-def _h8(H: np.ndarray) -> np.ndarray:
-    return (H / H[2, 2]).reshape(-1)[:8]
-
-
 def inverse_covariance(H: np.ndarray, covariance: np.ndarray) -> np.ndarray:
-    """(8, 8) covariance of h of H^-1, given that of h of H (h22 = 1), by a central-difference Jacobian."""
-    h0 = _h8(H)
-    eps = 1e-7 * max(1.0, float(np.abs(h0).max()))
-    J = np.zeros((8, 8))
-    for k in range(8):
-        d = np.zeros(8)
-        d[k] = eps
-        J[:, k] = (_h8(np.linalg.inv(np.r_[h0 + d, 1.0].reshape(3, 3)))
-                   - _h8(np.linalg.inv(np.r_[h0 - d, 1.0].reshape(3, 3)))) / (2.0 * eps)
+    """(8, 8) covariance of h of H^-1, given that of h of H (h22 = 1): J C J^T with J the exact
+    Jacobian of h(H^-1) (d H^-1 = -H^-1 dH H^-1)."""
+    Hi = np.linalg.inv(H / H[2, 2])
+    J = h8_jacobian(-Hi, Hi, Hi)
     return J @ covariance @ J.T
 
 
-def _gauss_newton_covariance(hess: torch.Tensor, scale2: float, Hn: np.ndarray, M: np.ndarray) -> np.ndarray | None:
+def _gauss_newton_covariance(hess: np.ndarray, scale2: float, Hn: np.ndarray, M: np.ndarray) -> np.ndarray | None:
     """(8, 8) covariance of h (h22 = 1) of H = M^-1 Hn M at the end of the inverse-compositional
-    fit: cov(dp) = s^2 (J^T W J)^-1 (the Gauss-Newton normal matrix `hess` of the last step, s^2
-    the robust residual variance), carried to h through H(dp) = M^-1 Hn D(dp)^-1 M by a central-
-    difference Jacobian. Pixel residuals are not independent (the optics blur neighbours together),
-    so s^2 (J^T W J)^-1 is a lower bound: it is inflated by RESIDUAL_CORRELATION_VARIANCE_FACTOR
-    (2: on simulated flights the refined corners' errors are about 1.5 times the uninflated sigma)."""
-    h64 = hess.to(torch.float64).cpu().numpy()
+    fit: cov(dp) = s^2 (J^T W J)^-1 (``hess`` (8, 8) float64, the Gauss-Newton normal matrix of the
+    last step, s^2 the robust residual variance), carried to h through H(dp) = M^-1 Hn D(dp)^-1 M
+    (d D^-1 = -dD at dp = 0). Pixel residuals are not independent (the optics blur neighbours
+    together), so s^2 (J^T W J)^-1 is a lower bound: it is inflated by
+    RESIDUAL_CORRELATION_VARIANCE_FACTOR (2: on simulated flights the refined corners' errors are
+    about 1.5 times the uninflated sigma)."""
     try:
-        cov_dp = RESIDUAL_CORRELATION_VARIANCE_FACTOR * scale2 * np.linalg.inv(h64)
+        cov_dp = RESIDUAL_CORRELATION_VARIANCE_FACTOR * scale2 * np.linalg.inv(hess)
     except np.linalg.LinAlgError:
         return None
     if not np.all(np.isfinite(cov_dp)):
         return None
-    Mi = np.linalg.inv(M)
-    eps = 1e-7
-    J = np.zeros((8, 8))
-    for k in range(8):
-        d = np.zeros(8)
-        d[k] = eps
-        hp = _h8(Mi @ Hn @ np.linalg.inv(_warp_from_params(d)) @ M)
-        hm = _h8(Mi @ Hn @ np.linalg.inv(_warp_from_params(-d)) @ M)
-        J[:, k] = (hp - hm) / (2.0 * eps)
+    A = np.linalg.inv(M) @ Hn
+    J = h8_jacobian(-A, M, A @ M)
     return J @ cov_dp @ J.T
 
 
@@ -182,39 +168,42 @@ def make_template(image: torch.Tensor, level: int, *, points: int, static: bool 
     _, _, h, w = image.shape
     b = max(1, round(math.sqrt(h * w / points)))
     hb, wb = h // b, w // b
-    img = image[0, 0, :hb * b, :wb * b]
-    p = F.pad(image, (1, 1, 1, 1), mode='replicate')[0, 0]
-    gx = torch.sub(p[1:hb * b + 1, 2:wb * b + 2], p[1:hb * b + 1, :wb * b]).mul_(0.5)
-    gy = torch.sub(p[2:hb * b + 2, 1:wb * b + 1], p[:hb * b, 1:wb * b + 1]).mul_(0.5)
-    mag = torch.addcmul(gx * gx, gy, gy)
+    norm_from_full, grid_from_norm = _level_matrices(level, w, h)
+    s = max(w, h) / 2.0
+    if hb < 3 or wb < 3:  # no interior block
+        empty = image.new_zeros(0)
+        return PhotometricTemplate(level, (w, h), image.new_zeros(3, 0), empty, image.new_zeros(8, 0),
+                                   norm_from_full, grid_from_norm)
+    # Central differences over the interior blocks only (their neighbours are all inside the
+    # image: no padding), at twice the gradient (the 1/2 is applied to the few pixels kept; the
+    # block maxima and the cut are the same up to that exact factor 4).
+    img = image[0, 0]
+    r0, r1, c0, c1 = b, (hb - 1) * b, b, (wb - 1) * b
+    wi = c1 - c0
+    dx = torch.sub(img[r0:r1, c0 + 1:c1 + 1], img[r0:r1, c0 - 1:c1 - 1])
+    dy = torch.sub(img[r0 + 1:r1 + 1, c0:c1], img[r0 - 1:r1 - 1, c0:c1])
+    mag = torch.addcmul(dx * dx, dy, dy)
     # Block maxima and their first arg-max (row-major within the block) in one pass; flat
-    # indices into the cropped level (width wc).
+    # indices into the interior (width wi).
     bmax, arg = F.max_pool2d(mag[None, None], b, b, return_indices=True)
-    bmax, arg = bmax[0, 0], arg.view(-1)                                        # (hb, wb), (hb * wb,)
-    bmax[0] = -1.0
-    bmax[-1] = -1.0
-    bmax[:, 0] = -1.0
-    bmax[:, -1] = -1.0
-    flat = bmax.view(-1)
-    n_in = max((hb - 2) * (wb - 2), 0)
+    flat, arg = bmax.view(-1), arg.view(-1)
+    n_in = flat.numel()
     if static:
         top = flat.topk(min(points, n_in)).indices.sort().values   # in block order, as nonzero gives them
     else:
-        cut = flat.kthvalue(flat.numel() - points + 1).values if points < n_in else flat.new_tensor(0.0)
+        cut = flat.kthvalue(n_in - points + 1).values if points < n_in else flat.new_tensor(0.0)
         top = (flat >= cut).nonzero()[:, 0]
-    wc = wb * b
     lin = arg.index_select(0, top)
-    y, x = lin // wc, lin % wc
-    norm_from_full, grid_from_norm = _level_matrices(level, w, h)
-    s = max(w, h) / 2.0
-    xn = (x.to(torch.float32) - (w - 1) / 2.0) / s
-    yn = (y.to(torch.float32) - (h - 1) / 2.0) / s
-    tx = gx.reshape(-1).index_select(0, lin).mul_(s)
-    ty = gy.reshape(-1).index_select(0, lin).mul_(s)
+    yi = lin // wi
+    xi = lin - yi * wi
+    xn = (xi.to(torch.float32) + (c0 - (w - 1) / 2.0)) / s
+    yn = (yi.to(torch.float32) + (r0 - (h - 1) / 2.0)) / s
+    tx = dx.view(-1).index_select(0, lin).mul_(0.5 * s)
+    ty = dy.view(-1).index_select(0, lin).mul_(0.5 * s)
     proj = tx * xn + ty * yn
     sd = torch.stack([tx * xn, tx * yn, tx, ty * xn, ty * yn, ty, -proj * xn, -proj * yn], 0)
-    return PhotometricTemplate(level, (w, h), torch.stack([xn, yn, torch.ones_like(xn)], 0),
-                               img.reshape(-1).index_select(0, lin), sd,
+    values = img.reshape(-1).index_select(0, (yi + r0) * w + (xi + c0))
+    return PhotometricTemplate(level, (w, h), torch.stack([xn, yn, torch.ones_like(xn)], 0), values, sd,
                                norm_from_full, grid_from_norm)
 
 
@@ -257,15 +246,16 @@ def refine_photometric(
         half_w, half_h = (w - 1) / (2.0 * s), (h - 1) / (2.0 * s)
         lim = 1.0 - 2.0 / max(w, h)
         sd, tv = tpl.sd, tpl.values
+        xn_rows = tpl.xn.T                                                                # (P, 3) view
         weights = torch.ones_like(tv)
         converged = False
         for _ in range(opts.max_iterations):
             total += 1
             C = tpl.grid_from_norm @ Hn
-            g = torch.from_numpy(C.astype(np.float32)).to(dev) @ tpl.xn                  # (3, P)
-            grid = (g[:2] / g[2:3]).T
+            g = xn_rows @ torch.from_numpy(C.T.astype(np.float32)).to(dev)               # (P, 3)
+            grid = g[:, :2] / g[:, 2:]                                                    # (P, 2), contiguous
             inside = grid.abs().amax(1) <= lim
-            iw = F.grid_sample(img, grid.contiguous().view(1, 1, -1, 2), mode='bilinear', padding_mode='border',
+            iw = F.grid_sample(img, grid.view(1, 1, -1, 2), mode='bilinear', padding_mode='border',
                                align_corners=True).view(-1)
             # Gain and bias of the warped image (least squares, current weights), then the residual.
             wv = weights * inside
@@ -289,9 +279,14 @@ def refine_photometric(
                 weights = torch.rsqrt(e2 / (opts.huber_k**2 * scale2.clamp_min(1e-12))).clamp_max_(1.0)
             wv = weights * inside
             sdw = sd * wv
-            hess = sdw @ sd.T
-            rhs = sdw @ e
-            dp = torch.linalg.solve_ex(hess.to(torch.float64), rhs.to(torch.float64))[0].cpu().numpy()
+            # J^T W J and J^T W e in one transfer, solved on the host (8 x 8: a LAPACK call costs less
+            # than a torch one here, and the step needs the host anyway)
+            normal = torch.cat((sdw @ sd.T, (sdw @ e)[:, None]), 1).cpu().numpy().astype(np.float64)
+            hess = normal[:, :8]
+            try:
+                dp = np.linalg.solve(hess, normal[:, 8])
+            except np.linalg.LinAlgError:
+                break
             if not np.all(np.isfinite(dp)):
                 break
             D = _warp_from_params(dp)
