@@ -29,14 +29,29 @@ def init_rclpy(args: list[str] | None, **kwargs: Any) -> None:
 
 
 class _Stop(BaseException):
-    """SIGINT / SIGTERM: raised in the main thread wherever it is, often inside a callback. A
-    BaseException, as KeyboardInterrupt is, so that a callback's `except Exception` (the nodes keep
-    spinning past a bad input) does not swallow it (a node would log it as a bad frame and go on,
-    and the graph would never stop)."""
+    """A second SIGINT / SIGTERM: raised in the main thread wherever it is (a callback that does not
+    return). A BaseException, as KeyboardInterrupt is, so that a callback's `except Exception` (the
+    nodes keep spinning past a bad input) does not swallow it."""
 
 
-def _raise_stop(signum: int, frame: Any) -> None:
-    raise _Stop
+class _StopRequest:
+    """Signal handler for SIGINT and SIGTERM. The first signal only sets ``requested``: spinning stops
+    once the callback running returns (within SPIN_TIMEOUT_S when none runs). Raising there instead
+    lands the exception wherever the main thread is, also inside rclpy's C++ while it builds a message
+    in Python, where pybind11 turns it into a RuntimeError and the node exits with a traceback
+    (status 1) instead of shutting down. A second signal raises _Stop."""
+
+    def __init__(self) -> None:
+        self.requested = False
+
+    def __call__(self, signum: int, frame: Any) -> None:
+        if self.requested:
+            raise _Stop
+        self.requested = True
+
+
+#: Longest wait in rcl before the spin loop looks at a stop request again (s).
+SPIN_TIMEOUT_S = 0.5
 
 
 def run_nodes(node_classes: Sequence[type], args: list[str] | None = None) -> int:
@@ -48,8 +63,9 @@ def run_nodes(node_classes: Sequence[type], args: list[str] | None = None) -> in
     # Our own handlers: SIGINT and SIGTERM stop spinning; rclpy's would shut the context down
     # before the nodes could finish.
     init_rclpy(args, signal_handler_options=SignalHandlerOptions.NO)
-    signal.signal(signal.SIGINT, _raise_stop)
-    signal.signal(signal.SIGTERM, _raise_stop)
+    stop = _StopRequest()
+    signal.signal(signal.SIGINT, stop)
+    signal.signal(signal.SIGTERM, stop)
     nodes = []
     status = 0
     try:
@@ -64,8 +80,8 @@ def run_nodes(node_classes: Sequence[type], args: list[str] | None = None) -> in
         # spin_once with a timeout returns to Python twice a second even when no node has a timer
         # (an idle georef node, an unconfigured lifecycle node), so that the handlers above run:
         # executor.spin() would wait in rcl, where Python signal handlers never run.
-        while rclpy.ok():
-            executor.spin_once(timeout_sec=0.5)
+        while rclpy.ok() and not stop.requested:
+            executor.spin_once(timeout_sec=SPIN_TIMEOUT_S)
     except (_Stop, KeyboardInterrupt, ExternalShutdownException):
         pass
     except SrMosaicError as exc:
@@ -76,7 +92,7 @@ def run_nodes(node_classes: Sequence[type], args: list[str] | None = None) -> in
                                   'InvalidParameterTypeException', 'ParameterUninitializedException'}:
             print(f'srmosaic: error: invalid parameter: {exc}', file=sys.stderr)
             status = 2
-        else:
+        elif not stop.requested:  # else a second signal's _Stop, turned into another error by C++ code
             raise
     finally:
         signal.signal(signal.SIGINT, signal.SIG_IGN)

@@ -484,13 +484,23 @@ def test_a_second_ctrl_c_kills_the_launch_children_still_running(ros_env, tmp_pa
     assert not _running(child)
 
 
+def sr_node_inputs(listener: Listener) -> tuple[Any, Any]:
+    """Once the SR node is up: publishers of its camera images and of registrations (discovered)."""
+    from sensor_msgs.msg import Image
+    from std_msgs.msg import Float64MultiArray
+
+    assert listener.wait_for(lambda: listener.diag_value('frames_received', SR) is not None, 60), 'no SR node'
+    images = listener.publisher(Image, '/camera/image_raw')
+    regs = listener.publisher(Float64MultiArray, '/srmosaic/registration')
+    time.sleep(1.0)  # discovery of the two publishers
+    return images, regs
+
+
 def test_sr_node_says_when_registrations_come_after_their_images_were_dropped(ros_env):
     """The SR node alone with room for 3 images waiting for their registration: 6 images, then the
     registration of the first (dropped for room) and of the last: the first is counted as a rejection
     (diagnostics WARN, naming it), the way out is logged once, and the last still makes a frame."""
     from diagnostic_msgs.msg import DiagnosticStatus
-    from sensor_msgs.msg import Image
-    from std_msgs.msg import Float64MultiArray
 
     from msg_adapters import numpy_to_image
     from srmosaic_ros.nodes.common import encode_registration
@@ -500,10 +510,7 @@ def test_sr_node_says_when_registrations_come_after_their_images_were_dropped(ro
     kind = 'rejected: registration after its image was dropped'
     with supervised(node=node) as sup:
         listener = sup.listener
-        assert listener.wait_for(lambda: listener.diag_value('frames_received', SR) is not None, 60), 'no SR node'
-        images = listener.publisher(Image, '/camera/image_raw')
-        regs = listener.publisher(Float64MultiArray, '/srmosaic/registration')
-        time.sleep(1.0)  # discovery of the two publishers
+        images, regs = sr_node_inputs(listener)
         stamps = [1_000_000_000 * (k + 1) for k in range(6)]
         for k, stamp in enumerate(stamps):
             images.publish(numpy_to_image(np.full((48, 64, 3), 20 * k, np.uint8), 'rgb8', stamp_ns=stamp, frame_id='camera'))
@@ -523,8 +530,6 @@ def test_sr_node_refreshes_a_tile_when_more_frames_cover_it(ros_env):
     """The SR node alone, fed frames and registrations over DDS by this test: an aircraft hovering
     over one spot. Each tile is published once 3 frames cover it, then again (same placement) once
     twice as many do (live.sr_refresh_growth 2), and counted as refreshed."""
-    from sensor_msgs.msg import Image
-    from std_msgs.msg import Float64MultiArray
 
     from imagery import view
     from msg_adapters import image_to_numpy, numpy_to_image
@@ -536,10 +541,7 @@ def test_sr_node_refreshes_a_tile_when_more_frames_cover_it(ros_env):
                     env=ros_env)
     with supervised(node=node) as sup:
         listener = sup.listener
-        assert listener.wait_for(lambda: listener.diag_value('frames_received', SR) is not None, 60), 'no SR node'
-        images = listener.publisher(Image, '/camera/image_raw')
-        regs = listener.publisher(Float64MultiArray, '/srmosaic/registration')
-        time.sleep(1.0)  # discovery of the two publishers
+        images, regs = sr_node_inputs(listener)
         origin = np.array([300.0, 200.0])
 
         def state() -> str:
