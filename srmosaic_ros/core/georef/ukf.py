@@ -310,9 +310,16 @@ class PoseUkf:
             np.linalg.cholesky(self.ukf.P)
         except np.linalg.LinAlgError:  # numerically lost definiteness: repair rather than fail
             self.ukf.P = nearest_positive_definite(self.ukf.P)
-        self.ukf.predict(dt=dt, ratio=ratio)
-        self.ukf.P = _sym(self.ukf.P)
-        self.last_F = transition_matrix(ratio)
+        # The motion model is linear (x' = F x): the unscented transform of filterpy's predict is
+        # then exact, x' = F x and P' = F P F^T + Q, so it is computed directly (27 sigma points
+        # through fx in a Python loop cost more than the rest of the step). The updates draw their
+        # sigma points from (x, P) themselves (_update).
+        F = transition_matrix(ratio)
+        ukf = self.ukf
+        ukf.x = F @ ukf.x
+        ukf.P = _sym(F @ ukf.P @ F.T + Q)
+        ukf.x_prior, ukf.P_prior = ukf.x.copy(), ukf.P.copy()
+        self.last_F = F
         # keep yaw near (-pi, pi]: shift both slots by the same turns
         turns = round(self.ukf.x[11] / (2.0 * math.pi))
         if turns:
