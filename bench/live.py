@@ -21,7 +21,7 @@ Layouts (`--graph`, repeatable; default all three):
   split     mosaic | georef (live.georef_standalone) | sr, three processes (launch description)
 
     .venv/bin/python bench/live.py [--fps 25] [--seconds 20] [--graph split] [--compressed] [--width 1280 --height 720]
-        [--params-file params/live_hd.yaml] [--flight-cache /tmp/flight.pkl]
+        [--params-file params/live_hd.yaml] [--flight-cache /tmp/flight.pkl] [--plot latency.png]
 
 The mosaic node's own diagnostics are printed too: frames it received (the rest were lost by
 best-effort DDS before reaching it), frames its bounded queue dropped, and its median processing
@@ -187,6 +187,7 @@ def run_layout(layout: str, args: argparse.Namespace, flight, domain: int) -> di
     t0_wall = time.monotonic()
     t0_ns = time.time_ns()
     offered = 0
+    published_ns: list[int] = []  # each image's header stamp (its publish time)
     image_bytes = 0
     ti = 0
     loops = 0
@@ -208,6 +209,7 @@ def run_layout(layout: str, args: argparse.Namespace, flight, domain: int) -> di
         if args.telemetry != 'none':  # as a camera driver does: CameraInfo with every image
             pub_info.publish(intrinsics_to_camera_info(flight.camera, stamp_ns=now_ns))
         pub.publish(_stamped(serialized[k], now_ns))
+        published_ns.append(now_ns)
         image_bytes += len(serialized[k])
         offered += 1
         time.sleep(max(0.0, t0_wall + offered * period - time.monotonic()))
@@ -231,7 +233,8 @@ def run_layout(layout: str, args: argparse.Namespace, flight, domain: int) -> di
     span = (rate_at[-1] - rate_at[0]) if len(rate_at) > 1 else float('nan')
     lat = np.array(latencies) if latencies else np.array([np.nan])
     pose_lat = np.array(list(pose_latencies.values())) if pose_latencies else np.array([np.nan])
-    return {'layout': layout, 'offered': offered, 'processed': processed,
+    return {'layout': layout, 'offered': offered, 'processed': processed, 't0_ns': t0_ns,
+            'pose_latencies': pose_latencies, 'published_stamps': published_ns,
             'pose_lat_median_ms': float(np.median(pose_lat)), 'pose_lat_p95_ms': float(np.percentile(pose_lat, 95)),
             'fps': (len(rate_at) - 1) / span if len(rate_at) > 1 else float('nan'),
             'lat_median_ms': float(np.median(lat)), 'lat_p95_ms': float(np.percentile(lat, 95)), 'link': link_rates,
@@ -267,6 +270,32 @@ def _stamped(cdr: bytes, stamp_ns: int) -> bytes:
     return cdr[:4] + struct.pack('<iI', sec, nsec) + cdr[12:]
 
 
+def plot_latency(results: list[dict], path: Path) -> None:
+    """One panel per layout: latency (ms) from publish to the frame's first pose against its publish
+    time (s into the run); frames that never got a pose as red ticks below the axis."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(len(results), 1, figsize=(10, 3.2 * len(results)), squeeze=False)
+    for ax, r in zip(axes[:, 0], results):
+        t0 = r['t0_ns']
+        got = r['pose_latencies']
+        t = np.array([(s - t0) * 1e-9 for s in got])
+        ax.plot(t, list(got.values()), '.', ms=2, label='latency to the pose')
+        lost = [(s - t0) * 1e-9 for s in r['published_stamps'] if s not in got]
+        if lost:
+            ax.plot(lost, np.zeros(len(lost)), '|', color='red', ms=10, label=f'{len(lost)} frames without a pose')
+        ax.set_title(f"{r['layout']}: {r['processed']} of {r['offered']} frames processed, pose latency median "
+                     f"{r['pose_lat_median_ms']:.0f} ms, p95 {r['pose_lat_p95_ms']:.0f} ms")
+        ax.set_xlabel('published at (s into the run)')
+        ax.set_ylabel('ms')
+        ax.legend(loc='upper left', fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--fps', type=float, default=25.0)
@@ -290,6 +319,9 @@ def main() -> int:
                     help='pickle of the rendered flight: written when missing, read when present (a 60 s '
                          '720p30 flight: 5 GB on disk, 4 minutes of rendering saved per run); it must have been '
                          'rendered with the same flight options (else it is rendered again)')
+    ap.add_argument('--plot', type=Path, default=None,
+                    help='PNG: per layout, each frame\'s latency from publish to its pose against the time it was '
+                         'published, frames never posed marked below (where in the flight the node fell behind)')
     ap.add_argument('--no-fastdds-profile', action='store_true',
                     help='leave Fast DDS at its defaults (512 KiB shared-memory segments: raw frames go over '
                          'fragmented UDP and about half are lost at 25 fps) instead of params/fastdds_large_images.xml')
@@ -330,6 +362,9 @@ def main() -> int:
               'ground link would carry)')
         for name, (n, size) in r['link'].items():
             print(f"  {name:<42} {n:>6} msgs {size / max(n, 1) / 1e3:>9.1f} kB/msg {size / r['seconds'] / 1e3:>10.1f} kB/s")
+    if args.plot is not None:
+        plot_latency(results, args.plot)
+        print(f'latency plot -> {args.plot}')
     print('\nlayout     offered processed   fps  lat_med_ms lat_p95_ms poses tiles')
     for r in results:
         print(f"{r['layout']:<10} {r['offered']:>7} {r['processed']:>9} {r['fps']:>5.2f} {r['lat_median_ms']:>11.0f} "
