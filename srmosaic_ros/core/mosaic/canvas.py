@@ -652,13 +652,12 @@ class TiledCanvas:
         w_w = cv2.warpPerspective(weight, box_h_frame, (bw, bh), dst=scratch('weight', (bh, bw)), flags=cv2.INTER_LINEAR,
                                   borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
         index = self._frames
-        cols = np.flatnonzero(w_w.any(axis=0))
-        rows = np.flatnonzero(w_w.any(axis=1))
-        if cols.size == 0:
+        # Tight box of non-zero weight, in box coordinates (one C pass over a mask, not two reductions).
+        c0, r0, nc, nr = cv2.boundingRect((w_w != 0).view(np.uint8))
+        if nc == 0:
             self._frames += 1
             return PaintResult(index, (), footprint, (0, 0, 0, 0))
-        # Tight box of non-zero weight, in box coordinates.
-        c0, c1, r0, r1 = int(cols[0]), int(cols[-1]) + 1, int(rows[0]), int(rows[-1]) + 1
+        c1, r1 = c0 + nc, r0 + nr
         multiband = self._blend == 'multiband'
 
         jobs: list[tuple[TileKey, tuple[slice, slice], tuple[slice, slice]]] = []
