@@ -21,7 +21,7 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(VENV)/bin/ruff check .
-	$(VENV)/bin/python -m pytest -q -ra
+	$(VENV)/bin/python -m pytest -q -ra --durations=20
 
 # Regenerate the bundled demo bag (command recorded in bags/README.md).
 demo-bag: $(STAMP)
