@@ -296,8 +296,8 @@ def plot_latency(results: list[dict], path: Path) -> None:
     plt.close(fig)
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def add_flight_arguments(ap: argparse.ArgumentParser) -> None:
+    """The simulated flight's options (this bench's and bench/live_replay.py's)."""
     ap.add_argument('--fps', type=float, default=25.0)
     ap.add_argument('--seconds', type=float, default=20.0)
     ap.add_argument('--frames', type=int, default=0,
@@ -310,15 +310,34 @@ def main() -> int:
                     help='ground speed, m/s (default 12.5: 0.5 m, about 4 px, per frame at 25 fps and 100 m)')
     ap.add_argument('--width', type=int, default=640, help='frame width, px (default 640)')
     ap.add_argument('--height', type=int, default=480, help='frame height, px (default 480)')
+    ap.add_argument('--flight-cache', type=Path, default=None,
+                    help='pickle of the rendered flight: written when missing, read when present (a 60 s '
+                         '720p30 flight: 5 GB on disk, 4 minutes of rendering saved per run); it must have been '
+                         'rendered with the same flight options (else it is rendered again)')
+
+
+def flight_from_arguments(args: argparse.Namespace):
+    """The simulated flight of add_flight_arguments' options (rendered, or read from --flight-cache)."""
+    from srmosaic_ros.sim import SimConfig
+
+    if args.frames <= 0:
+        args.frames = int(math.ceil(args.fps * args.seconds)) + 1
+    trajectory = args.trajectory
+    if trajectory == 'auto':
+        trajectory = 'line' if args.speed * args.frames / args.fps <= 250.0 else 'lawnmower'
+    shape = {'trajectory': 'lawnmower', 'legs': 4, 'leg_length_m': 150.0, 'leg_spacing_m': 50.0} if trajectory == 'lawnmower' else {}
+    return rendered_flight(SimConfig(frames=args.frames, rate_hz=args.fps, speed_m_s=args.speed, width=args.width,
+                                     height=args.height, **shape), args.flight_cache)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_flight_arguments(ap)
     ap.add_argument('--compressed', action='store_true', help='publish JPEG CompressedImage instead of raw')
     ap.add_argument('--graph', action='append', choices=LAYOUTS, help='layouts to run (default: all)')
     ap.add_argument('--telemetry', choices=('sim', 'none'), default='sim')
     ap.add_argument('--params-file', type=Path, default=None,
                     help='a parameter file for every node (e.g. params/live_hd.yaml), as `--ros-args --params-file`')
-    ap.add_argument('--flight-cache', type=Path, default=None,
-                    help='pickle of the rendered flight: written when missing, read when present (a 60 s '
-                         '720p30 flight: 5 GB on disk, 4 minutes of rendering saved per run); it must have been '
-                         'rendered with the same flight options (else it is rendered again)')
     ap.add_argument('--plot', type=Path, default=None,
                     help='PNG: per layout, each frame\'s latency from publish to its pose against the time it was '
                          'published, frames never posed marked below (where in the flight the node fell behind)')
@@ -332,18 +351,9 @@ def main() -> int:
         os.environ.setdefault('FASTRTPS_DEFAULT_PROFILES_FILE', profile)
         os.environ.setdefault('FASTDDS_DEFAULT_PROFILES_FILE', profile)
 
-    from srmosaic_ros.sim import SimConfig
-
     if args.params_file is not None and not args.params_file.is_file():
         ap.error(f'--params-file {args.params_file}: no such file')
-    if args.frames <= 0:
-        args.frames = int(math.ceil(args.fps * args.seconds)) + 1
-    trajectory = args.trajectory
-    if trajectory == 'auto':
-        trajectory = 'line' if args.speed * args.frames / args.fps <= 250.0 else 'lawnmower'
-    shape = {'trajectory': 'lawnmower', 'legs': 4, 'leg_length_m': 150.0, 'leg_spacing_m': 50.0} if trajectory == 'lawnmower' else {}
-    flight = rendered_flight(SimConfig(frames=args.frames, rate_hz=args.fps, speed_m_s=args.speed, width=args.width,
-                                       height=args.height, **shape), args.flight_cache)
+    flight = flight_from_arguments(args)
     results = []
     for i, layout in enumerate(args.graph or LAYOUTS):
         print(f'{layout}: publishing {args.fps} frames/s for {args.seconds} s ...', flush=True)
