@@ -59,7 +59,7 @@ def replay(flight, overrides: dict) -> dict:
     pipe.flush()
     pipe.finish()
     wall = time.perf_counter() - t0
-    samples = {s: np.array(pipe.clock._samples[s]) * 1e3 for s in STAGES}
+    samples = {s: pipe.clock.per_frame_ms(s) for s in STAGES}
     return {'samples': samples, 'records': pipe.records, 'wall_s': wall}
 
 

@@ -71,6 +71,11 @@ class StageClock:
                 self._current[name] = 0.0
             self.frames += 1
 
+    def per_frame_ms(self, name: str) -> np.ndarray:
+        """(frames,) float ms of stage ``name`` per input frame, oldest first (the latest KEEP_FRAMES)."""
+        with self._lock:
+            return np.asarray(self._samples[name], dtype=float) * 1e3
+
     def __getstate__(self) -> dict:
         """Picklable (checkpoints): the lock is rebuilt."""
         return {k: v for k, v in self.__dict__.items() if k != '_lock'}

@@ -47,6 +47,7 @@ def test_stage_clock_sums_per_frame_and_spreads_outputs():
     assert s['outputs']['median_ms'] == pytest.approx(100.0)  # 0.3 s over 3 frames
     assert s['total']['median_ms'] == pytest.approx(4.0 + 1.0 + 100.0)
     assert 'register' not in s  # never ran
+    assert clock.per_frame_ms('describe') == pytest.approx([2.0, 4.0, 6.0])
     with pytest.raises(ValueError, match='unknown stage'), clock.stage('decoding'):
         pass
 
