@@ -648,50 +648,64 @@ class TiledCanvas:
         bw, bh = x1 - x0, y1 - y0
         box_h_frame = np.array([[1.0, 0.0, -x0], [0.0, 1.0, -y0], [0.0, 0.0, 1.0]]) @ m
         src = img[:, :, 0] if self._channels == 1 else img
-        # into this thread's scratch arrays: they live until paint returns (the tiles keep copies)
-        w_w = cv2.warpPerspective(weight, box_h_frame, (bw, bh), dst=scratch('weight', (bh, bw)), flags=cv2.INTER_LINEAR,
-                                  borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
         index = self._frames
-        # Tight box of non-zero weight, in box coordinates (one C pass over a mask, not two reductions).
-        c0, r0, nc, nr = cv2.boundingRect((w_w != 0).view(np.uint8))
-        if nc == 0:
-            self._frames += 1
-            return PaintResult(index, (), footprint, (0, 0, 0, 0))
-        c1, r1 = c0 + nc, r0 + nr
         multiband = self._blend == 'multiband'
-
         jobs: list[tuple[TileKey, tuple[slice, slice], tuple[slice, slice]]] = []
-        gx0, gy0, gx1, gy1 = x0 + c0, y0 + r0, x0 + c1, y0 + r1
-        for ty in range(gy0 // t, (gy1 - 1) // t + 1):
-            ys, ye = max(gy0, ty * t), min(gy1, (ty + 1) * t)
-            for tx in range(gx0 // t, (gx1 - 1) // t + 1):
-                if tiles is not None and (tx, ty) not in tiles:
-                    continue
-                xs, xe = max(gx0, tx * t), min(gx1, (tx + 1) * t)
-                rs, re_ = ys, ye
-                if rects is not None:
-                    rx0, ry0, rx1, ry1 = rects[(tx, ty)]
-                    xs, xe, rs, re_ = max(xs, rx0), min(xe, rx1), max(rs, ry0), min(re_, ry1)
-                    if xs >= xe or rs >= re_:
+        if rects is not None and not self._seam_cut:
+            # Painted in part (a frame held back, where it reaches beyond its neighbours): the
+            # boxes asked for are slivers at the footprint's edges, often at opposite corners, so
+            # the weight is warped over each box alone, not over the box around them all.
+            w_w, parts = None, self._rect_weights(weight, box_h_frame, rects, (x0, y0, x1, y1))
+            if not parts:
+                self._frames += 1
+                return PaintResult(index, (), footprint, (0, 0, 0, 0))
+            jobs = [(key, box, loc) for key, box, loc, _, _ in parts]
+            part_w = {key: sub for key, _, _, _, sub in parts}
+            nz = np.array([b for _, _, _, b, _ in parts])
+            gx0, gy0, gx1, gy1 = int(nz[:, 0].min()), int(nz[:, 1].min()), int(nz[:, 2].max()), int(nz[:, 3].max())
+        else:
+            # into this thread's scratch arrays: they live until paint returns (the tiles keep copies)
+            w_w = cv2.warpPerspective(weight, box_h_frame, (bw, bh), dst=scratch('weight', (bh, bw)),
+                                      flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+            # Tight box of non-zero weight, in box coordinates (one C pass over a mask, not two reductions).
+            c0, r0, nc, nr = cv2.boundingRect((w_w != 0).view(np.uint8))
+            if nc == 0:
+                self._frames += 1
+                return PaintResult(index, (), footprint, (0, 0, 0, 0))
+            c1, r1 = c0 + nc, r0 + nr
+            gx0, gy0, gx1, gy1 = x0 + c0, y0 + r0, x0 + c1, y0 + r1
+            part_w = None
+            for ty in range(gy0 // t, (gy1 - 1) // t + 1):
+                ys, ye = max(gy0, ty * t), min(gy1, (ty + 1) * t)
+                for tx in range(gx0 // t, (gx1 - 1) // t + 1):
+                    if tiles is not None and (tx, ty) not in tiles:
                         continue
-                box = (slice(rs - y0, re_ - y0), slice(xs - x0, xe - x0))
-                if not w_w[box].any():
-                    continue
-                loc = (slice(rs - ty * t, re_ - ty * t), slice(xs - tx * t, xe - tx * t))
-                jobs.append(((tx, ty), box, loc))
+                    xs, xe = max(gx0, tx * t), min(gx1, (tx + 1) * t)
+                    rs, re_ = ys, ye
+                    if rects is not None:
+                        rx0, ry0, rx1, ry1 = rects[(tx, ty)]
+                        xs, xe, rs, re_ = max(xs, rx0), min(xe, rx1), max(rs, ry0), min(re_, ry1)
+                        if xs >= xe or rs >= re_:
+                            continue
+                    box = (slice(rs - y0, re_ - y0), slice(xs - x0, xe - x0))
+                    if not w_w[box].any():
+                        continue
+                    loc = (slice(rs - ty * t, re_ - ty * t), slice(xs - tx * t, xe - tx * t))
+                    jobs.append(((tx, ty), box, loc))
         # Every tile first (loading spilled ones may fail: then nothing is written), then write.
         tiles = [self._store.get(key, create=True) for key, _, _ in jobs]
         self._frames += 1
         # The colour over the whole box at once (what the seams' cut compares), or, painting on
         # threads, warped tile by tile: each in cache through its updates, no box-sized array
         img_w = None
-        if self._seam_cut or self._threads == 1:
+        if (self._seam_cut or self._threads == 1) and w_w is not None:
             img_w = self._warp_colour(src, box_h_frame, (slice(0, bh), slice(0, bw)), gains, 'colour')
-        cut = self._cut(jobs, tiles, img_w, w_w, index) if self._seam_cut and img_w is not None else None
+        cut = self._cut(jobs, tiles, img_w, w_w, index) if self._seam_cut and img_w is not None and w_w is not None \
+            else None
 
         def offer(job: tuple[TileKey, tuple[slice, slice], tuple[slice, slice]], tile: Any) -> None:
-            _, box, loc = job
-            sub_w = w_w[box]
+            key, box, loc = job
+            sub_w = w_w[box] if w_w is not None else part_w[key]  # type: ignore[index]
             # a tile's colour warped on its own stays in cache through the updates below
             colour = img_w[box] if img_w is not None else self._warp_colour(src, box_h_frame, box, gains, 'tile_colour')
             tile_cut = None if cut is None else (cut[0][box], cut[1][box])
@@ -724,6 +738,33 @@ class TiledCanvas:
             max(gx1, self._bounds[2]), max(gy1, self._bounds[3]))
         self._store.trim()  # back to the bound; may raise TileStoreError (the frame is painted)
         return PaintResult(index, tuple(sorted(touched, key=lambda k: (k[1], k[0]))), footprint, bbox)
+
+    def _rect_weights(self, weight: np.ndarray, box_h_frame: np.ndarray,
+                      rects: dict[TileKey, tuple[int, int, int, int]], placement: tuple[int, int, int, int],
+                      ) -> list[tuple[TileKey, tuple[slice, slice], tuple[slice, slice], tuple[int, int, int, int],
+                                      np.ndarray]]:
+        """Jobs of a paint in part: (tile, box slices, tile slices, tight mosaic box (x0, y0, x1, y1) of
+        non-zero weight, the warped weight over the box): the weight (frame-sized float32, warped
+        through ``box_h_frame``, whose box starts at ``placement``'s corner) over each tile's
+        asked-for box of ``rects`` within ``placement``, where it is non-zero somewhere."""
+        x0, y0, x1, y1 = placement
+        t = self._tile_size
+        out = []
+        for (tx, ty), (rx0, ry0, rx1, ry1) in sorted(rects.items(), key=lambda kv: (kv[0][1], kv[0][0])):
+            xs, xe = max(x0, rx0, tx * t), min(x1, rx1, (tx + 1) * t)
+            rs, re_ = max(y0, ry0, ty * t), min(y1, ry1, (ty + 1) * t)
+            if xs >= xe or rs >= re_:
+                continue
+            m = np.array([[1.0, 0.0, x0 - xs], [0.0, 1.0, y0 - rs], [0.0, 0.0, 1.0]]) @ box_h_frame
+            sub = cv2.warpPerspective(weight, m, (xe - xs, re_ - rs), flags=cv2.INTER_LINEAR,
+                                      borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+            c0, r0, nc, nr = cv2.boundingRect((sub != 0).view(np.uint8))
+            if nc == 0:
+                continue
+            box = (slice(rs - y0, re_ - y0), slice(xs - x0, xe - x0))
+            loc = (slice(rs - ty * t, re_ - ty * t), slice(xs - tx * t, xe - tx * t))
+            out.append(((tx, ty), box, loc, (xs + c0, rs + r0, xs + c0 + nc, rs + r0 + nr), sub))
+        return out
 
     def _warp_colour(self, src: np.ndarray, box_h_frame: np.ndarray, box: tuple[slice, slice], gains: np.ndarray | None,
                      name: str) -> np.ndarray:

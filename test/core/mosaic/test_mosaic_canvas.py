@@ -509,3 +509,32 @@ def test_preview_block_sums_are_the_sums_of_the_blocks(channels: int) -> None:
         np.testing.assert_allclose(acc, tile.acc.reshape(n, f, n, f, channels).sum(axis=(1, 3)), rtol=1e-5)
         np.testing.assert_allclose(w, tile.wsum.reshape(n, f, n, f).sum(axis=(1, 3)), rtol=1e-5)
         assert not np.shares_memory(acc, tile.acc) and not np.shares_memory(w, tile.wsum)
+
+
+@pytest.mark.parametrize('blend', BLENDS)
+def test_a_paint_in_part_is_the_whole_paint_on_the_boxes_asked_for(blend: str) -> None:
+    """A frame painted on boxes of a few tiles (thinning.py's slivers at opposite corners of its
+    footprint, each warped on its own) leaves those boxes as painting it whole does, within one
+    integer step of the warp, and nothing anywhere else; the paint's bbox is the painted pixels'."""
+    img = (texture(90, 120, seed=3) * 255).round().astype(np.uint8)
+    m = rotation(20.0, 60, 45, 40, 30)
+    # its footprint's top corner is near (59, 12), its bottom one near (141, 137)
+    rects = {(1, 0): (40, 8, 64, 32), (4, 4): (128, 128, 150, 140), (9, 9): (300, 300, 310, 310)}
+    whole, part = TiledCanvas(3, 32, blend=blend), TiledCanvas(3, 32, blend=blend)
+    whole.paint(img, m)
+    res = part.paint(img, m, tiles=rects)
+    assert res.touched_tiles == ((1, 0), (4, 4))  # (9, 9): outside the footprint
+    region = whole.bounds()
+    w_img, w_cov = whole.render(region)
+    p_img, p_cov = part.render(region)
+    asked = np.zeros(w_cov.shape, bool)
+    for x0, y0, x1, y1 in list(rects.values())[:2]:
+        asked[max(y0 - region[1], 0):y1 - region[1], max(x0 - region[0], 0):x1 - region[0]] = True
+    np.testing.assert_array_equal(p_cov, w_cov & asked)
+    if blend == 'feather':  # the others blend across the boxes' edges
+        np.testing.assert_allclose(p_img[p_cov], w_img[p_cov], rtol=0, atol=1.2 / 255 + 1e-6)
+    np.testing.assert_allclose(part.weights(region)[asked], whole.weights(region)[asked], rtol=0, atol=1e-6)
+    ys, xs = np.nonzero(p_cov)
+    assert res.bbox == (region[0] + xs.min(), region[1] + ys.min(), region[0] + xs.max() + 1, region[1] + ys.max() + 1)
+    if blend != 'feather':
+        np.testing.assert_array_equal(part.labels(region)[p_cov], whole.labels(region)[p_cov])
