@@ -8,7 +8,9 @@ only. Printed: per span of the flight the mean ms per frame of each stage (repor
 stage_times: describe, register, fuse on the worker; paint on the painter), the keyframes
 registered to the mosaic and applied, and the placement error of the main segment against the
 truth (mean corner error after the best-fitting plane homography, mosaic px; as
-`srmosaic evaluate`). `--plot PNG` draws the stages per frame along the flight.
+`srmosaic evaluate`), and the main segment's mosaic against the true orthophoto (PSNR over the
+pixels it covers, its plane placed by the first frame's truth). `--plot PNG` draws the stages per
+frame along the flight.
 
     OMP_NUM_THREADS=1 python bench/live_replay.py --fps 30 --seconds 60 --width 1280 --height 720 \\
         --params-file params/live_hd.yaml --flight-cache /tmp/flight720.pkl [--set mosaic.keyframe_interval=10]
@@ -57,10 +59,28 @@ def replay(flight, overrides: dict) -> dict:
         if is_frame:
             pipe.clock.end_frame()
     pipe.flush()
-    pipe.finish()
+    result = pipe.finish()
     wall = time.perf_counter() - t0
     samples = {s: pipe.clock.per_frame_ms(s) for s in STAGES}
-    return {'samples': samples, 'records': pipe.records, 'wall_s': wall}
+    return {'samples': samples, 'records': pipe.records, 'wall_s': wall, 'result': result}
+
+
+def mosaic_psnr(flight, result) -> tuple[float, float]:
+    """(PSNR in dB of the main segment's mosaic against the true orthophoto in its plane, over the
+    pixels it covers; those pixels in Mpx). The plane is placed by the first frame's truth, so
+    drift along the flight costs PSNR too."""
+    from srmosaic_ros.sim.ortho_error import ortho_in_plane
+
+    seg = result.main_segment
+    first = seg.frames[0]
+    world_H_seg = flight.truth.frames[first].world_px_H_frame @ np.linalg.inv(seg.seg_H_frames[first])
+    x0, y0, x1, y1 = seg.canvas.bounds()
+    image, covered = seg.canvas.render((x0, y0, x1, y1))
+    truth = ortho_in_plane(flight.world.image, world_H_seg @ np.array([[1.0, 0, x0], [0, 1.0, y0], [0, 0, 1.0]]),
+                           (x1 - x0, y1 - y0))
+    err = (np.asarray(image, np.float32) - truth) ** 2
+    mse = float(err.reshape(*covered.shape, -1).mean(axis=2)[covered].mean())
+    return 10.0 * np.log10(1.0 / mse), float(covered.sum()) / 1e6
 
 
 def placement_error(flight, records: list) -> tuple[np.ndarray, np.ndarray]:
@@ -136,6 +156,8 @@ def main() -> int:
     print(f'{len(records)} frames in {out["wall_s"]:.1f} s; keyframes registered to the mosaic {len(keyframes)}, '
           f'applied {applied}; main segment {len(index)} frames, corner error against the truth mean '
           f'{err.mean():.3f} px, max {err.max():.3f} px (mosaic px)')
+    psnr, mpx = mosaic_psnr(flight, out['result'])
+    print(f'main segment mosaic against the true orthophoto: PSNR {psnr:.2f} dB over {mpx:.2f} Mpx')
     if args.plot is not None:
         plot(samples, args.fps, args.plot)
         print(f'stages plot -> {args.plot}')

@@ -1021,7 +1021,8 @@ rclpy.init(args=['--ros-args', '--params-file', sys.argv[1]])
 node = MosaicNode()
 print(json.dumps({'registration_width': node.config.registration.max_width, 'mosaic_width': node.config.mosaic.max_width,
                   'track_frames': node.config.registration.track_frames, 'queue': node._queue.maxlen,
-                  'keyframe_interval': node.config.mosaic.keyframe_interval}))
+                  'keyframe_interval': node.config.mosaic.keyframe_interval,
+                  'paint_stride': node.config.mosaic.paint_stride, 'paint_shift_px': node.config.mosaic.paint_shift_px}))
 node.finish()
 node.destroy_node()
 rclpy.shutdown()
@@ -1034,4 +1035,5 @@ def test_live_hd_parameter_file_configures_the_mosaic_node(ros_env):
                          capture_output=True, text=True, timeout=120)
     assert run.returncode == 0, run.stderr
     got = json.loads(run.stdout.strip().splitlines()[-1])
-    assert got == {'registration_width': 640, 'mosaic_width': 640, 'track_frames': 30, 'queue': 16, 'keyframe_interval': 30}
+    assert got == {'registration_width': 640, 'mosaic_width': 640, 'track_frames': 30, 'queue': 16, 'keyframe_interval': 30,
+                   'paint_stride': 5, 'paint_shift_px': 32.0}
