@@ -244,20 +244,24 @@ def run_layout(layout: str, args: argparse.Namespace, flight, domain: int) -> di
 
 def rendered_flight(config, cache: Path | None):
     """The simulated flight of ``config``; with ``cache``, read from that pickle when it holds this
-    config's flight, else rendered and written there."""
+    config's flight, else rendered and written there (unless the file holds another flight: that
+    one, minutes to render, is kept)."""
     import pickle
 
     from srmosaic_ros.sim import simulate
 
+    keep = False
     if cache is not None and cache.is_file():
         with cache.open('rb') as fh:
             cached_config, flight = pickle.load(fh)  # the bench's own file
         if cached_config == config:
             return flight
-        print(f'{cache} holds another flight: rendering this one', flush=True)
+        print(f'{cache} holds another flight (kept): rendering this one without caching it; give another '
+              '--flight-cache to cache it', flush=True)
+        keep = True
     print(f'rendering {config.frames} frames ...', flush=True)
     flight = simulate(config)
-    if cache is not None:
+    if cache is not None and not keep:
         with cache.open('wb') as fh:
             pickle.dump((config, flight), fh, protocol=pickle.HIGHEST_PROTOCOL)
     return flight
