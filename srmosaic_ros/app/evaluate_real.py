@@ -86,6 +86,9 @@ MAX_COMPARE_PX = 1_000_000
 META_COLUMNS = ('meta_latitude', 'meta_longitude')
 #: Fewer footprint pixels than this and a frame's NCC / sharpness are not computed (NaN).
 MIN_COMPARE_PX = 400
+#: Below this median sharpness seen from the frames (a frame alone: about 0.85) evaluate says the
+#: mosaic is much coarser than its frames.
+COARSE_MOSAIC_SHARPNESS = 0.5
 #: Gaussian sigma (frame px) both images are smoothed by before the view from the frame compares them.
 DETAIL_SIGMA_PX = 1.0
 #: Most times finer than a frame pixel the mosaic is rendered before the average onto it.
@@ -571,6 +574,10 @@ def format_real_figures(figures: dict[str, Any]) -> list[str]:
                      f'{figures["sharpness_frame_median"]:.3f} over {figures["frames_compared_in_frame"]} frames '
                      '(a frame alone under its own warp: 1.0 and about 0.85; lower sharpness: the mosaic keeps '
                      'less of the detail the frames saw)')
+        if figures['sharpness_frame_median'] < COARSE_MOSAIC_SHARPNESS:
+            lines.append('  the mosaic is much coarser than its frames: they land on it smaller than they are (a '
+                         'forward or oblique flight drawn in its first frame\'s plane, or a zoom in), or it is blurred; '
+                         'README, "What to expect"')
     if figures.get('frames_reduced'):
         lines.append(f'  {figures["frames_reduced"]} frames cover more than {MAX_COMPARE_PX / 1e6:g} Mpx of the mosaic: '
                      'compared on every k-th mosaic pixel')

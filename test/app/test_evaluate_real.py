@@ -86,6 +86,7 @@ def test_real_stills_agree_with_their_mosaic(caliterra_run: tuple[Path, dict], c
     assert lines[0] == 'frames in main mosaic: 14/14 (100%)'
     assert lines[1].startswith(f'consistency (NCC frame vs mosaic): median {fig["ncc_median"]:.3f}, p10 ')
     assert lines[2].startswith(f'sharpness (mosaic vs frame gradient energy): median {fig["sharpness_median"]:.3f}')
+    assert lines[3].startswith('seen from the frames') and not any('much coarser' in x for x in lines)
     json.dumps(fig, allow_nan=False)  # figures are plain JSON
 
 
@@ -244,8 +245,10 @@ def test_a_mosaic_coarser_than_its_frame_is_seen_from_the_frame(tmp_path: Path) 
     assert one['ncc'] > 0.98 and one['sharpness_ratio'] > 0.9
     assert one['ncc_frame'] > 0.9 and one['sharpness_frame'] < 0.4  # the same ground, a quarter of the detail
     assert fig['sharpness_frame_median'] == pytest.approx(one['sharpness_frame'])
-    line = [x for x in format_real_figures(fig) if x.startswith('seen from the frames')]
+    lines = format_real_figures(fig)
+    line = [x for x in lines if x.startswith('seen from the frames')]
     assert len(line) == 1 and f'sharpness median {one["sharpness_frame"]:.3f} over 1 frames' in line[0]
+    assert any('much coarser than its frames' in x for x in lines)  # what the figure means, said
 
 
 def test_errors(caliterra_run: tuple[Path, dict], tmp_path: Path) -> None:
