@@ -233,7 +233,11 @@ def _agreement(stamp_ns: int, grey: np.ndarray, mosaic_H_frame: np.ndarray,
     x1, y1 = min(mosaic.width, math.ceil(foot[:, 0].max()) + 1), min(mosaic.height, math.ceil(foot[:, 1].max()) + 1)
     if x1 - x0 < 2 or y1 - y0 < 2:
         return FrameAgreement(stamp_ns, math.nan, math.nan, 0, 1.0, 'footprint outside mosaic.png')
-    seen = _seen_from_frame(grey, kept, m, d_min, mosaic, (x0, y0, x1, y1), max_width)
+    # the window under the footprint, read once: every MAX_WINDOW_PX-th pixel for the view from the
+    # frame, and every k-th of it for the comparison in the mosaic's pixels below
+    step = max(1, math.ceil(math.sqrt((x1 - x0) * (y1 - y0) / MAX_WINDOW_PX)))
+    window = mosaic.window(x0, y0, x1, y1, step)
+    seen = _seen_from_frame(grey, kept, m, d_min, window, (x0, y0, step), max_width)
     level = minify_level(m, w, h, d_min)
     if level:  # reduced as the canvas reduces frames that shrink on the mosaic
         fill = grey if kept is None else np.where(kept, grey, np.float32(grey[kept].mean() if kept.any() else 0.0))
@@ -246,7 +250,10 @@ def _agreement(stamp_ns: int, grey: np.ndarray, mosaic_H_frame: np.ndarray,
     # footprints over MAX_COMPARE_PX: every k-th mosaic pixel across and down, point samples of
     # both images (no filtering of either), so the comparison stays exact, only sparser
     k = max(1, math.ceil(math.sqrt((x1 - x0) * (y1 - y0) / MAX_COMPARE_PX)))
-    m_grey, m_alpha = mosaic.window(x0, y0, x1, y1, k)
+    if step == 1:  # the same point samples as reading the window every k-th pixel
+        m_grey, m_alpha = (np.ascontiguousarray(a[::k, ::k]) for a in window)
+    else:
+        m_grey, m_alpha = mosaic.window(x0, y0, x1, y1, k)
     bh, bw = m_grey.shape
     scale = 1.0 / k
     grid_H_mosaic = np.array([[scale, 0.0, -x0 * scale], [0.0, scale, -y0 * scale], [0.0, 0.0, 1.0]])
@@ -292,12 +299,14 @@ def _ncc_and_sharpness(frame: np.ndarray, mosaic: np.ndarray, mask: np.ndarray,
 
 
 def _seen_from_frame(grey: np.ndarray, kept: np.ndarray | None, m: np.ndarray, d_min: float | None,
-                     mosaic: _MosaicWindows, box: tuple[int, int, int, int],
+                     window: tuple[np.ndarray, np.ndarray], origin: tuple[int, int, int],
                      max_width: int) -> tuple[float, float, int]:
     """(ncc_frame, sharpness_frame, frame pixels compared) of a frame (grey (h, w) float32, the part
     painted ``kept`` (h, w) bool or None: all; mosaic_H_frame ``m`` (3, 3) with positive depth there,
-    >= ``d_min``) against the mosaic window ``box`` (x0, y0, x1, y1) under it, rendered onto the
-    frame's pixels (module docstring); NaN figures where fewer than MIN_COMPARE_PX pixels compare."""
+    >= ``d_min``) against the mosaic ``window`` (grey float32, alpha uint8: _MosaicWindows.window)
+    under it, whose pixel (0, 0) is mosaic pixel (x0, y0) of ``origin`` (x0, y0, step) and which
+    samples every step-th mosaic pixel, rendered onto the frame's pixels (module docstring); NaN
+    figures where fewer than MIN_COMPARE_PX pixels compare."""
     h, w = grey.shape
     c_H_frame = np.eye(3)  # compared pixels -> frame pixels
     if max_width and w > max_width:  # at the width the mosaic was painted at (its area mean)
@@ -309,9 +318,8 @@ def _seen_from_frame(grey: np.ndarray, kept: np.ndarray | None, m: np.ndarray, d
         if kept is not None:
             kept = cv2.resize(kept.astype(np.float32), (wc, hc), interpolation=cv2.INTER_AREA) > 0.999
         h, w = hc, wc
-    x0, y0, x1, y1 = box
-    k = max(1, math.ceil(math.sqrt((x1 - x0) * (y1 - y0) / MAX_WINDOW_PX)))
-    m_grey, m_alpha = mosaic.window(x0, y0, x1, y1, k)
+    x0, y0, k = origin
+    m_grey, m_alpha = window
     win_H_c = np.array([[1.0 / k, 0.0, -x0 / k], [0.0, 1.0 / k, -y0 / k], [0.0, 0.0, 1.0]]) @ m @ c_H_frame
     # rendered s times finer where frame pixels land larger than window pixels, then area-averaged
     s = max(1, min(SUPERSAMPLE, math.ceil(finest_stretch(win_H_c, w, h, d_min) - 1e-9)))
@@ -336,10 +344,10 @@ def _seen_from_frame(grey: np.ndarray, kept: np.ndarray | None, m: np.ndarray, d
     ncc, _ = _ncc_and_sharpness(grey, render, mask, inside)
     # sharpness at the scale of a few frame pixels: the loss of two bilinear resamplings near
     # Nyquist (a third of the gradient energy) is not what this figure is for
-    k = 2 * math.ceil(3 * DETAIL_SIGMA_PX) + 1
-    grey = cv2.GaussianBlur(grey, (k, k), DETAIL_SIGMA_PX)
-    render = cv2.GaussianBlur(render, (k, k), DETAIL_SIGMA_PX)
-    inside = cv2.erode(inside, np.ones((k, k), np.uint8), borderType=cv2.BORDER_CONSTANT, borderValue=0)
+    ksize = 2 * math.ceil(3 * DETAIL_SIGMA_PX) + 1
+    grey = cv2.GaussianBlur(grey, (ksize, ksize), DETAIL_SIGMA_PX)
+    render = cv2.GaussianBlur(render, (ksize, ksize), DETAIL_SIGMA_PX)
+    inside = cv2.erode(inside, np.ones((ksize, ksize), np.uint8), borderType=cv2.BORDER_CONSTANT, borderValue=0)
     _, ratio = _ncc_and_sharpness(grey, render, mask & (inside > 0), inside)
     return ncc, ratio, n
 
