@@ -55,7 +55,7 @@ from typing import Any
 import numpy as np
 
 from .config import PipelineConfig
-from .malloc_tuning import HeapTrimmer
+from .malloc_tuning import HeapTrimmer, settle_allocator
 from .core.homography import project_points
 from .core.image_ops import to_float01
 from .core.mosaic.canvas import CanvasError
@@ -199,6 +199,7 @@ class Pipeline:
         self.undistorter = Undistorter(self.config.undistort)
         self._latest_telemetry_ns: int | None = None
         self._heap = HeapTrimmer()  # long runs: return freed heap pages (malloc_tuning.py)
+        settle_allocator()  # the first seconds without a page-fault storm (malloc_tuning.py)
         # segment -> (x, y, heading rad) of its painted frames' centres (_revisits; rebuilt from the
         # segments on resume, so not in the state)
         self._footprints: dict[int, list[np.ndarray]] = {}

@@ -22,3 +22,37 @@ def test_refuses_bad_period():
     assert HEAP_TRIM_EVERY >= 1
     with pytest.raises(ValueError, match='every >= 1'):
         HeapTrimmer(0)
+
+
+_QUEUE_OF_FRAMES = '''
+import resource, sys
+import numpy as np
+if sys.argv[1] == 'settle':
+    from srmosaic_ros.malloc_tuning import settle_allocator
+    assert settle_allocator()
+def rounds(n):
+    for _ in range(n):
+        held = [np.ones((720, 1280, 3), np.uint8) for _ in range(16)]  # a node's queue of 720p frames
+        del held
+rounds(1)
+f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+rounds(4)
+print(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0)
+'''
+
+
+@pytest.mark.skipif(not sys.platform.startswith('linux'), reason='glibc only')
+def test_a_settled_allocator_reuses_a_queue_of_frames_without_page_faults():
+    """A fresh process (glibc's thresholds as at start): 16 frames of 720p held and freed, four
+    times over. Unsettled, each round is trimmed from the heap and faulted in again (measured 43092
+    minor faults over four rounds); settled, none."""
+    import subprocess
+
+    def faults(mode: str) -> int:
+        out = subprocess.run([sys.executable, '-c', _QUEUE_OF_FRAMES, mode], capture_output=True, text=True,
+                             check=True, timeout=120)
+        return int(out.stdout.strip())
+
+    plain, settled = faults('plain'), faults('settle')
+    assert plain > 20000, plain  # 16 x 2.76 MB x 4 rounds = 43 000 pages: the storm is real here
+    assert settled < 2000, settled
