@@ -136,6 +136,10 @@ class KeypointSet:
         return int(self.xy.shape[0])
 
 
+#: Pixels per band of image_to_gray_tensor's 8-bit RGB conversion (its float copy: 12 bytes a pixel).
+GRAY_BAND_PIXELS = 1 << 16
+
+
 def image_to_gray_tensor(image: np.ndarray | torch.Tensor, device: torch.device) -> torch.Tensor:
     """An edge image or a core tensor -> (1, 1, H, W) float32 luminance in [0, 1] on device.
 
@@ -162,8 +166,15 @@ def image_to_gray_tensor(image: np.ndarray | torch.Tensor, device: torch.device)
         raise TypeError(msg)
     if image.dtype == np.uint8 and device.type == 'cpu' and image.ndim == 3 and image.shape[2] == 3:
         # One OpenCV pass (the weighted sum of the float channels): half the time of torch's here.
-        gray = cv2.transform(image.astype(np.float32), _luma_row())
-        return torch.from_numpy(gray.reshape(image.shape[0], image.shape[1]))[None, None]
+        # By bands of rows: a float copy of the whole frame (11 MB at 720p) is fresh memory every
+        # frame on a worker thread's heap, page-faulted in (malloc_tuning.py).
+        h, w = image.shape[:2]
+        gray = np.empty((h, w), np.float32)
+        rows = max(1, GRAY_BAND_PIXELS // w)
+        for r in range(0, h, rows):
+            band = image[r:r + rows]
+            gray[r:r + rows] = cv2.transform(band.astype(np.float32), _luma_row()).reshape(band.shape[0], w)
+        return torch.from_numpy(gray)[None, None]
     if image.dtype == np.uint8:
         # Convert on the device: the uint8 transfer is a quarter of a float one.
         t = torch.from_numpy(np.ascontiguousarray(image)).to(device)

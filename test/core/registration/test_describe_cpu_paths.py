@@ -179,3 +179,19 @@ def test_rgb_uint8_to_gray_equals_the_luma_weights() -> None:
     crop = rgb[3:30, 5:40]
     torch.testing.assert_close(image_to_gray_tensor(crop, torch.device('cpu'))[0, 0], ref[3:30, 5:40], rtol=0.0,
                                atol=1e-6)
+
+
+@pytest.mark.parametrize('band_pixels', [1, 100, 1000, 1 << 16])
+def test_rgb_uint8_to_gray_by_bands_of_rows_is_the_whole_frame_conversion(band_pixels: int, monkeypatch) -> None:
+    """The 8-bit RGB conversion runs by bands of rows (no float copy of the whole frame): the same
+    values bit for bit as one pass over the frame, however the rows split (one row a band, uneven
+    last band, one band)."""
+    import cv2
+
+    from srmosaic_ros.core.registration import torch_features
+
+    rgb = np.random.default_rng(7).integers(0, 256, (37, 53, 3), dtype=np.uint8)
+    whole = cv2.transform(rgb.astype(np.float32), torch_features._luma_row()).reshape(37, 53)
+    monkeypatch.setattr(torch_features, 'GRAY_BAND_PIXELS', band_pixels)
+    got = image_to_gray_tensor(rgb, torch.device('cpu'))[0, 0].numpy()
+    assert np.array_equal(got, whole)
