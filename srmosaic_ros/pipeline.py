@@ -34,7 +34,8 @@ only the configured mount, nadir by default): when the first georeferenced segme
 drift-control innovations say whether that assumption fits the footage (core/georef/pose_check.py).
 When it does not (an oblique or forward-looking camera), the held frames are placed back in the
 first frame's pixel plane through their registrations, no later segment is placed by its pose,
-and the mosaic is chained as without intrinsics (georeferenced afterwards by its geotags);
+and the mosaic is chained as without intrinsics (georeferenced afterwards by its geotags where
+they can place it: app/georeference.py refuses a chain whose frames look obliquely);
 ``pose_check`` says so, with a warning.
 
 Revisit spreading (`mosaic.revisit_spread_frames` N > 0): every frame is placed at once but painted
@@ -777,7 +778,8 @@ class Pipeline:
         if self.pose_check is None or self.pose_check.used:
             return False
         _LOG.warning('the frames are not placed by the filter\'s poses: %s. They are chained in the first frame\'s plane '
-                     'as without intrinsics, and the mosaic is georeferenced afterwards by its geotags. To place them '
+                     'as without intrinsics, and the mosaic is georeferenced afterwards by its geotags if they can place '
+                     'it (not when its frames look obliquely). To place them '
                      'on the map through the filter, give the camera attitude (an Imu orientation, gimbal angles) or '
                      'the mount it is fixed at (georef.gimbal_elevation_deg, georef.gimbal_azimuth_deg).',
                      self.pose_check.reason)

@@ -37,10 +37,12 @@ def _plan(positions: bool, intrinsics: bool, attitude: bool, attitude_what: str 
     if positions and intrinsics:
         att = f'camera attitude from {attitude_what}' if attitude else \
             ('no attitude: it is learnt from the registrations and the course over ground, the camera taken as the '
-             'mount georef.gimbal_* says (nadir); footage that disagrees is chained and fitted to its geotags instead')
+             'mount georef.gimbal_* says (nadir); footage that disagrees is chained and fitted to its geotags instead, '
+             'unless its frames look obliquely')
         return f'georeferenced through the filter (GPS + homographies; {att}); mosaic.tif, mosaic.kml, poses.csv'
     if positions:
-        return f'georeferenced by its geotags (a similarity fitted to the GPS positions): {why_fit}'
+        return (f'georeferenced by its geotags (a similarity fitted to the GPS positions, for a camera looking '
+                f'straight down: a chain whose frames look obliquely is left unreferenced): {why_fit}')
     return ('mosaicked, not georeferenced: no GPS positions; give --telemetry (video) or a telemetry_from_exif.csv '
             '(stills)')
 

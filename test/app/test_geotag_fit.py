@@ -16,7 +16,13 @@ from pyproj import Transformer
 
 from srmosaic_ros.config import pipeline_config
 from srmosaic_ros.core.georef.geodetic import LocalTangentPlane
-from srmosaic_ros.core.georef.geotag_fit import fit_mosaic_to_geotags, geotags_at
+from srmosaic_ros.core.georef.geotag_fit import (
+    MAX_MEDIAN_DEPTH_RATIO,
+    check_views_nadir,
+    fit_mosaic_to_geotags,
+    geotags_at,
+    view_depth_ratios,
+)
 from srmosaic_ros.core.georef.ground_homography import apply_H, ground_H_image
 from srmosaic_ros.app.process import process_input
 from srmosaic_ros.sim import SimConfig, simulate
@@ -64,6 +70,45 @@ def test_fit_refuses_what_cannot_place_a_mosaic() -> None:
     hover = _lonlat(np.array([[5e5, 5e6]] * 3) + np.random.default_rng(0).normal(0, 0.3, (3, 2)))
     with pytest.raises(ValueError, match='too close'):
         fit_mosaic_to_geotags(centres, hover)
+
+
+def test_fit_refuses_frame_centres_that_do_not_follow_the_track() -> None:
+    """An oblique camera's frame centres do not lie under the aircraft: circling at 50 m and looking
+    at the orbit's centre, they stay near that centre while the geotags go round. The best similarity
+    leaves residuals as large as the track: refused with the reason and a way out, not placed 50 m
+    off. A nadir camera with consumer GNSS noise over the least extent accepted still fits."""
+    rng = np.random.default_rng(5)
+    angle = np.linspace(0.0, 2.0 * math.pi, 40, endpoint=False)
+    track = np.c_[5e5 + 50.0 * np.cos(angle), 5e6 + 50.0 * np.sin(angle)]
+    looked_at = np.array([1000.0, 800.0]) + rng.normal(0, 30.0, (40, 2))   # mosaic px around the centre
+    with pytest.raises(ValueError, match='do not follow their geotags') as err:
+        fit_mosaic_to_geotags(looked_at, _lonlat(track))
+    assert 'gimbal_elevation_deg' in str(err.value)
+    # nadir: centres under the track (0.1 m a pixel), 5 m GNSS noise a coordinate, a 12 m RMS line
+    line = np.c_[5e5 + np.linspace(-20.0, 20.0, 40), np.full(40, 5e6)]
+    centres = np.c_[np.linspace(-200.0, 200.0, 40), rng.normal(0, 3.0, 40)] + 1000.0   # the chain's own wobble
+    fit = fit_mosaic_to_geotags(centres, _lonlat(line + rng.normal(0, 5.0, line.shape)))
+    assert 0.4 < fit.rms_m / fit.extent_m < 0.7   # noise-dominated (measured 0.50), yet not refused
+
+
+def _tilted(deg: float, f: float = 400.0, w: int = 640, h: int = 480) -> np.ndarray:
+    """plane_H_frame of a camera pitched ``deg`` from the plane's camera (same centre): K R K^-1."""
+    k = np.array([[f, 0, (w - 1) / 2], [0, f, (h - 1) / 2], [0, 0, 1.0]])
+    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
+    return k @ np.array([[1, 0, 0], [0, c, -s], [0, s, c]]) @ np.linalg.inv(k)
+
+
+def test_depth_ratios_measure_how_obliquely_a_frame_sees_the_mosaic_plane() -> None:
+    size = (640, 480)
+    similarity = np.array([[0.5, -0.1, 30.0], [0.1, 0.5, -7.0], [0.0, 0.0, 1.0]])
+    r = view_depth_ratios([np.eye(3), similarity, -similarity, _tilted(5.0), _tilted(30.0), _tilted(70.0)], [size] * 6)
+    assert r[0] == r[1] == r[2] == 1.0                  # parallel to the plane, whatever the sign of H
+    assert 1.05 < r[3] < 1.2 and 1.5 < r[4] < 3.0       # 5 deg: 1.10; 30 deg: 1.95
+    assert math.isinf(r[5])                             # 70 deg with a 77 deg lens: past the horizon
+    check_views_nadir([np.eye(3)] + [_tilted(5.0)] * 4, [size] * 5)   # a nadir chain with gusts passes
+    with pytest.raises(ValueError, match='do not look straight down') as err:
+        check_views_nadir([np.eye(3)] + [_tilted(40.0)] * 4, [size] * 5)
+    assert 'gimbal_elevation_deg' in str(err.value) and MAX_MEDIAN_DEPTH_RATIO == 1.5
 
 
 def test_geotags_at_frame_stamps() -> None:

@@ -14,7 +14,9 @@ absolute residual, at least 1 m) is left out and the fit repeated.
 A camera tilted from nadir puts the frame centre d tan(tilt) away from the geotag (5 degrees at
 70 m: 6 m): with the frames' attitudes (Imu orientation, a flight log's roll, pitch and yaw) that
 offset is modelled and the height d fitted with the similarity (``ground_offsets_per_m``); without
-them the camera is taken as nadir. What it does not know: the mosaic plane is the first frame's
+them the camera is taken as nadir, and footage whose frame centres do not follow the track (an
+oblique camera: its centres lie ahead of the aircraft or at the centre of its orbit) is refused
+rather than misplaced (MAX_RESIDUAL_TO_EXTENT). What it does not know: the mosaic plane is the first frame's
 image plane, so a first frame tilted by t leaves a scale gradient of about tan(t) per height above
 ground across the mosaic (3 degrees at 100 m: 5 % over 100 m), which a similarity cannot take
 out: the method is for gimbal-stabilised nadir stills (the real surveys here: 0.1 degree).
@@ -33,7 +35,7 @@ import numpy as np
 from .anchoring import fit_similarity
 from .georeferencer import GeoRaster, utm_epsg
 
-__all__ = ['GEOTAG_MIN_EXTENT_M', 'GeotagFit', 'fit_mosaic_to_geotags']
+__all__ = ['GEOTAG_MIN_EXTENT_M', 'GeotagFit', 'check_views_nadir', 'fit_mosaic_to_geotags', 'view_depth_ratios']
 
 MIN_FRAMES = 3
 #: Geotags must span this much (m RMS from their mean), four times a consumer receiver's noise,
@@ -41,6 +43,19 @@ MIN_FRAMES = 3
 GEOTAG_MIN_EXTENT_M = 10.0
 MIN_SIGMA_M = 1.0      # residual floor of the outlier test (consumer GNSS is not better)
 REJECT_SIGMAS = 3.0
+#: A fit whose residual RMS exceeds this fraction of the geotags' extent (the similarity explains
+#: less than half of the track's spread, 1 - 0.7^2) is refused: the frame centres do not follow the
+#: track, as those of a camera looking obliquely (ahead of the aircraft, or at the centre of an orbit)
+#: do not. Nadir footage stays far below it: the real stills here 0.10 and 0.15, consumer GNSS noise
+#: (2-D 7 m at 5 m a coordinate) over the least extent accepted (GEOTAG_MIN_EXTENT_M) 0.7; the
+#: simulated oblique orbit of test_sim_unmeasured_attitude 0.97 (its fit was 178 m off on the map).
+MAX_RESIDUAL_TO_EXTENT = 0.7
+#: The median frame of a mosaic fitted to its geotags may see the mosaic plane at most this
+#: obliquely (the depth of its farthest corner over its nearest, view_depth_ratios). Frames parallel
+#: to the mosaic plane (nadir footage chained in its first frame's plane) have 1 up to their tilt
+#: (2 deg gusts with a 60 deg lens: about 1.05); the simulated orbit's median is 2.1 and most of
+#: karma.mp4's frames reach past the plane's horizon (infinite).
+MAX_MEDIAN_DEPTH_RATIO = 1.5
 
 
 @dataclass(frozen=True)
@@ -100,11 +115,46 @@ def _fit(src: np.ndarray, utm: np.ndarray, offsets: np.ndarray | None) -> tuple[
     return np.array([[x[0], -x[1], x[2]], [x[1], x[0], x[3]], [0.0, 0.0, 1.0]]), h
 
 
+def view_depth_ratios(plane_H_frames: list[np.ndarray], sizes: list[tuple[int, int]]) -> np.ndarray:
+    """(N,) the depth of each frame's farthest corner over its nearest in the mosaic plane (the third
+    row of plane_H_frame at the frame's corners, (w, h) pixels; inf where a corner lies on or past the
+    plane's horizon): 1 for a frame parallel to the plane, growing with the angle between them."""
+    out = np.empty(len(plane_H_frames))
+    for k, (m, (w, h)) in enumerate(zip(plane_H_frames, sizes, strict=True)):
+        u = np.array([[-0.5, -0.5, 1.0], [w - 0.5, -0.5, 1.0], [w - 0.5, h - 0.5, 1.0], [-0.5, h - 0.5, 1.0]])
+        depth = u @ np.asarray(m, dtype=np.float64)[2]
+        depth *= np.sign(depth[np.argmax(np.abs(depth))])  # the sign of H is arbitrary
+        out[k] = depth.max() / depth.min() if depth.min() > 0 else math.inf
+    return out
+
+
+def check_views_nadir(plane_H_frames: list[np.ndarray], sizes: list[tuple[int, int]]) -> None:
+    """Raise ValueError (with the reason and a way out) when the median frame of a mosaic chained in
+    its first frame's plane sees that plane obliquely (MAX_MEDIAN_DEPTH_RATIO): the frames are not
+    parallel to one another, so neither the first frame nor the later ones look straight down, and
+    a fit to the geotags (which takes each frame centre to lie under the camera) would misplace it."""
+    ratios = view_depth_ratios(plane_H_frames, sizes)
+    if len(ratios) == 0:
+        return
+    median = float(np.median(ratios))
+    if median > MAX_MEDIAN_DEPTH_RATIO:
+        beyond = int(np.isinf(ratios).sum())
+        seen = ('the median frame reaches past the mosaic plane\'s horizon' if math.isinf(median) else
+                f'the median frame\'s far corners lie {median:.1f} times as deep in the mosaic plane as its near ones')
+        msg = (f'its frames do not look straight down: {seen} ({beyond} of {len(ratios)} frames reach past that '
+               'horizon), where frames of a nadir camera lie parallel to the plane. The geotags are where the aircraft was, '
+               'not where the camera looked, and a fit to them would misplace the mosaic. To place it, give the '
+               'camera\'s intrinsics and its attitude or the mount it is fixed at (an Imu orientation, gimbal '
+               'angles, georef.gimbal_elevation_deg and georef.gimbal_azimuth_deg)')
+        raise ValueError(msg)
+
+
 def fit_mosaic_to_geotags(centres_px: np.ndarray, lonlat_deg: np.ndarray,
                           ground_offsets_per_m: np.ndarray | None = None) -> GeotagFit:
     """Fit mosaic pixels -> UTM from frame centres (N, 2; mosaic pixels, y down) and their geotags
     (N, 2; longitude, latitude in degrees). Raises ValueError with the reason when the geotags
-    cannot fix a similarity (fewer than 3 frames, or all at one spot).
+    cannot fix a similarity (fewer than 3 frames, or all at one spot) or the frame centres do not
+    follow them (MAX_RESIDUAL_TO_EXTENT: an oblique camera).
 
     ground_offsets_per_m: (N, 2) where each frame's optical axis meets the ground, east and north of
     the camera, per metre of height (-r_xy / r_z of the axis r in ENU, from the attitude), NaN
@@ -157,6 +207,14 @@ def fit_mosaic_to_geotags(centres_px: np.ndarray, lonlat_deg: np.ndarray,
         if np.array_equal(keep, used):
             break
         used = keep
+    rms = float(np.sqrt(np.mean(res[used] ** 2)))
+    if rms > MAX_RESIDUAL_TO_EXTENT * extent:
+        msg = (f'the frame centres do not follow their geotags: {rms:.1f} m RMS from them after the best fit, over a '
+               f'track of {extent:.1f} m RMS (a nadir camera\'s centres follow its track to the GNSS noise). The camera '
+               'looks obliquely (ahead of the aircraft, or at the centre of an orbit), and the fit would misplace the '
+               'mosaic. To place it, give the camera\'s intrinsics and its attitude or the mount it is fixed at '
+               '(an Imu orientation, gimbal angles, georef.gimbal_elevation_deg and georef.gimbal_azimuth_deg)')
+        raise ValueError(msg)
     raster = base.transformed(flip @ S @ flip)  # utm_H_raster = S @ flip
     return GeotagFit(raster, res, used, extent, h)
 
