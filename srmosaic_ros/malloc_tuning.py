@@ -7,12 +7,11 @@ with every frame. `malloc_trim(0)` every HEAP_TRIM_EVERY frames releases the fre
 size flat, at a few ms per frame on average; bench/memory.py). Fixing the mmap threshold instead
 (mallopt M_MMAP_THRESHOLD) low also bounds it but costs much throughput in page faults.
 
-The same page faults slow the first seconds of a run: until those first large frees, every buffer
-over 128 kB is mapped and unmapped again, and the heap is trimmed whenever 256 kB lie free at its
-top, so a live node's first 2-3 s of 720p frames fault in about 80 MB/s on each busy thread (half of
-its time in the kernel; bench/live.py --plot: the queue fills and frames drop). `settle_allocator`
-sets at start the thresholds glibc's own adjustment ends at (mapped above 32 MiB, trimmed above 64
-MiB free). Elsewhere than glibc a no-op.
+Page faults also slow the first frames of a run: until those first large frees, every buffer over
+128 kB is mapped and unmapped again, and the heap is trimmed whenever 256 kB lie free at its top, so
+a queue of frames held and freed is faulted in afresh each time round. `settle_allocator` sets at
+start the thresholds glibc's own adjustment ends at (mapped above 32 MiB, trimmed above 64 MiB
+free). Elsewhere than glibc a no-op.
 """
 from __future__ import annotations
 
