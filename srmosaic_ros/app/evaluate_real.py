@@ -361,6 +361,15 @@ def _gradient_energy(grey: np.ndarray, mask: np.ndarray) -> float:
     return float(np.mean((gx * gx + gy * gy)[mask], dtype=np.float64))
 
 
+def _not_georeferenced_reason(out_dir: Path) -> str:
+    """The first sentence of report.json's not_georeferenced_reason ('' when absent or unreadable)."""
+    try:
+        reason = json.loads((out_dir / 'report.json').read_text()).get('not_georeferenced_reason') or ''
+    except (OSError, ValueError, AttributeError):
+        return ''
+    return str(reason).split('. ')[0].rstrip('.')
+
+
 def _position_figures(out_dir: Path, main: list[dict[str, Any]], meta: dict[int, tuple[float, float]],
                       size: tuple[int, int]) -> tuple[dict[str, Any] | None, dict[int, float], str]:
     """(position summary or None, stamp_ns -> error_m, why None) of the main frames with metadata.
@@ -369,7 +378,8 @@ def _position_figures(out_dir: Path, main: list[dict[str, Any]], meta: dict[int,
     """
     tif = out_dir / 'mosaic.tif'
     if not tif.is_file():
-        return None, {}, 'no mosaic.tif (the run is not georeferenced)'
+        why = _not_georeferenced_reason(out_dir)
+        return None, {}, f'no mosaic.tif (the run is not georeferenced{": " + why if why else ""})'
     if not meta:
         with open(out_dir / 'frames.csv', newline='') as handle:
             has_columns = set(META_COLUMNS) <= set(next(csv.reader(handle), []))
