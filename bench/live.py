@@ -380,12 +380,14 @@ def main() -> int:
         plot_latency(results, args.plot)
         print(f'latency plot -> {args.plot}')
     # latency to the pose (what a live consumer gets first) and to the registration (published when
-    # the frame is painted, mosaic.revisit_spread_frames frames later by design)
-    print('\nlayout     offered processed   fps pose_med_ms pose_p95_ms reg_med_ms reg_p95_ms poses tiles')
+    # the frame is painted, mosaic.revisit_spread_frames frames later by design); proc_med_ms, the
+    # mosaic node's own processing median per frame, says how fast the host was during the run (the
+    # same code: 13-15 ms at 720p with live_hd on a quiet hour of the 2-core machine, 25-28 on a busy one)
+    print('\nlayout     offered processed   fps pose_med_ms pose_p95_ms reg_med_ms reg_p95_ms poses tiles proc_med_ms')
     for r in results:
         print(f"{r['layout']:<10} {r['offered']:>7} {r['processed']:>9} {r['fps']:>5.2f} {r['pose_lat_median_ms']:>11.0f} "
               f"{r['pose_lat_p95_ms']:>11.0f} {r['lat_median_ms']:>10.0f} {r['lat_p95_ms']:>10.0f} {r['poses']:>5} "
-              f"{r['tiles']:>5}")
+              f"{r['tiles']:>5} {r.get('processing_ms_median', 'n/a'):>11}")
     return 0
 
 
