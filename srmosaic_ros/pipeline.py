@@ -57,7 +57,7 @@ import numpy as np
 
 from .config import PipelineConfig
 from .malloc_tuning import HeapTrimmer, settle_allocator
-from .core.homography import project_points
+from .core.homography import corner_depth_ratio, project_points
 from .core.image_ops import to_float01
 from .core.mosaic.canvas import CanvasError
 from .core.mosaic.segments import Segment
@@ -535,10 +535,9 @@ class Pipeline:
         u = np.array([[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5], [-0.5, h - 0.5]])
         corners, _ = project_points(m, u)
         footprint, _ = project_points(m, clipped_polygon(m, u, clip_depth(m, w, h, self.config.mosaic.max_stretch)))
-        depth = np.c_[u, np.ones(4)] @ m[2]
         # only a near-nadir view is left to its neighbours: an oblique one sees relief and the far
         # field from its own angle (the karma clip thinned throughout: consistency p10 0.83 -> 0.81)
-        oblique = not (depth.min() > 0 and depth.max() <= THIN_MAX_DEPTH_RATIO * depth.min())
+        oblique = corner_depth_ratio(m, w, h) > THIN_MAX_DEPTH_RATIO
         for (s, hd, f_H_i), tiles in self._thin.offer(seg.index, (seg, held, frame_H_image), corners, footprint,
                                                       force=oblique):
             self._paint_now(s, hd, f_H_i, tiles)

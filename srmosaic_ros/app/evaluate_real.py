@@ -361,24 +361,16 @@ def _gradient_energy(grey: np.ndarray, mask: np.ndarray) -> float:
     return float(np.mean((gx * gx + gy * gy)[mask], dtype=np.float64))
 
 
-def _not_georeferenced_reason(out_dir: Path) -> str:
-    """The first sentence of report.json's not_georeferenced_reason ('' when absent or unreadable)."""
-    try:
-        reason = json.loads((out_dir / 'report.json').read_text()).get('not_georeferenced_reason') or ''
-    except (OSError, ValueError, AttributeError):
-        return ''
-    return str(reason).split('. ')[0].rstrip('.')
-
-
 def _position_figures(out_dir: Path, main: list[dict[str, Any]], meta: dict[int, tuple[float, float]],
-                      size: tuple[int, int]) -> tuple[dict[str, Any] | None, dict[int, float], str]:
+                      size: tuple[int, int], report: dict[str, Any]) -> tuple[dict[str, Any] | None, dict[int, float], str]:
     """(position summary or None, stamp_ns -> error_m, why None) of the main frames with metadata.
 
-    ``size``: (w, h) of the frames (a flight's frames share one size: a size change ends a run).
+    ``size``: (w, h) of the frames (a flight's frames share one size: a size change ends a run);
+    ``report``: the run's report.json (its not_georeferenced_reason says why there is no mosaic.tif).
     """
     tif = out_dir / 'mosaic.tif'
     if not tif.is_file():
-        why = _not_georeferenced_reason(out_dir)
+        why = str(report.get('not_georeferenced_reason') or '').split('. ')[0].rstrip('.')  # its first sentence
         return None, {}, f'no mosaic.tif (the run is not georeferenced{": " + why if why else ""})'
     if not meta:
         with open(out_dir / 'frames.csv', newline='') as handle:
@@ -541,7 +533,7 @@ def evaluate_real(out_dir: Path, *, progress: bool = True, max_frames: int | Non
         msg = (f'no frame of {source} has a stamp of {out_dir / "frames.csv"}: is it the input of that run '
                '(and, for video, the same --select)? Re-run process or pass the input (input_path).')
         raise InputError(msg)
-    position, pos_err, pos_note = _position_figures(out_dir, main, meta, size)
+    position, pos_err, pos_note = _position_figures(out_dir, main, meta, size, report)
 
     ordered = [results[s] for s in wanted if s in results]
     nccs = [a.ncc for a in ordered]

@@ -7,7 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ['apply_homography', 'corner_shift_px', 'h8_jacobian', 'homography_power', 'project_points', 'translation']
+__all__ = ['apply_homography', 'corner_depth_ratio', 'corner_depths', 'corner_shift_px', 'h8_jacobian', 'homography_power',
+           'project_points', 'translation']
 
 
 def project_points(H: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -28,6 +29,23 @@ def corner_shift_px(a: np.ndarray, b: np.ndarray, width: int, height: int) -> fl
     frame (pixel centres at integers) under the homographies a and b (3, 3)."""
     c = np.array([[0.0, 0.0], [width - 1.0, 0.0], [width - 1.0, height - 1.0], [0.0, height - 1.0]])
     return float(np.linalg.norm(apply_homography(a, c) - apply_homography(b, c), axis=1).max())
+
+
+def corner_depths(H: np.ndarray, width: int, height: int) -> np.ndarray:
+    """(4,) homogeneous w of the outer corners of a width x height frame (pixel edges at -0.5 and
+    size - 0.5) under H: how deep each corner lies in the plane H maps into."""
+    u = np.array([[-0.5, -0.5, 1.0], [width - 0.5, -0.5, 1.0], [width - 0.5, height - 0.5, 1.0],
+                  [-0.5, height - 0.5, 1.0]])
+    return u @ np.asarray(H, dtype=np.float64)[2]
+
+
+def corner_depth_ratio(H: np.ndarray, width: int, height: int) -> float:
+    """The frame's farthest corner depth over its nearest under H (corner_depths; the sign of H does
+    not matter): 1 for a frame parallel to the target plane, growing with the angle between them;
+    inf when a corner lies on or past the plane's horizon."""
+    depth = corner_depths(H, width, height)
+    depth = depth * np.sign(depth[np.argmax(np.abs(depth))])
+    return float(depth.max() / depth.min()) if depth.min() > 0 else float('inf')
 
 
 #: (row, column) of the 8 free entries h00..h21 of a homography with h22 = 1

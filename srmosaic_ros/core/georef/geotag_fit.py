@@ -32,6 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..homography import corner_depth_ratio
 from .anchoring import fit_similarity
 from .georeferencer import GeoRaster, utm_epsg
 
@@ -116,16 +117,9 @@ def _fit(src: np.ndarray, utm: np.ndarray, offsets: np.ndarray | None) -> tuple[
 
 
 def view_depth_ratios(plane_H_frames: list[np.ndarray], sizes: list[tuple[int, int]]) -> np.ndarray:
-    """(N,) the depth of each frame's farthest corner over its nearest in the mosaic plane (the third
-    row of plane_H_frame at the frame's corners, (w, h) pixels; inf where a corner lies on or past the
-    plane's horizon): 1 for a frame parallel to the plane, growing with the angle between them."""
-    out = np.empty(len(plane_H_frames))
-    for k, (m, (w, h)) in enumerate(zip(plane_H_frames, sizes, strict=True)):
-        u = np.array([[-0.5, -0.5, 1.0], [w - 0.5, -0.5, 1.0], [w - 0.5, h - 0.5, 1.0], [-0.5, h - 0.5, 1.0]])
-        depth = u @ np.asarray(m, dtype=np.float64)[2]
-        depth *= np.sign(depth[np.argmax(np.abs(depth))])  # the sign of H is arbitrary
-        out[k] = depth.max() / depth.min() if depth.min() > 0 else math.inf
-    return out
+    """(N,) how obliquely each frame (w, h) sees the mosaic plane: homography.corner_depth_ratio of
+    its plane_H_frame (1 parallel to it, inf past its horizon)."""
+    return np.array([corner_depth_ratio(m, w, h) for m, (w, h) in zip(plane_H_frames, sizes, strict=True)])
 
 
 def check_views_nadir(plane_H_frames: list[np.ndarray], sizes: list[tuple[int, int]]) -> None:
@@ -207,16 +201,15 @@ def fit_mosaic_to_geotags(centres_px: np.ndarray, lonlat_deg: np.ndarray,
         if np.array_equal(keep, used):
             break
         used = keep
-    rms = float(np.sqrt(np.mean(res[used] ** 2)))
-    if rms > MAX_RESIDUAL_TO_EXTENT * extent:
-        msg = (f'the frame centres do not follow their geotags: {rms:.1f} m RMS from them after the best fit, over a '
-               f'track of {extent:.1f} m RMS (a nadir camera\'s centres follow its track to the GNSS noise). The camera '
-               'looks obliquely (ahead of the aircraft, or at the centre of an orbit), and the fit would misplace the '
-               'mosaic. To place it, give the camera\'s intrinsics and its attitude or the mount it is fixed at '
-               '(an Imu orientation, gimbal angles, georef.gimbal_elevation_deg and georef.gimbal_azimuth_deg)')
+    fit = GeotagFit(base.transformed(flip @ S @ flip), res, used, extent, h)  # utm_H_raster = S @ flip
+    if fit.rms_m > MAX_RESIDUAL_TO_EXTENT * extent:
+        msg = (f'the frame centres do not follow their geotags: {fit.rms_m:.1f} m RMS from them after the best fit, '
+               f'over a track of {extent:.1f} m RMS (a nadir camera\'s centres follow its track to the GNSS noise). The '
+               'camera looks obliquely (ahead of the aircraft, or at the centre of an orbit), and the fit would '
+               'misplace the mosaic. To place it, give the camera\'s intrinsics and its attitude or the mount it is '
+               'fixed at (an Imu orientation, gimbal angles, georef.gimbal_elevation_deg and georef.gimbal_azimuth_deg)')
         raise ValueError(msg)
-    raster = base.transformed(flip @ S @ flip)  # utm_H_raster = S @ flip
-    return GeotagFit(raster, res, used, extent, h)
+    return fit
 
 
 def geotags_at(fix_stamps_ns: np.ndarray, fix_lonlat_deg: np.ndarray, stamps_ns: np.ndarray,

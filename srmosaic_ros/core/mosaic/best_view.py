@@ -49,6 +49,7 @@ import math
 import cv2
 import numpy as np
 
+from ..homography import corner_depths
 from .blend import copy_where
 from .scratch import scratch
 from .seam_cut import combine
@@ -76,8 +77,7 @@ def clip_depth(m: np.ndarray, w: int, h: int, max_stretch: float) -> float | Non
     """
     if not max_stretch > 0:
         return None
-    corners = np.array([[-0.5, -0.5, 1.0], [w - 0.5, -0.5, 1.0], [w - 0.5, h - 0.5, 1.0], [-0.5, h - 0.5, 1.0]])
-    depth = corners @ m[2]
+    depth = corner_depths(m, w, h)
     d_min = float(depth.max()) * max_stretch ** (-2.0 / 3.0)
     return None if depth.min() >= d_min else d_min
 
