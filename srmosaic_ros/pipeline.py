@@ -72,6 +72,7 @@ from .core.registration import Features, Registration, make_registrar
 from .core.registration.pyramid import PyramidRegistrar
 from .core.registration.tracking import MotionTracker
 from .core.georef.georeferencer import FramePose, Georeferencer
+from .core.georef.chain_mount import MountEstimate, mount_from_chain
 from .core.georef.pose_check import PoseCheck, check_pose_placement
 from .core.serial_worker import SerialWorker
 from .core.stage_clock import StageClock
@@ -750,7 +751,7 @@ class Pipeline:
         self._settling, self._settling_seg = [], None
         if not held or seg is None:
             return
-        if self._poses_refused(seg):
+        if self._poses_refused(seg, held):
             placed = self._chained_from_first(held)
         else:
             placed = [held[-1].record.seg_H_frame]
@@ -765,27 +766,41 @@ class Pipeline:
             if not any(h is frame for _, h, _ in self._unpainted):  # else decided when painted
                 self._settled.append(frame.record)
 
-    def _poses_refused(self, seg: Segment) -> bool:
-        """Decide pose_check when ``seg``, the first georeferenced segment, settles (module docstring);
-        True when its frames must not be placed by their poses: then the segment, not painted yet,
-        becomes an ordinary one in its first frame's plane and no later one is georeferenced."""
+    def _poses_refused(self, seg: Segment, held: list[_Held]) -> bool:
+        """Decide pose_check when ``seg``, the first georeferenced segment, settles with ``held`` its
+        frames (module docstring); True when its frames must not be placed by their poses: then the
+        segment, not painted yet, becomes an ordinary one in its first frame's plane and no later one
+        is georeferenced."""
         nis, self._settling_nis = self._settling_nis, []
         if seg is not self._geo_canvas or self.pose_check is not None or self._attitude_measured():
             return False
         g = self.config.georef
-        self.pose_check = check_pose_placement(nis, g.gate_probability, (g.gimbal_azimuth_deg, g.gimbal_elevation_deg))
+        self.pose_check = check_pose_placement(nis, g.gate_probability, (g.gimbal_azimuth_deg, g.gimbal_elevation_deg),
+                                               self._mount_shown(held))
         if self.pose_check is None or self.pose_check.used:
             return False
+        if held[0].camera is not None:
+            self.pose_check = self.pose_check.with_mount_to_try(held[0].camera.K)
+        mount = self.pose_check.mount_to_try
         _LOG.warning('the frames are not placed by the filter\'s poses: %s. They are chained in the first frame\'s plane '
                      'as without intrinsics, and the mosaic is georeferenced afterwards by its geotags if they can place '
                      'it (not when its frames look obliquely). To place them '
                      'on the map through the filter, give the camera attitude (an Imu orientation, gimbal angles) or '
-                     'the mount it is fixed at (georef.gimbal_elevation_deg, georef.gimbal_azimuth_deg).',
-                     self.pose_check.reason)
+                     'the mount it is fixed at (%s).', self.pose_check.reason,
+                     f'the frames\' own: georef.gimbal_elevation_deg: {mount[1]:g}, georef.gimbal_azimuth_deg: {mount[0]:g}'
+                     if mount is not None else 'georef.gimbal_elevation_deg, georef.gimbal_azimuth_deg')
         seg.georeferenced = False
         self._geo_canvas = None
         self.georef.drop_raster()
         return True
+
+    def _mount_shown(self, held: list[_Held]) -> MountEstimate | None:
+        """The camera mount the held frames' chain shows (chain_mount.py), None when it cannot tell."""
+        if any(frame.camera is None for frame in held):
+            return None
+        placed = self._chained_from_first(held)
+        first_from_plane = np.linalg.inv(placed[0])
+        return mount_from_chain([first_from_plane @ h for h in placed], [frame.camera.K for frame in held])
 
     def _attitude_measured(self) -> bool:
         """Whether the input measured the camera's attitude (an Imu orientation or a camera attitude

@@ -124,7 +124,7 @@ def geotag_fit_of_main(result: PipelineResult, origin: tuple[int, int], config: 
     """GeotagFit of mosaic.png's grid (pixel (0, 0) = canvas pixel ``origin``) from the frames of the
     main canvas and the fixes at their stamps (core/georef/geotag_fit.py), or None (with the reason
     logged) when there are no fixes or they cannot place the mosaic."""
-    from ..core.georef.geotag_fit import check_views_nadir, fit_mosaic_to_geotags, geotags_at
+    from ..core.georef.geotag_fit import check_mount_nadir, check_views_nadir, fit_mosaic_to_geotags, geotags_at
     from ..core.metrics import apply_homography
 
     fixes = [f for f in result.fixes if f.status >= 0]
@@ -143,6 +143,7 @@ def geotag_fit_of_main(result: PipelineResult, origin: tuple[int, int], config: 
     try:
         if offsets is None:  # without attitudes the fit takes the camera as nadir: the chain must agree
             check_views_nadir([r.seg_H_frame for r in recs], [r.size for r in recs])
+            check_mount_nadir(result.pose_check.frames_mount if result.pose_check is not None else None)
         fit = fit_mosaic_to_geotags(centres, tags, offsets)
         if fit.extent_m < GEOTAG_MIN_EXTENT_M:
             msg = (f'the geotags of the main mosaic span {fit.extent_m:.1f} m RMS, less than {GEOTAG_MIN_EXTENT_M:g} m: '

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import collections
+import dataclasses
 import logging
 import math
 import re
@@ -363,32 +364,65 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
     bar = tqdm(total=reader.frame_count, initial=frames_done, unit='frame', desc='process', disable=not progress)
     error: SrMosaicError | None = None
     consumed = 0
-    clock = pipeline.clock
+    restart: dict[str, Any] | None = None
     with bar, cores_left_for_torch(1 if overlap else 0):  # one core is the painter's (Pipeline paint_thread)
-        try:
-            for item in _timed(prefetched(items, READ_AHEAD if overlap else 0), clock):
-                consumed += 1
-                if consumed <= skip_items:  # already in the checkpointed state
-                    continue
-                records = pipeline.feed(item)
-                if isinstance(item, Frame):
-                    clock.end_frame()
-                    frames_done += 1
-                    bar.update(1)
-                    bar.set_postfix(segments=len(pipeline.segments), refresh=False)
+        while True:
+            clock = pipeline.clock
+            stream = _timed(prefetched(items, READ_AHEAD if overlap else 0), clock)
+            try:
+                for item in stream:
+                    consumed += 1
+                    if consumed <= skip_items:  # already in the checkpointed state
+                        continue
+                    records = pipeline.feed(item)
+                    if restart is None and config.georef.mount_from_frames and pipeline.pose_check is not None \
+                            and pipeline.pose_check.mount_to_try is not None:
+                        raise _MountRestart
+                    if isinstance(item, Frame):
+                        clock.end_frame()
+                        frames_done += 1
+                        bar.update(1)
+                        bar.set_postfix(segments=len(pipeline.segments), refresh=False)
+                        if recorder is not None:
+                            recent[item.stamp_ns] = item.image
+                            while len(recent) > pipeline.max_decision_lag_frames:  # frames are decided at most this late
+                                recent.pop(next(iter(recent)))
                     if recorder is not None:
-                        recent[item.stamp_ns] = item.image
-                        while len(recent) > pipeline.max_decision_lag_frames:  # frames are decided at most this late
-                            recent.pop(next(iter(recent)))
-                if recorder is not None:
-                    for rec in records:
-                        if rec.painted and rec.stamp_ns in recent:
-                            recorder.add(rec.segment, to_float01(recent[rec.stamp_ns]), rec.seg_H_frame)
-                if checkpoint_every and isinstance(item, Frame) and frames_done % checkpoint_every == 0:
-                    with clock.stage('outputs'):
-                        save_checkpoint(out, Checkpoint(run_id, consumed, frames_done, pipeline.state(), recorder, recent))
-        except SrMosaicError as exc:
-            error = exc
+                        for rec in records:
+                            if rec.painted and rec.stamp_ns in recent:
+                                recorder.add(rec.segment, to_float01(recent[rec.stamp_ns]), rec.seg_H_frame)
+                    if checkpoint_every and isinstance(item, Frame) and frames_done % checkpoint_every == 0:
+                        with clock.stage('outputs'):
+                            save_checkpoint(out, Checkpoint(run_id, consumed, frames_done, pipeline.state(), recorder,
+                                                            recent))
+            except SrMosaicError as exc:
+                error = exc
+            except _MountRestart:
+                # The frames show how the camera looks (pose_check.py): the run starts again with that
+                # mount, from the first item, so that the filter places them (the first frames only
+                # were processed; run_id stays the user's settings', the checkpoints hold the new ones).
+                stream.close()  # the reader thread stops
+                check = pipeline.pose_check
+                pipeline.close()
+                azimuth, elevation = check.mount_to_try
+                restart = {'azimuth_deg': azimuth, 'elevation_deg': elevation, 'after_frames': frames_done,
+                           'first_check': check.as_dict()}
+                _LOG.warning('no camera attitude was measured and the frames show the camera looking %g deg below the '
+                             'horizon, %g deg from the direction of travel, not as the mount says (%s); starting '
+                             'again with that mount (georef.gimbal_elevation_deg: %g, georef.gimbal_azimuth_deg: %g; '
+                             'georef.mount_from_frames: false keeps the configured one).', -elevation, azimuth,
+                             check.reason, elevation, azimuth)
+                config = dataclasses.replace(config, georef=dataclasses.replace(
+                    config.georef, gimbal_azimuth_deg=azimuth, gimbal_elevation_deg=elevation))
+                pipeline = Pipeline(config, paint_thread=overlap)
+                recorder = MosaicVideoRecorder() if mosaic_video else None
+                recent, consumed, frames_done, skip_items = {}, 0, 0, 0  # a fresh pipeline: every item again
+                items, reader, _ = open_source(path, topics=topics, select=select, camera_yaml=camera_yaml,
+                                               hfov_deg=hfov_deg, telemetry_csv=telemetry_csv,
+                                               stamp_tolerance_s=config.stamp_tolerance_s, deinterlace=deinterlace)
+                bar.reset()
+                continue
+            break
     if recorder is not None and error is None:
         for rec in pipeline.flush():  # the last frames, held for telemetry that never came
             if rec.painted and rec.stamp_ns in recent:
@@ -418,6 +452,8 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
             report_extra['video']['ended_early'] = reader.ended_early
     if error is not None:
         report_extra['error'] = str(error)
+    if restart is not None:
+        report_extra['mount_from_frames'] = restart
     with clock.stage('outputs'):
         report = write_outputs(result, stage, config, report_extra,
                                meta_centres=summary.centres if summary is not None else None)
@@ -451,6 +487,10 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
         raise error
     shutil.rmtree(checkpoint_path(out).parent, ignore_errors=True)  # complete: the checkpoint is spent
     return report
+
+
+class _MountRestart(Exception):
+    """Raised inside _process's loop to start the run again with the mount the frames show."""
 
 
 def _timed(items: Iterable[Any], clock: StageClock) -> Iterator[Any]:

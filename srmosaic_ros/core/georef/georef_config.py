@@ -25,6 +25,8 @@ class GeorefConfig:
     ground_walk_m_per_sqrt_s: float = 0.05   # random walk of the ground plane height (terrain is not flat)
     gimbal_azimuth_deg: float = 0.0
     gimbal_elevation_deg: float = -90.0      # nadir
+    mount_from_frames: bool = True           # offline: no attitude measured and the frames show another mount
+    #                                          than the gimbal angles (pose_check.py): the run restarts with theirs
     lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  # body frame, GNSS antenna -> optical centre
     gps_sigma_h_m: float = 2.5               # used when a fix's covariance is unknown
     gps_sigma_v_m: float = 5.0

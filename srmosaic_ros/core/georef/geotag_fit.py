@@ -34,9 +34,12 @@ import numpy as np
 
 from ..homography import corner_depth_ratio
 from .anchoring import fit_similarity
+from .chain_mount import MountEstimate
 from .georeferencer import GeoRaster, utm_epsg
+from .pose_check import MOUNT_TOLERANCE_DEG, mount_axis_angle_deg
 
-__all__ = ['GEOTAG_MIN_EXTENT_M', 'GeotagFit', 'check_views_nadir', 'fit_mosaic_to_geotags', 'view_depth_ratios']
+__all__ = ['GEOTAG_MIN_EXTENT_M', 'GeotagFit', 'check_mount_nadir', 'check_views_nadir', 'fit_mosaic_to_geotags',
+           'view_depth_ratios']
 
 MIN_FRAMES = 3
 #: Geotags must span this much (m RMS from their mean), four times a consumer receiver's noise,
@@ -140,6 +143,24 @@ def check_views_nadir(plane_H_frames: list[np.ndarray], sizes: list[tuple[int, i
                'not where the camera looked, and a fit to them would misplace the mosaic. To place it, give the '
                'camera\'s intrinsics and its attitude or the mount it is fixed at (an Imu orientation, gimbal '
                'angles, georef.gimbal_elevation_deg and georef.gimbal_azimuth_deg)')
+        raise ValueError(msg)
+
+
+def check_mount_nadir(shown: MountEstimate | None) -> None:
+    """Raise ValueError (with the reason and a way out) when the frames' chain shows a camera more
+    than pose_check.MOUNT_TOLERANCE_DEG off nadir (chain_mount.py): a constant tilt keeps the frames
+    parallel to one another, which check_views_nadir cannot see, and moves every frame centre
+    height * tan(tilt) from its geotag."""
+    if shown is None:
+        return
+    off = mount_axis_angle_deg((0.0, -90.0), (shown.azimuth_deg, shown.elevation_deg))
+    if off > MOUNT_TOLERANCE_DEG:
+        msg = (f'its frames do not look straight down: their chain shows the camera {-shown.elevation_deg:.0f} deg '
+               f'below the horizon, {shown.azimuth_deg:.0f} deg from the direction of travel (report.json '
+               'pose_placement.frames_mount). The geotags are where the aircraft was, not where the camera looked, '
+               'and a fit to them would misplace the mosaic. To place it through the filter, let the run use that '
+               f'mount (georef.mount_from_frames: true, offline) or set it (georef.gimbal_elevation_deg: '
+               f'{shown.elevation_deg:.1f}, georef.gimbal_azimuth_deg: {shown.azimuth_deg:.1f}), or give the attitude')
         raise ValueError(msg)
 
 
