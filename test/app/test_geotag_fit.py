@@ -72,6 +72,21 @@ def test_fit_refuses_what_cannot_place_a_mosaic() -> None:
         fit_mosaic_to_geotags(centres, hover)
 
 
+def test_a_perfectly_straight_flight_is_placed_too() -> None:
+    """Frame centres exactly on one line: without reflection the line's direction fixes the rotation
+    and its length the scale (the fit fell back to a translation, scale 1 m a pixel, and the
+    residual check then refused it as oblique)."""
+    centres = np.c_[np.linspace(100.0, 900.0, 30), np.full(30, 400.0)]
+    truth = _similarity(0.2, -60.0, 500_000.0, 5_000_000.0)
+    utm = apply_H(truth, centres)
+    fit = fit_mosaic_to_geotags(centres, _lonlat(utm))
+    assert fit.raster.gsd_m_per_px == pytest.approx(0.2, rel=1e-3)
+    assert math.degrees(fit.raster.rotation_rad) == pytest.approx(-60.0, abs=0.05)
+    assert np.linalg.norm(fit.raster.utm_from_pixels(centres) - utm, axis=1).max() < 0.05
+    off_line = np.array([[500.0, 100.0]])  # a pixel beside the line lands on its side of the track
+    assert np.linalg.norm(fit.raster.utm_from_pixels(off_line) - apply_H(truth, off_line)) < 0.05
+
+
 def test_fit_refuses_frame_centres_that_do_not_follow_the_track() -> None:
     """An oblique camera's frame centres do not lie under the aircraft: circling at 50 m and looking
     at the orbit's centre, they stay near that centre while the geotags go round. The best similarity

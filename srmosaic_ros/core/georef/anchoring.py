@@ -16,10 +16,13 @@ import numpy as np
 __all__ = ['fit_similarity']
 
 
-def fit_similarity(src: np.ndarray, dst: np.ndarray, *, rotation_and_scale: bool = True) -> np.ndarray:
+def fit_similarity(src: np.ndarray, dst: np.ndarray, *, rotation_and_scale: bool = True,
+                   from_a_line: bool = False) -> np.ndarray:
     """(3, 3) least-squares similarity S (scale, rotation, translation; no reflection) with
     dst ~ S @ src, for point sets src, dst (N, 2) (Umeyama 1991, eq. 40-42); translation only
-    when rotation_and_scale is False or the points do not span two dimensions."""
+    when rotation_and_scale is False or the points do not span two dimensions, unless
+    ``from_a_line``: then points on one line give the rotation and scale too (without reflection
+    the line's direction fixes the rotation), and only coincident points a translation."""
     src = np.asarray(src, dtype=np.float64).reshape(-1, 2)
     dst = np.asarray(dst, dtype=np.float64).reshape(-1, 2)
     if len(src) != len(dst) or len(src) == 0:
@@ -30,7 +33,8 @@ def fit_similarity(src: np.ndarray, dst: np.ndarray, *, rotation_and_scale: bool
     var_s = float((xs ** 2).sum()) / len(src)
     out = np.eye(3)
     sv = np.linalg.svd(xs, compute_uv=False) if len(src) >= 2 else np.zeros(2)
-    if not rotation_and_scale or len(src) < 3 or sv[-1] <= 1e-9 * max(sv[0], 1.0):
+    flat = sv[0] <= 1e-9 if from_a_line else sv[-1] <= 1e-9 * max(sv[0], 1.0)
+    if not rotation_and_scale or len(src) < (2 if from_a_line else 3) or flat:
         out[:2, 2] = mu_d - mu_s
         return out
     cov = xd.T @ xs / len(src)

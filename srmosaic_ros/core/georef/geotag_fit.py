@@ -98,7 +98,7 @@ def _fit(src: np.ndarray, utm: np.ndarray, offsets: np.ndarray | None) -> tuple[
     jointly with the height h when ``offsets`` (N, 2) are given, as the linear least squares
     a x - b y + tx - h dx = e, b x + a y + ty - h dy = n (S = [[a, -b, tx], [b, a, ty]]). h is
     kept only when it is determined (positive, standard error under half of it); else None."""
-    S = fit_similarity(src, utm)
+    S = fit_similarity(src, utm, from_a_line=True)  # a straight flight places its mosaic too
     if offsets is None or len(src) < 4:
         return S, None
     n = len(src)
