@@ -10,7 +10,8 @@ level and the body's nose along the travel (as the filter assumes when no attitu
 the normal and the travel direction give the mount: the optical axis's elevation above the
 horizon and its azimuth from the travel, counter-clockwise (frames.R_body_from_cam's angles).
 
-Needs translation: a hovering or only rotating camera gives ``t ~ 0`` and no normal (None).
+Needs translation (a hovering or only rotating camera gives ``t ~ 0`` and no normal) and a wide
+enough view (a zoomed camera sees an affine patch): None otherwise.
 """
 from __future__ import annotations
 
@@ -26,6 +27,14 @@ __all__ = ['MIN_BASELINE', 'MountEstimate', 'mount_from_chain']
 MIN_BASELINE = 0.08
 #: Fewest frames with that baseline that decide (their normals must agree).
 MIN_FRAMES = 3
+#: Narrowest horizontal field of view that shows the ground's normal: the normal's tilt is seen in
+#: how the translation's motion varies across the frame, ~tan(fov / 2); a zoomed camera (KLV's
+#: aphill_short.ts, 0.8 deg) sees an affine patch and its homographies' projective terms are noise
+#: (there the frames "showed" 0.6 deg below the horizon, its KLV says 37).
+MIN_HFOV_DEG = 15.0
+#: Largest median angle between the frames' normals and the one they agree on: more, and the
+#: chain does not show one plane (aphill at 0.8 deg: 4.8 deg; simulated lines 0.03-0.17, karma 0.4).
+MAX_SPREAD_DEG = 2.0
 
 
 @dataclass(frozen=True)
@@ -43,9 +52,12 @@ class MountEstimate:
 def mount_from_chain(first_H_frames: Sequence[np.ndarray], Ks: Sequence[np.ndarray]) -> MountEstimate | None:
     """The mount of a chain: ``first_H_frames[i]`` (3, 3) maps frame i's pixels to the first
     frame's (``first_H_frames[0]`` the identity), ``Ks[i]`` (3, 3) frame i's intrinsics. None when
-    fewer than MIN_FRAMES frames have moved MIN_BASELINE of the plane's distance from the first."""
+    fewer than MIN_FRAMES frames have moved MIN_BASELINE of the plane's distance from the first,
+    the first frame is narrower than MIN_HFOV_DEG, or the frames' normals disagree (MAX_SPREAD_DEG)."""
     K0 = np.asarray(Ks[0], dtype=np.float64)
     w, h = 2.0 * K0[0, 2], 2.0 * K0[1, 2]
+    if 2.0 * math.degrees(math.atan(w / 2.0 / K0[0, 0])) < MIN_HFOV_DEG:
+        return None
     rays = np.linalg.inv(K0) @ np.array([[0, w, w, 0, w / 2], [0, 0, h, h, h / 2], [1, 1, 1, 1, 1]], dtype=np.float64)
     candidates: list[list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = []  # per frame: (normal, centre, R)
     for H, K in zip(first_H_frames[1:], Ks[1:], strict=True):
@@ -64,6 +76,8 @@ def mount_from_chain(first_H_frames: Sequence[np.ndarray], Ks: Sequence[np.ndarr
     if len(candidates) < MIN_FRAMES:
         return None
     chosen, spread = _agreed(candidates)
+    if spread > MAX_SPREAD_DEG:
+        return None
     normal = np.mean([n for n, _, _ in chosen], axis=0)
     normal /= np.linalg.norm(normal)
     up = -normal  # the plane lies along +n from the camera: up is -n

@@ -74,6 +74,14 @@ def test_a_hover_or_a_short_chain_shows_nothing() -> None:
     assert mount_from_chain(_chain(0.0, -60.0, frames=3), [K] * 3) is None  # 2 frames moved: fewer than 3
 
 
+def test_a_zoomed_camera_shows_nothing() -> None:
+    """Narrower than MIN_HFOV_DEG the frames see an affine patch: its projective terms are noise
+    (KLV's aphill_short.ts at 0.8 deg "showed" 0.6 deg below the horizon, its KLV says 37)."""
+    zoomed = K.copy()
+    zoomed[0, 0] = zoomed[1, 1] = 160.0 / math.tan(math.radians(7.0))  # 14 deg wide (the guard alone)
+    assert mount_from_chain(_chain(0.0, -60.0), [zoomed] * 12) is None
+
+
 def test_a_zoom_is_read_through_each_frames_intrinsics() -> None:
     """Frame i taken with K_i (a zoom): its homography is in its own pixels."""
     Ks = [np.array([[220.0 * (1 + 0.05 * k), 0, 160.0], [0, 220.0 * (1 + 0.05 * k), 120.0], [0, 0, 1]]) for k in range(12)]
@@ -102,6 +110,8 @@ def test_the_pose_check_refuses_a_mount_the_frames_contradict() -> None:
     passed = check_pose_placement(low, 0.99999, (0.0, -90.0), nadir)
     assert passed is not None and passed.used and passed.frames_mount is nadir
     assert check_pose_placement(low, 0.99999, (0.0, -70.0), oblique).used  # the mount it was flown on
+    tilted = mount_from_chain(_chain(0.0, -80.0), [K] * 12)  # 10 deg off: the nadir mount places it (1.3 px)
+    assert check_pose_placement(low, 0.99999, (0.0, -90.0), tilted).used
     assert mount_axis_angle_deg((0.0, -90.0), (0.0, -90.0 + MOUNT_TOLERANCE_DEG + 0.5)) > MOUNT_TOLERANCE_DEG
 
 
