@@ -58,18 +58,18 @@ def mount_from_chain(first_H_frames: Sequence[np.ndarray], Ks: Sequence[np.ndarr
     w, h = 2.0 * K0[0, 2], 2.0 * K0[1, 2]
     if 2.0 * math.degrees(math.atan(w / 2.0 / K0[0, 0])) < MIN_HFOV_DEG:
         return None
-    rays = np.linalg.inv(K0) @ np.array([[0, w, w, 0, w / 2], [0, 0, h, h, h / 2], [1, 1, 1, 1, 1]], dtype=np.float64)
+    axis = np.linalg.inv(K0) @ np.array([w / 2.0, h / 2.0, 1.0])  # the first frame's centre ray
     candidates: list[list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = []  # per frame: (normal, centre, R)
     for H, K in zip(first_H_frames[1:], Ks[1:], strict=True):
         G = np.linalg.inv(np.asarray(K, dtype=np.float64)) @ np.linalg.inv(np.asarray(H, dtype=np.float64)) @ K0
         kept = []
-        for R, t, n in _decompose(G * np.sign((G @ rays[:, 4])[2])):  # the centre's depth ratio > 0
+        for R, t, n in _decompose(G * np.sign((G @ axis)[2])):  # the centre's depth ratio > 0
             if np.linalg.norm(t) < MIN_BASELINE:
                 continue
             # the plane n.X = 1 in front of the first camera (its optical axis meets it ahead; not
             # every corner: an oblique camera's frame may reach past the ground's horizon) and of
             # frame i's (its normal R n at distance 1 + n.(R^T t) > 0)
-            if n @ rays[:, 4] > 0 and 1.0 + float(n @ (R.T @ t)) > 0:
+            if n @ axis > 0 and 1.0 + float(n @ (R.T @ t)) > 0:
                 kept.append((n / np.linalg.norm(n), -R.T @ t, R))  # frame i's centre in the first camera's axes
         if kept:
             candidates.append(kept)
