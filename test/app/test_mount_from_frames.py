@@ -10,6 +10,7 @@ import pytest
 
 from srmosaic_ros.app.evaluate import evaluate_dir
 from srmosaic_ros.app.process import process_input
+from srmosaic_ros.cli import main as cli_main
 from srmosaic_ros.config import pipeline_config
 from srmosaic_ros.core.georef.pose_check import mount_axis_angle_deg
 from srmosaic_ros.io.bags import TopicConfig
@@ -32,11 +33,17 @@ def _process(bag, out, overrides):
     return report, evaluate_dir(out, bag / 'ground_truth.json')
 
 
-def test_an_oblique_camera_is_placed_with_the_mount_its_frames_show(oblique_bag, tmp_path, caplog) -> None:
-    """Measured: the frames show 69.4 deg below the horizon, 6.8 deg from the travel (true: 70, 0);
-    with that mount the filter places them: 0.31 px, 1.27 m (with the true mount 0.26 px, 0.96 m)."""
+def test_an_oblique_camera_is_placed_with_the_mount_its_frames_show(oblique_bag, tmp_path, caplog, capsys) -> None:
+    """`srmosaic process` as a user runs it. Measured: the frames show 69.4 deg below the horizon,
+    6.8 deg from the travel (true: 70, 0); with that mount the filter places them: 0.31 px, 1.27 m
+    (with the true mount 0.26 px, 0.96 m)."""
+    out = tmp_path / 'out'
     with caplog.at_level('WARNING', logger='srmosaic_ros.app.process'):
-        report, fig = _process(oblique_bag, tmp_path / 'out', {})
+        assert cli_main(['process', str(oblique_bag), '--out', str(out), '--imu-topic', '', '--no-progress']) == 0
+    printed = capsys.readouterr().out
+    restart = json.loads((out / 'report.json').read_text())['mount_from_frames']
+    assert f"camera mount from the frames (no attitude measured): {-restart['elevation_deg']:g} deg below" in printed
+    report, fig = json.loads((out / 'report.json').read_text()), evaluate_dir(out, oblique_bag / 'ground_truth.json')
     restart = report['mount_from_frames']
     assert mount_axis_angle_deg((restart['azimuth_deg'], restart['elevation_deg']), (0.0, -70.0)) < 3.0, restart
     assert 0 < restart['after_frames'] < 20  # the settling frames only were processed twice
