@@ -395,6 +395,13 @@ class MosaicNode(ManagedNode):
         elif dropped:
             message += f'; {dropped} frames dropped (falling behind) earlier'
         self._dropped_reported = dropped
+        check = self.pipeline.pose_check
+        if check is not None and not check.used:  # off the map for the rest of the run: WARN until restarted
+            level = max(level, DiagnosticStatus.WARN)
+            message += f'; {check.operator_note()}'
+            values['pose_placement'] = 'refused'
+            if check.mount_to_try is not None:
+                values['frames_mount_azimuth_deg'], values['frames_mount_elevation_deg'] = check.mount_to_try
         if not self.active:
             message = 'inactive (lifecycle): inputs ignored, the mosaic kept'
             values['frames_while_inactive'] = stats.get('frames_while_inactive', 0)

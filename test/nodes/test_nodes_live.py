@@ -1037,3 +1037,33 @@ def test_live_hd_parameter_file_configures_the_mosaic_node(ros_env):
     got = json.loads(run.stdout.strip().splitlines()[-1])
     assert got == {'registration_width': 640, 'mosaic_width': 640, 'track_frames': 30, 'queue': 16, 'keyframe_interval': 30,
                    'paint_stride': 5, 'paint_shift_px': 32.0}
+
+
+def test_an_oblique_camera_without_attitude_is_said_live(ros_env, tmp_path):
+    """GPS and intrinsics, no Imu, a camera 70 deg below the horizon on the default nadir mount
+    (test_mount_from_frames.py's line): the mosaic node keeps its frames off the map, and its
+    diagnostics WARN with the mount the frames show, to set when it is restarted (it cannot read its
+    stream again as `process` does)."""
+    import dataclasses
+
+    from diagnostic_msgs.msg import DiagnosticStatus
+
+    from srmosaic_ros.sim import SimConfig, simulate
+    from srmosaic_ros.sim.record import write_flight
+
+    line = {'trajectory': 'line', 'frames': 40, 'rate_hz': 2.0, 'altitude_m': 80.0, 'hfov_deg': 40.0, 'width': 160,
+            'height': 120, 'gimbal_elevation_deg': -70.0, 'seed': 4}
+    bag = write_flight(dataclasses.replace(simulate(SimConfig(**line)), imus=[]), tmp_path / 'bag')
+    graph = srmosaic('node', 'mosaic', '--ros-args', '-p', 'live.reliable_inputs:=true', '-p', 'live.queue_size:=100',
+                     '-p', 'live.preview_period_s:=0.3', env=ros_env)
+    with supervised(graph=graph) as sup:
+        listener = sup.listener
+        assert listener.wait_for(lambda: listener.diagnostics, 30), 'no diagnostics'
+        play_into(listener, bag, 40, delay_s=5, env=ros_env, rate=8.0)
+        assert listener.diag_value('pose_placement') == 'refused'
+        elevation = float(listener.diag_value('frames_mount_elevation_deg'))
+        assert -72.5 < elevation < -67.5, elevation
+        status = [st for st in listener.diagnostics[-1].status if st.name == MOSAIC][0]
+        assert status.level == DiagnosticStatus.WARN
+        assert f'georef.gimbal_elevation_deg: {elevation:g}' in status.message, status.message
+    assert 'not placed by the filter' in sup.logs['graph']

@@ -86,6 +86,21 @@ class PoseCheck:
                    if shown is not None else {}),
                 **({'reason': self.reason} if self.reason else {})}
 
+    def operator_note(self) -> str:
+        """One sentence for a live operator when refused ('' when used): the frames are off the map,
+        and the mount to set when the frames show one."""
+        if self.used:
+            return ''
+        shown = self.frames_mount
+        if shown is None or self.mount_to_try is None:
+            return ('frames not placed on the map: they disagree with the assumed camera mount; give the camera '
+                    'attitude (an Imu orientation, gimbal angles) or its mount (georef.gimbal_elevation_deg, '
+                    'georef.gimbal_azimuth_deg)')
+        return (f'frames not placed on the map: they show the camera {-shown.elevation_deg:.0f} deg below the horizon, '
+                f'{shown.azimuth_deg:.0f} deg from the direction of travel, not as the mount says; restart with '
+                f'georef.gimbal_elevation_deg: {self.mount_to_try[1]:g}, georef.gimbal_azimuth_deg: '
+                f'{self.mount_to_try[0]:g} (or give the camera attitude)')
+
     def with_mount_to_try(self, K: np.ndarray) -> PoseCheck:
         """This refusal with ``mount_to_try`` set to the mount the frames show, (azimuth, elevation)
         rounded to 0.1 deg, when it differs from the assumed one and every corner of a frame of

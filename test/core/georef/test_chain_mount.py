@@ -127,6 +127,10 @@ def test_the_mount_to_try_is_one_the_filter_can_use() -> None:
     assert not horizon.used and '5 deg below the horizon' in horizon.reason  # karma.mp4: 2 deg
     assert horizon.with_mount_to_try(K).mount_to_try is None
     assert check_pose_placement(low, 0.99999, (0.0, -90.0)).with_mount_to_try(K).mount_to_try is None  # passed
+    offered = oblique.with_mount_to_try(K)
+    assert 'restart with georef.gimbal_elevation_deg: -55, georef.gimbal_azimuth_deg: 30' in offered.operator_note()
+    assert 'give the camera attitude' in horizon.with_mount_to_try(K).operator_note()
+    assert check_pose_placement(low, 0.99999, (0.0, -90.0)).operator_note() == ''  # used: nothing to say
 
 
 def test_geotags_do_not_place_frames_whose_chain_shows_a_tilt() -> None:
