@@ -56,6 +56,12 @@ MOUNT_TOLERANCE_DEG = 12.0
 #: The highest frame corner must look this far below the horizon through a mount the run may switch
 #: to: the filter's footprints, on level ground, then reach at most ~6 heights away.
 MIN_DEPRESSION_DEG = 10.0
+#: Largest spread of the frames' normals (chain_mount.py) whose mount a run may switch to. A
+#: refusal needs less (the chain showing a clearly oblique camera is evidence even when rough),
+#: a mount to fly needs a plane the frames agree on: simulated lines 0.03-0.2 deg, corners 0.2 px
+#: off per homography 0.3-0.4; over buildings (40 boxes up to 20 m under 80 m, camera 60 deg below
+#: the horizon) 0.55-1.45, the elevation shown 35 or 20 deg where it was 60 or 70.
+MAX_SPREAD_TO_TRY_DEG = 0.5
 
 
 @dataclass(frozen=True)
@@ -103,11 +109,12 @@ class PoseCheck:
 
     def with_mount_to_try(self, K: np.ndarray) -> PoseCheck:
         """This refusal with ``mount_to_try`` set to the mount the frames show, (azimuth, elevation)
-        rounded to 0.1 deg, when it differs from the assumed one and every corner of a frame of
-        intrinsics ``K`` (3, 3) looks at least MIN_DEPRESSION_DEG below the horizon through it (the
-        filter's level-ground footprint stays bounded); else unchanged."""
+        rounded to 0.1 deg, when their normals agree (MAX_SPREAD_TO_TRY_DEG), it differs from the
+        assumed one, and every corner of a frame of intrinsics ``K`` (3, 3) looks at least
+        MIN_DEPRESSION_DEG below the horizon through it (the filter's level-ground footprint stays
+        bounded); else unchanged."""
         shown = self.frames_mount
-        if self.used or shown is None:
+        if self.used or shown is None or shown.spread_deg > MAX_SPREAD_TO_TRY_DEG:
             return self
         mount = (round(shown.azimuth_deg, 1), round(shown.elevation_deg, 1))
         if mount_axis_angle_deg(mount, self.mount) <= MOUNT_TOLERANCE_DEG:

@@ -12,7 +12,8 @@ import pytest
 from srmosaic_ros.core.georef.chain_mount import mount_from_chain
 from srmosaic_ros.core.georef.frames import camera_pose
 from srmosaic_ros.core.georef.geotag_fit import check_mount_nadir
-from srmosaic_ros.core.georef.pose_check import MOUNT_TOLERANCE_DEG, check_pose_placement, mount_axis_angle_deg
+from srmosaic_ros.core.georef.pose_check import (MAX_SPREAD_TO_TRY_DEG, MOUNT_TOLERANCE_DEG, check_pose_placement,
+                                                 mount_axis_angle_deg)
 
 K = np.array([[220.0, 0.0, 160.0], [0.0, 220.0, 120.0], [0.0, 0.0, 1.0]])  # 320 x 240, HFOV 72 deg
 
@@ -127,6 +128,10 @@ def test_the_mount_to_try_is_one_the_filter_can_use() -> None:
     assert not horizon.used and '5 deg below the horizon' in horizon.reason  # karma.mp4: 2 deg
     assert horizon.with_mount_to_try(K).mount_to_try is None
     assert check_pose_placement(low, 0.99999, (0.0, -90.0)).with_mount_to_try(K).mount_to_try is None  # passed
+    rough = mount_from_chain(_chain(30.0, -55.0, sway_deg=2.0, noise_px=0.5, seed=2), [K] * 12)
+    assert MAX_SPREAD_TO_TRY_DEG < rough.spread_deg < 2.0  # refuses, but is not a mount to fly
+    refused_roughly = check_pose_placement(low, 0.99999, (0.0, -90.0), rough)
+    assert not refused_roughly.used and refused_roughly.with_mount_to_try(K).mount_to_try is None
     offered = oblique.with_mount_to_try(K)
     assert 'restart with georef.gimbal_elevation_deg: -55, georef.gimbal_azimuth_deg: 30' in offered.operator_note()
     assert 'give the camera attitude' in horizon.with_mount_to_try(K).operator_note()
