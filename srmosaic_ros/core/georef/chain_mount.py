@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ['MIN_BASELINE', 'MountEstimate', 'mount_from_chain']
+__all__ = ['MAX_SPREAD_DEG', 'MIN_BASELINE', 'MIN_FRAMES', 'MIN_HFOV_DEG', 'MountEstimate', 'mount_from_chain']
 
 #: Smallest translation over the plane's distance (|t| / d) a frame needs to say where the normal is.
 MIN_BASELINE = 0.08

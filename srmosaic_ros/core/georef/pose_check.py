@@ -43,7 +43,8 @@ from scipy.special import chdtri
 from .chain_mount import MountEstimate
 from .frames import R_body_from_cam
 
-__all__ = ['MIN_INNOVATIONS', 'MOUNT_TOLERANCE_DEG', 'PoseCheck', 'check_pose_placement', 'mount_axis_angle_deg']
+__all__ = ['MAX_SPREAD_TO_TRY_DEG', 'MIN_DEPRESSION_DEG', 'MIN_INNOVATIONS', 'MOUNT_TOLERANCE_DEG', 'PoseCheck',
+           'check_pose_placement', 'mount_axis_angle_deg']
 
 #: Fewest drift-control innovations that decide (fewer: the poses place the mosaic, as before).
 MIN_INNOVATIONS = 4
