@@ -751,8 +751,9 @@ class Pipeline:
         self._settling, self._settling_seg = [], None
         if not held or seg is None:
             return
-        if self._poses_refused(seg, held):
-            placed = self._chained_from_first(held)
+        chained = self._chained_from_first(held)  # the frames' mount shows in it; their placement if refused
+        if self._poses_refused(seg, held, chained):
+            placed = chained
         else:
             placed = [held[-1].record.seg_H_frame]
             for k in range(len(held) - 2, -1, -1):
@@ -766,9 +767,9 @@ class Pipeline:
             if not any(h is frame for _, h, _ in self._unpainted):  # else decided when painted
                 self._settled.append(frame.record)
 
-    def _poses_refused(self, seg: Segment, held: list[_Held]) -> bool:
+    def _poses_refused(self, seg: Segment, held: list[_Held], chained: list[np.ndarray]) -> bool:
         """Decide pose_check when ``seg``, the first georeferenced segment, settles with ``held`` its
-        frames (module docstring); True when its frames must not be placed by their poses: then the
+        frames, ``chained`` their _chained_from_first (module docstring); True when its frames must not be placed by their poses: then the
         segment, not painted yet, becomes an ordinary one in its first frame's plane and no later one
         is georeferenced."""
         nis, self._settling_nis = self._settling_nis, []
@@ -776,7 +777,7 @@ class Pipeline:
             return False
         g = self.config.georef
         self.pose_check = check_pose_placement(nis, g.gate_probability, (g.gimbal_azimuth_deg, g.gimbal_elevation_deg),
-                                               self._mount_shown(held))
+                                               self._mount_shown(held, chained))
         if self.pose_check is None or self.pose_check.used:
             return False
         if held[0].camera is not None:
@@ -794,13 +795,14 @@ class Pipeline:
         self.georef.drop_raster()
         return True
 
-    def _mount_shown(self, held: list[_Held]) -> MountEstimate | None:
-        """The camera mount the held frames' chain shows (chain_mount.py), None when it cannot tell."""
+    @staticmethod
+    def _mount_shown(held: list[_Held], chained: list[np.ndarray]) -> MountEstimate | None:
+        """The camera mount the held frames' chain (``chained``, in the first one's plane) shows
+        (chain_mount.py), None when it cannot tell."""
         if any(frame.camera is None for frame in held):
             return None
-        placed = self._chained_from_first(held)
-        first_from_plane = np.linalg.inv(placed[0])
-        return mount_from_chain([first_from_plane @ h for h in placed], [frame.camera.K for frame in held])
+        first_from_plane = np.linalg.inv(chained[0])
+        return mount_from_chain([first_from_plane @ h for h in chained], [frame.camera.K for frame in held])
 
     def _attitude_measured(self) -> bool:
         """Whether the input measured the camera's attitude (an Imu orientation or a camera attitude

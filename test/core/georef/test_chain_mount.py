@@ -12,6 +12,7 @@ import pytest
 from srmosaic_ros.core.georef.chain_mount import mount_from_chain
 from srmosaic_ros.core.georef.frames import camera_pose
 from srmosaic_ros.core.georef.geotag_fit import check_mount_nadir
+from srmosaic_ros.core.georef.ground_homography import image_H_ground
 from srmosaic_ros.core.georef.pose_check import (MAX_SPREAD_TO_TRY_DEG, MOUNT_TOLERANCE_DEG, check_pose_placement,
                                                  mount_axis_angle_deg)
 
@@ -24,9 +25,7 @@ def _image_H_ground(azimuth_deg: float, elevation_deg: float, position: np.ndarr
     roll, pitch, yaw = np.radians(rpy_deg) + np.array([0.0, 0.0, math.radians(yaw_deg)])
     pose = camera_pose(position, roll, pitch, yaw, gimbal_azimuth_rad=math.radians(azimuth_deg),
                        gimbal_elevation_rad=math.radians(elevation_deg))
-    R_cam_from_enu = pose.R_enu_from_cam.T
-    t = -R_cam_from_enu @ pose.center_enu_m
-    return K @ np.column_stack([R_cam_from_enu[:, 0], R_cam_from_enu[:, 1], t])
+    return image_H_ground(K, pose.R_enu_from_cam, pose.center_enu_m)
 
 
 def _chain(azimuth_deg: float, elevation_deg: float, *, frames: int = 12, step_m: float = 3.0,
@@ -92,8 +91,7 @@ def test_a_zoom_is_read_through_each_frames_intrinsics() -> None:
     for k, Kk in enumerate(Ks):
         pose = camera_pose(np.array([0.0, 0.0, 80.0]) + 3.0 * k * heading, *np.radians(rng.normal(0, 0.5, 3)),
                            gimbal_elevation_rad=math.radians(-50.0))
-        R = pose.R_enu_from_cam.T
-        Hs.append(Kk @ np.column_stack([R[:, 0], R[:, 1], -R @ pose.center_enu_m]))
+        Hs.append(image_H_ground(Kk, pose.R_enu_from_cam, pose.center_enu_m))
     shown = mount_from_chain([Hs[0] @ np.linalg.inv(H) for H in Hs], Ks)
     assert shown is not None and shown.elevation_deg == pytest.approx(-50.0, abs=1.0)
 
