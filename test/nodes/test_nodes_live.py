@@ -388,9 +388,12 @@ def test_standalone_filter_stopped_by_the_scheduler_fuses_as_if_it_had_run(ros_e
     in_node = {stamp_to_ns(f.header.stamp): f for f in listener.fixes}
     common = sorted(set(standalone) & set(in_node))
     assert len(common) >= 30, (len(standalone), len(in_node))
-    worst = max(math.hypot((a.latitude - b.latitude) * 111_320.0, (a.longitude - b.longitude) * 111_320.0 * math.cos(math.radians(a.latitude)),
-                           a.altitude - b.altitude) for a, b in ((standalone[t], in_node[t]) for t in common))
-    assert worst < 0.01, worst
+    apart = {t: math.hypot((a.latitude - b.latitude) * 111_320.0,
+                           (a.longitude - b.longitude) * 111_320.0 * math.cos(math.radians(a.latitude)),
+                           a.altitude - b.altitude) for t, a, b in ((t, standalone[t], in_node[t]) for t in common)}
+    worst = max(apart.values())
+    # it failed now and then under load (2026-12-07, also before that day's changes): say which frames moved
+    assert worst < 0.01, (worst, {t: round(d, 3) for t, d in apart.items() if d >= 0.01})
 
 
 def _children(pid: int) -> list[int]:
