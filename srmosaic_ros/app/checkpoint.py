@@ -42,6 +42,7 @@ class Checkpoint:
     recorder: Any = None
     recent: dict[int, Any] | None = None
     format: int = FORMAT
+    mount_restart: dict[str, Any] | None = None  # report.json's mount_from_frames, when the run started again
 
 
 def checkpoint_path(out: Path) -> Path:

@@ -351,6 +351,7 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
     recorder = MosaicVideoRecorder() if mosaic_video else None
     recent: dict[int, np.ndarray] = {}
     skip_items = frames_done = 0
+    restart: dict[str, Any] | None = None
     if resume:
         state = load_checkpoint(out, run_id)
         try:
@@ -361,10 +362,11 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
         recorder = state.recorder
         recent = state.recent or {}
         skip_items, frames_done = state.items_consumed, state.frames_consumed
+        restart = state.mount_restart
+        config = pipeline.config  # the mount the run started again with, when it did
     bar = tqdm(total=reader.frame_count, initial=frames_done, unit='frame', desc='process', disable=not progress)
     error: SrMosaicError | None = None
     consumed = 0
-    restart: dict[str, Any] | None = None
     with bar, cores_left_for_torch(1 if overlap else 0):  # one core is the painter's (Pipeline paint_thread)
         while True:
             clock = pipeline.clock
@@ -394,7 +396,7 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
                     if checkpoint_every and isinstance(item, Frame) and frames_done % checkpoint_every == 0:
                         with clock.stage('outputs'):
                             save_checkpoint(out, Checkpoint(run_id, consumed, frames_done, pipeline.state(), recorder,
-                                                            recent))
+                                                            recent, mount_restart=restart))
             except SrMosaicError as exc:
                 error = exc
             except _MountRestart:

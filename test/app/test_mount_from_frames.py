@@ -5,9 +5,15 @@ under the gate 37.3) and was placed 14.9 px off in the mosaic, 9.4 m on the map.
 from __future__ import annotations
 
 import json
+import os
+import signal
+import subprocess
+import sys
+import time
 
 import pytest
 
+from srmosaic_ros.app.checkpoint import read_header
 from srmosaic_ros.app.evaluate import evaluate_dir
 from srmosaic_ros.app.process import process_input
 from srmosaic_ros.cli import main as cli_main
@@ -72,3 +78,36 @@ def test_without_the_restart_it_is_chained_and_not_put_on_the_map(oblique_bag, t
     reason = report['not_georeferenced_reason']
     assert 'chain shows the camera 69 deg below the horizon' in reason and 'georef.gimbal_elevation_deg: -69' in reason
     assert fig['corner_error_mean_px'] < 0.2, fig
+
+
+def test_a_run_started_again_with_the_frames_mount_resumes_with_it(tmp_path) -> None:
+    """kill -9 after the restart, then --resume: the resumed run keeps the frames' mount and says so
+    in report.json (it used to report no mount_from_frames), and writes what the whole run writes."""
+    bag = write_flight(simulate(SimConfig(**{**LINE, 'frames': 80, 'rate_hz': 5.0})), tmp_path / 'bag')
+    cli = [sys.executable, '-m', 'srmosaic_ros.cli', 'process', str(bag), '--imu-topic', '', '--no-progress',
+           '--checkpoint-every', '5']
+    full = tmp_path / 'full'
+    assert subprocess.run([*cli, '--out', str(full)], capture_output=True, timeout=600).returncode == 0
+    restart = json.loads((full / 'report.json').read_text())['mount_from_frames']
+    assert restart['after_frames'] < 30
+
+    out = tmp_path / 'interrupted'
+    proc = subprocess.Popen([*cli, '--out', str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 300
+    while _checkpointed_frames(out) < 30 and time.monotonic() < deadline:  # past the restart
+        assert proc.poll() is None, 'the run finished before it could be killed'
+        time.sleep(0.02)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    resumed = subprocess.run([*cli, '--out', str(out), '--resume'], capture_output=True, text=True, timeout=600)
+    assert resumed.returncode == 0, resumed.stderr
+    report = json.loads((out / 'report.json').read_text())
+    assert report['resumed_after_frames']['input_items_skipped'] > 0
+    assert report['mount_from_frames'] == restart
+    assert report['pose_placement']['mount_elevation_deg'] == restart['elevation_deg']
+    assert (out / 'frames.csv').read_bytes() == (full / 'frames.csv').read_bytes()
+
+
+def _checkpointed_frames(out) -> int:
+    header = read_header(out / '.checkpoint' / 'state.pkl')
+    return int(header['frames_consumed']) if header else 0
