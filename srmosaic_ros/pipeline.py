@@ -71,7 +71,7 @@ from .core.mosaic.scratch import scratch
 from .core.registration import Features, Registration, make_registrar
 from .core.registration.pyramid import PyramidRegistrar
 from .core.registration.tracking import MotionTracker
-from .core.georef.georeferencer import FramePose, Georeferencer
+from .core.georef.georeferencer import FramePose, Georeferencer, sees_the_ground
 from .core.georef.chain_mount import MountEstimate, mount_from_chain
 from .core.georef.pose_check import PoseCheck, check_pose_placement
 from .core.serial_worker import SerialWorker
@@ -805,9 +805,11 @@ class Pipeline:
         return mount_from_chain([first_from_plane @ h for h in chained], [frame.camera.K for frame in held])
 
     def _attitude_measured(self) -> bool:
-        """Whether the input measured the camera's attitude (an Imu orientation or a camera attitude
-        so far): then the filter's orientation is not only the assumed mount."""
-        return bool(self.attitudes) or any(imu.orientation_xyzw is not None for imu in self.imus)
+        """Whether the input measured the camera's attitude (an Imu orientation, or a camera attitude
+        the filter can use, not one at the horizon, so far): then the filter's orientation is not only
+        the assumed mount."""
+        return any(sees_the_ground(a.R_enu_from_cam) for a in self.attitudes) or \
+            any(imu.orientation_xyzw is not None for imu in self.imus)
 
     def _chained_from_first(self, held: list[_Held]) -> list[np.ndarray]:
         """seg_H_frame of each held frame in the first one's pixel plane (scaled to mosaic.max_width),

@@ -51,6 +51,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import re
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -370,7 +371,8 @@ def _position_figures(out_dir: Path, main: list[dict[str, Any]], meta: dict[int,
     """
     tif = out_dir / 'mosaic.tif'
     if not tif.is_file():
-        why = str(report.get('not_georeferenced_reason') or '').split('. ')[0].rstrip('.')  # its first sentence
+        # its first clause (report.json keeps the whole reason, the way out included)
+        why = re.split(r'\. |: |; ', str(report.get('not_georeferenced_reason') or ''))[0].rstrip('.')
         return None, {}, f'no mosaic.tif (the run is not georeferenced{": " + why if why else ""})'
     if not meta:
         with open(out_dir / 'frames.csv', newline='') as handle:

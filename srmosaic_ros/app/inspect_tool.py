@@ -157,12 +157,13 @@ def _inspect_video(path: Path) -> dict[str, Any]:
     gpmf = read_gpmf(path)
     if gpmf.payloads:
         summary = MetadataSummary()
-        fixes = gpmf_items(gpmf, summary)
+        gpmf_items(gpmf, summary)
         out['gpmf'] = {'device': gpmf.device, 'payloads': gpmf.payloads, 'gps_samples': len(gpmf.gps),
-                       'usable_fixes': len(fixes), 'orientation_samples': len(gpmf.orientation),
-                       'notes': summary.notes}
+                       'usable_fixes': summary.frames_with_position, 'orientation_samples': len(gpmf.orientation),
+                       'camera_attitudes': summary.frames_with_attitude, 'notes': summary.notes}
         if not klv.records and 'metadata_source' not in out:
-            positions = len(fixes)
+            positions, attitude = summary.frames_with_position, summary.frames_with_attitude
+            what = "the Karma drone's attitude and gimbal tilt"
             out['metadata_source'] = 'GoPro GPMF'
     out['missing'] = [m for m in (
         None if positions else 'GPS positions (no KLV, SRT or GPMF)',

@@ -581,7 +581,17 @@ def _metadata_report(summary: Any, result: PipelineResult) -> dict[str, Any]:
 def not_georeferenced_reason(result: PipelineResult, config: PipelineConfig,
                              skipped: dict[str, int] | None = None) -> str:
     """One sentence: why the mosaic has no place on the map (``skipped``: the reader's messages
-    left out, per kind, which say when every fix was unusable)."""
+    left out, per kind, which say when every fix was unusable), after the measured attitudes the
+    filter left out because they look at the horizon, when there were any."""
+    why = _why_not_georeferenced(result, config, skipped)
+    at_horizon = result.georef.skipped.get('camera_attitude_horizon', 0) if result.georef is not None else 0
+    if at_horizon:
+        return (f'{at_horizon} measured camera attitude(s) look less than 5 deg below the horizon, where no ground '
+                f'plane is in view, and were left out; {why}')
+    return why
+
+
+def _why_not_georeferenced(result: PipelineResult, config: PipelineConfig, skipped: dict[str, int] | None) -> str:
     if not config.georef_enabled:
         return 'georeferencing is off (georef.enabled: false).'
     bad_fixes = {k: n for k, n in (skipped or {}).items() if 'NavSatFix' in k}

@@ -1,4 +1,5 @@
-"""GoPro GPMF telemetry in an MP4/MOV -> GPS fixes, accelerometer, gyroscope and orientation samples.
+"""GoPro GPMF telemetry in an MP4/MOV -> GPS fixes, accelerometer, gyroscope and orientation samples
+(and a Karma drone's attitude and gimbal angles).
 
 GPMF (GoPro's public spec, github.com/gopro/gpmf-parser) is a big-endian KLV stream: a 4-character
 key, a 1-byte type, a 1-byte structure size and a 2-byte repeat count, the value padded to 32 bits.
@@ -18,9 +19,18 @@ Read here:
   HERO5 with its GPS off, GPS from the drone);
 - ``ACCL`` (m/s²) and ``GYRO`` (rad/s), 3 axes in the order the camera stores them: GPMF defines the
   axes per model (HERO5: Z,X,Y; Fusion: -Y,X,Z; HERO6: Y,-X,Z; the stream's ``STNM`` names them);
-- ``CORI`` (HERO8 on): camera orientation quaternions (w, x, y, z), scaled by SCAL.
+- ``CORI`` (HERO8 on): camera orientation quaternions (w, x, y, z), scaled by SCAL;
+- ``ATTD`` ("Attitude") of a Karma drone's device: MAVLink ATTITUDE in a ``TYPE`` struct (boot ms,
+  roll, pitch, yaw in rad, their rates): the drone's body attitude, NED axes, yaw clockwise from
+  north;
+- ``CYTS`` ("Coyote Status", the Karma's gimbal): a ``TYPE`` struct whose three ``rad`` fields are
+  the gimbal's angles. Their meaning is not published; on karma.mp4 the first two are 0 and the third
+  is the camera's tilt from the horizon (-2.3 to -0.1 deg where the picture has the sea's horizon
+  just above its middle, while the drone pitches 6 to 16 deg nose down): the gimbal levels the
+  camera and follows the drone's heading (metadata.gpmf_items composes them).
 
-Time stamps (``stamp_ns``) are on the video's clock, ns from its first frame: the payload's track
+Time stamps (``stamp_ns``) are on the video's clock (the Karma's streams too: their own time fields
+are two boot clocks, the drone's and the gimbal's, 3 s apart on karma.mp4), ns from its first frame: the payload's track
 time plus, for its n samples, ``j/n`` of its duration (samples spread evenly over the payload). The
 last payload is the exception: the camera closes it when recording stops, short, while the MP4 still
 gives it a full period; its samples are spread at the rate the stream had in the payloads before.
@@ -88,6 +98,8 @@ class GpmfTrack:
     accel: list[tuple[int, tuple[float, float, float]]] = field(default_factory=list)
     gyro: list[tuple[int, tuple[float, float, float]]] = field(default_factory=list)
     orientation: list[tuple[int, tuple[float, float, float, float]]] = field(default_factory=list)
+    platform_attitude: list[tuple[int, tuple[float, float, float]]] = field(default_factory=list)  # ATTD (rad)
+    gimbal_angles: list[tuple[int, tuple[float, float, float]]] = field(default_factory=list)  # CYTS (rad)
     device: str = ''
     payloads: int = 0
     skipped: dict[str, int] = field(default_factory=dict)
@@ -100,7 +112,9 @@ _SIZES = {'b': 1, 'B': 1, 'c': 1, 'd': 8, 'f': 4, 'F': 4, 'G': 16, 'j': 8, 'J': 
 _DTYPES = {'b': '>i1', 'B': '>u1', 'd': '>f8', 'f': '>f4', 'j': '>i8', 'J': '>u8', 'l': '>i4', 'L': '>u4',
            'q': '>i4', 'Q': '>i8', 's': '>i2', 'S': '>u2'}
 _FIXED_POINT = {'q': 65536.0, 'Q': 4294967296.0}  # Q15.16 and Q31.32
-_SENSORS = ('GPS5', 'GPS9', 'GPRI', 'SYST', 'ACCL', 'GYRO', 'CORI')
+_SENSORS = ('GPS5', 'GPS9', 'GPRI', 'SYST', 'ACCL', 'GYRO', 'CORI', 'ATTD', 'CYTS')
+#: The Karma's MAVLink-like structs: columns of (roll, pitch, yaw) in ATTD, of the angles in CYTS.
+_KARMA_ANGLES = {'ATTD': slice(1, 4), 'CYTS': slice(5, 8)}
 _DAYS_2000_NS = calendar.timegm((2000, 1, 1, 0, 0, 0, 0, 0, 0)) * 1_000_000_000
 
 
@@ -376,13 +390,21 @@ def _assemble(streams: dict[str, list[_Block]], payloads: list[tuple[int, int, b
             continue
         track.orientation.extend((int(s), (float(r[0]), float(r[1]), float(r[2]), float(r[3])))
                                  for s, r in zip(stamps, b.rows))
+    for key, target in (('ATTD', track.platform_attitude), ('CYTS', track.gimbal_angles)):
+        blocks, cols = streams[key], _KARMA_ANGLES[key]
+        for b, stamps in zip(blocks, _stamps(blocks, payloads, origin_ns)):
+            if b.rows.shape[1] < cols.stop:
+                _count(track, 'bad_klv')
+                continue
+            target.extend((int(s), (float(r[0]), float(r[1]), float(r[2]))) for s, r in zip(stamps, b.rows[:, cols])
+                          if np.all(np.isfinite(r)))
     # One receiver only: the camera's when it has one, else the Karma drone's.
     for key in ('GPS9', 'GPS5', 'GPRI'):
         if any(len(b.rows) for b in streams[key]):
             _gps(key, streams[key], _stamps(streams[key], payloads, origin_ns), streams['SYST'], track)
             track.gps_source = key
             break
-    for seq in (track.accel, track.gyro, track.orientation):
+    for seq in (track.accel, track.gyro, track.orientation, track.platform_attitude, track.gimbal_angles):
         seq.sort(key=lambda item: item[0])
     track.gps.sort(key=lambda g: g.stamp_ns)
 

@@ -7,7 +7,9 @@ report.json's ``metadata``. The core never learns where a value came from.
 
 Angle conventions of the carriers (converted by core/georef/frames.py):
 - DJI XMP and SRT gimbal angles: absolute yaw (clockwise from north), pitch (-90 nadir), roll;
-- MISB KLV: platform heading/pitch/roll composed with the sensor's relative azimuth/elevation/roll.
+- MISB KLV: platform heading/pitch/roll composed with the sensor's relative azimuth/elevation/roll;
+- GoPro Karma GPMF: the drone's yaw (clockwise from north) with the gimbal's tilt from the horizon,
+  the gimbal levelling the camera (gpmf.py says how that reading was established).
 """
 from __future__ import annotations
 
@@ -311,8 +313,14 @@ GPMF_UERE_M = 2.5
 GPMF_MAX_DOP = 5.0
 
 
-def gpmf_items(track: Any, summary: MetadataSummary) -> list[GeoFix]:
-    """Fixes of a GoPro GPMF track (3D fixes with a usable DOP), with their DOP as covariance."""
+#: Karma gimbal roll and pan beyond this (deg) are not the levelled, heading-following camera whose
+#: reading gpmf.py documents: such samples are left out rather than guessed.
+KARMA_GIMBAL_LEVEL_DEG = 1.0
+
+
+def gpmf_items(track: Any, summary: MetadataSummary) -> list[GeoFix | CameraAttitude]:
+    """Fixes of a GoPro GPMF track (3D fixes with a usable DOP), with their DOP as covariance, and
+    a Karma drone's camera attitudes (see :func:`karma_attitudes`), in time order."""
     summary.source = f'GoPro GPMF ({track.device or "unknown camera"})'
     for kind, n in track.skipped.items():
         summary.problems[f'gpmf_{kind}'] += int(n)
@@ -330,10 +338,55 @@ def gpmf_items(track: Any, summary: MetadataSummary) -> list[GeoFix]:
                           position_covariance_m2=cov, covariance_type=2))
     if out:
         summary.use('gps position')
-    if not track.orientation:
-        summary.note('no camera orientation in the GPMF (CORI is written by Hero8 and later): attitude unknown')
     summary.frames_with_position = len(out)
+    attitudes = karma_attitudes(track, summary)
+    if not attitudes and not track.gimbal_angles:
+        summary.note('no camera attitude in the GPMF (a HERO8 or later writes CORI, relative to the camera at '
+                     'its start, not to north; a Karma drone writes its attitude and gimbal angles): attitude unknown')
+    return sorted([*out, *attitudes], key=lambda item: item.stamp_ns)
+
+
+def karma_attitudes(track: Any, summary: MetadataSummary) -> list[CameraAttitude]:
+    """Camera attitudes of a GoPro on a Karma drone: at each gimbal sample (CYTS) the drone's yaw
+    (ATTD, interpolated; clockwise from north) and the gimbal's tilt from the horizon, roll 0 (the
+    gimbal levels the camera). Samples outside the drone's attitude record or with the gimbal
+    rolled or panned (KARMA_GIMBAL_LEVEL_DEG) are left out and counted."""
+    if not track.gimbal_angles or not track.platform_attitude:
+        if track.gimbal_angles or track.platform_attitude:
+            summary.note('Karma GPMF with only one of the drone attitude (ATTD) and the gimbal angles (CYTS): '
+                         'no camera attitude')
+        return []
+    t = np.array([s for s, _ in track.platform_attitude], dtype=np.float64)
+    yaw = np.unwrap([a[2] for _, a in track.platform_attitude])
+    margin = 1.5 * float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    out: list[CameraAttitude] = []
+    tilts: list[float] = []
+    for stamp, (roll, pan, tilt) in track.gimbal_angles:
+        if not (t[0] - margin <= stamp <= t[-1] + margin):
+            summary.problem('gpmf_gimbal_without_drone_attitude', 'Karma gimbal samples outside the drone attitude '
+                            'record left out')
+            continue
+        if max(abs(roll), abs(pan)) > math.radians(KARMA_GIMBAL_LEVEL_DEG):
+            summary.problem('gpmf_gimbal_not_level', f'Karma gimbal samples rolled or panned by more than '
+                            f'{KARMA_GIMBAL_LEVEL_DEG:g} deg left out (their angles are not documented)')
+            continue
+        heading = math.degrees(float(np.interp(stamp, t, yaw)))
+        out.append(CameraAttitude(int(stamp), R_enu_from_cam_aviation(heading, math.degrees(tilt), 0.0),
+                                  math.radians(RECORDED_ATTITUDE_SIGMA_DEG)))
+        tilts.append(math.degrees(tilt))
+    if out:
+        summary.use('Karma drone attitude and gimbal tilt')
+        summary.frames_with_attitude = len(out)
+        low, high = min(tilts), max(tilts)
+        summary.note(f'Karma camera attitude: {len(out)} samples, the line of sight {_from_horizon(low)} to '
+                     f'{_from_horizon(high)}' + (' (at the horizon: the filter cannot place frames by it, no ground '
+                                                 'plane is in view there)' if high > -5.0 else ''))
     return out
+
+
+def _from_horizon(elevation_deg: float) -> str:
+    """'2.3 deg below the horizon' / '0.1 deg above the horizon'."""
+    return f'{abs(elevation_deg):.1f} deg {"below" if elevation_deg < 0 else "above"} the horizon'
 
 
 def merge_by_time(frames: Iterable[Frame], telemetry: list[Any]) -> Iterator[Any]:

@@ -6,6 +6,7 @@ py-gpmf-parser 0.1.1 bindings, GPMF_ScaledData): they are not produced by the co
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from datetime import datetime, timezone
 
@@ -14,7 +15,11 @@ import numpy as np
 import pytest
 
 from srmosaic_ros.errors import InputError, MetadataError
+from srmosaic_ros.core.georef.georeferencer import Georeferencer
+from srmosaic_ros.core.georef.georef_config import GeorefConfig
+from srmosaic_ros.core.types import CameraAttitude, GeoFix
 from srmosaic_ros.io.gpmf import GpsSample, read_gpmf
+from srmosaic_ros.io.metadata import MetadataSummary, gpmf_items
 from repo_paths import TEST_DATA
 
 KARMA = TEST_DATA / 'real' / 'gopro' / 'karma_telemetry.mp4'
@@ -86,6 +91,27 @@ def test_last_payload_keeps_the_stream_rate(karma):
     assert abs(karma.gyro[-1][0] - VIDEO_END_NS) < 5_000_000
 
 
+def test_the_karma_drone_attitude_and_gimbal_angles(karma):
+    """ATTD (MAVLink ATTITUDE) and CYTS (the gimbal, "Coyote Status"), both TYPE structs; reference
+    values unpacked with struct from the KLV bytes ('>Lffffffb', '>LLLLLfffBB')."""
+    assert (len(karma.platform_attitude), len(karma.gimbal_angles)) == (47, 48)
+    assert karma.platform_attitude[0] == (0, (-0.07731033116579056, -0.1803593933582306, -0.4963531494140625))
+    assert karma.platform_attitude[-1] == (11_761_750_000, (-0.028938211500644684, -0.10744842886924744,
+                                                            -0.5208327770233154))
+    assert karma.gimbal_angles[0] == (0, (-0.00022660930699203163, 0.00017213367391377687, -0.04088740050792694))
+    assert karma.gimbal_angles[-1][1] == (0.0001054052117979154, 6.725257844664156e-05, -0.010097235441207886)
+    # the drone's yaw follows its course over ground (about 330 deg: north-north-west along the coast)
+    first, last = karma.gps[0], karma.gps[-1]
+    north = (last.latitude_deg - first.latitude_deg) * 111_320.0
+    east = (last.longitude_deg - first.longitude_deg) * 111_320.0 * math.cos(math.radians(first.latitude_deg))
+    course = math.degrees(math.atan2(east, north))
+    yaws = [math.degrees(a[2]) for _, a in karma.platform_attitude[8:]]  # past the start's acceleration
+    assert all(abs(y - course) < 6.0 for y in yaws), (course, yaws)
+    # the gimbal levels the camera (2.3 to -0.1 deg below the horizon) while the drone pitches 6-22 deg nose down
+    assert all(abs(g[0]) < 0.01 and abs(g[1]) < 0.01 and -0.05 < g[2] < 0.01 for _, g in karma.gimbal_angles)
+    assert all(-0.4 < a[1] < -0.09 for _, a in karma.platform_attitude)
+
+
 def test_mp4_without_gpmf_gives_an_empty_track(tmp_path):
     path = tmp_path / 'plain.mp4'
     with av.open(str(path), 'w') as out:
@@ -117,3 +143,50 @@ def test_stamps_are_finite_integers(karma):
     for seq in (karma.accel, karma.gyro):
         assert all(isinstance(s, int) for s, _ in seq)
         assert all(math.isfinite(v) for _, values in seq for v in values)
+
+
+def test_karma_camera_attitudes_for_the_filter(karma):
+    """metadata.gpmf_items: at each gimbal sample the camera's line of sight has the drone's yaw
+    (clockwise from north) and the gimbal's tilt below the horizon; the fixes are as before."""
+    summary = MetadataSummary()
+    items = gpmf_items(karma, summary)
+    fixes = [i for i in items if isinstance(i, GeoFix)]
+    attitudes = [i for i in items if isinstance(i, CameraAttitude)]
+    assert (len(fixes), len(attitudes)) == (47, 48)
+    assert [i.stamp_ns for i in items] == sorted(i.stamp_ns for i in items)
+    assert (summary.frames_with_position, summary.frames_with_attitude) == (47, 48)
+    assert "Karma drone attitude and gimbal tilt" in summary.fields
+    yaw_t = np.array([s for s, _ in karma.platform_attitude], dtype=float)
+    yaw = np.unwrap([a[2] for _, a in karma.platform_attitude])
+    for att, (stamp, (_, _, tilt)) in zip(attitudes, karma.gimbal_angles):
+        axis = att.R_enu_from_cam[:, 2]  # the optical axis in ENU
+        assert att.stamp_ns == stamp
+        assert math.degrees(math.asin(axis[2])) == pytest.approx(math.degrees(tilt), abs=1e-6)
+        heading = math.degrees(math.atan2(axis[0], axis[1]))
+        assert (heading - math.degrees(np.interp(stamp, yaw_t, yaw)) + 180.0) % 360.0 - 180.0 == pytest.approx(0.0, abs=1e-6)
+        down = att.R_enu_from_cam[:, 1]  # image down: level (no roll), below the horizon
+        assert abs(float(np.dot(att.R_enu_from_cam[:, 0], (0.0, 0.0, 1.0)))) < 1e-9 and down[2] < 0.0
+    assert any('2.3 deg below the horizon to 0.1 deg above the horizon (at the horizon' in n for n in summary.notes)
+
+
+def test_karma_gimbal_samples_rolled_or_panned_are_left_out(karma):
+    """The CYTS angles' meaning is read off karma.mp4, where the gimbal is level and follows the
+    heading; samples where it is not are not guessed at."""
+    panned = [(s, (g[0], math.radians(30.0), g[2]) if k % 2 else g) for k, (s, g) in enumerate(karma.gimbal_angles)]
+    summary = MetadataSummary()
+    items = gpmf_items(dataclasses.replace(karma, gimbal_angles=panned), summary)
+    assert sum(isinstance(i, CameraAttitude) for i in items) == 24
+    assert summary.problems['gpmf_gimbal_not_level'] == 24
+    summary = MetadataSummary()
+    items = gpmf_items(dataclasses.replace(karma, platform_attitude=[]), summary)
+    assert not any(isinstance(i, CameraAttitude) for i in items)
+    assert any('only one of the drone attitude' in n for n in summary.notes)
+
+
+def test_karma_attitudes_at_the_horizon_are_not_fused(karma):
+    """The camera looks 0.1 above to 2.3 deg below the horizon: no ground plane in view, and the
+    georeferencer leaves every one of them out (counted), as it does any camera at the horizon."""
+    georef = Georeferencer(GeorefConfig())
+    for att in (i for i in gpmf_items(karma, MetadataSummary()) if isinstance(i, CameraAttitude)):
+        georef.feed_camera_attitude(att)
+    assert georef.skipped['camera_attitude_horizon'] == 48

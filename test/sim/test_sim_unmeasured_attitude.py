@@ -13,6 +13,8 @@ import pytest
 from srmosaic_ros.app.evaluate import evaluate_dir
 from srmosaic_ros.app.process import not_georeferenced_reason, write_outputs
 from srmosaic_ros.config import PipelineConfig
+from srmosaic_ros.core.georef.frames import R_enu_from_cam_aviation
+from srmosaic_ros.core.types import CameraAttitude
 from srmosaic_ros.core.georef.pose_check import MIN_INNOVATIONS, check_pose_placement, mount_axis_angle_deg
 from srmosaic_ros.io.metadata import merge_by_time
 from srmosaic_ros.pipeline import Pipeline
@@ -25,11 +27,15 @@ NADIR = {'trajectory': 'line', 'frames': 20, 'rate_hz': 4.0, 'altitude_m': 80.0,
          'world': 'data/worlds/caliterra_IMG_9360.jpg', 'seed': 5}
 
 
-def _run(cfg: SimConfig, tmp_path, *, imu: bool = False):
+def _run(cfg: SimConfig, tmp_path, *, imu: bool = False, horizon_attitudes: bool = False):
     """(PipelineResult, report, truth figures) of a simulated flight fed with its fixes (and its Imu
-    samples when ``imu``), the frames carrying their intrinsics; default configuration (nadir mount)."""
+    samples when ``imu``; a camera attitude 1 deg below the horizon at every fix when
+    ``horizon_attitudes``), the frames carrying their intrinsics; default configuration (nadir mount)."""
     flight = simulate(cfg)
     telemetry = flight.fixes + (flight.imus if imu else [])
+    if horizon_attitudes:  # what karma.mp4's Karma gimbal records: measured, but no ground in view
+        telemetry += [CameraAttitude(f.stamp_ns, R_enu_from_cam_aviation(0.0, -1.0, 0.0), math.radians(1.0))
+                      for f in flight.fixes]
     config = PipelineConfig()
     pipeline = Pipeline(config)
     for item in merge_by_time(flight.frames, sorted(telemetry, key=lambda x: x.stamp_ns)):
@@ -94,3 +100,19 @@ def test_the_rule_is_the_median_innovation_against_the_filters_gate() -> None:
     refused = check_pose_placement([300.0, 20.0, 400.0, 250.0, 1.0], 0.99999, (90.0, -30.0))
     assert refused is not None and not refused.used
     assert refused.median_nis == 250.0 and 'elevation -30 deg: oblique' in refused.reason
+
+
+def test_attitudes_at_the_horizon_do_not_count_as_measured(tmp_path) -> None:
+    """Camera attitudes the filter cannot use (less than 5 deg below the horizon: a Karma gimbal
+    levelled at the horizon) leave the orbit as unmeasured: chained, not forced to nadir, and the
+    reason says first that they were left out. Counted as measured, the frames were placed on the
+    nadir assumption (karma.mp4 with --hfov 110: 3 segments, consistency 0.566 instead of 0.826)."""
+    result, report, fig = _run(SimConfig(**ORBIT), tmp_path, horizon_attitudes=True)
+    assert result.georef.skipped['camera_attitude_horizon'] == len(result.attitudes) > 0
+    assert report['pose_placement']['used'] is False
+    assert [seg.georeferenced for seg in result.segments] == [False]
+    assert fig['corner_error_mean_px'] < 0.3, fig
+    reason = not_georeferenced_reason(result, PipelineConfig())
+    assert reason.startswith(f'{len(result.attitudes)} measured camera attitude(s) look less than 5 deg below the '
+                             'horizon'), reason
+    assert 'do not look straight down' in reason

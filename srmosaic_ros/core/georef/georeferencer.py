@@ -54,12 +54,22 @@ __all__ = [
     'Georeferencer',
     'utm_epsg',
     'camera_pose_from_enu_H_image',
+    'sees_the_ground',
 ]
 
 _LOG = logging.getLogger(__name__)
 _AFFINE_FIT_HALF_SPAN_M = 3000.0
 #: Span over which the information rate of the absolute measurements is averaged (FramePose.info_rate).
 INFO_RATE_WINDOW_S = 10.0
+#: A measured camera attitude whose optical axis is less than this far below the horizon is not fused.
+MIN_AXIS_DEPRESSION_DEG = 5.0
+
+
+def sees_the_ground(R_enu_from_cam: np.ndarray) -> bool:
+    """Whether a camera of this orientation (optical frame in ENU, (3, 3)) looks at least
+    MIN_AXIS_DEPRESSION_DEG below the horizon: nearer the horizon the flat-ground model cannot place
+    its frames, and the georeferencer leaves the attitude out."""
+    return bool(R_enu_from_cam[2, 2] <= -math.sin(math.radians(MIN_AXIS_DEPRESSION_DEG)))
 
 
 def camera_pose_from_enu_H_image(K: np.ndarray, enu_H_image: np.ndarray, *,
@@ -201,7 +211,7 @@ class Georeferencer:
         if R_ec.shape != (3, 3) or not np.all(np.isfinite(R_ec)) or abs(np.linalg.det(R_ec) - 1.0) > 1e-3:
             self._skip('camera_attitude_nan', 'camera attitude with NaN fields or not a rotation ignored')
             return
-        if R_ec[2, 2] > -math.sin(math.radians(5.0)):
+        if not sees_the_ground(R_ec):
             self._skip('camera_attitude_horizon', 'camera attitude looking at or above the horizon ignored: the '
                        'flat-ground model cannot place such frames')
             return
