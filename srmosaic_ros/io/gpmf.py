@@ -23,6 +23,9 @@ Read here:
 - ``ATTD`` ("Attitude") of a Karma drone's device: MAVLink ATTITUDE in a ``TYPE`` struct (boot ms,
   roll, pitch, yaw in rad, their rates): the drone's body attitude, NED axes, yaw clockwise from
   north;
+- ``GLPI`` ("Position") of a Karma drone: MAVLink GLOBAL_POSITION_INT, of which the altitude (m above
+  mean sea level) and the height above the take-off point are read (their difference is the
+  take-off point's altitude, the ground prior; metadata.gpmf_items);
 - ``CYTS`` ("Coyote Status", the Karma's gimbal): a ``TYPE`` struct whose three ``rad`` fields are
   the gimbal's angles. Their meaning is not published; on karma.mp4 the first two are 0 and the third
   is the camera's tilt from the horizon (-2.3 to -0.1 deg where the picture has the sea's horizon
@@ -100,6 +103,7 @@ class GpmfTrack:
     orientation: list[tuple[int, tuple[float, float, float, float]]] = field(default_factory=list)
     platform_attitude: list[tuple[int, tuple[float, float, float]]] = field(default_factory=list)  # ATTD (rad)
     gimbal_angles: list[tuple[int, tuple[float, float, float]]] = field(default_factory=list)  # CYTS (rad)
+    heights: list[tuple[int, tuple[float, float]]] = field(default_factory=list)  # GLPI (m MSL, m above take-off)
     device: str = ''
     payloads: int = 0
     skipped: dict[str, int] = field(default_factory=dict)
@@ -112,9 +116,10 @@ _SIZES = {'b': 1, 'B': 1, 'c': 1, 'd': 8, 'f': 4, 'F': 4, 'G': 16, 'j': 8, 'J': 
 _DTYPES = {'b': '>i1', 'B': '>u1', 'd': '>f8', 'f': '>f4', 'j': '>i8', 'J': '>u8', 'l': '>i4', 'L': '>u4',
            'q': '>i4', 'Q': '>i8', 's': '>i2', 'S': '>u2'}
 _FIXED_POINT = {'q': 65536.0, 'Q': 4294967296.0}  # Q15.16 and Q31.32
-_SENSORS = ('GPS5', 'GPS9', 'GPRI', 'SYST', 'ACCL', 'GYRO', 'CORI', 'ATTD', 'CYTS')
-#: The Karma's MAVLink-like structs: columns of (roll, pitch, yaw) in ATTD, of the angles in CYTS.
-_KARMA_ANGLES = {'ATTD': slice(1, 4), 'CYTS': slice(5, 8)}
+_SENSORS = ('GPS5', 'GPS9', 'GPRI', 'SYST', 'ACCL', 'GYRO', 'CORI', 'ATTD', 'CYTS', 'GLPI')
+#: The Karma's MAVLink-like structs: columns of (roll, pitch, yaw) in ATTD, of the angles in CYTS,
+#: of (altitude, relative altitude) in GLPI.
+_KARMA_COLUMNS = {'ATTD': slice(1, 4), 'CYTS': slice(5, 8), 'GLPI': slice(3, 5)}
 _DAYS_2000_NS = calendar.timegm((2000, 1, 1, 0, 0, 0, 0, 0, 0)) * 1_000_000_000
 
 
@@ -390,13 +395,13 @@ def _assemble(streams: dict[str, list[_Block]], payloads: list[tuple[int, int, b
             continue
         track.orientation.extend((int(s), (float(r[0]), float(r[1]), float(r[2]), float(r[3])))
                                  for s, r in zip(stamps, b.rows))
-    for key, target in (('ATTD', track.platform_attitude), ('CYTS', track.gimbal_angles)):
-        blocks, cols = streams[key], _KARMA_ANGLES[key]
+    for key, target in (('ATTD', track.platform_attitude), ('CYTS', track.gimbal_angles), ('GLPI', track.heights)):
+        blocks, cols = streams[key], _KARMA_COLUMNS[key]
         for b, stamps in zip(blocks, _stamps(blocks, payloads, origin_ns)):
             if b.rows.shape[1] < cols.stop:
                 _count(track, 'bad_klv')
                 continue
-            target.extend((int(s), (float(r[0]), float(r[1]), float(r[2]))) for s, r in zip(stamps, b.rows[:, cols])
+            target.extend((int(s), tuple(float(v) for v in r)) for s, r in zip(stamps, b.rows[:, cols])
                           if np.all(np.isfinite(r)))
     # One receiver only: the camera's when it has one, else the Karma drone's.
     for key in ('GPS9', 'GPS5', 'GPRI'):
@@ -404,7 +409,8 @@ def _assemble(streams: dict[str, list[_Block]], payloads: list[tuple[int, int, b
             _gps(key, streams[key], _stamps(streams[key], payloads, origin_ns), streams['SYST'], track)
             track.gps_source = key
             break
-    for seq in (track.accel, track.gyro, track.orientation, track.platform_attitude, track.gimbal_angles):
+    for seq in (track.accel, track.gyro, track.orientation, track.platform_attitude, track.gimbal_angles,
+                track.heights):
         seq.sort(key=lambda item: item[0])
     track.gps.sort(key=lambda g: g.stamp_ns)
 

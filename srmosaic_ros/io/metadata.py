@@ -339,6 +339,11 @@ def gpmf_items(track: Any, summary: MetadataSummary) -> list[GeoFix | CameraAtti
     if out:
         summary.use('gps position')
     summary.frames_with_position = len(out)
+    takeoff = [alt - rel for _, (alt, rel) in track.heights]
+    if takeoff and track.gps_source == 'GPRI':  # both above mean sea level (MAVLink): the fixes' datum
+        summary.ground_altitude_m = float(np.median(takeoff))
+        summary.ground_altitude_sigma_m = 5.0
+        summary.ground_altitude_source = 'Karma GPMF altitude minus its height above take-off (the take-off point)'
     attitudes = karma_attitudes(track, summary)
     if not attitudes and not track.gimbal_angles:
         summary.note('no camera attitude in the GPMF (a HERO8 or later writes CORI, relative to the camera at '

@@ -169,6 +169,21 @@ def test_karma_camera_attitudes_for_the_filter(karma):
     assert any('2.3 deg below the horizon to 0.1 deg above the horizon (at the horizon' in n for n in summary.notes)
 
 
+def test_karma_take_off_altitude_is_the_ground_prior(karma):
+    """GLPI (MAVLink GLOBAL_POSITION_INT: altitude above mean sea level and height above the take-off
+    point, mm; raw first sample 15711, 2003): their difference, constant to 1 mm over the clip, is
+    the take-off point's altitude, in the fixes' datum (GPRI: mean sea level too)."""
+    assert len(karma.heights) == 47
+    assert karma.heights[0] == (0, (15.711, 2.003)) and karma.heights[-1][1] == (16.223, 2.515)
+    summary = MetadataSummary()
+    gpmf_items(karma, summary)
+    assert summary.ground_altitude_m == pytest.approx(13.708, abs=1e-9)
+    assert summary.ground_altitude_sigma_m == 5.0 and 'take-off' in summary.ground_altitude_source
+    summary = MetadataSummary()  # fixes in another datum (a camera's GPS5: the ellipsoid): no prior from MSL heights
+    gpmf_items(dataclasses.replace(karma, gps_source='GPS5'), summary)
+    assert math.isnan(summary.ground_altitude_m)
+
+
 def test_karma_gimbal_samples_rolled_or_panned_are_left_out(karma):
     """The CYTS angles' meaning is read off karma.mp4, where the gimbal is level and follows the
     heading; samples where it is not are not guessed at."""
