@@ -383,6 +383,9 @@ class MosaicNode(ManagedNode):
             'processing_ms_p95': f'{np.percentile(lat, 95):.1f}',
         }
         values.update({k: v for k, v in stats.items() if k.startswith(('rejected', 'preview_', 'camera_info_scaled'))})
+        georef = self.pipeline.georef
+        if georef is not None:  # as the standalone georef node says them (a copy: the worker fuses meanwhile)
+            values.update({f'filter skipped: {k}': v for k, v in dict(georef.skipped).items()})
         level = DiagnosticStatus.OK
         message = 'registering'
         if rec is not None and not rec.painted:

@@ -385,6 +385,8 @@ def test_standalone_filter_stopped_by_the_scheduler_fuses_as_if_it_had_run(ros_e
         out, _ = player.communicate(timeout=120)
         assert player.returncode == 0, out
         assert listener.wait_for(lambda: len(listener.fixes) >= 30, 60), f'{len(listener.fixes)} fixes'
+        in_node_skipped = {kv.key: kv.value for msg in listener.diagnostics for status in msg.status
+                           for kv in status.values if kv.key.startswith('filter skipped')}
     in_node = {stamp_to_ns(f.header.stamp): f for f in listener.fixes}
     common = sorted(set(standalone) & set(in_node))
     assert len(common) >= 30, (len(standalone), len(in_node))
@@ -402,7 +404,7 @@ def test_standalone_filter_stopped_by_the_scheduler_fuses_as_if_it_had_run(ros_e
             (fix.latitude - t['latitude_deg']) * 111_320.0,
             (fix.longitude - t['longitude_deg']) * 111_320.0 * math.cos(math.radians(fix.latitude))), 2)
     assert worst < 0.01, (worst, {t: (round(d, 3), 'standalone', off(standalone[t]), 'in-node', off(in_node[t]))
-                                  for t, d in apart.items() if d >= 0.01})
+                                  for t, d in apart.items() if d >= 0.01}, 'in-node filter', in_node_skipped)
 
 
 def _children(pid: int) -> list[int]:
@@ -1078,4 +1080,6 @@ def test_an_oblique_camera_without_attitude_is_said_live(ros_env, tmp_path):
         status = [st for st in listener.diagnostics[-1].status if st.name == MOSAIC][0]
         assert status.level == DiagnosticStatus.WARN
         assert f'georef.gimbal_elevation_deg: {elevation:g}' in status.message, status.message
+        # the filter's skip counts, as the standalone georef node gives them: no Imu orientation at the start
+        assert listener.diag_value('filter skipped: no_attitude') == '1'
     assert 'not placed by the filter' in sup.logs['graph']
