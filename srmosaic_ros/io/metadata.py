@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from ..core.georef.chain_mount import horizon_words
 from ..core.georef.frames import R_enu_from_cam_aviation, R_enu_from_cam_platform_sensor
 from ..core.types import CameraAttitude, CameraIntrinsics, Frame, GeoFix
 
@@ -383,15 +384,11 @@ def karma_attitudes(track: Any, summary: MetadataSummary) -> list[CameraAttitude
         summary.use('Karma drone attitude and gimbal tilt')
         summary.frames_with_attitude = len(out)
         low, high = min(tilts), max(tilts)
-        summary.note(f'Karma camera attitude: {len(out)} samples, the line of sight {_from_horizon(low)} to '
-                     f'{_from_horizon(high)}' + (' (at the horizon: the filter cannot place frames by it, no ground '
+        summary.note(f'Karma camera attitude: {len(out)} samples, the line of sight {horizon_words(low, 1)} to '
+                     f'{horizon_words(high, 1)}' + (' (at the horizon: the filter cannot place frames by it, no ground '
                                                  'plane is in view there)' if high > -5.0 else ''))
     return out
 
-
-def _from_horizon(elevation_deg: float) -> str:
-    """'2.3 deg below the horizon' / '0.1 deg above the horizon'."""
-    return f'{abs(elevation_deg):.1f} deg {"below" if elevation_deg < 0 else "above"} the horizon'
 
 
 def merge_by_time(frames: Iterable[Frame], telemetry: list[Any]) -> Iterator[Any]:

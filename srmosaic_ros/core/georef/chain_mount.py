@@ -10,6 +10,12 @@ level and the body's nose along the travel (as the filter assumes when no attitu
 the normal and the travel direction give the mount: the optical axis's elevation above the
 horizon and its azimuth from the travel, counter-clockwise (frames.R_body_from_cam's angles).
 
+Each decomposition comes with its mirror, ``(R, -t, -n)``: the same homography seen as a floor
+approached or as a ceiling left behind. The ground lies in the lower part of an upright camera's
+frame, so the one kept is the plane the bottom centre of the first frame looks at (the optical axis
+itself misses it when the camera looks at or above the ground's horizon: karma.mp4, levelled at the
+horizon, read as 2 deg below it and flying backwards by the axis).
+
 Needs translation (a hovering or only rotating camera gives ``t ~ 0`` and no normal) and a wide
 enough view (a zoomed camera sees an affine patch): None otherwise.
 """
@@ -21,7 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ['MAX_SPREAD_DEG', 'MIN_BASELINE', 'MIN_FRAMES', 'MIN_HFOV_DEG', 'MountEstimate', 'mount_from_chain']
+__all__ = ['MAX_SPREAD_DEG', 'MIN_BASELINE', 'MIN_FRAMES', 'MIN_HFOV_DEG', 'MountEstimate', 'horizon_words',
+           'mount_from_chain']
 
 #: Smallest translation over the plane's distance (|t| / d) a frame needs to say where the normal is.
 MIN_BASELINE = 0.08
@@ -39,14 +46,24 @@ MAX_SPREAD_DEG = 2.0
 
 @dataclass(frozen=True)
 class MountEstimate:
-    """``elevation_deg`` of the optical axis above the horizon (-90 nadir), ``azimuth_deg`` from the
-    travel direction counter-clockwise (0 when within 1 deg of nadir), ``spread_deg`` the median
-    angle between the frames' normals and theirs combined, over ``frames`` frames."""
+    """``elevation_deg`` of the optical axis above the horizon (-90 nadir; positive: the axis misses
+    the ground, seen in the lower part of the frame only), ``azimuth_deg`` from the travel
+    direction counter-clockwise (0 when within 1 deg of nadir), ``spread_deg`` the median angle
+    between the frames' normals and theirs combined, over ``frames`` frames."""
 
     elevation_deg: float
     azimuth_deg: float
     spread_deg: float
     frames: int
+
+    def line_of_sight(self) -> str:
+        """'69 deg below the horizon, 7 deg from the direction of travel' (whole degrees)."""
+        return f'{horizon_words(self.elevation_deg)}, {self.azimuth_deg:.0f} deg from the direction of travel'
+
+
+def horizon_words(elevation_deg: float, decimals: int = 0) -> str:
+    """'2 deg below the horizon' / '3 deg above the horizon' of an elevation in degrees."""
+    return f'{abs(elevation_deg):.{decimals}f} deg {"below" if elevation_deg < 0 else "above"} the horizon'
 
 
 def mount_from_chain(first_H_frames: Sequence[np.ndarray], Ks: Sequence[np.ndarray]) -> MountEstimate | None:
@@ -59,6 +76,7 @@ def mount_from_chain(first_H_frames: Sequence[np.ndarray], Ks: Sequence[np.ndarr
     if 2.0 * math.degrees(math.atan(w / 2.0 / K0[0, 0])) < MIN_HFOV_DEG:
         return None
     axis = np.linalg.inv(K0) @ np.array([w / 2.0, h / 2.0, 1.0])  # the first frame's centre ray
+    bottom = np.linalg.inv(K0) @ np.array([w / 2.0, h, 1.0])  # its bottom centre's: an upright camera sees ground there
     candidates: list[list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = []  # per frame: (normal, centre, R)
     for H, K in zip(first_H_frames[1:], Ks[1:], strict=True):
         G = np.linalg.inv(np.asarray(K, dtype=np.float64)) @ np.linalg.inv(np.asarray(H, dtype=np.float64)) @ K0
@@ -66,10 +84,10 @@ def mount_from_chain(first_H_frames: Sequence[np.ndarray], Ks: Sequence[np.ndarr
         for R, t, n in _decompose(G * np.sign((G @ axis)[2])):  # the centre's depth ratio > 0
             if np.linalg.norm(t) < MIN_BASELINE:
                 continue
-            # the plane n.X = 1 in front of the first camera (its optical axis meets it ahead; not
-            # every corner: an oblique camera's frame may reach past the ground's horizon) and of
-            # frame i's (its normal R n at distance 1 + n.(R^T t) > 0)
-            if n @ axis > 0 and 1.0 + float(n @ (R.T @ t)) > 0:
+            # the plane n.X = 1 in front of the first camera below its frame's centre (the bottom
+            # centre's ray meets it ahead; not every corner: an oblique camera's frame may reach past
+            # the ground's horizon) and of frame i's (its normal R n at distance 1 + n.(R^T t) > 0)
+            if n @ bottom > 0 and 1.0 + float(n @ (R.T @ t)) > 0:
                 kept.append((n / np.linalg.norm(n), -R.T @ t, R))  # frame i's centre in the first camera's axes
         if kept:
             candidates.append(kept)

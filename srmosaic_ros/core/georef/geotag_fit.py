@@ -155,9 +155,8 @@ def check_mount_nadir(shown: MountEstimate | None) -> None:
         return
     off = mount_axis_angle_deg((0.0, -90.0), (shown.azimuth_deg, shown.elevation_deg))
     if off > MOUNT_TOLERANCE_DEG:
-        msg = (f'its frames do not look straight down: their chain shows the camera {-shown.elevation_deg:.0f} deg '
-               f'below the horizon, {shown.azimuth_deg:.0f} deg from the direction of travel (report.json '
-               'pose_placement.frames_mount). The geotags are where the aircraft was, not where the camera looked, '
+        msg = (f'its frames do not look straight down: their chain shows the camera {shown.line_of_sight()} '
+               '(report.json pose_placement.frames_mount). The geotags are where the aircraft was, not where the camera looked, '
                'and a fit to them would misplace the mosaic. To place it through the filter, let the run use that '
                f'mount (georef.mount_from_frames: true, offline) or set it (georef.gimbal_elevation_deg: '
                f'{shown.elevation_deg:.1f}, georef.gimbal_azimuth_deg: {shown.azimuth_deg:.1f}), or give the attitude')

@@ -103,8 +103,8 @@ class PoseCheck:
             return ('frames not placed on the map: they disagree with the assumed camera mount; give the camera '
                     'attitude (an Imu orientation, gimbal angles) or its mount (georef.gimbal_elevation_deg, '
                     'georef.gimbal_azimuth_deg)')
-        return (f'frames not placed on the map: they show the camera {-shown.elevation_deg:.0f} deg below the horizon, '
-                f'{shown.azimuth_deg:.0f} deg from the direction of travel, not as the mount says; restart with '
+        return (f'frames not placed on the map: they show the camera {shown.line_of_sight()}, not as the mount '
+                'says; restart with '
                 f'georef.gimbal_elevation_deg: {self.mount_to_try[1]:g}, georef.gimbal_azimuth_deg: '
                 f'{self.mount_to_try[0]:g} (or give the camera attitude)')
 
@@ -145,8 +145,7 @@ def check_pose_placement(nis: Sequence[float], gate_probability: float, mount: t
     assumed = (f'no camera attitude was measured, so the filter assumed the mount (azimuth {mount[0]:g} deg, '
                f'elevation {mount[1]:g} deg: {"nadir" if mount[1] <= -89.9 else "oblique"}) on a level body')
     shown = '' if frames_mount is None else (
-        f'; the frames show the camera looking {-frames_mount.elevation_deg:.0f} deg below the horizon, '
-        f'{frames_mount.azimuth_deg:.0f} deg from the direction of travel ({off:.0f} deg from the mount)')
+        f'; the frames show the camera looking {frames_mount.line_of_sight()} ({off:.0f} deg from the mount)')
     nis = f'median normalised innovation {median:.0f} over {len(values)} frames, gate {gate:.1f}'
     if median > gate and off is not None and off <= MOUNT_TOLERANCE_DEG:
         reason = (f'{assumed}{shown}, but they disagree with the footprints the filter predicts through it ({nis}): '

@@ -47,10 +47,12 @@ def _chain(azimuth_deg: float, elevation_deg: float, *, frames: int = 12, step_m
 
 
 @pytest.mark.parametrize(('azimuth', 'elevation'), [(0.0, -90.0), (0.0, -55.0), (90.0, -60.0), (-45.0, -40.0),
-                                                    (180.0, -70.0), (0.0, -10.0)])
+                                                    (180.0, -70.0), (0.0, -10.0), (0.0, 3.0), (30.0, 1.0)])
 def test_the_chain_shows_the_mount_it_was_flown_on(azimuth: float, elevation: float) -> None:
     """Exact to 0.05 deg, also for a camera whose frame reaches past the ground's horizon (-10 deg:
-    the top half of its frame is sky)."""
+    the top half of its frame is sky) and one looking above it (3 deg: ground in the lower half only;
+    the optical axis's test read it as its mirror, 3 deg below and 180 deg from the travel, as on
+    karma.mp4)."""
     shown = mount_from_chain(_chain(azimuth, elevation), [K] * 12)
     assert shown is not None and shown.frames >= 7  # those moved MIN_BASELINE of the distance
     assert shown.elevation_deg == pytest.approx(elevation, abs=0.05)
