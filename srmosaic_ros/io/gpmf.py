@@ -28,13 +28,13 @@ Read here:
   take-off point's altitude, the ground prior; metadata.gpmf_items);
 - ``CYTS`` ("Coyote Status", the Karma's gimbal): a ``TYPE`` struct whose three ``rad`` fields are
   the gimbal's angles. Their meaning is not published; on karma.mp4 the first two are 0 and the third
-  is the camera's tilt from the horizon (-2.3 to -0.1 deg where the picture has the sea's horizon
-  just above its middle, while the drone pitches 6 to 16 deg nose down): the gimbal levels the
+  is the camera's tilt from the horizon (-2.3 to +0.1 deg where the picture has the sea's horizon
+  just above its middle, while the drone pitches 5 to 22 deg nose down): the gimbal levels the
   camera and follows the drone's heading (metadata.gpmf_items composes them).
 
-Time stamps (``stamp_ns``) are on the video's clock (the Karma's streams too: their own time fields
-are two boot clocks, the drone's and the gimbal's, 3 s apart on karma.mp4), ns from its first frame: the payload's track
-time plus, for its n samples, ``j/n`` of its duration (samples spread evenly over the payload). The
+Time stamps (``stamp_ns``) are on the video's clock, ns from its first frame (the Karma's streams
+too: their own time fields are two boot clocks, the drone's and the gimbal's, 3 s apart on
+karma.mp4): the payload's track time plus, for its n samples, ``j/n`` of its duration (samples spread evenly over the payload). The
 last payload is the exception: the camera closes it when recording stops, short, while the MP4 still
 gives it a full period; its samples are spread at the rate the stream had in the payloads before.
 ``TIMO`` (a stream's declared delay) is subtracted.

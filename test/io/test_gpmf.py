@@ -107,7 +107,7 @@ def test_the_karma_drone_attitude_and_gimbal_angles(karma):
     course = math.degrees(math.atan2(east, north))
     yaws = [math.degrees(a[2]) for _, a in karma.platform_attitude[8:]]  # past the start's acceleration
     assert all(abs(y - course) < 6.0 for y in yaws), (course, yaws)
-    # the gimbal levels the camera (2.3 to -0.1 deg below the horizon) while the drone pitches 6-22 deg nose down
+    # the gimbal levels the camera (2.3 deg below to 0.1 deg above the horizon) while the drone pitches 5-22 deg nose down
     assert all(abs(g[0]) < 0.01 and abs(g[1]) < 0.01 and -0.05 < g[2] < 0.01 for _, g in karma.gimbal_angles)
     assert all(-0.4 < a[1] < -0.09 for _, a in karma.platform_attitude)
 
