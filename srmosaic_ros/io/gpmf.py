@@ -34,10 +34,10 @@ Read here:
 
 Time stamps (``stamp_ns``) are on the video's clock, ns from its first frame (the Karma's streams
 too: their own time fields are two boot clocks, the drone's and the gimbal's, 3 s apart on
-karma.mp4): the payload's track time plus, for its n samples, ``j/n`` of its duration (samples spread evenly over the payload). The
-last payload is the exception: the camera closes it when recording stops, short, while the MP4 still
-gives it a full period; its samples are spread at the rate the stream had in the payloads before.
-``TIMO`` (a stream's declared delay) is subtracted.
+karma.mp4): the payload's track time plus, for its n samples, ``j/n`` of its duration (samples
+spread evenly over the payload). The last payload is the exception: the camera closes it when
+recording stops, short, while the MP4 still gives it a full period; its samples are spread at the
+rate the stream had in the payloads before. ``TIMO`` (a stream's declared delay) is subtracted.
 
 Altitude datum depends on the source (``GpmfTrack.gps_source``), and nothing is converted here:
 - ``GPS5``/``GPS9``: metres above the WGS 84 ellipsoid (GoPro's spec; its maintainer confirmed in
