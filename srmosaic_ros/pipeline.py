@@ -777,7 +777,7 @@ class Pipeline:
             return False
         g = self.config.georef
         self.pose_check = check_pose_placement(nis, g.gate_probability, (g.gimbal_azimuth_deg, g.gimbal_elevation_deg),
-                                               self._mount_shown(held, chained))
+                                               self._mount_shown(held, chained), len(self.attitudes))
         if self.pose_check is None or self.pose_check.used:
             return False
         if held[0].camera is not None:

@@ -110,6 +110,8 @@ def test_attitudes_at_the_horizon_do_not_count_as_measured(tmp_path) -> None:
     result, report, fig = _run(SimConfig(**ORBIT), tmp_path, horizon_attitudes=True)
     assert result.georef.skipped['camera_attitude_horizon'] == len(result.attitudes) > 0
     assert report['pose_placement']['used'] is False
+    assert report['pose_placement']['reason'].startswith(
+        'no camera attitude the filter can use was measured (only attitudes at the horizon)')
     assert [seg.georeferenced for seg in result.segments] == [False]
     assert fig['corner_error_mean_px'] < 0.3, fig
     reason = not_georeferenced_reason(result, PipelineConfig())

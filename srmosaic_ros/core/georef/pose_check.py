@@ -128,11 +128,12 @@ class PoseCheck:
 
 
 def check_pose_placement(nis: Sequence[float], gate_probability: float, mount: tuple[float, float],
-                         frames_mount: MountEstimate | None = None) -> PoseCheck | None:
+                         frames_mount: MountEstimate | None = None, attitudes_at_horizon: int = 0) -> PoseCheck | None:
     """The decision for a segment's first frames, from their drift-control NIS values (NaN: no
     pose update that frame, left out) and the mount their chain shows (None: not known); None
     when fewer than MIN_INNOVATIONS NIS values are finite. Call it only when the camera attitude
-    is not measured. ``mount``: (azimuth, elevation) in degrees."""
+    is not measured, or only at the horizon (``attitudes_at_horizon`` of them, which the filter
+    leaves out). ``mount``: (azimuth, elevation) in degrees."""
     values = np.asarray([v for v in nis if math.isfinite(v)], dtype=np.float64)
     if len(values) < MIN_INNOVATIONS:
         return None
@@ -142,7 +143,9 @@ def check_pose_placement(nis: Sequence[float], gate_probability: float, mount: t
         mount, (frames_mount.azimuth_deg, frames_mount.elevation_deg))
     if median <= gate and (off is None or off <= MOUNT_TOLERANCE_DEG):
         return PoseCheck(True, median, gate, len(values), mount, frames_mount=frames_mount)
-    assumed = (f'no camera attitude was measured, so the filter assumed the mount (azimuth {mount[0]:g} deg, '
+    measured = ('no camera attitude the filter can use was measured (only attitudes at the horizon)'
+                if attitudes_at_horizon else 'no camera attitude was measured')
+    assumed = (f'{measured}, so the filter assumed the mount (azimuth {mount[0]:g} deg, '
                f'elevation {mount[1]:g} deg: {"nadir" if mount[1] <= -89.9 else "oblique"}) on a level body')
     shown = '' if frames_mount is None else (
         f'; the frames show the camera looking {frames_mount.line_of_sight()} ({off:.0f} deg from the mount)')
