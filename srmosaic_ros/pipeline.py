@@ -72,8 +72,8 @@ from .core.registration import Features, Registration, make_registrar
 from .core.registration.pyramid import PyramidRegistrar
 from .core.registration.tracking import MotionTracker
 from .core.georef.georeferencer import FramePose, Georeferencer, sees_the_ground
-from .core.georef.chain_mount import MountEstimate, mount_from_chain
-from .core.georef.pose_check import PoseCheck, check_pose_placement
+from .core.georef.chain_mount import MountEstimate, horizon_words, mount_from_chain
+from .core.georef.pose_check import PoseCheck, check_measured_attitude, check_pose_placement
 from .core.serial_worker import SerialWorker
 from .core.stage_clock import StageClock
 from .core.undistort import Undistorter
@@ -128,6 +128,7 @@ class PipelineResult:
     attitudes: list[CameraAttitude] = field(default_factory=list)
     georef_note: str = ''  # why the offline fallback (the fit to geotags) did not place the mosaic
     pose_check: PoseCheck | None = None  # whether the poses of an unmeasured attitude placed the mosaic
+    attitude_check: dict[str, Any] | None = None  # the measured attitude against the frames' (pose_check.py)
     frames_thinned: int = 0  # placed frames whose pixels were left to their neighbours' (mosaic.paint_stride)
     frames_painted_in_part: int = 0  # ... but for the tiles where they reach beyond them
 
@@ -161,14 +162,14 @@ PASS_TURN_DEG = 45.0
 _STATE = ('records', 'segments', 'fixes', 'imus', 'attitudes', 'georef', 'camera', 'clock', '_geo_canvas', '_active',
           '_last_good', '_orphan', '_channels', '_waiting', '_first_fix_wait_over', '_latest_telemetry_ns',
           '_settling', '_settling_seg', '_settled', '_fused', 'pose_check', '_settling_nis', '_unpainted', '_anchor',
-          '_tracker', '_thin')
+          '_tracker', '_thin', 'attitude_check')
 
 #: A frame is left to its painted neighbours (mosaic.paint_stride) only when the depths of its
 #: corners differ by at most this ratio: a view within about 7 deg of nadir for a 60 deg lens.
 THIN_MAX_DEPTH_RATIO = 1.15
 
 #: attributes of _STATE a state of the same version may lack (written before they existed)
-_STATE_NEWER = ('_thin',)
+_STATE_NEWER = ('_thin', 'attitude_check')
 
 
 class Pipeline:
@@ -210,6 +211,7 @@ class Pipeline:
         self._settled: list[FrameRecord] = []  # records decided by the last settle (returned by _process)
         self._fused: collections.deque[FrameRecord] = collections.deque(maxlen=1000)
         self.pose_check: PoseCheck | None = None  # decided when the first georeferenced segment settles
+        self.attitude_check: dict[str, Any] | None = None  # ... or, with a measured attitude, this
         self._settling_nis: list[float] = []  # drift-control NIS of the settling frames (pose_check.py)
         # placed, painted later (revisit spreading): segment, frame (its image reduced to the mosaic's
         # sampling: raw is then that image), frame_H_image (the reduction: painted at seg_H_frame @ it)
@@ -724,7 +726,8 @@ class Pipeline:
         """Process the frames still waiting for telemetry, paint those held for settling, and return everything."""
         self.flush()
         return PipelineResult(self.records, self.segments, self.fixes, self.imus, self.georef, self.attitudes,
-                              pose_check=self.pose_check, frames_thinned=self._thin.thinned,
+                              pose_check=self.pose_check, attitude_check=self.attitude_check,
+                              frames_thinned=self._thin.thinned,
                               frames_painted_in_part=self._thin.in_part)
 
     # -- settling --------------------------------------------------------------------------------
@@ -773,7 +776,10 @@ class Pipeline:
         segment, not painted yet, becomes an ordinary one in its first frame's plane and no later one
         is georeferenced."""
         nis, self._settling_nis = self._settling_nis, []
-        if seg is not self._geo_canvas or self.pose_check is not None or self._attitude_measured():
+        if seg is not self._geo_canvas or self.pose_check is not None or self.attitude_check is not None:
+            return False
+        if self._attitude_measured():
+            self._check_attitude(held, chained)
             return False
         g = self.config.georef
         self.pose_check = check_pose_placement(nis, g.gate_probability, (g.gimbal_azimuth_deg, g.gimbal_elevation_deg),
@@ -803,6 +809,22 @@ class Pipeline:
             return None
         first_from_plane = np.linalg.inv(chained[0])
         return mount_from_chain([first_from_plane @ h for h in chained], [frame.camera.K for frame in held])
+
+    def _check_attitude(self, held: list[_Held], chained: list[np.ndarray]) -> None:
+        """Compare the camera elevation the held frames show with the measured camera attitudes of
+        their time (pose_check.check_measured_attitude); warn when they disagree. The poses still
+        place the frames: the measurement is not overruled by the frames' estimate."""
+        t0, t1 = held[0].record.stamp_ns - 1_000_000_000, held[-1].record.stamp_ns + 1_000_000_000
+        measured = [math.degrees(math.asin(float(np.clip(a.R_enu_from_cam[2, 2], -1.0, 1.0))))
+                    for a in self.attitudes if t0 <= a.stamp_ns <= t1 and sees_the_ground(a.R_enu_from_cam)]
+        self.attitude_check = check_measured_attitude(self._mount_shown(held, chained), measured)
+        check = self.attitude_check
+        if check is not None and not check['agrees']:
+            _LOG.warning('the frames show the camera looking %s where its measured attitude says %s (%g deg apart, '
+                         'report.json attitude_check): check the attitude source and its convention (angles relative to '
+                         'the body, not to the horizon; a sign; another axis order); the frames are placed by the '
+                         'measured attitude.', horizon_words(check['frames_elevation_deg']),
+                         horizon_words(check['measured_elevation_deg']), check['difference_deg'])
 
     def _attitude_measured(self) -> bool:
         """Whether the input measured the camera's attitude (an Imu orientation, or a camera attitude

@@ -118,6 +118,7 @@ def write_outputs(result: PipelineResult, out: Path, config: PipelineConfig, ext
         'keyframes': keyframe_report(result.records),
         'georeferenced': geo or None,
         **({'pose_placement': result.pose_check.as_dict()} if result.pose_check is not None else {}),
+        **({'attitude_check': result.attitude_check} if getattr(result, 'attitude_check', None) else {}),
         **({'moving': moving} if moving is not None else {}),
         'config': {'device': config.device, 'registration': vars(config.registration), 'mosaic': vars(config.mosaic),
                    'undistort': config.undistort},

@@ -28,6 +28,10 @@ and georeferenced afterwards as a mosaic without intrinsics (by its geotags). A 
 count: a single bad registration does not decide. The UKF's own gate on the registrations is no
 earlier witness: on karma it accepted all of the first 30 (the level-attitude prior, 5 degrees,
 absorbs them at first) and refused most only after 50 frames, too late for the settling frames.
+
+With a measured camera attitude nothing is decided, but the elevation the frames show is compared
+with the measured one (:func:`check_measured_attitude`): a gimbal angle read in another convention
+than its carrier's (relative to the body, a sign) is said, not silently placed.
 """
 from __future__ import annotations
 
@@ -44,7 +48,7 @@ from .chain_mount import MountEstimate
 from .frames import R_body_from_cam
 
 __all__ = ['MAX_SPREAD_TO_TRY_DEG', 'MIN_DEPRESSION_DEG', 'MIN_INNOVATIONS', 'MOUNT_TOLERANCE_DEG', 'PoseCheck',
-           'check_pose_placement', 'mount_axis_angle_deg']
+           'check_measured_attitude', 'check_pose_placement', 'mount_axis_angle_deg']
 
 #: Fewest drift-control innovations that decide (fewer: the poses place the mosaic, as before).
 MIN_INNOVATIONS = 4
@@ -167,3 +171,19 @@ def mount_axis_angle_deg(a: tuple[float, float], b: tuple[float, float]) -> floa
     """Angle (deg) between the optical axes of two mounts, each (azimuth, elevation) in degrees."""
     axes = [R_body_from_cam(math.radians(az), math.radians(el))[:, 2] for az, el in (a, b)]
     return math.degrees(math.acos(float(np.clip(axes[0] @ axes[1], -1.0, 1.0))))
+
+
+def check_measured_attitude(shown: MountEstimate | None, measured_elevations_deg: Sequence[float]
+                            ) -> dict[str, Any] | None:
+    """report.json ``attitude_check``: the elevation of the optical axis the frames show against the
+    measured camera attitudes' (their median over the same frames, deg above the horizon), and
+    whether they agree within MOUNT_TOLERANCE_DEG; None when the frames cannot tell or nothing was
+    measured."""
+    values = [v for v in measured_elevations_deg if math.isfinite(v)]
+    if shown is None or not values:
+        return None
+    measured = float(np.median(values))
+    off = abs(shown.elevation_deg - measured)
+    return {'frames_elevation_deg': round(shown.elevation_deg, 1), 'measured_elevation_deg': round(measured, 1),
+            'difference_deg': round(off, 1), 'agrees': bool(off <= MOUNT_TOLERANCE_DEG),
+            'frames': shown.frames, 'spread_deg': round(shown.spread_deg, 2)}
