@@ -774,7 +774,8 @@ class Pipeline:
         """Decide pose_check when ``seg``, the first georeferenced segment, settles with ``held`` its
         frames, ``chained`` their _chained_from_first (module docstring); True when its frames must not be placed by their poses: then the
         segment, not painted yet, becomes an ordinary one in its first frame's plane and no later one
-        is georeferenced."""
+        is georeferenced. With a measured attitude nothing is decided; it is compared with the
+        frames' instead (_check_attitude)."""
         nis, self._settling_nis = self._settling_nis, []
         if seg is not self._geo_canvas or self.pose_check is not None or self.attitude_check is not None:
             return False
