@@ -29,6 +29,7 @@ from ..errors import FULL_DISK_ERRNOS, InputError, OutputError, SrMosaicError
 from ..io.mosaic_video import MosaicVideoRecorder
 from ..pipeline import Pipeline, PipelineResult
 from ..core.device import cores_left_for_torch
+from ..core.georef.georeferencer import MIN_AXIS_DEPRESSION_DEG
 from ..core.image_ops import to_float01
 from ..core.registration import Registration
 from ..core.stage_clock import StageClock
@@ -587,7 +588,8 @@ def not_georeferenced_reason(result: PipelineResult, config: PipelineConfig,
     why = _why_not_georeferenced(result, config, skipped)
     at_horizon = result.georef.skipped.get('camera_attitude_horizon', 0) if result.georef is not None else 0
     if at_horizon:
-        return (f'{at_horizon} measured camera attitude(s) look less than 5 deg below the horizon, where no ground '
+        return (f'{at_horizon} measured camera attitude(s) look less than {MIN_AXIS_DEPRESSION_DEG:g} deg below the '
+                'horizon, where no ground '
                 f'plane is in view, and were left out; {why}')
     return why
 

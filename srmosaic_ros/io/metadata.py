@@ -25,6 +25,7 @@ import numpy as np
 
 from ..core.georef.chain_mount import horizon_words
 from ..core.georef.frames import R_enu_from_cam_aviation, R_enu_from_cam_platform_sensor
+from ..core.georef.georeferencer import MIN_AXIS_DEPRESSION_DEG
 from ..core.types import CameraAttitude, CameraIntrinsics, Frame, GeoFix
 
 __all__ = ['MetadataSummary', 'camera_from_fov', 'klv_items', 'KlvVideoSource', 'srt_items', 'gpmf_items']
@@ -386,7 +387,7 @@ def karma_attitudes(track: Any, summary: MetadataSummary) -> list[CameraAttitude
         low, high = min(tilts), max(tilts)
         summary.note(f'Karma camera attitude: {len(out)} samples, the line of sight {horizon_words(low, 1)} to '
                      f'{horizon_words(high, 1)}' + (' (at the horizon: the filter cannot place frames by it, no ground '
-                                                 'plane is in view there)' if high > -5.0 else ''))
+                                                 'plane is in view there)' if high > -MIN_AXIS_DEPRESSION_DEG else ''))
     return out
 
 
