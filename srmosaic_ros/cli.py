@@ -16,16 +16,19 @@ __all__ = ['main']
 
 
 def _add_process(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser('process', help='build a mosaic from a recorded flight (rosbag2 folder, ROS 1 bag or video)')
-    p.add_argument('input', type=Path, help='rosbag2 folder (sqlite3 or mcap), ROS 1 .bag file, or video '
-                   '(MP4, MKV, AVI, MPEG-TS, ...)')
+    p = sub.add_parser('process', help='build a mosaic from a recorded flight (rosbag2 folder, ROS 1 bag, video or '
+                       'folder of stills)')
+    p.add_argument('input', type=Path, help='rosbag2 folder (sqlite3 or mcap), ROS 1 .bag file, video (MP4, MKV, AVI, '
+                   'MPEG-TS, ...; with its KLV, a DJI .SRT beside it or GoPro GPMF), or folder of stills (geotagged by '
+                   'EXIF/XMP or a telemetry_from_exif.csv beside them)')
     p.add_argument('--out', type=Path, required=True, help='output directory (created)')
-    p.add_argument('--params', type=Path, help='YAML parameter file overriding params/default.yaml')
+    p.add_argument('--params', type=Path, help='ROS 2 parameter file (YAML) overriding any key of params/default.yaml '
+                   'and params/advanced.yaml')
     p.add_argument('--image-topic', default='/camera/image_raw',
-                   help='sensor_msgs/Image topic (its /compressed variant is used if only that exists)')
-    p.add_argument('--camera-info-topic', default='/camera/camera_info')
-    p.add_argument('--fix-topic', default='/fix')
-    p.add_argument('--imu-topic', default='/imu/data')
+                   help='bag: sensor_msgs/Image topic (its /compressed variant is used if only that exists)')
+    p.add_argument('--camera-info-topic', default='/camera/camera_info', help='bag: sensor_msgs/CameraInfo topic')
+    p.add_argument('--fix-topic', default='/fix', help='bag: sensor_msgs/NavSatFix topic')
+    p.add_argument('--imu-topic', default='/imu/data', help='bag: sensor_msgs/Imu topic')
     p.add_argument('--blend', choices=['feather', 'multiband', 'bestview'], help='override mosaic.blend')
     p.add_argument('--device', choices=['auto', 'cpu', 'cuda'], help='override device')
     p.add_argument('--select', default='all', help='video frame selection: all, every:N, iframes (the '
@@ -36,14 +39,14 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
     p.add_argument('--hfov', type=float, help='video: horizontal field of view in degrees (square pixels, '
                    'centred principal point)')
     p.add_argument('--telemetry', type=Path, help='video: flight log CSV (time_s,latitude,longitude,altitude,'
-                   'roll,pitch,yaw)')
+                   'roll,pitch,yaw), used instead of the telemetry the video carries')
     p.add_argument('--mosaic-video', action='store_true', help='also write mosaic.mp4, the mosaic growing '
                    'frame by frame with the current footprint outlined')
     p.add_argument('--checkpoint-every', type=int, default=100, metavar='N',
                    help='checkpoint the run state into DIR/.checkpoint every N frames (0: never; default 100)')
     p.add_argument('--resume', action='store_true', help='continue an interrupted run from its last checkpoint')
     p.add_argument('--sr', action='store_true', help='also write super-resolved tiles of the mosaic to DIR/sr/')
-    p.add_argument('--sr-factor', type=int, default=None, help='SR factor (2, 3, 4; default sr_tiles.factor, 2)')
+    p.add_argument('--sr-factor', type=int, default=None, help='SR factor (2 to 8; default sr_tiles.factor, 2); implies --sr')
     p.add_argument('--no-progress', action='store_true', help='no progress bar')
     p.set_defaults(func=_run_process)
 

@@ -105,7 +105,7 @@ def topic_count(text: str) -> tuple[str, int]:
 
 
 def play_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument('bag', type=Path)
+    parser.add_argument('bag', type=Path, help='rosbag2 folder (sqlite3 or mcap) or ROS 1 .bag file')
     parser.add_argument('--rate', type=positive_float, default=1.0, help='playback speed factor (2 = twice real time)')
     parser.add_argument('--topics', nargs='+', help='only these topics')
     parser.add_argument('--loop', action='store_true', help='start again at the end (until Ctrl-C)')
