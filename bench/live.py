@@ -13,7 +13,7 @@ second, latency from image publish to the frame's fused pose on /srmosaic/pose (
 placed: what a live consumer gets first) and to its registration result (published when the frame is
 painted, mosaic.revisit_spread_frames frames later by design), median and p95, poses and SR tiles,
 and the bytes per second of every output topic and of the camera images (what a link between an
-onboard mosaic node and a ground station would carry; README, "Across machines").
+onboard mosaic node and a ground station would carry; docs/results.md, "Live graph").
 
 Layouts (`--graph`, repeatable; default all three):
   mosaic    the mosaic node alone (registration + mosaic + georeferencing filter), one process
@@ -27,7 +27,7 @@ The mosaic node's own diagnostics are printed too: frames it received (the rest 
 best-effort DDS before reaching it), frames its bounded queue dropped, and its median processing
 time per frame. BENCH_PREVIEW_PERIOD_S (default 1.0) sets live.preview_period_s; BENCH_ROS_PARAMS adds
 space-separated `name:=value` parameters to every node. Unless --no-fastdds-profile,
-every process uses params/fastdds_large_images.xml (see README, "Live in a ROS 2 graph").
+every process uses params/fastdds_large_images.xml (see docs/guide/live.md, "Raw images on one host").
 """
 from __future__ import annotations
 

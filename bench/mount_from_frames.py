@@ -18,8 +18,8 @@ the map RMS (m) from `srmosaic evaluate --truth`.
     python bench/mount_from_frames.py [--elevations -55 -70 -75 -78 -80 -90] [--buildings 0]
                                       [--building-height 10]
 
-About 25 s for the six default lines on this machine; README "The mount the frames show" has the
-tables (with --buildings 20 / 40 too).
+About 25 s for the six default lines on this machine; docs/results.md ("Poses checked against
+the frames") has the tables (with --buildings 20 / 40 too).
 """
 from __future__ import annotations
 

@@ -589,7 +589,7 @@ def format_real_figures(figures: dict[str, Any]) -> list[str]:
         if figures['sharpness_frame_median'] < COARSE_MOSAIC_SHARPNESS:
             lines.append('  the mosaic is much coarser than its frames: they land on it smaller than they are (a '
                          'forward or oblique flight drawn in its first frame\'s plane, or a zoom in), or it is blurred; '
-                         'README, "What to expect"')
+                         'docs/guide/compositing.md, "Oblique views"')
     if figures.get('frames_reduced'):
         lines.append(f'  {figures["frames_reduced"]} frames cover more than {MAX_COMPARE_PX / 1e6:g} Mpx of the mosaic: '
                      'compared on every k-th mosaic pixel')

@@ -3,7 +3,7 @@
 ``live.message_types: portable`` (the default) carries them in standard messages any ROS 2
 installation has: std_msgs/Float64MultiArray (REGISTRATION_LAYOUT in common.py) and std_msgs/String
 (JSON, live/raster.py). ``typed`` carries them as srmosaic_interfaces/Registration and
-RasterGeoreference (interfaces/srmosaic_interfaces, built with colcon: README "Typed messages").
+RasterGeoreference (interfaces/srmosaic_interfaces, built with colcon: docs/guide/live.md, "Typed messages").
 A graph must use one kind on both ends of a topic (DDS matches publishers and subscriptions by
 type), so set it for the whole graph, as live.georef_standalone.
 """
@@ -36,7 +36,7 @@ def message_kind(node: Any) -> str:
         except ImportError as exc:
             msg = (f'live.message_types: typed needs the srmosaic_interfaces messages, which this Python cannot '
                    f'import ({exc}): build interfaces/srmosaic_interfaces with colcon and source its '
-                   'install/setup.bash before starting the node (README, "Typed messages"), or set '
+                   'install/setup.bash before starting the node (docs/guide/live.md, "Typed messages"), or set '
                    'live.message_types: portable for the whole graph.')
             raise SrMosaicError(msg) from None
     return kind

@@ -22,8 +22,8 @@ the cut moves the seam inside that corridor only, and never gives the frame a pi
 Each frame is cut against the mosaic as it is (incremental, per paint), as a live mosaic must. The
 data weight KAPPA is small on purpose: a stronger pull toward the scores' seam kept the cars and
 trails the cut is for (bench/parallax.py); the price is that where frames agree at block scale but
-one is blurrier (the view score does not see blur), the older view may stay (README, "Seams where
-frames agree", for the figures and why `mosaic.seams` is 'score' by default).
+one is blurrier (the view score does not see blur), the older view may stay (docs/results.md, "Seams", and
+docs/guide/compositing.md, for the figures and why `mosaic.seams` is 'score' by default).
 """
 from __future__ import annotations
 

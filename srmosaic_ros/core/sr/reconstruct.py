@@ -137,7 +137,7 @@ class SRConfig:
         a tile where fewer than two agree is refused (SRError); 0 turns the test off.
     self_check: frames held out per tile to check that SR predicts them better than the mosaic
         (core/sr/self_check.py: a tile that does not is left to the mosaic); 0: no check (the
-        default: on real video the check's verdict does not follow the tiles' gain, README). Read
+        default: on real video the check's verdict does not follow the tiles' gain, docs/results.md). Read
         by :func:`~srmosaic_ros.core.sr.self_check.reconstruct_checked_tile`, not by reconstruct_tile.
     moving: frames' LR pixels that differ from the per-pixel median of the frames on the tile by
         more than this (intensity; core/sr/moving.py) saw something move and weigh 0 in the data
