@@ -25,6 +25,7 @@ LAYERS = [
     ('srmosaic_ros.live', 3),
     ('srmosaic_ros.app', 4),  # process, sr_process, evaluate*, survey, psf, checkpoint, georeference, inspect_tool
     ('srmosaic_ros.nodes', 5), ('srmosaic_ros.cli', 5),
+    ('srmosaic_ros.docs_reference', 5),  # the generated reference pages: reads the nodes and the command line
 ]
 NAMES = {0: 'core', 1: 'io', 2: 'pipeline', 3: 'live', 4: 'app', 5: 'nodes/cli'}
 
