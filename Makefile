@@ -1,11 +1,12 @@
 # The two commands the README opens with:
 #   make demo   build .venv and run the main job on the bundled demo flight (out/demo/)
-#   make test   build .venv, lint the repository (ruff.toml) and run the whole test suite
+#   make test   build .venv, lint the repository (ruff.toml), build the docs and run the whole test suite
+# Also: make docs (the documentation site into site/), make reference (regenerate docs/reference/).
 PYTHON ?= python3
 VENV   := .venv
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test venv bench clean demo-bag
+.PHONY: demo test venv bench clean demo-bag docs reference
 
 venv: $(STAMP)
 
@@ -21,7 +22,17 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(VENV)/bin/ruff check .
+	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict --quiet --site-dir site
 	$(VENV)/bin/python -m pytest -q -ra --durations=20
+
+# The documentation site (mkdocs.yml, docs/) into site/; --strict: a broken link or a missing page fails it.
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict --site-dir site
+
+# docs/reference/{parameters,nodes,cli}.md from params/*.yaml, the nodes and the CLI (test/test_docs.py
+# fails when the committed pages differ from what this writes).
+reference: $(STAMP)
+	$(VENV)/bin/python -m srmosaic_ros.docs_reference
 
 # Regenerate the bundled demo bag (command recorded in bags/README.md).
 demo-bag: $(STAMP)
@@ -40,4 +51,4 @@ demo-sr: $(STAMP)
 	$(VENV)/bin/srmosaic evaluate out/demo-sr --truth out/demo-sr-bag/ground_truth.json
 
 clean:
-	rm -rf $(VENV) out build *.egg-info
+	rm -rf $(VENV) out build site *.egg-info

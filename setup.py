@@ -40,6 +40,7 @@ setup(
     extras_require={
         # colcon and ament_package: a test builds the package as a ROS workspace does (colcon build)
         # ruff: the lint `make test` runs first (ruff.toml)
+        # mkdocs and mkdocs-material: the documentation site `make docs` (and `make test`) builds
         # ament_cmake and the rosidl generators: a test builds interfaces/srmosaic_interfaces (the typed
         # messages) with colcon; the last seven are build dependencies the first three do not declare
         'test': ['pytest==9.2.0', 'pytest-timeout==2.4.0', 'colcon-common-extensions==0.3.0',
@@ -48,7 +49,8 @@ setup(
                  'ros-jazzy-rosidl-default-runtime==1.6.0', 'ros-jazzy-ament-cmake-include-directories==2.5.4',
                  'ros-jazzy-rosidl-core-generators==0.2.0', 'ros-jazzy-python-cmake-module==0.11.1',
                  'ros-jazzy-ament-cmake-ros==0.12.0', 'ros-jazzy-ament-cmake-gmock==2.5.4',
-                 'ros-jazzy-ament-cmake-gtest==2.5.4', 'ros-jazzy-ament-cmake-pytest==2.5.4'],
+                 'ros-jazzy-ament-cmake-gtest==2.5.4', 'ros-jazzy-ament-cmake-pytest==2.5.4',
+                 'mkdocs==1.6.1', 'mkdocs-material==9.8.1'],
         'bench': ['matplotlib==3.11.2'],
     },
     python_requires='>=3.11',
