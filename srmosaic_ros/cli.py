@@ -236,7 +236,9 @@ def _run_inspect(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog='srmosaic', description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog='srmosaic', description=__doc__.splitlines()[0],
+                                     epilog='Each command has --help. Documentation: docs/getting-started.md, and every '
+                                     'option in docs/reference/cli.md (make docs builds the site into site/).')
     sub = parser.add_subparsers(dest='command', required=True)
     _add_process(sub)
     _add_evaluate(sub)
