@@ -208,7 +208,6 @@ def _range(descriptor: Any) -> tuple[Any, Any] | None:
 def node_interfaces() -> list[NodeInterface]:
     """Build every node of the graph in a private context (nothing spins, nothing is written) under
     each configuration that changes its topics, and record what it declares."""
-    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')  # nothing needs to be seen from elsewhere
     import rclpy
     from rclpy.parameter import Parameter
 
@@ -229,7 +228,15 @@ def node_interfaces() -> list[NodeInterface]:
                       {'default': {}, '--preview': {'previews': True}}),
     ]
     context = rclpy.Context()
-    rclpy.init(context=context)
+    saved = os.environ.get('ROS_AUTOMATIC_DISCOVERY_RANGE')
+    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'  # read by rcl at init: nothing is seen from elsewhere
+    try:
+        rclpy.init(context=context)
+    finally:
+        if saved is None:
+            del os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE']
+        else:
+            os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = saved
     try:
         with tempfile.TemporaryDirectory() as tmp:
             for info in nodes:
