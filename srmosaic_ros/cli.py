@@ -69,6 +69,9 @@ def _run_process(args: argparse.Namespace) -> int:
     print(f"{report['frames_registered']}/{report['frames_in']} frames in mosaic.png "
           f"({len(report['segments'])} segment(s)), {report['frames_per_s']} frames/s, "
           f"peak {report['peak_rss_mb']} MB -> {args.out}")
+    if left_out := report.get('images_left_out'):
+        print(f"{len(left_out)} image(s) left out, neither placed nor painted: {', '.join(sorted(left_out))} "
+              "(report.json images_left_out says why)")
     if (mount := report.get('mount_from_frames')) is not None:
         print(f"camera mount from the frames (no attitude measured): {-mount['elevation_deg']:g} deg below the horizon, "
               f"{mount['azimuth_deg']:g} deg from the direction of travel; the run started again with it "

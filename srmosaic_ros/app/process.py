@@ -442,6 +442,8 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
         raise InputError(msg)
     report_extra: dict[str, Any] = {'input': str(path), 'input_kind': kind,
                                     'skipped_messages': dict(getattr(reader, 'skipped', {}))}
+    if kind == 'images':
+        report_extra['images_left_out'] = dict(reader.left_out)
     if getattr(reader, 'adjusted', None):  # CameraInfo scaled to images of another size (io/bags.py)
         report_extra['adjusted_messages'] = dict(reader.adjusted)
     if summary is not None:
@@ -518,6 +520,7 @@ def _process_survey(path: Path, out: Path, config: PipelineConfig, reader: Any, 
 
     report = process_survey(path, out, config, reader, progress=progress)
     report = {'input': str(path), 'input_kind': 'images', 'skipped_messages': dict(reader.skipped), **report}
+    report['images_left_out'] = dict(reader.left_out)
     report['metadata'] = reader.summary.to_dict()
     if report.get('georeferenced') is None:
         report.setdefault('not_georeferenced_reason', 'the stills carry no GPS positions (EXIF GPS or '
@@ -607,9 +610,10 @@ def _why_not_georeferenced(result: PipelineResult, config: PipelineConfig, skipp
                 'flight log with --telemetry (video) or a telemetry_from_exif.csv beside the stills.')
     check = getattr(result, 'pose_check', None)
     if getattr(result, 'georef_note', '') and check is not None and not check.used:
-        return f'the filter\'s poses were not used ({check.reason}) and {result.georef_note}.'
+        return f'the filter\'s poses were not used ({check.reason}) and {result.georef_note.rstrip(".")}.'
     if getattr(result, 'georef_note', ''):
-        return f'the filter could not place the mosaic (no camera intrinsics or attitude) and {result.georef_note}.'
+        return ('the filter could not place the mosaic (no camera intrinsics or attitude) and '
+                f'{result.georef_note.rstrip(".")}.')
     if result.georef is None or result.georef.raster is None:
         return ('the input has GPS positions but no camera intrinsics, and its geotags could not place the mosaic '
                 '(too few distinct positions under the main mosaic); give --camera or --hfov.')
