@@ -444,6 +444,8 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
                                     'skipped_messages': dict(getattr(reader, 'skipped', {}))}
     if kind == 'images':
         report_extra['images_left_out'] = dict(reader.left_out)
+    if getattr(reader, 'warned', None):  # images used although their decoder warned (io/bags.py)
+        report_extra['image_decoder_warnings'] = dict(reader.warned)
     if getattr(reader, 'adjusted', None):  # CameraInfo scaled to images of another size (io/bags.py)
         report_extra['adjusted_messages'] = dict(reader.adjusted)
     if summary is not None:

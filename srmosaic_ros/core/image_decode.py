@@ -61,11 +61,12 @@ _CAPTURE_LOCK = threading.Lock()
 
 class ImageRefused(InputError):
     """An input image refused by the guard: ``name`` (file or frame), ``kind`` (counted in report.json),
-    ``why`` (the message without the name)."""
+    ``what`` is wrong with it, and ``hint``, what to try; ``why`` is the message without the name."""
 
-    def __init__(self, name: str, kind: str, why: str) -> None:
-        self.name, self.kind, self.why = name, kind, why
-        super().__init__(f'{name}: {why}')
+    def __init__(self, name: str, kind: str, what: str, hint: str = 'Copy it again, or remove it.') -> None:
+        self.name, self.kind, self.what, self.hint = name, kind, what, hint
+        self.why = f'{what}; left out. {hint}'
+        super().__init__(f'{name}: {self.why}')
 
 
 @dataclass(frozen=True)
@@ -146,19 +147,18 @@ def check_content(pixels: np.ndarray, *, name: str, reduction: int = 1) -> None:
     (``reduction``: how much the decoder shrank it), or no content."""
     h, w = pixels.shape[:2]
     if min(h, w) * reduction < MIN_IMAGE_SIDE_PX:
-        why = (f'the image is {w * reduction}x{h * reduction} px, below the {MIN_IMAGE_SIDE_PX} px a side that '
-               'registration needs; left out. Remove it from the input.')
-        raise ImageRefused(name, 'image_too_small', why)
+        what = (f'the image is {w * reduction}x{h * reduction} px, below the {MIN_IMAGE_SIDE_PX} px a side that '
+                'registration needs')
+        raise ImageRefused(name, 'image_too_small', what, 'Remove it from the input.')
     step = max(1, int(np.sqrt(h * w / _CONTENT_SAMPLES)))
     sample = pixels[::step, ::step].reshape(-1, pixels.shape[2] if pixels.ndim == 3 else 1).astype(np.float32)
     scale = 257.0 if pixels.dtype == np.uint16 else 1.0
     spread = float(sample.std(axis=0).max()) / scale
     if spread < UNIFORM_MAX_STD:
         level = ', '.join(f'{v / scale:.0f}' for v in sample.mean(axis=0))
-        why = (f'the image has no content (every pixel about ({level}), standard deviation {spread:.2f} grey '
-               f'levels): it would paint a blank over the others; left out. Remove it from the input, or '
-               'check the camera.')
-        raise ImageRefused(name, 'image_uniform', why)
+        what = (f'the image has no content (every pixel about ({level}), standard deviation {spread:.2f} grey '
+                'levels): it would paint a blank over the others')
+        raise ImageRefused(name, 'image_uniform', what, 'Remove it from the input, or check the camera.')
 
 
 def decode_bytes(data: bytes | np.ndarray, flags: int = cv2.IMREAD_COLOR, *, name: str,
@@ -168,11 +168,11 @@ def decode_bytes(data: bytes | np.ndarray, flags: int = cv2.IMREAD_COLOR, *, nam
     size check. Raises ImageRefused."""
     buf = np.frombuffer(data, np.uint8) if not isinstance(data, np.ndarray) else data.reshape(-1).view(np.uint8)
     if buf.size == 0:
-        raise ImageRefused(name, 'image_empty', 'the image is empty (0 bytes); left out. Copy it again, or remove it.')
+        raise ImageRefused(name, 'image_empty', 'the image is empty (0 bytes)')
     if jpeg_is_truncated(buf.data):
-        why = (f'the JPEG is truncated ({buf.size} bytes, no end-of-image marker after its image data): the '
-               'decoder would fill the rest with grey; left out. Copy the file again from the camera.')
-        raise ImageRefused(name, 'image_truncated', why)
+        what = (f'the JPEG is truncated ({buf.size} bytes, no end-of-image marker after its image data): the '
+                'decoder would fill the rest with grey')
+        raise ImageRefused(name, 'image_truncated', what, 'Copy the file again from the camera.')
     with _decoder_messages() as messages:
         try:
             pixels = cv2.imdecode(buf, flags)
@@ -180,14 +180,13 @@ def decode_bytes(data: bytes | np.ndarray, flags: int = cv2.IMREAD_COLOR, *, nam
             pixels = None
     if pixels is None:
         said = f' (the decoder: {messages[0]})' if messages else ''
-        why = (f'the image cannot be decoded ({buf.size} bytes){said}: it is damaged or not an image; left out. '
-               'Copy it again, or remove it.')
-        raise ImageRefused(name, 'image_undecodable', why)
+        what = f'the image cannot be decoded ({buf.size} bytes){said}: it is damaged or not an image'
+        raise ImageRefused(name, 'image_undecodable', what)
     filled = [m for m in messages if _FILLED.search(m) and 'extraneous bytes' not in m]
     if filled:
-        why = (f'the image data is damaged (the decoder: "{filled[0]}"): part of the picture would be the '
-               "decoder's fill; left out. Copy the file again.")
-        raise ImageRefused(name, 'image_corrupt', why)
+        what = (f'the image data is damaged (the decoder: "{filled[0]}"): part of the picture would be the '
+                "decoder's fill")
+        raise ImageRefused(name, 'image_corrupt', what, 'Copy the file again.')
     if content:
         check_content(pixels, name=name, reduction=reduction)
     return Decoded(pixels, tuple(messages))
@@ -200,6 +199,6 @@ def decode_file(path: str | os.PathLike[str], flags: int = cv2.IMREAD_COLOR, *, 
     try:
         data = np.fromfile(path, dtype=np.uint8)
     except OSError as exc:
-        raise ImageRefused(path.name, 'image_unreadable',
-                           f'the file cannot be read ({exc.strerror or exc}); left out. Check its permissions.') from None
+        raise ImageRefused(path.name, 'image_unreadable', f'the file cannot be read ({exc.strerror or exc})',
+                           'Check its permissions.') from None
     return decode_bytes(data, flags, name=path.name, content=content, reduction=reduction)
