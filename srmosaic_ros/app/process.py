@@ -25,7 +25,8 @@ from ..io.metadata import merge_by_time
 from ..io.prefetch import prefetched
 from ..io.mosaic_files import write_counts_png, write_frames_csv, write_json, write_png
 from ..io.outputs import MOSAIC_TIF_ZLEVEL, StripPreview, output_threads, peak_rss_mb, write_canvas
-from ..errors import FULL_DISK_ERRNOS, InputError, OutputError, SrMosaicError
+from ..core.sr_factors import SR_FACTORS
+from ..errors import FULL_DISK_ERRNOS, ConfigError, InputError, OutputError, SrMosaicError
 from ..io.mosaic_video import MosaicVideoRecorder
 from ..pipeline import Pipeline, PipelineResult
 from ..core.device import cores_left_for_torch
@@ -309,6 +310,9 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
     if checkpoint_every < 0:
         msg = f'--checkpoint-every must be >= 0, got {checkpoint_every}.'
         raise InputError(msg)
+    if sr_factor is not None and sr_factor not in SR_FACTORS:  # before the mosaic, not after it
+        msg = f'--sr-factor {sr_factor} is out of range: it must be one of {", ".join(map(str, SR_FACTORS))}.'
+        raise ConfigError(msg)
     items, reader, kind = open_source(path, topics=topics, select=select, camera_yaml=camera_yaml,
                                       hfov_deg=hfov_deg, telemetry_csv=telemetry_csv,
                                       stamp_tolerance_s=config.stamp_tolerance_s, deinterlace=deinterlace)
