@@ -162,8 +162,10 @@ def open_source(path: Path, *, topics: TopicConfig | None = None, select: str = 
         if telemetry_csv is not None:
             from ..io.telemetry_csv import read_telemetry_csv
 
-            items = merge_by_time(reader, read_telemetry_csv(telemetry_csv))
+            counts: dict[str, int] = {}
+            items = merge_by_time(reader, read_telemetry_csv(telemetry_csv, counts))
             reader.summary = MetadataSummary(source='telemetry CSV', fields=['gps position', 'attitude'])
+            reader.summary.problems.update({k: n for k, n in counts.items() if n})
             return items, reader, 'video'
         return _video_with_metadata(path, reader)
     if select != 'all' or camera_yaml or hfov_deg or telemetry_csv or deinterlace != 'auto':
@@ -177,7 +179,7 @@ def open_source(path: Path, *, topics: TopicConfig | None = None, select: str = 
 
 def _video_with_metadata(path: Path, reader: Any) -> tuple[Iterable[Any], Any, str]:
     """A video's own metadata, found in order: MISB KLV stream, DJI SRT beside it, GoPro GPMF track."""
-    from ..io.dji_srt import find_srt, read_srt
+    from ..io.dji_srt import find_srt, read_srt, time_mismatch
     from ..io.gpmf import read_gpmf
     from ..io.klv import read_klv
     from ..io.metadata import KlvVideoSource, MetadataSummary, gpmf_items, srt_items
@@ -191,13 +193,21 @@ def _video_with_metadata(path: Path, reader: Any) -> tuple[Iterable[Any], Any, s
     srt = find_srt(path)
     if srt is not None:
         try:
-            items = srt_items(read_srt(srt), summary)
+            srt_track = read_srt(srt)
         except MetadataError as exc:
             _LOG.warning('%s; the video is processed without its telemetry.', exc)
             summary.problems['srt_unusable'] += 1
         else:
-            reader.summary = summary
-            return merge_by_time(reader, items), reader, 'video'
+            useless, said = time_mismatch(srt_track, reader.duration_s)
+            if said:
+                _LOG.warning('%s', said)
+                summary.note(said)
+            if useless:
+                summary.problems['srt_outside_video'] += 1
+            else:
+                items = srt_items(srt_track, summary)
+                reader.summary = summary
+                return merge_by_time(reader, items), reader, 'video'
     gpmf = read_gpmf(path)
     if gpmf.gps:
         items = gpmf_items(gpmf, summary)

@@ -218,6 +218,14 @@ class VideoReader:
         self.ended_early: str = ''  # the stream ended before what its header declares (a cut file)
 
     @property
+    def duration_s(self) -> float:
+        """How long the video lasts (s): its header's duration, else its frames over its rate (NaN: unknown)."""
+        if math.isfinite(self.duration_declared_s) and self.duration_declared_s > 0:
+            return self.duration_declared_s
+        frames = self.frames_declared
+        return frames / self.fps if frames and math.isfinite(self.fps) and self.fps > 0 else math.nan
+
+    @property
     def frame_count(self) -> int | None:
         """Frames the file declares (all of them, before selection), or None when unknown."""
         return self.frames_declared or None
