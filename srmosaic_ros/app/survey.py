@@ -110,15 +110,18 @@ def reduction_for(width: int, height: int, max_megapixels: float) -> int:
     return 8
 
 
-def read_reduced(file: Path, reduction: int, warn: Callable[[str, str], None] | None = None) -> np.ndarray:
+def read_reduced(file: Path, reduction: int, warn: Callable[[str, str], None] | None = None, *,
+                 listen: bool = True) -> np.ndarray:
     """RGB uint8 (H, W, 3) of a still decoded reduced by 1, 2, 4 or 8 (JPEG: in the DCT, without
     decoding the full image; other formats: decoded, then reduced by OpenCV), as stored (no
     EXIF rotation: intrinsics and angles refer to the sensor).
 
     Decoded under the guard of core/image_decode.py: a truncated or damaged still, or one without
     content, raises ImageRefused (an InputError); ``warn(name, message)`` hears the decoder's other
-    warnings."""
-    decoded = decode_file(file, _REDUCED[reduction] | cv2.IMREAD_IGNORE_ORIENTATION, reduction=reduction)
+    warnings; ``listen=False``: the still was heard decoding cleanly before, decode it without reading
+    the decoder's stderr (core/image_decode.py: in parallel)."""
+    decoded = decode_file(file, _REDUCED[reduction] | cv2.IMREAD_IGNORE_ORIENTATION, reduction=reduction,
+                          listen=listen)
     if warn is not None:
         for message in decoded.warnings:
             warn(file.name, message)
@@ -272,7 +275,7 @@ def tiles_in_memory(configured: int, tile_size: int, footprints_px: list[float],
 
 
 def still_gains(stills: list[SurveyStill], placed: list[int], raster_H_frame: list[np.ndarray],
-                mode: str) -> np.ndarray:
+                mode: str, clean: set[int] | None = None) -> np.ndarray:
     """Exposure gains (len(placed), 3) float32 of the placed stills, RGB (core/mosaic/exposure.py).
 
     raster_H_frame: per placed still the (3, 3) homography full-size pixel -> mosaic raster pixel.
@@ -285,7 +288,7 @@ def still_gains(stills: list[SurveyStill], placed: list[int], raster_H_frame: li
 
     def thumb(k: int) -> tuple[np.ndarray | None, np.ndarray | None]:
         try:
-            img = read_reduced(stills[k].file, 8)
+            img = read_reduced(stills[k].file, 8, listen=k not in (clean or ()))
         except InputError:
             return None, None
         f = min(1.0, THUMB_MAX_SIDE_PX / max(img.shape[:2]))
@@ -547,8 +550,11 @@ def _paint_and_write(out: Path, config: PipelineConfig, stills: list[SurveyStill
     canvas_H = {}
     refused: dict[int, str] = {}
     t_exposure = time.perf_counter()
+    # stills whose first decode the decoder did not warn about are decoded again without listening to it
+    clean = {k for k in placed if reader is None or not any(w.startswith(f'{stills[k].file.name}: ')
+                                                             for w in reader.warned_about)}
     gains = still_gains(stills, placed, [raster_H_local @ sol.ground_H_frame[k] @ np.linalg.inv(stills[k].K)
-                                         for k in placed], scfg.exposure)
+                                         for k in placed], scfg.exposure, clean)
     t_exposure = time.perf_counter() - t_exposure
     t_start = time.perf_counter()
     reduction = {}
@@ -566,12 +572,14 @@ def _paint_and_write(out: Path, config: PipelineConfig, stills: list[SurveyStill
     t_plan = time.perf_counter() - t_plan
     with canvas, ThreadPoolExecutor(1, thread_name_prefix='survey-decode') as decoder:
         # the next still is decoded (OpenCV, without the GIL) while this one is painted
-        decoded = collections.deque(decoder.submit(read_reduced, stills[k].file, reduction[k]) for k in placed[:1])
+        decoded = collections.deque(decoder.submit(read_reduced, stills[k].file, reduction[k], listen=k not in clean)
+                                    for k in placed[:1])
         bar = tqdm(total=len(placed), unit='still', desc='survey: paint', disable=not progress)
         with bar:
             for i, k in enumerate(placed):
                 if i + 1 < len(placed):
-                    decoded.append(decoder.submit(read_reduced, stills[placed[i + 1]].file, reduction[placed[i + 1]]))
+                    k1 = placed[i + 1]
+                    decoded.append(decoder.submit(read_reduced, stills[k1].file, reduction[k1], listen=k1 not in clean))
                 H = raster_H_local @ sol.ground_H_frame[k] @ np.linalg.inv(stills[k].K)
                 r = reduction[k]
                 try:

@@ -32,7 +32,7 @@ import sys
 import tempfile
 import threading
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -162,10 +162,11 @@ def check_content(pixels: np.ndarray, *, name: str, reduction: int = 1) -> None:
 
 
 def decode_bytes(data: bytes | np.ndarray, flags: int = cv2.IMREAD_COLOR, *, name: str,
-                 content: bool = False, reduction: int = 1) -> Decoded:
+                 content: bool = False, reduction: int = 1, listen: bool = True) -> Decoded:
     """Decode an encoded image (JPEG, PNG, TIFF, ...) with cv2.imdecode under the guard (module
     docstring). ``reduction``: the factor the flags shrink the image by (IMREAD_REDUCED_*), for the
-    size check. Raises ImageRefused."""
+    size check. ``listen=False`` skips reading the decoder's stderr (which admits one decode at a
+    time): for bytes heard decoding cleanly before, decoded again in parallel. Raises ImageRefused."""
     buf = np.frombuffer(data, np.uint8) if not isinstance(data, np.ndarray) else data.reshape(-1).view(np.uint8)
     if buf.size == 0:
         raise ImageRefused(name, 'image_empty', 'the image is empty (0 bytes)')
@@ -173,7 +174,7 @@ def decode_bytes(data: bytes | np.ndarray, flags: int = cv2.IMREAD_COLOR, *, nam
         what = (f'the JPEG is truncated ({buf.size} bytes, no end-of-image marker after its image data): the '
                 'decoder would fill the rest with grey')
         raise ImageRefused(name, 'image_truncated', what, 'Copy the file again from the camera.')
-    with _decoder_messages() as messages:
+    with _decoder_messages() if listen else nullcontext([]) as messages:
         try:
             pixels = cv2.imdecode(buf, flags)
         except cv2.error:
@@ -193,7 +194,7 @@ def decode_bytes(data: bytes | np.ndarray, flags: int = cv2.IMREAD_COLOR, *, nam
 
 
 def decode_file(path: str | os.PathLike[str], flags: int = cv2.IMREAD_COLOR, *, content: bool = True,
-                reduction: int = 1) -> Decoded:
+                reduction: int = 1, listen: bool = True) -> Decoded:
     """Read and decode an image file under the guard (decode_bytes), named by its file name."""
     path = Path(path)
     try:
@@ -201,4 +202,4 @@ def decode_file(path: str | os.PathLike[str], flags: int = cv2.IMREAD_COLOR, *, 
     except OSError as exc:
         raise ImageRefused(path.name, 'image_unreadable', f'the file cannot be read ({exc.strerror or exc})',
                            'Check its permissions.') from None
-    return decode_bytes(data, flags, name=path.name, content=content, reduction=reduction)
+    return decode_bytes(data, flags, name=path.name, content=content, reduction=reduction, listen=listen)

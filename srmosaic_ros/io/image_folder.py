@@ -68,7 +68,7 @@ class ImageFolderReader:
             msg = f'{self.path} holds no images ({", ".join(sorted(IMAGE_SUFFIXES))}).'
             raise InputError(msg)
         self.left_out: dict[str, str] = {}
-        self._warned: set[str] = set()
+        self.warned_about: set[str] = set()  # 'name: the decoder's warning' heard
         self.summary = MetadataSummary(source='none', frames=len(self.files))
         self.sizes = self._screen()
         if not self.files:
@@ -106,9 +106,9 @@ class ImageFolderReader:
     def decoder_warning(self, name: str, message: str) -> None:
         """A decoder's warning about a still it decoded whole: named in the log once, counted."""
         key = f'{name}: {message}'
-        if key in self._warned:
+        if key in self.warned_about:
             return
-        self._warned.add(key)
+        self.warned_about.add(key)
         self.summary.problems['image_decoder_warning'] += 1
         _LOG.warning('%s: the decoder says "%s" (the still is used: every pixel was read).', name, message)
 
