@@ -11,6 +11,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from srmosaic_ros.core.image_decode import ImageRefused, decode_bytes
 from srmosaic_ros.errors import MessageError
 
 from ._flavor import as_u8, check_flavor, new_message, u8_field
@@ -125,7 +126,7 @@ def _to_rgb(pixels: np.ndarray, order: str) -> np.ndarray:
     return np.ascontiguousarray(pixels[..., 2::-1])  # bgr, bgra
 
 
-def _decode_compressed(msg: Any) -> np.ndarray:
+def _decode_compressed(msg: Any, warnings: list[str] | None = None) -> np.ndarray:
     fmt = str(msg.format)
     if 'compresseddepth' in fmt.lower():
         msg_ = (
@@ -138,15 +139,16 @@ def _decode_compressed(msg: Any) -> np.ndarray:
         msg_ = 'CompressedImage.data is empty; the publisher sent no payload.'
         raise MessageError(msg_)
     try:
-        decoded = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
-    except cv2.error:
-        decoded = None
-    if decoded is None:
+        guarded = decode_bytes(buf, cv2.IMREAD_UNCHANGED, name='CompressedImage.data')
+    except ImageRefused as exc:
         msg_ = (
-            f'CompressedImage.data ({buf.size} bytes, format {fmt!r}) cannot be decoded; '
-            'it is truncated or not JPEG/PNG. Check the image_transport plugin of the publisher.'
+            f'CompressedImage.data ({buf.size} bytes, format {fmt!r}) cannot be decoded: {exc.what}. '
+            'Check the image_transport plugin of the publisher, or the recording.'
         )
-        raise MessageError(msg_)
+        raise MessageError(msg_) from None
+    if warnings is not None:
+        warnings.extend(guarded.warnings)
+    decoded = guarded.pixels
     if decoded.dtype not in (np.uint8, np.uint16):
         msg_ = (
             f'CompressedImage.data decodes to dtype {decoded.dtype}; '
@@ -164,8 +166,12 @@ def _decode_compressed(msg: Any) -> np.ndarray:
     return _to_rgb(decoded, order)
 
 
-def image_to_rgb_or_mono(msg: Any) -> np.ndarray:
+def image_to_rgb_or_mono(msg: Any, warnings: list[str] | None = None) -> np.ndarray:
     """Pixels of an Image or CompressedImage normalised for the core.
+
+    A CompressedImage is decoded under the guard of srmosaic_ros/core/image_decode.py: truncated or
+    damaged data (the decoder would fill pixels) is refused; the decoder's other warnings are
+    appended to ``warnings`` when given.
 
     Returns:
         (H, W) for mono, (H, W, 3) RGB for colour (alpha dropped, BGR swapped); uint8 or uint16.
@@ -176,7 +182,7 @@ def image_to_rgb_or_mono(msg: Any) -> np.ndarray:
 
     """
     if is_compressed_image(msg):
-        return _decode_compressed(msg)
+        return _decode_compressed(msg, warnings)
     enc = _encoding(msg.encoding, 'Image.encoding')
     return _to_rgb(image_to_numpy(msg), enc.order)
 

@@ -7,10 +7,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
-from .errors import SrMosaicError
+from .core.sr_factors import SR_FACTORS
+from .errors import ConfigError, SrMosaicError
 
 __all__ = ['main']
 
@@ -36,27 +40,30 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
     p.add_argument('--deinterlace', choices=['auto', 'on', 'off'], default='auto',
                    help='video: keep the top field of interlaced frames (auto: those the stream flags interlaced)')
     p.add_argument('--camera', type=Path, help='video: camera calibration YAML (ROS camera_calibration format)')
-    p.add_argument('--hfov', type=float, help='video: horizontal field of view in degrees (square pixels, '
-                   'centred principal point)')
+    p.add_argument('--hfov', type=float, help='video: horizontal field of view in degrees, between 0 and 180 '
+                   '(square pixels, centred principal point)')
     p.add_argument('--telemetry', type=Path, help='video: flight log CSV (time_s,latitude,longitude,altitude,'
                    'roll,pitch,yaw), used instead of the telemetry the video carries')
     p.add_argument('--mosaic-video', action='store_true', help='also write mosaic.mp4, the mosaic growing '
                    'frame by frame with the current footprint outlined')
     p.add_argument('--checkpoint-every', type=int, default=100, metavar='N',
-                   help='checkpoint the run state into DIR/.checkpoint every N frames (0: never; default 100)')
+                   help='checkpoint the run state into DIR/.checkpoint every N frames (N >= 0; 0: never; default 100)')
     p.add_argument('--resume', action='store_true', help='continue an interrupted run from its last checkpoint')
     p.add_argument('--sr', action='store_true', help='also write super-resolved tiles of the mosaic to DIR/sr/')
-    p.add_argument('--sr-factor', type=int, default=None, help='SR factor (2 to 8; default sr_tiles.factor, 2); implies --sr')
+    p.add_argument('--sr-factor', type=int, default=None,
+                   help=f'SR factor ({", ".join(map(str, SR_FACTORS))}; default sr_tiles.factor, 2); implies --sr')
     p.add_argument('--no-progress', action='store_true', help='no progress bar')
     p.set_defaults(func=_run_process)
 
 
 def _run_process(args: argparse.Namespace) -> int:
-    from .config import load_params, pipeline_config
+    from .param_files import load_params
+
+    overrides = load_params(args.params) if args.params else {}  # before the heavy imports: a bad file is said at once
+    from .config import pipeline_config
     from .io.bags import TopicConfig
     from .app.process import process_input
 
-    overrides = load_params(args.params) if args.params else {}
     if args.blend:
         overrides['mosaic.blend'] = args.blend
     if args.device:
@@ -72,11 +79,45 @@ def _run_process(args: argparse.Namespace) -> int:
     print(f"{report['frames_registered']}/{report['frames_in']} frames in mosaic.png "
           f"({len(report['segments'])} segment(s)), {report['frames_per_s']} frames/s, "
           f"peak {report['peak_rss_mb']} MB -> {args.out}")
+    if left_out := report.get('images_left_out'):
+        print(f"{len(left_out)} image(s) left out, neither placed nor painted: {', '.join(sorted(left_out))} "
+              "(report.json images_left_out says why)")
     if (mount := report.get('mount_from_frames')) is not None:
         print(f"camera mount from the frames (no attitude measured): {-mount['elevation_deg']:g} deg below the horizon, "
               f"{mount['azimuth_deg']:g} deg from the direction of travel; the run started again with it "
               "(report.json mount_from_frames)")
     return 0
+
+
+#: Every numeric flag's range, per command: (dest, flag, test, the range as the help says it). Checked
+#: by check_ranges before any work; a flag's help states the same range.
+FLAG_RANGES: dict[str, list[tuple[str, str, Callable[[Any], bool], str]]] = {
+    'process': [
+        ('sr_factor', '--sr-factor', lambda v: v in SR_FACTORS, f'one of {", ".join(map(str, SR_FACTORS))}'),
+        ('checkpoint_every', '--checkpoint-every', lambda v: v >= 0, '>= 0 (0: never)'),
+        ('hfov', '--hfov', lambda v: 0.0 < v < 180.0, 'between 0 and 180 degrees'),
+    ],
+    'psf': [
+        ('max_frames', '--max-frames', lambda v: v >= 1, '>= 1'),
+        ('quantile', '--quantile', lambda v: 0.0 < v < 1.0, 'between 0 and 1'),
+    ],
+    'simulate': [
+        ('jpeg_quality', '--jpeg-quality', lambda v: 1 <= v <= 100, 'between 1 and 100'),
+        ('gop', '--gop', lambda v: v >= 1, '>= 1'),
+    ],
+    'play': [
+        ('delay', '--delay', lambda v: v >= 0.0, '>= 0 seconds'),
+    ],
+}
+
+
+def check_ranges(args: argparse.Namespace) -> None:
+    """ConfigError naming the first flag of ``args.command`` outside its range (FLAG_RANGES)."""
+    for dest, flag, test, text in FLAG_RANGES.get(getattr(args, 'command', ''), []):
+        value = getattr(args, dest, None)
+        if value is not None and not (math.isfinite(value) and test(value)):
+            msg = f'{flag} {value:g} is out of range: it must be {text}. See srmosaic {args.command} --help.'
+            raise ConfigError(msg)
 
 
 def _add_evaluate(sub: argparse._SubParsersAction) -> None:
@@ -195,8 +236,10 @@ def _add_psf(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser('psf', help="measure the camera's PSF (sr.psf_sigma) on straight edges of a target "
                        '(slanted-edge method)')
     p.add_argument('inputs', type=Path, nargs='+', help='image files, folders of images, a video or a bag')
-    p.add_argument('--max-frames', type=int, default=20, help='frames taken per folder, video or bag (spread evenly)')
-    p.add_argument('--quantile', type=float, default=0.25, help='quantile of the edge sigmas reported (default 0.25)')
+    p.add_argument('--max-frames', type=int, default=20, help='frames taken per folder, video or bag (spread evenly; '
+                   '>= 1)')
+    p.add_argument('--quantile', type=float, default=0.25, help='quantile of the edge sigmas reported (between 0 and '
+                   '1; default 0.25)')
     p.add_argument('--no-undistort', action='store_true', help='measure the raw frames of a bag or video '
                    '(default: with lens distortion removed, as SR sees them)')
     p.add_argument('--json', action='store_true', help='print the figures (and every edge sigma) as JSON')
@@ -204,12 +247,8 @@ def _add_psf(sub: argparse._SubParsersAction) -> None:
 
 
 def _run_psf(args: argparse.Namespace) -> int:
-    from .errors import ConfigError
     from .app.psf import as_json, measure_psf, summary_lines
 
-    if args.max_frames < 1 or not 0.0 < args.quantile < 1.0:
-        msg = f'--max-frames must be >= 1 and --quantile in (0, 1), got {args.max_frames} and {args.quantile}.'
-        raise ConfigError(msg)
     est = measure_psf(args.inputs, max_frames=args.max_frames, undistort=not args.no_undistort,
                       quantile=args.quantile)
     if args.json:
@@ -260,6 +299,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(own)
     args.ros_args = ros_args
     try:
+        check_ranges(args)  # before any work
         return int(args.func(args) or 0)
     except SrMosaicError as exc:
         print(f'srmosaic {args.command}: error: {exc}', file=sys.stderr)

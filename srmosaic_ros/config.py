@@ -15,6 +15,7 @@ from .core.sr.reconstruct import SRConfig
 from .core.sr.scheduler import SRTileConfig
 from .core.registration import RegistrationConfig
 from .core.survey.config import SurveyConfig
+from .bounded_yaml import preview
 from .errors import ConfigError, SrMosaicError
 from .param_files import default_params, default_params_path, load_params, yaml_problem  # re-exported
 
@@ -22,6 +23,8 @@ __all__ = ['PipelineConfig', 'check_type', 'default_params', 'default_params_pat
            'yaml_problem']
 
 DEVICES = ('auto', 'cpu', 'cuda')
+#: A section's refusal longer than this (characters: a long value quoted whole) is shortened.
+MAX_MESSAGE_CHARS = 400
 
 #: Replaced keys: old dotted name -> (new dotted name, why). Their values cannot be converted,
 #: so a file that sets one is refused with a message naming the new key.
@@ -54,7 +57,10 @@ def _build(cls: type, prefix: str, flat: dict[str, Any]) -> Any:
     try:
         return cls(**kwargs)
     except (TypeError, ValueError, SrMosaicError) as exc:  # a section's own refusal (SRError...) is a ConfigError here
-        raise ConfigError(str(exc)) from None
+        said = str(exc)
+        if len(said) > MAX_MESSAGE_CHARS:  # a long value quoted whole: its head and tail say enough
+            said = f'{said[:MAX_MESSAGE_CHARS // 2]} ... {said[-MAX_MESSAGE_CHARS // 4:]}'
+        raise ConfigError(said) from None
 
 
 _KINDS = {bool: 'a boolean (true or false, unquoted)', int: 'an integer', float: 'a number', str: 'a string',
@@ -78,8 +84,8 @@ def check_type(key: str, value: Any, default: Any) -> Any:
           list: lambda v: isinstance(v, (list, tuple)),
           None: lambda v: True}[kind](value)
     if not ok:
-        given = f'the string {value!r}' if isinstance(value, str) else f'{type(value).__name__} {value!r}'
-        msg = f'parameter {key!r} must be {_KINDS[kind]}, got {given}.'
+        given = f'the string {preview(value)}' if isinstance(value, str) else f'{type(value).__name__} {preview(value)}'
+        msg = f'parameter {preview(key)} must be {_KINDS[kind]}, got {given}.'
         if kind is bool and isinstance(value, str) and value.strip().lower() in ('true', 'false'):
             msg += f' Write {value.strip().lower()} without quotes.'
         raise ConfigError(msg)
@@ -107,14 +113,14 @@ def pipeline_config(overrides: dict[str, Any] | None = None, *, defaults: dict[s
             raise ConfigError(msg)
         if key not in flat:
             known = ', '.join(sorted(flat))
-            msg = f'unknown parameter {key!r}; known parameters: {known}.'
+            msg = f'unknown parameter {preview(key)}; known parameters: {known}.'
             raise ConfigError(msg)
         flat[key] = check_type(key, value, flat[key])
     if 'sr.psf_sigma' in (overrides or {}) and 'sr.psf_ladder' not in (overrides or {}):
         flat['sr.psf_ladder'] = []  # a PSF the user gives is used as given, not chosen from the frames
     device = flat.get('device', 'auto')
     if device not in DEVICES:
-        msg = f"device must be one of {', '.join(DEVICES)}, got {device!r}."
+        msg = f"device must be one of {', '.join(DEVICES)}, got {preview(device)}."
         raise ConfigError(msg)
     if flat.get('sr.device', 'auto') == 'auto':  # one device for all tensor work unless SR is given its own
         flat['sr.device'] = device

@@ -12,6 +12,7 @@ from typing import Any
 
 import yaml
 
+from .bounded_yaml import MAX_BYTES, LimitError, load_bounded
 from .errors import ConfigError
 
 __all__ = ['advanced_params_path', 'default_params', 'default_params_path', 'load_params', 'yaml_problem']
@@ -72,9 +73,19 @@ def load_params(path: str | os.PathLike[str]) -> dict[str, Any]:
     """Read a ROS 2 parameter file; return dotted names -> values, merged over all node sections."""
     path = Path(path)
     try:
-        doc = yaml.safe_load(path.read_text())
+        if path.stat().st_size > MAX_BYTES:
+            msg = (f'parameter file {path} is {path.stat().st_size} bytes, more than the {MAX_BYTES} a parameter file '
+                   'may hold; pass the file of settings, not another file.')
+            raise ConfigError(msg)
+        doc = load_bounded(path.read_text())
     except FileNotFoundError:
         msg = f'parameter file {path} does not exist.'
+        raise ConfigError(msg) from None
+    except (IsADirectoryError, PermissionError, UnicodeDecodeError) as exc:
+        msg = f'parameter file {path} cannot be read ({getattr(exc, "strerror", None) or exc}); pass a YAML text file.'
+        raise ConfigError(msg) from None
+    except LimitError as exc:
+        msg = f'parameter file {path} is refused: {yaml_problem(exc)}.'
         raise ConfigError(msg) from None
     except yaml.YAMLError as exc:
         msg = f'parameter file {path} is not valid YAML: {yaml_problem(exc)}'

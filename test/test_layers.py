@@ -18,7 +18,7 @@ PACKAGES = ('srmosaic_ros', 'msg_adapters')
 #: Layer of a module: the first matching prefix wins (dotted module names). Every module must have one:
 #: a new top-level module goes into a layer's folder (core/, io/, live/, app/, nodes/) or here.
 LAYERS = [
-    ('srmosaic_ros.errors', 0), ('srmosaic_ros.core', 0),
+    ('srmosaic_ros.errors', 0), ('srmosaic_ros.bounded_yaml', 0), ('srmosaic_ros.core', 0),
     ('srmosaic_ros.io', 1), ('msg_adapters', 1),
     ('srmosaic_ros.pipeline', 2), ('srmosaic_ros.config', 2), ('srmosaic_ros.param_files', 2),
     ('srmosaic_ros.malloc_tuning', 2), ('srmosaic_ros.sim', 2),

@@ -83,14 +83,13 @@ def evaluate_dir(out_dir: Path, truth_path: Path) -> dict[str, Any]:
 def _psf_figures(out_dir: Path, sim_config: dict[str, Any]) -> dict[str, float]:
     """The PSF the SR run modelled (report.json sr.psf_sigma_px) and the simulated camera's true
     blur in frame pixels (``psf_sigma_true_px``), when both are known."""
-    import json
-
     from ..sim.render import frame_blur_px
+    from .evaluate_real import load_report
 
     out: dict[str, float] = {}
     report = Path(out_dir) / 'report.json'
     if report.is_file():
-        used = json.loads(report.read_text()).get('sr', {}).get('psf_sigma_px')
+        used = (load_report(report).get('sr') or {}).get('psf_sigma_px')
         if used is not None:
             out['psf_sigma_px'] = float(used)
     if 'psf_sigma_px' in sim_config:

@@ -150,7 +150,7 @@ def geotag_fit_of_main(result: PipelineResult, origin: tuple[int, int], config: 
                    'their GNSS noise, not the flight, would set its scale and rotation (a hover, a pan)')
             raise ValueError(msg)
     except ValueError as exc:
-        _LOG.warning('the mosaic is not georeferenced: the filter did not place it (no camera intrinsics, no fix '
+        _LOG.info('the mosaic is not georeferenced: the filter did not place it (no camera intrinsics, no fix '
                      'before its first frame, or poses refused: see pose_placement) and its geotags cannot: %s', exc)
         result.georef_note = f'its geotags cannot place it: {exc}'
         return None

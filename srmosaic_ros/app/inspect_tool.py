@@ -105,7 +105,7 @@ def _missing(frames: int, positions: int, intrinsics: int, attitude: int, *, sta
 def _inspect_video(path: Path) -> dict[str, Any]:
     import av
 
-    from ..io.dji_srt import find_srt, read_srt
+    from ..io.dji_srt import find_srt, read_srt, time_mismatch
     from ..io.gpmf import read_gpmf
     from ..io.klv import read_klv
     from ..io.metadata import MetadataSummary, gpmf_items, srt_items
@@ -145,10 +145,13 @@ def _inspect_video(path: Path) -> dict[str, Any]:
         try:
             track = read_srt(srt)
             summary = MetadataSummary()
-            srt_items(track, summary)
-            out['srt'] = {'file': str(srt), 'format': track.format, 'samples': len(track.samples),
-                          'skipped': dict(track.skipped)}
-            if not klv.records:
+            srt_items(track, summary, say=False)
+            out['srt'] = {'file': str(srt), 'format': track.format, 'blocks': track.blocks,
+                          'samples': len(track.samples), 'skipped': dict(track.skipped)}
+            useless, said = time_mismatch(track, reader.duration_s)
+            if said:
+                out['srt']['refused' if useless else 'note'] = said
+            if not klv.records and not useless:
                 positions, attitude = summary.frames_with_position, summary.frames_with_attitude
                 what = 'the SRT gimbal angles'
                 out['metadata_source'] = 'DJI SRT'

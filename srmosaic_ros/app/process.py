@@ -25,7 +25,8 @@ from ..io.metadata import merge_by_time
 from ..io.prefetch import prefetched
 from ..io.mosaic_files import write_counts_png, write_frames_csv, write_json, write_png
 from ..io.outputs import MOSAIC_TIF_ZLEVEL, StripPreview, output_threads, peak_rss_mb, write_canvas
-from ..errors import FULL_DISK_ERRNOS, InputError, OutputError, SrMosaicError
+from ..core.sr_factors import SR_FACTORS
+from ..errors import FULL_DISK_ERRNOS, ConfigError, InputError, OutputError, SrMosaicError
 from ..io.mosaic_video import MosaicVideoRecorder
 from ..pipeline import Pipeline, PipelineResult
 from ..core.device import cores_left_for_torch
@@ -161,8 +162,10 @@ def open_source(path: Path, *, topics: TopicConfig | None = None, select: str = 
         if telemetry_csv is not None:
             from ..io.telemetry_csv import read_telemetry_csv
 
-            items = merge_by_time(reader, read_telemetry_csv(telemetry_csv))
+            counts: dict[str, int] = {}
+            items = merge_by_time(reader, read_telemetry_csv(telemetry_csv, counts))
             reader.summary = MetadataSummary(source='telemetry CSV', fields=['gps position', 'attitude'])
+            reader.summary.problems.update({k: n for k, n in counts.items() if n})
             return items, reader, 'video'
         return _video_with_metadata(path, reader)
     if select != 'all' or camera_yaml or hfov_deg or telemetry_csv or deinterlace != 'auto':
@@ -176,7 +179,7 @@ def open_source(path: Path, *, topics: TopicConfig | None = None, select: str = 
 
 def _video_with_metadata(path: Path, reader: Any) -> tuple[Iterable[Any], Any, str]:
     """A video's own metadata, found in order: MISB KLV stream, DJI SRT beside it, GoPro GPMF track."""
-    from ..io.dji_srt import find_srt, read_srt
+    from ..io.dji_srt import find_srt, read_srt, time_mismatch
     from ..io.gpmf import read_gpmf
     from ..io.klv import read_klv
     from ..io.metadata import KlvVideoSource, MetadataSummary, gpmf_items, srt_items
@@ -190,13 +193,21 @@ def _video_with_metadata(path: Path, reader: Any) -> tuple[Iterable[Any], Any, s
     srt = find_srt(path)
     if srt is not None:
         try:
-            items = srt_items(read_srt(srt), summary)
+            srt_track = read_srt(srt)
         except MetadataError as exc:
             _LOG.warning('%s; the video is processed without its telemetry.', exc)
             summary.problems['srt_unusable'] += 1
         else:
-            reader.summary = summary
-            return merge_by_time(reader, items), reader, 'video'
+            useless, said = time_mismatch(srt_track, reader.duration_s)
+            if said:
+                _LOG.warning('%s', said)
+                summary.note(said)
+            if useless:
+                summary.problems['srt_outside_video'] += 1
+            else:
+                items = srt_items(srt_track, summary)
+                reader.summary = summary
+                return merge_by_time(reader, items), reader, 'video'
     gpmf = read_gpmf(path)
     if gpmf.gps:
         items = gpmf_items(gpmf, summary)
@@ -309,6 +320,9 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
     if checkpoint_every < 0:
         msg = f'--checkpoint-every must be >= 0, got {checkpoint_every}.'
         raise InputError(msg)
+    if sr_factor is not None and sr_factor not in SR_FACTORS:  # before the mosaic, not after it
+        msg = f'--sr-factor {sr_factor} is out of range: it must be one of {", ".join(map(str, SR_FACTORS))}.'
+        raise ConfigError(msg)
     items, reader, kind = open_source(path, topics=topics, select=select, camera_yaml=camera_yaml,
                                       hfov_deg=hfov_deg, telemetry_csv=telemetry_csv,
                                       stamp_tolerance_s=config.stamp_tolerance_s, deinterlace=deinterlace)
@@ -442,6 +456,10 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
         raise InputError(msg)
     report_extra: dict[str, Any] = {'input': str(path), 'input_kind': kind,
                                     'skipped_messages': dict(getattr(reader, 'skipped', {}))}
+    if kind == 'images':
+        report_extra['images_left_out'] = dict(reader.left_out)
+    if getattr(reader, 'warned', None):  # images used although their decoder warned (io/bags.py)
+        report_extra['image_decoder_warnings'] = dict(reader.warned)
     if getattr(reader, 'adjusted', None):  # CameraInfo scaled to images of another size (io/bags.py)
         report_extra['adjusted_messages'] = dict(reader.adjusted)
     if summary is not None:
@@ -518,6 +536,7 @@ def _process_survey(path: Path, out: Path, config: PipelineConfig, reader: Any, 
 
     report = process_survey(path, out, config, reader, progress=progress)
     report = {'input': str(path), 'input_kind': 'images', 'skipped_messages': dict(reader.skipped), **report}
+    report['images_left_out'] = dict(reader.left_out)
     report['metadata'] = reader.summary.to_dict()
     if report.get('georeferenced') is None:
         report.setdefault('not_georeferenced_reason', 'the stills carry no GPS positions (EXIF GPS or '
@@ -607,9 +626,10 @@ def _why_not_georeferenced(result: PipelineResult, config: PipelineConfig, skipp
                 'flight log with --telemetry (video) or a telemetry_from_exif.csv beside the stills.')
     check = getattr(result, 'pose_check', None)
     if getattr(result, 'georef_note', '') and check is not None and not check.used:
-        return f'the filter\'s poses were not used ({check.reason}) and {result.georef_note}.'
+        return f'the filter\'s poses were not used ({check.reason}) and {result.georef_note.rstrip(".")}.'
     if getattr(result, 'georef_note', ''):
-        return f'the filter could not place the mosaic (no camera intrinsics or attitude) and {result.georef_note}.'
+        return ('the filter could not place the mosaic (no camera intrinsics or attitude) and '
+                f'{result.georef_note.rstrip(".")}.')
     if result.georef is None or result.georef.raster is None:
         return ('the input has GPS positions but no camera intrinsics, and its geotags could not place the mosaic '
                 '(too few distinct positions under the main mosaic); give --camera or --hfov.')

@@ -14,6 +14,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from ..core.image_decode import decode_file
 from ..core.sr.psf_estimate import PsfEstimate, PsfEstimationError, estimate_psf_sigma
 from ..core.types import Frame
 from ..core.undistort import Undistorter
@@ -24,10 +25,9 @@ __all__ = ['as_json', 'collect_frames', 'measure_psf', 'summary_lines']
 
 
 def _read_image(path: Path) -> np.ndarray:
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        msg = f'{path} cannot be read as an image.'
-        raise InputError(msg)
+    """An image file under the decoding guard (core/image_decode.py): a truncated or damaged image
+    raises ImageRefused (an InputError) naming it; a flat one is left to the edge finder to refuse."""
+    img = decode_file(path, cv2.IMREAD_UNCHANGED, content=False).pixels
     if img.ndim == 3:
         img = cv2.cvtColor(img, cv2.COLOR_BGRA2RGB if img.shape[2] == 4 else cv2.COLOR_BGR2RGB)
     return img

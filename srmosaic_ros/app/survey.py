@@ -34,6 +34,7 @@ import logging
 import math
 import re
 import time
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -47,6 +48,7 @@ from ..config import PipelineConfig
 from ..core.georef.frames import R_enu_from_cam_aviation
 from ..core.georef.georeferencer import GeoRaster, utm_epsg
 from ..core.georef.geotag_fit import GEOTAG_MIN_EXTENT_M, geotags_at
+from ..core.image_decode import ImageRefused, decode_file
 from ..core.mosaic.canvas import CanvasError, TiledCanvas
 from ..core.mosaic.exposure import exposure_gains
 from ..core.mosaic.scratch import release as release_scratch
@@ -108,15 +110,22 @@ def reduction_for(width: int, height: int, max_megapixels: float) -> int:
     return 8
 
 
-def read_reduced(file: Path, reduction: int) -> np.ndarray:
+def read_reduced(file: Path, reduction: int, warn: Callable[[str, str], None] | None = None, *,
+                 listen: bool = True) -> np.ndarray:
     """RGB uint8 (H, W, 3) of a still decoded reduced by 1, 2, 4 or 8 (JPEG: in the DCT, without
     decoding the full image; other formats: decoded, then reduced by OpenCV), as stored (no
-    EXIF rotation: intrinsics and angles refer to the sensor)."""
-    bgr = cv2.imread(str(file), _REDUCED[reduction] | cv2.IMREAD_IGNORE_ORIENTATION)
-    if bgr is None:
-        msg = f'{file}: the image cannot be decoded.'
-        raise InputError(msg)
-    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+    EXIF rotation: intrinsics and angles refer to the sensor).
+
+    Decoded under the guard of core/image_decode.py: a truncated or damaged still, or one without
+    content, raises ImageRefused (an InputError); ``warn(name, message)`` hears the decoder's other
+    warnings; ``listen=False``: the still was heard decoding cleanly before, decode it without reading
+    the decoder's stderr (core/image_decode.py: in parallel)."""
+    decoded = decode_file(file, _REDUCED[reduction] | cv2.IMREAD_IGNORE_ORIENTATION, reduction=reduction,
+                          listen=listen)
+    if warn is not None:
+        for message in decoded.warnings:
+            warn(file.name, message)
+    return cv2.cvtColor(decoded.pixels, cv2.COLOR_BGR2RGB)
 
 
 def _full_from_reduced(r: int) -> np.ndarray:
@@ -171,7 +180,7 @@ def survey_stills(reader: ImageFolderReader) -> tuple[list[SurveyStill], int, tu
         origin = (float(np.round(np.mean(e))), float(np.round(np.mean(n))))
     stills = []
     for k, (file, meta, stamp) in enumerate(stills_meta):
-        w, h = (meta.width_px, meta.height_px) if meta is not None else _size_of(file)
+        w, h = (meta.width_px, meta.height_px) if meta is not None else reader.size(k)
         camera = reader.camera(meta, w, h) if meta is not None else None
         if camera is not None:
             K = np.array([[camera.fx, 0.0, camera.cx], [0.0, camera.fy, camera.cy], [0.0, 0.0, 1.0]])
@@ -192,19 +201,13 @@ def survey_stills(reader: ImageFolderReader) -> tuple[list[SurveyStill], int, tu
     return stills, epsg, origin
 
 
-def _size_of(file: Path) -> tuple[int, int]:
-    from PIL import Image
-
-    with Image.open(file) as im:
-        return im.size
-
-
 class _FeatureCache:
     """Features of the working-resolution stills, the last ``size`` described kept (LRU)."""
 
     def __init__(self, registrar: Any, stills: list[SurveyStill], reduction: list[int], size: int,
-                 max_features: int) -> None:
+                 max_features: int, reader: ImageFolderReader) -> None:
         self.registrar, self.stills, self.reduction, self.size = registrar, stills, reduction, size
+        self.reader = reader
         self.max_features = max_features
         self.cache: collections.OrderedDict[int, Any] = collections.OrderedDict()
         self.described = 0
@@ -217,9 +220,11 @@ class _FeatureCache:
             self.cache.move_to_end(k)
             return self.cache[k]
         try:
-            image = read_reduced(self.stills[k].file, self.reduction[k])
+            image = read_reduced(self.stills[k].file, self.reduction[k], self.reader.decoder_warning)
         except InputError as exc:
-            self.unreadable[k] = str(exc)
+            self.unreadable[k] = exc.why if isinstance(exc, ImageRefused) else str(exc)
+            if isinstance(exc, ImageRefused):
+                self.reader.refused(exc)
             return None
         feats = _compact(self.registrar.describe(image), self.max_features)
         self.described += 1
@@ -270,7 +275,7 @@ def tiles_in_memory(configured: int, tile_size: int, footprints_px: list[float],
 
 
 def still_gains(stills: list[SurveyStill], placed: list[int], raster_H_frame: list[np.ndarray],
-                mode: str) -> np.ndarray:
+                mode: str, clean: set[int] | None = None) -> np.ndarray:
     """Exposure gains (len(placed), 3) float32 of the placed stills, RGB (core/mosaic/exposure.py).
 
     raster_H_frame: per placed still the (3, 3) homography full-size pixel -> mosaic raster pixel.
@@ -283,7 +288,7 @@ def still_gains(stills: list[SurveyStill], placed: list[int], raster_H_frame: li
 
     def thumb(k: int) -> tuple[np.ndarray | None, np.ndarray | None]:
         try:
-            img = read_reduced(stills[k].file, 8)
+            img = read_reduced(stills[k].file, 8, listen=k not in (clean or ()))
         except InputError:
             return None, None
         f = min(1.0, THUMB_MAX_SIDE_PX / max(img.shape[:2]))
@@ -315,7 +320,7 @@ def process_survey(path: Path, out: Path, config: PipelineConfig, reader: ImageF
     reduction = [reduction_for(s.size[0], s.size[1], scfg.working_megapixels) for s in stills]
     registrar = make_registrar(config.registration, config.device)
     cache = _FeatureCache(registrar, stills, reduction, scfg.feature_cache_frames,
-                          config.registration.max_features)
+                          config.registration.max_features, reader)
     pos = np.array([s.position_m for s in stills])
     registrations: dict[tuple[int, int], Any] = {}
     has_second_opinion = getattr(registrar, 'has_second_opinion', False)
@@ -447,7 +452,10 @@ def process_survey(path: Path, out: Path, config: PipelineConfig, reader: ImageF
     t_solve = time.perf_counter() - t_solve
 
     t_paint = time.perf_counter()
-    report, rows = _paint_and_write(out, config, stills, sol, epsg, origin, progress=progress, has_gps=has_gps)
+    if n == 1:  # a still in no pair is judged (decoded) before it is placed
+        cache.get(0)
+    report, rows = _paint_and_write(out, config, stills, sol, epsg, origin, progress=progress, has_gps=has_gps,
+                                    left_out=set(cache.unreadable), reader=reader)
     t_paint = time.perf_counter() - t_paint
     pairs_of = collections.Counter()
     for p, u in zip(pairs, sol.pair_used):
@@ -475,7 +483,7 @@ def process_survey(path: Path, out: Path, config: PipelineConfig, reader: ImageF
         'pairs_second_opinion': second_opinions,
         'registration_failures': dict(failures),
         'frames_described': cache.described, 'feature_cache_frames': scfg.feature_cache_frames,
-        'unreadable': dict(cache.unreadable),
+        'unreadable': {stills[k].file.name: why for k, why in cache.unreadable.items()},
         'median_pairs_per_frame': float(np.median([pairs_of[k] for k in range(n)])) if n else 0.0,
         **sol.figures,
         'pairs_graph': [[[p.i, p.j], bool(u)] for p, u in zip(pairs, sol.pair_used)],  # frame indices, used
@@ -497,16 +505,19 @@ def process_survey(path: Path, out: Path, config: PipelineConfig, reader: ImageF
 
 
 def _paint_and_write(out: Path, config: PipelineConfig, stills: list[SurveyStill], sol: Any, epsg: int,
-                     origin: tuple[float, float], *, progress: bool, has_gps: bool) -> tuple[dict[str, Any], list]:
+                     origin: tuple[float, float], *, progress: bool, has_gps: bool, left_out: set[int] | None = None,
+                     reader: ImageFolderReader | None = None) -> tuple[dict[str, Any], list]:
     """Paint the placed stills on a north-up raster and write mosaic.png/.tif/.kml, preview.png,
-    frames.csv; returns (the report without the survey entry, the frames.csv rows)."""
+    frames.csv; returns (the report without the survey entry, the frames.csv rows). The stills of
+    ``left_out`` (indices: refused by the decoding guard) are neither placed nor painted."""
     from ..io.kml import write_kml_for_raster
     from ..io.mosaic_files import write_frames_csv, write_png
     from ..io.outputs import StripPreview, write_canvas
 
     scfg = config.survey
     n = len(stills)
-    placed = [k for k in range(n) if sol.placed_by[k] and np.all(np.isfinite(sol.ground_H_frame[k]))]
+    placed = [k for k in range(n) if sol.placed_by[k] and np.all(np.isfinite(sol.ground_H_frame[k]))
+              and k not in (left_out or ())]
     # ground metres per full-size pixel at each still's centre
     gsd = {k: math.sqrt(abs(np.linalg.det(sol.ground_H_frame[k][:2, :2] / sol.ground_H_frame[k][2, 2])))
            / float(stills[k].K[0, 0]) for k in placed}
@@ -539,8 +550,11 @@ def _paint_and_write(out: Path, config: PipelineConfig, stills: list[SurveyStill
     canvas_H = {}
     refused: dict[int, str] = {}
     t_exposure = time.perf_counter()
+    # stills whose first decode the decoder did not warn about are decoded again without listening to it
+    clean = {k for k in placed if reader is None or not any(w.startswith(f'{stills[k].file.name}: ')
+                                                             for w in reader.warned_about)}
     gains = still_gains(stills, placed, [raster_H_local @ sol.ground_H_frame[k] @ np.linalg.inv(stills[k].K)
-                                         for k in placed], scfg.exposure)
+                                         for k in placed], scfg.exposure, clean)
     t_exposure = time.perf_counter() - t_exposure
     t_start = time.perf_counter()
     reduction = {}
@@ -558,12 +572,14 @@ def _paint_and_write(out: Path, config: PipelineConfig, stills: list[SurveyStill
     t_plan = time.perf_counter() - t_plan
     with canvas, ThreadPoolExecutor(1, thread_name_prefix='survey-decode') as decoder:
         # the next still is decoded (OpenCV, without the GIL) while this one is painted
-        decoded = collections.deque(decoder.submit(read_reduced, stills[k].file, reduction[k]) for k in placed[:1])
+        decoded = collections.deque(decoder.submit(read_reduced, stills[k].file, reduction[k], listen=k not in clean)
+                                    for k in placed[:1])
         bar = tqdm(total=len(placed), unit='still', desc='survey: paint', disable=not progress)
         with bar:
             for i, k in enumerate(placed):
                 if i + 1 < len(placed):
-                    decoded.append(decoder.submit(read_reduced, stills[placed[i + 1]].file, reduction[placed[i + 1]]))
+                    k1 = placed[i + 1]
+                    decoded.append(decoder.submit(read_reduced, stills[k1].file, reduction[k1], listen=k1 not in clean))
                 H = raster_H_local @ sol.ground_H_frame[k] @ np.linalg.inv(stills[k].K)
                 r = reduction[k]
                 try:
@@ -574,6 +590,8 @@ def _paint_and_write(out: Path, config: PipelineConfig, stills: list[SurveyStill
                     canvas_H[k] = H
                 except (InputError, CanvasError) as exc:
                     refused[k] = str(exc)
+                    if isinstance(exc, ImageRefused) and reader is not None:
+                        reader.refused(exc)
                 bar.update(1)
         paint_s = time.perf_counter() - t_start
         t_write = time.perf_counter()

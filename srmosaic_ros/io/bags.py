@@ -61,6 +61,8 @@ from .bag_types import (
 from .bag_writer import BagWriter
 
 _LOG = logging.getLogger(__name__)
+#: Image messages with a problem named one by one in the log (by topic and stamp); the rest are counted.
+FRAMES_NAMED = 10
 _NUMBER = re.compile(r'(?<![\w.])[-+]?\d+(\.\d+)?([eE][-+]?\d+)?(?![\w.])')  # not inside a word (mono16)
 
 __all__ = [
@@ -306,6 +308,8 @@ class FlightReader:
         StampGate(stamp_tolerance_s)  # a bad tolerance is refused now, not when iterating
         self.skipped: dict[str, int] = {}
         self.adjusted: dict[str, int] = {}
+        self.warned: dict[str, int] = {}  # images used although their decoder warned, per kind
+        self._frames_named = 0
         self.messages_read = 0
         with _open_bag(self.path) as bag:
             self.info = _bag_info(self.path, bag)
@@ -349,6 +353,17 @@ class FlightReader:
                 raise BagError(msg) from exc
             count += 1
             yield item
+
+    def _say_frame(self, topic: str, stamp_ns: int, text: str) -> None:
+        """Log a problem of one image message, naming it by topic and stamp: the first FRAMES_NAMED of
+        the bag, then once that the rest are counted in report.json skipped_messages."""
+        self._frames_named += 1
+        if self._frames_named <= FRAMES_NAMED:
+            _LOG.warning('%s: image at stamp %d ns (%s UTC) on %s: %s', self.path.name, stamp_ns,
+                         _utc(stamp_ns), topic, text)
+        elif self._frames_named == FRAMES_NAMED + 1:
+            _LOG.warning('%s: more images with problems on %s; they are counted in report.json skipped_messages.',
+                         self.path.name, topic)
 
     def _deserialize(
         self, bag: _Bag, connection: Connection, raw: bytes
@@ -402,6 +417,8 @@ class FlightReader:
     def _items(self) -> Generator[Frame | GeoFix | ImuSample, None, None]:
         self.skipped = {}
         self.adjusted = {}
+        self.warned = {}
+        self._frames_named = 0
         self.messages_read = 0
         with _open_bag(self.path) as bag:
             refusal = _types_refusal(
@@ -430,7 +447,16 @@ class FlightReader:
                         camera = infos[next_info][1]
                         next_info += 1
                     stamp_ns, frame_id = header_to_ns_frame(msg)
-                    image = image_to_rgb_or_mono(msg)
+                    try:
+                        image = image_to_rgb_or_mono(msg, decoder_said := [])
+                    except MessageError as exc:
+                        self._say_frame(connection.topic, stamp_ns or log_ns, f'{exc} The frame is left out.')
+                        raise
+                    for said in decoder_said:
+                        key = f'{connection.topic}: {_NUMBER.sub("#", said)}'
+                        self.warned[key] = self.warned.get(key, 0) + 1
+                        self._say_frame(connection.topic, stamp_ns or log_ns, f'the decoder says "{said}" (the '
+                                        'frame is used: every pixel was read).')
                     item: Frame | GeoFix | ImuSample = Frame(
                         stamp_ns=stamp_ns or log_ns,
                         image=image,
@@ -522,3 +548,13 @@ def iter_raw(
                 raise BagError(msg) from exc
             count += 1
             yield connection.topic, connection.msgtype, log_ns, bytes(raw)
+
+
+def _utc(stamp_ns: int) -> str:
+    """A stamp as an ISO 8601 UTC time (for naming a message in the log)."""
+    import datetime as dt
+
+    try:
+        return dt.datetime.fromtimestamp(stamp_ns / 1e9, dt.timezone.utc).isoformat(timespec='milliseconds')
+    except (OverflowError, OSError, ValueError):
+        return '?'

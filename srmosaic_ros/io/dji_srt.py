@@ -50,8 +50,11 @@ keys (aliases folded: ``TV``/``SS`` -> shutter, ``IR``/``F/`` -> fnum, ``longtit
 
 Records: a block without a position, with a malformed time, at (0, 0) (GPS not locked yet), out of
 range, at the same start time as the one before (duplicate) or earlier than it (out of order) is
-skipped and counted in ``SrtTrack.skipped`` by reason; a file with no usable block at all raises
-:class:`MetadataError`.
+skipped and counted in ``SrtTrack.skipped`` by reason; so is a chunk of text between blank lines
+that starts no block (``no_timing``: garbage where a block was, never glued to the block before), so
+that ``blocks`` = len(samples) + sum(skipped). A file with no usable block at all raises
+:class:`MetadataError`. :func:`time_mismatch` says when a track does not cover the video it sits
+beside (an .SRT of another video).
 """
 from __future__ import annotations
 
@@ -63,7 +66,7 @@ from pathlib import Path
 
 from ..errors import InputError, MetadataError
 
-__all__ = ['SrtSample', 'SrtTrack', 'find_srt', 'read_srt']
+__all__ = ['SrtSample', 'SrtTrack', 'find_srt', 'read_srt', 'time_mismatch']
 
 
 @dataclass(frozen=True)
@@ -140,14 +143,14 @@ def read_srt(path: str | Path) -> SrtTrack:
                "aircraft's card, or georeference the video from another source such as a flight-log CSV (--telemetry).")
         raise MetadataError(msg)
 
-    blocks = _split_blocks(lines)
+    blocks, stray = _split_blocks(lines)
     if not blocks:
         msg = (f'DJI SRT {path} has no subtitle timing lines ("00:00:01,000 --> 00:00:02,000") in its {len(lines)} '
                'lines, so no sample can be placed on the video clock: it is not a subtitle file as the aircraft '
                'writes it (edited or converted?). Use the .SRT the drone recorded beside the video.')
         raise MetadataError(msg)
 
-    skipped: dict[str, int] = {}
+    skipped: dict[str, int] = {'no_timing': stray} if stray else {}
     formats: list[str] = []
     samples: list[SrtSample] = []
     for index, timing, body in blocks:
@@ -166,12 +169,37 @@ def read_srt(path: str | Path) -> SrtTrack:
 
     if not samples:
         why = ', '.join(f'{k}: {v}' for k, v in sorted(skipped.items()))
-        msg = (f'DJI SRT {path}: none of its {len(blocks)} subtitle blocks has a usable position ({why}; format '
+        msg = (f'DJI SRT {path}: none of its {len(blocks) + stray} subtitle blocks has a usable position ({why}; format '
                f'{"+".join(formats) or "unknown"}). The aircraft wrote no GPS (not locked, or a model/setting that omits it): '
                'georeference this video from another source such as a flight-log CSV (--telemetry).')
         raise MetadataError(msg)
-    return SrtTrack(path=path, samples=samples, blocks=len(blocks), skipped=skipped,
+    return SrtTrack(path=path, samples=samples, blocks=len(blocks) + stray, skipped=skipped,
                     format='+'.join(formats) or 'unknown')
+
+
+#: A track covering less than this fraction of its video's duration is said to (used all the same).
+SRT_MIN_COVERAGE = 0.5
+
+
+def time_mismatch(track: SrtTrack, duration_s: float) -> tuple[bool, str]:
+    """(whether the track is of no use to the video, a sentence naming the file; '' when it fits) for
+    a track beside a video of ``duration_s`` seconds: subtitle times count from the video's start, so
+    a track that starts after the video ends belongs to another video; one that covers less than
+    SRT_MIN_COVERAGE of it is said (its positions are used where it has them)."""
+    if not track.samples or not math.isfinite(duration_s) or duration_s <= 0.0:
+        return False, ''
+    first = track.samples[0].start_ns / 1e9
+    last = max(max(s.start_ns, s.end_ns) for s in track.samples) / 1e9
+    span = f'{first:.1f} to {last:.1f} s'
+    if first >= duration_s:
+        return True, (f'DJI SRT {track.path.name} covers {span} of the video clock, but the video lasts {duration_s:.1f} s: '
+                      'the two do not overlap in time (an .SRT of another video?), so it is not used. Put the .SRT '
+                      'recorded with this video beside it, or give a flight log with --telemetry.')
+    covered = min(last, duration_s) - max(first, 0.0)
+    if covered < SRT_MIN_COVERAGE * duration_s:
+        return False, (f'DJI SRT {track.path.name} covers {span} of the video clock, {max(covered, 0.0):.1f} of the '
+                       f'video\'s {duration_s:.1f} s: the frames outside it have no telemetry.')
+    return False, ''
 
 
 def find_srt(video_path: str | Path) -> Path | None:
@@ -192,20 +220,35 @@ def find_srt(video_path: str | Path) -> Path | None:
     return None
 
 
-def _split_blocks(lines: list[str]) -> list[tuple[int, str, list[str]]]:
-    """(index, timing line, body lines) per block: a block starts at an integer line followed by '-->'."""
+def _split_blocks(lines: list[str]) -> tuple[list[tuple[int, str, list[str]]], int]:
+    """((index, timing line, body lines) per block, chunks that start no block).
+
+    A block starts at a timing line ('-->'), after its integer index line when it has one. After the
+    first block, a chunk of lines between blank lines that starts no block is garbage where a block
+    was (DJI writes no blank line inside a block): counted, and not glued to the block before.
+    """
     blocks: list[tuple[int, str, list[str]]] = []
-    i = 0
-    while i < len(lines):
-        line = lines[i].strip()
-        if line.isdigit() and i + 1 < len(lines) and '-->' in lines[i + 1]:
-            blocks.append((int(line), lines[i + 1], []))
-            i += 2
+    stray = 0
+    in_stray = after_blank = False  # in_stray: in a chunk that has started no block (yet)
+    for i, raw in enumerate(lines):
+        line = raw.strip()
+        if not line:
+            stray += in_stray
+            in_stray, after_blank = False, True
             continue
-        if blocks and line:
+        if '-->' in line:  # a block; its index line, the one before, is read when it is an integer
+            before = lines[i - 1].strip() if i else ''
+            index = int(before) if before.isdigit() else (blocks[-1][0] + 1 if blocks else 1)
+            blocks.append((index, raw, []))
+            in_stray = after_blank = False
+            continue
+        if blocks and after_blank:
+            in_stray = True
+        if blocks and not in_stray and not (line.isdigit() and i + 1 < len(lines) and '-->' in lines[i + 1]):
             blocks[-1][2].append(line)
-        i += 1
-    return blocks
+        after_blank = False
+    stray += in_stray
+    return blocks, stray
 
 
 def _parse_block(index: int, timing: str, body: list[str]) -> tuple[SrtSample, str, str | None]:

@@ -40,6 +40,7 @@ from __future__ import annotations
 import calendar
 import math
 import re
+import warnings
 import xml.etree.ElementTree as ET  # the usual alias
 from dataclasses import dataclass
 from datetime import datetime
@@ -139,14 +140,17 @@ def read_still_metadata(path: str | Path) -> StillMetadata:
     path = Path(path)
     notes: list[str] = []
     try:
-        im = Image.open(path)
+        with warnings.catch_warnings():
+            # no pixels are decoded here: Pillow's warning about a large picture is not this reader's
+            warnings.simplefilter('ignore', Image.DecompressionBombWarning)
+            im = Image.open(path)
     except FileNotFoundError:
         msg = f'{path} does not exist; pass the path of a survey still (JPEG/TIFF/PNG).'
         raise MetadataError(msg) from None
     except (PermissionError, IsADirectoryError) as exc:
         msg = f'{path} cannot be read ({exc.strerror}); pass a readable still file.'
         raise MetadataError(msg) from None
-    except (UnidentifiedImageError, OSError, ValueError) as exc:
+    except (UnidentifiedImageError, OSError, ValueError, Image.DecompressionBombError) as exc:
         msg = (f'{path} is not an image Pillow can open ({exc}); its EXIF/XMP cannot be read. '
                'Check that the file is a still (JPEG/TIFF/PNG) and not truncated or renamed.')
         raise MetadataError(msg) from None

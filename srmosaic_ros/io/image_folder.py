@@ -6,12 +6,21 @@ length and sensor size, io/camera_db.py) and, where the XMP has them, the gimbal
 become a camera attitude per frame. A `telemetry_from_exif.csv` in the folder or its parent
 (columns file, datetime 'YYYY:MM:DD HH:MM:SS', lat, lon, alt_msl, as exiftool-based exports write)
 overrides the EXIF's time and position when present. Without times, stamps are one second apart.
+
+A still that cannot be a frame is left out with its name, in the log once and in ``left_out`` (file
+name -> why; report.json ``images_left_out``, counted per kind in ``metadata.problems``): found when
+the folder is opened, an empty file, a header no reader understands, a picture below
+core/image_decode.MIN_IMAGE_SIDE_PX, a file with the same bytes as an earlier one; found when it is
+decoded (core/image_decode.py), a truncated or damaged JPEG and a picture with no content.
 """
 from __future__ import annotations
 
 import csv
 import datetime as dt
+import hashlib
+import logging
 import math
+import warnings
 from collections import Counter
 from collections.abc import Iterator
 from pathlib import Path
@@ -20,11 +29,14 @@ import cv2
 import numpy as np
 
 from ..core.georef.frames import R_enu_from_cam_aviation
+from ..core.image_decode import MIN_IMAGE_SIDE_PX, ImageRefused, decode_file
 from ..core.types import CameraAttitude, CameraIntrinsics, Frame, GeoFix
 from ..errors import InputError
 from .metadata import NADIR_TOLERANCE_DEG, RECORDED_ATTITUDE_SIGMA_DEG, MetadataSummary
 
 __all__ = ['IMAGE_SUFFIXES', 'ImageFolderReader', 'is_image_folder']
+
+_LOG = logging.getLogger(__name__)
 
 IMAGE_SUFFIXES = {'.jpg', '.jpeg', '.png', '.tif', '.tiff'}
 TELEMETRY_NAME = 'telemetry_from_exif.csv'
@@ -55,6 +67,14 @@ class ImageFolderReader:
         if not self.files:
             msg = f'{self.path} holds no images ({", ".join(sorted(IMAGE_SUFFIXES))}).'
             raise InputError(msg)
+        self.left_out: dict[str, str] = {}
+        self.warned_about: set[str] = set()  # 'name: the decoder's warning' heard
+        self.summary = MetadataSummary(source='none', frames=len(self.files))
+        self.sizes = self._screen()
+        if not self.files:
+            said = '; '.join(f'{name}: {why}' for name, why in self.left_out.items())
+            msg = f'{self.path} holds no usable image ({said}).'
+            raise InputError(msg)
         self.telemetry: dict[str, dict[str, str]] = {}
         for candidate in (self.path / TELEMETRY_NAME, self.path.parent / TELEMETRY_NAME):
             if candidate.is_file():
@@ -62,12 +82,76 @@ class ImageFolderReader:
                     self.telemetry = {row['file']: row for row in csv.DictReader(handle)}
                 break
         self.skipped: dict[str, int] = {}
-        self.summary = MetadataSummary(source='telemetry CSV' if self.telemetry else 'none', frames=len(self.files))
+        self.summary.source = 'telemetry CSV' if self.telemetry else 'none'
+        self.summary.frames = len(self.files)
         self.meta: list = [None] * len(self.files)
         self._exif_stamps: list[int | None] = [None] * len(self.files)
         self._clock_offset_ns: int | None = None
         if use_exif:
             self._read_exif()
+
+    def leave_out(self, name: str, kind: str, why: str) -> None:
+        """Leave still ``name`` out of the run: said in the log once, kept in ``left_out``, counted in
+        ``summary.problems[kind]``."""
+        if name in self.left_out:
+            return
+        self.left_out[name] = why
+        self.summary.problems[kind] += 1
+        _LOG.warning('%s: %s', name, why)
+
+    def refused(self, exc: ImageRefused) -> None:
+        """A still the decoding guard refused (core/image_decode.py), left out."""
+        self.leave_out(exc.name, exc.kind, exc.why)
+
+    def decoder_warning(self, name: str, message: str) -> None:
+        """A decoder's warning about a still it decoded whole: named in the log once, counted."""
+        key = f'{name}: {message}'
+        if key in self.warned_about:
+            return
+        self.warned_about.add(key)
+        self.summary.problems['image_decoder_warning'] += 1
+        _LOG.warning('%s: the decoder says "%s" (the still is used: every pixel was read).', name, message)
+
+    def _screen(self) -> list[tuple[int, int]]:
+        """Leave out the files that cannot be frames, as far as their headers tell (module docstring);
+        returns the (width, height) of the files kept, from their headers."""
+        from PIL import Image
+
+        kept, sizes = [], []
+        by_size: dict[int, list[Path]] = {}
+        for file in self.files:
+            try:
+                nbytes = file.stat().st_size
+            except OSError as exc:
+                self.leave_out(file.name, 'image_unreadable', f'the file cannot be read ({exc.strerror}); left out.')
+                continue
+            if nbytes == 0:
+                self.leave_out(file.name, 'image_empty', 'the file is empty (0 bytes); left out. Copy it again, '
+                               'or remove it.')
+                continue
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter('ignore', Image.DecompressionBombWarning)  # no pixels are decoded here
+                    with Image.open(file) as im:
+                        size = im.size
+            except (OSError, ValueError, Image.DecompressionBombError) as exc:
+                self.leave_out(file.name, 'image_unreadable', f'its header cannot be read ({exc}): it is damaged, '
+                               'truncated or not an image; left out. Copy it again, or remove it.')
+                continue
+            if min(size) < MIN_IMAGE_SIDE_PX:
+                self.leave_out(file.name, 'image_too_small', f'the image is {size[0]}x{size[1]} px, below the '
+                               f'{MIN_IMAGE_SIDE_PX} px a side that registration needs; left out. Remove it.')
+                continue
+            same = [f for f in by_size.get(nbytes, []) if _digest(f) == _digest(file)]
+            if same:
+                self.leave_out(file.name, 'image_duplicate', f'the same bytes as {same[0].name} (a copy of one '
+                               'still); left out. Remove one of the two.')
+                continue
+            by_size.setdefault(nbytes, []).append(file)
+            kept.append(file)
+            sizes.append(size)
+        self.files = kept
+        return sizes
 
     def _read_exif(self) -> None:
         """Every file's EXIF/XMP (headers only, no decoding), summarised for the report."""
@@ -86,8 +170,18 @@ class ImageFolderReader:
             self.meta[i] = meta
             if not (math.isfinite(meta.latitude_deg) and math.isfinite(meta.longitude_deg)) \
                     and file.name not in self.telemetry:  # the telemetry CSV's position stands for it
-                s.problem('exif_no_gps', f'{file.name}: no GPS position in its EXIF; the frame is placed by '
-                          'registration only')
+                gps_notes = [n for n in meta.notes if n.startswith(('GPS ', 'GPSStatus', 'no GPS'))]
+                if any(n.startswith(('GPS latitude', 'GPS longitude')) and n.endswith('out of range')
+                       for n in gps_notes):
+                    s.problem('exif_gps_out_of_range', f'{file.name}: its EXIF GPS position is out of range '
+                              f'({"; ".join(gps_notes)}); the position is ignored and the frame is placed by '
+                              'registration only. Fix the geotag (exiftool) or give telemetry_from_exif.csv')
+                elif gps_notes and not all(n.startswith('no GPS') for n in gps_notes):
+                    s.problem('exif_gps_unusable', f'{file.name}: its EXIF GPS position is unusable '
+                              f'({"; ".join(gps_notes)}); the frame is placed by registration only')
+                else:
+                    s.problem('exif_no_gps', f'{file.name}: no GPS position in its EXIF; the frame is placed by '
+                              'registration only')
             if meta.gimbal_ypr_deg is not None:
                 s.frames_with_attitude += 1
             if math.isfinite(meta.altitude_m) and math.isfinite(meta.relative_altitude_m):
@@ -164,10 +258,15 @@ class ImageFolderReader:
     def __iter__(self) -> Iterator[Frame | GeoFix]:
         for index, file in enumerate(self.files):
             # the sensor as it recorded (no EXIF rotation): intrinsics and gimbal angles refer to it
-            bgr = cv2.imread(str(file), cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)
-            if bgr is None:
-                self.skipped[f'{file.name}: unreadable image'] = 1
+            try:
+                decoded = decode_file(file, cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)
+            except ImageRefused as exc:
+                self.refused(exc)
+                self.skipped[f'{file.name}: {exc.kind}'] = 1
                 continue
+            for message in decoded.warnings:
+                self.decoder_warning(file.name, message)
+            bgr = decoded.pixels
             stamp = self.stamp_ns(index, file.name)
             row = self.telemetry.get(file.name)
             meta = self.meta[index]
@@ -199,6 +298,10 @@ class ImageFolderReader:
             if latlon is not None:
                 self.summary.centres[stamp] = latlon
             yield Frame(stamp, cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), camera, file.name)
+
+    def size(self, index: int) -> tuple[int, int]:
+        """(width, height) of still ``index`` as its header states it."""
+        return self.sizes[index]
 
     def fix_stamp_ns(self, index: int, stamp: int) -> int:
         """When a still's GPS position was fixed, on the capture clock: its GPS time tag moved by the
@@ -235,3 +338,12 @@ class ImageFolderReader:
             camera = CameraIntrinsics(width, height, camera.fx * sx, camera.fy * sy,
                                       (camera.cx + 0.5) * sx - 0.5, (camera.cy + 0.5) * sy - 0.5)
         return camera
+
+
+def _digest(file: Path) -> str:
+    """SHA-1 of a file's bytes (to find copies among files of one size)."""
+    h = hashlib.sha1()
+    with open(file, 'rb') as handle:
+        for block in iter(lambda: handle.read(1 << 20), b''):
+            h.update(block)
+    return h.hexdigest()

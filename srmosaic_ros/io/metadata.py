@@ -272,12 +272,17 @@ def klv_ground_hint(fields: dict[str, Any], summary: MetadataSummary) -> None:
 
 
 # -- DJI SRT ------------------------------------------------------------------------------------
-def srt_items(track: Any, summary: MetadataSummary) -> list[GeoFix | CameraAttitude]:
-    """Fixes (and gimbal attitudes when the SRT has them) of a DJI SRT track, on the video's clock."""
+def srt_items(track: Any, summary: MetadataSummary, *, say: bool = True) -> list[GeoFix | CameraAttitude]:
+    """Fixes (and gimbal attitudes when the SRT has them) of a DJI SRT track, on the video's clock.
+    ``say``: log the blocks left out (per reason), naming the file."""
     out: list[GeoFix | CameraAttitude] = []
     summary.source = f'DJI SRT ({track.format})'
     for kind, n in track.skipped.items():
         summary.problems[f'srt_{kind}'] += int(n)
+    if say and track.skipped:
+        _LOG.warning('DJI SRT %s: %d of its %d subtitle blocks left out (%s); the other %d are used (report.json '
+                     'metadata.problems srt_*).', track.path.name, sum(track.skipped.values()), track.blocks,
+                     ', '.join(f'{k}: {n}' for k, n in sorted(track.skipped.items())), len(track.samples))
     ground: list[float] = []
     for smp in track.samples:
         alt = smp.altitude_m

@@ -8,6 +8,7 @@ z up) in ENU (REP 103; yaw counter-clockwise from east).
 from __future__ import annotations
 
 import csv
+import logging
 import math
 from pathlib import Path
 
@@ -19,12 +20,25 @@ from ..errors import InputError
 
 __all__ = ['TELEMETRY_HEADER', 'read_telemetry_csv', 'write_telemetry_csv']
 
+_LOG = logging.getLogger(__name__)
+
 TELEMETRY_HEADER = ['time_s', 'latitude', 'longitude', 'altitude', 'roll', 'pitch', 'yaw']
 
 
-def read_telemetry_csv(path: str | Path) -> list[GeoFix | ImuSample]:
-    """Fixes and IMU orientations of a sidecar, in time order (InputError naming the row when bad)."""
+def read_telemetry_csv(path: str | Path, counts: dict[str, int] | None = None) -> list[GeoFix | ImuSample]:
+    """Fixes and IMU orientations of a sidecar, in time order (InputError naming the row when bad).
+
+    Rows earlier than the row before them (a log out of time order) are sorted into place, said in the
+    log with the file's name, and counted in ``counts['telemetry_out_of_order']``; rows with a value
+    missing (NaN) in ``counts['telemetry_gaps']``.
+    """
     path = Path(path)
+    counts = {} if counts is None else counts
+    counts.setdefault('telemetry_out_of_order', 0)
+    counts.setdefault('telemetry_gaps', 0)
+    rows = 0
+    last_s = -math.inf
+    first_line = 0
     try:
         handle = open(path, newline='')
     except FileNotFoundError:
@@ -44,12 +58,24 @@ def read_telemetry_csv(path: str | Path) -> list[GeoFix | ImuSample]:
                 msg = f'--telemetry {path} line {line}: a value is not a number: {row}'
                 raise InputError(msg) from None
             if not all(math.isfinite(v) for v in vals.values()):
+                counts['telemetry_gaps'] += 1
                 continue  # a gap in the log: no sample, not a crash
+            rows += 1
+            if vals['time_s'] < last_s:
+                if not counts['telemetry_out_of_order']:
+                    first_line = line
+                counts['telemetry_out_of_order'] += 1
+            last_s = max(last_s, vals['time_s'])
             stamp = round(vals['time_s'] * 1e9)
             out.append(GeoFix(stamp, vals['latitude'], vals['longitude'], vals['altitude'], status=0))
             R = R_enu_from_body(*np.radians([vals['roll'], vals['pitch'], vals['yaw']]))
             # a flight log has no rates: NaN (not provided), never zeros (a gyro saying "no rotation")
             out.append(ImuSample(stamp, quat_xyzw_from_matrix(R), np.full(3, np.nan), np.full(3, np.nan)))
+    if counts['telemetry_out_of_order']:
+        _LOG.warning('--telemetry %s: %d of its %d rows are earlier than a row before them (the first at line %d): '
+                     'the log is out of time order; its rows are used sorted by time_s (report.json '
+                     'metadata.problems telemetry_out_of_order).', path.name, counts['telemetry_out_of_order'], rows,
+                     first_line)
     out.sort(key=lambda item: item.stamp_ns)
     return out
 

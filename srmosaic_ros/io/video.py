@@ -84,11 +84,14 @@ def camera_from_hfov(width: int, height: int, hfov_deg: float) -> CameraIntrinsi
 
 
 def load_camera_yaml(path: Path) -> CameraIntrinsics:
-    """A ROS camera_calibration YAML (image_width, image_height, camera_matrix, distortion_*)."""
+    """A ROS camera_calibration YAML (image_width, image_height, camera_matrix, distortion_*), read
+    with limits (bounded_yaml.py)."""
     import yaml
 
+    from ..bounded_yaml import load_bounded
+
     try:
-        doc = yaml.safe_load(Path(path).read_text())
+        doc = load_bounded(Path(path).read_text())
         k = [float(v) for v in doc['camera_matrix']['data']]
         dist = tuple(float(v) for v in (doc.get('distortion_coefficients') or {}).get('data', []))
         width, height = int(doc['image_width']), int(doc['image_height'])
@@ -98,8 +101,9 @@ def load_camera_yaml(path: Path) -> CameraIntrinsics:
         msg = f'--camera {path} does not exist.'
         raise InputError(msg) from None
     except (KeyError, TypeError, ValueError, IndexError, yaml.YAMLError) as exc:
+        said = ' '.join(str(exc).split())
         msg = (f'--camera {path} is not a camera calibration YAML (needs image_width, image_height, '
-               f'camera_matrix.data): {exc}')
+               f'camera_matrix.data): {said if len(said) <= 200 else said[:197] + "..."}')
         raise InputError(msg) from None
     bad = [what for what, ok in (('image_width and image_height must be positive', width > 0 and height > 0),
                                  ('fx and fy (camera_matrix.data[0], [4]) must be positive and finite',
@@ -212,6 +216,14 @@ class VideoReader:
         self.deinterlaced = 0  # decoded frames of which only the top field was kept
         self.error: str = ''
         self.ended_early: str = ''  # the stream ended before what its header declares (a cut file)
+
+    @property
+    def duration_s(self) -> float:
+        """How long the video lasts (s): its header's duration, else its frames over its rate (NaN: unknown)."""
+        if math.isfinite(self.duration_declared_s) and self.duration_declared_s > 0:
+            return self.duration_declared_s
+        frames = self.frames_declared
+        return frames / self.fps if frames and math.isfinite(self.fps) and self.fps > 0 else math.nan
 
     @property
     def frame_count(self) -> int | None:

@@ -34,6 +34,7 @@ from typing import Any
 
 import yaml
 
+from ..bounded_yaml import load_bounded
 from ..param_files import default_params_path, load_params, yaml_problem
 from ..errors import ConfigError
 from .launch_xml import LaunchNode, parse_launch_arguments, read_launch_xml
@@ -57,7 +58,7 @@ NODES = ('mosaic', 'georef', 'sr')
 def load_description(path: Path) -> list[dict[str, Any]]:
     """Validate a launch description; returns its processes."""
     try:
-        doc = yaml.safe_load(Path(path).read_text())
+        doc = load_bounded(Path(path).read_text())
     except FileNotFoundError:
         msg = f'launch description {path} does not exist.'
         raise ConfigError(msg) from None
@@ -118,7 +119,7 @@ def overrides_last(ros_arguments: list[str], folder: Path) -> list[str]:
             *parents, leaf = name.split('.')
             for part in parents:
                 node = node.setdefault(part, {})
-            node[leaf] = yaml.safe_load(text) if text else ''
+            node[leaf] = load_bounded(text) if text else ''
             i += 2
             continue
         rest.append(args[i])

@@ -22,6 +22,7 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.node import Node
 
 from ..config import PipelineConfig, pipeline_config
+from ..core.sr_factors import SR_FACTORS
 from ..param_files import advanced_params_path, default_params, default_params_path
 
 __all__ = ['MOSAIC_PARAMETERS', 'GEOREF_PARAMETERS', 'SR_PARAMETERS', 'declare_pipeline_parameters', 'read_pipeline_config', 'on_parameter_change']
@@ -73,7 +74,7 @@ _RANGES: dict[str, tuple[float, float]] = {
     'sr.psf_sigma': (0.0, 10.0),
     'sr.iterations': (0, 10000),
     'sr.margin': (0, 256),
-    'sr_tiles.factor': (2, 8),
+    'sr_tiles.factor': (min(SR_FACTORS), max(SR_FACTORS)),
     'sr_tiles.tile_size': (16, 2048),
     'sr_tiles.min_frames': (1, 1000),
     'sr_tiles.max_frames': (1, 1000),

@@ -14,6 +14,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ..core.image_decode import ImageRefused, decode_file
 from ..core.georef.geodetic import LocalTangentPlane
 from ..errors import ConfigError, InputError
 
@@ -66,10 +67,11 @@ def ir_from_rgb(rgb: np.ndarray) -> np.ndarray:
 
 @functools.lru_cache(maxsize=4)
 def _read_image(path: str, mtime_ns: int, mode: str) -> np.ndarray:  # mtime keys the cache
-    bgr = cv2.imread(path, cv2.IMREAD_COLOR)
-    if bgr is None:
-        msg = f'cannot read world image {path!r} (not an image OpenCV can decode); pass another --world.'
-        raise InputError(msg)
+    try:
+        bgr = decode_file(path, cv2.IMREAD_COLOR, content=False).pixels
+    except ImageRefused as exc:
+        msg = f'cannot use world image {path!r}: {exc.what}; pass another --world.'
+        raise InputError(msg) from None
     rgb = np.ascontiguousarray(bgr[..., ::-1])
     image = ir_from_rgb(rgb) if mode == 'ir' else rgb
     image.setflags(write=False)

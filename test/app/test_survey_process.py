@@ -79,8 +79,9 @@ def test_a_bounded_feature_cache_gives_the_same_survey(drone_survey: Path, tmp_p
 
 
 def test_a_textureless_still_is_placed_by_its_pose(drone_survey: Path, tmp_path: Path) -> None:
-    """A still of bare, even ground (no features): no pair registers it; its GPS position and its
-    heading place it, marked 'pose' in frames.csv, the others still by registration."""
+    """A still of bare, even ground (no features: a gentle slope of shade; a picture of one flat colour
+    has no content and is left out, test_hostile_inputs.py): no pair registers it; its GPS position and
+    its heading place it, marked 'pose' in frames.csv, the others still by registration."""
     from PIL import Image
 
     folder = tmp_path / 'survey'
@@ -88,7 +89,8 @@ def test_a_textureless_still_is_placed_by_its_pose(drone_survey: Path, tmp_path:
     still = sorted((folder / 'images').iterdir())[5]
     with Image.open(still) as im:
         xmp, exif = im.info.get('xmp'), im.getexif()
-        flat = Image.new('RGB', im.size, (120, 110, 90))
+        ramp = np.linspace(0.0, 12.0, im.size[0])[None, :, None]
+        flat = Image.fromarray((np.array([120.0, 110.0, 90.0]) + ramp + np.zeros((im.size[1], 1, 1))).astype(np.uint8))
     flat.save(still, quality=95, exif=exif, xmp=xmp)
     report = process_input(folder, tmp_path / 'out', pipeline_config(), progress=False)
     placed = _placed_by(tmp_path / 'out' / 'frames.csv')

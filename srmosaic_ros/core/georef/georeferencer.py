@@ -297,7 +297,8 @@ class Georeferencer:
             self._record(self.ukf.last_F)
             self._update_gyro()
             if prev_H_cur is not None and self.camera is None:
-                self._skip('homography_no_camera', 'no camera intrinsics: registrations are not fused')
+                self._skip('homography_no_camera', 'the frames carry no camera model (no intrinsics; stills '
+                           'without gimbal angles get none: their geotags place them): registrations are not fused')
             elif prev_H_cur is not None and bridged:
                 self._skip('homography_after_gap', f'frames more than max_step_s = {self.config.max_step_s} s apart: '
                            'their registration is not fused (the filter bridged the gap on telemetry)')

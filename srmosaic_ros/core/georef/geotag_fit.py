@@ -193,7 +193,7 @@ def fit_mosaic_to_geotags(centres_px: np.ndarray, lonlat_deg: np.ndarray,
         else:
             offsets = None  # most frames without an attitude: the plain similarity for all
     if good.sum() < MIN_FRAMES:
-        msg = f'{int(good.sum())} frames with a geotag; at least {MIN_FRAMES} are needed to place the mosaic.'
+        msg = f'{int(good.sum())} frame(s) with a geotag; at least {MIN_FRAMES} are needed to place the mosaic.'
         raise ValueError(msg)
     lon0, lat0 = np.median(lonlat[good], axis=0)
     epsg = utm_epsg(float(lat0), float(lon0))

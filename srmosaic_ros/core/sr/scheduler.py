@@ -14,13 +14,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..metrics import apply_homography
+from ..sr_factors import SR_FACTORS
 
-__all__ = ['SRTileConfig', 'TilePlan', 'frame_centres', 'frame_holds_rect', 'plan_tiles']
+__all__ = ['SR_FACTORS', 'SRTileConfig', 'TilePlan', 'frame_centres', 'frame_holds_rect', 'plan_tiles']
 
 
 @dataclass(frozen=True)
 class SRTileConfig:
-    """Keys under `sr_tiles.` in params/*.yaml."""
+    """Keys under `sr_tiles.` in params/*.yaml (``factor``: one of SR_FACTORS)."""
 
     factor: int = 2
     tile_size: int = 128
@@ -31,13 +32,14 @@ class SRTileConfig:
 
     def __post_init__(self) -> None:
         bad = [name for name, ok in {
-            'factor': 2 <= self.factor <= 8, 'tile_size': 16 <= self.tile_size <= 2048,
+            'factor': self.factor in SR_FACTORS, 'tile_size': 16 <= self.tile_size <= 2048,
             'min_frames': self.min_frames >= 1, 'max_frames': self.max_frames >= self.min_frames,
             'max_tiles': self.max_tiles >= 1, 'min_coverage': 0.0 < self.min_coverage <= 1.0,
         }.items() if not ok]
         if bad:
             values = ', '.join(f'{n}={getattr(self, n)!r}' for n in bad)
-            msg = f'invalid SR tile settings: {values}; see params/default.yaml (sr_tiles).'
+            msg = (f'invalid SR tile settings: {values}; see params/default.yaml (sr_tiles; factor is one of '
+                   f'{", ".join(map(str, SR_FACTORS))}).')
             raise ValueError(msg)
 
 
