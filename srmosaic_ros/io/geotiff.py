@@ -262,8 +262,8 @@ def _chunked(strips: Iterable[Strip], rows: int) -> Iterator[Strip]:
 def write_geotiff_blocks(path: str | os.PathLike[str], strips: Iterable[Strip], raster: GeoRaster | GeoGrid | None,
                          height: int, width: int, *, block_px: int = MOSAIC_BLOCK_PX, tiled: bool = True,
                          overviews: bool = True, compress: str = 'deflate', threads: int = 1,
-                         zlevel: int | None = None) -> None:
-    """Write a GeoTIFF strip by strip, atomically.
+                         zlevel: int | None = None, cog: bool = True) -> None:
+    """Write a GeoTIFF strip by strip, atomically; a Cloud Optimized GeoTIFF unless ``cog`` is False.
 
     Args:
         path: output file (.tif); it appears only once complete (temporary name, then a rename):
@@ -281,6 +281,10 @@ def write_geotiff_blocks(path: str | os.PathLike[str], strips: Iterable[Strip], 
         threads: GDAL threads compressing the blocks and computing the overviews (1: GDAL's
             defaults, the bytes of every earlier release); the pixels do not depend on it.
         zlevel: DEFLATE level of the blocks and the overviews (None: GDAL's default, 6).
+        cog: lay the file out as a COG (GDAL's COG driver, CreateCopy of a staged GTiff with its
+            overviews): tiled, the overviews' blocks after the main image's, smallest first, and the
+            directories ahead of the data, so that a reader of a byte range (HTTP, QGIS) opens it
+            cheaply. ``tiled`` is then implied. False writes a plain GTiff (scratch files).
 
     Memory: one strip, the uint8 conversion of CONVERT_ROWS of its rows, and GDAL's cache
     (GDAL_CACHE_BYTES); overviews are built by GDAL from the file, in blocks.
@@ -312,24 +316,56 @@ def write_geotiff_blocks(path: str | os.PathLike[str], strips: Iterable[Strip], 
     interp = [ColorInterp.red, ColorInterp.green, ColorInterp.blue] if colour == 3 else [ColorInterp.gray] * colour
     if has_alpha:
         interp.append(ColorInterp.alpha)
+    if cog:  # the stage is read once, by the COG copy: the fastest DEFLATE level suffices
+        profile = _profile(width, height, count, has_alpha, raster, tiled=True, block_px=block_px,
+                           compress='deflate', threads=threads, zlevel=1)
     with atomic_path(path) as tmp, _gdal_env(**options), _gdal_errors(path) as errors:
         os.unlink(tmp)  # GDAL creates the file itself
-        with rasterio.open(tmp, 'w', **profile) as dst:
-            _write_strips(dst, (head[0], bands), it, height, width, head[2] is not None)
-            del bands, head
-            dst.colorinterp = interp
-            tags = {'SOFTWARE': 'srmosaic_ros'}
-            if raster is not None:
-                tags['GSD_M_PER_PX'] = f'{raster.gsd_m_per_px:.6g}'
-            dst.update_tags(**tags)
-        errors.check(path)  # the cached blocks and the directory are written on close
-        factors = overview_factors(height, width, block_px) if overviews else []
-        if factors:
-            _check_room(tmp, path, OVERVIEW_ROOM)
-            with rasterio.open(tmp, 'r+') as dst:
-                dst.build_overviews(factors, Resampling.average)
-                dst.update_tags(ns='rio_overview', resampling='average')
-            errors.check(path)
+        stage = f'{tmp}.stage.tif' if cog else tmp
+        try:
+            with rasterio.open(stage, 'w', **profile) as dst:
+                _write_strips(dst, (head[0], bands), it, height, width, head[2] is not None)
+                del bands, head
+                dst.colorinterp = interp
+                tags = {'SOFTWARE': 'srmosaic_ros'}
+                if raster is not None:
+                    tags['GSD_M_PER_PX'] = f'{raster.gsd_m_per_px:.6g}'
+                dst.update_tags(**tags)
+            errors.check(path)  # the cached blocks and the directory are written on close
+            factors = overview_factors(height, width, block_px) if overviews else []
+            if factors:
+                _check_room(stage, path, OVERVIEW_ROOM)
+                with rasterio.open(stage, 'r+') as dst:
+                    dst.build_overviews(factors, Resampling.average)
+                    dst.update_tags(ns='rio_overview', resampling='average')
+                errors.check(path)
+            if cog:
+                _check_room(stage, path, 1.0 + OVERVIEW_ROOM)
+                _copy_as_cog(stage, tmp, block_px=block_px, compress=compress, threads=threads, zlevel=zlevel,
+                             overviews=bool(factors))
+                errors.check(path)
+        finally:
+            if cog and os.path.exists(stage):
+                os.unlink(stage)
+
+
+def _copy_as_cog(src: str, dst: str, *, block_px: int, compress: str, threads: int, zlevel: int | None,
+                 overviews: bool) -> None:
+    """GDAL's COG driver: ``src`` (a tiled GTiff, with its overviews when ``overviews``) copied to
+    ``dst`` in COG layout, the overviews taken as they are (average, factors of overview_factors)."""
+    import rasterio.shutil
+
+    options: dict[str, Any] = {'BLOCKSIZE': block_px, 'BIGTIFF': 'IF_SAFER',
+                               'OVERVIEWS': 'FORCE_USE_EXISTING' if overviews else 'NONE'}
+    if compress and compress.lower() != 'none':
+        options.update(COMPRESS=compress.upper(), PREDICTOR='YES')
+        if zlevel is not None and compress.lower() == 'deflate':
+            options['LEVEL'] = int(zlevel)
+    else:
+        options['COMPRESS'] = 'NONE'
+    if threads > 1:
+        options['NUM_THREADS'] = int(threads)
+    rasterio.shutil.copy(src, dst, driver='COG', **options)
 
 
 def write_geotiff(path: str | os.PathLike[str], image: np.ndarray, raster: GeoRaster | GeoGrid, *,

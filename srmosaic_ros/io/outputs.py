@@ -176,7 +176,8 @@ def write_canvas(canvas: TiledCanvas, tif: Path | None, png: Path, raster: GeoRa
     png.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix=f'.{png.stem}.', dir=png.parent) as tmp:
         scratch = Path(tmp) / 'mosaic.tif'
-        write_geotiff_blocks(scratch, strips(), None, y1 - y0, x1 - x0, block_px=MOSAIC_BLOCK_PX, overviews=False)
+        write_geotiff_blocks(scratch, strips(), None, y1 - y0, x1 - x0, block_px=MOSAIC_BLOCK_PX, overviews=False,
+                             cog=False)
         png_from_geotiff(scratch, png)
 
 

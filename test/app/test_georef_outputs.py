@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import rasterio  # a pinned dependency: a missing install must fail, not skip
+from rio_cogeo.cogeo import cog_validate  # the field's validator of the COG layout
 from pyproj import Transformer
 
 from srmosaic_ros.core.georef import FramePose, GeoRaster, GeorefConfig, Georeferencer
@@ -121,6 +122,8 @@ def test_geotiff_grey_float_nan_and_large_outputs(tmp_path) -> None:
     with rasterio.open(tmp_path / 'big.tif') as ds:
         assert ds.profile['tiled'] and ds.block_shapes[0] == (256, 256)
         assert ds.overviews(1) == [2, 4, 8]
+    for tif in ('g.tif', 'big.tif'):  # small or large, each a Cloud Optimized GeoTIFF
+        assert cog_validate(tmp_path / tif, quiet=True) == (True, [], []), tif
     with pytest.raises(ValueError, match='images'):
         write_geotiff(tmp_path / 'bad.tif', np.zeros((4, 4, 5), np.uint8), raster)
     with pytest.raises(ValueError, match='coverage'):

@@ -17,6 +17,7 @@ import pytest
 
 import rasterio  # a pinned dependency: a missing install must fail, not skip
 from rasterio.enums import ColorInterp, Compression
+from rio_cogeo.cogeo import cog_validate  # the field's validator of the COG layout
 
 from srmosaic_ros.config import pipeline_config
 from srmosaic_ros.core.georef import GeoRaster
@@ -77,6 +78,7 @@ def test_mosaic_tif_written_in_strips_equals_the_whole_render(channels: int, ble
         assert ds.compression == Compression.deflate
         assert ds.crs.to_epsg() == 32633 and ds.transform.to_gdal() == pytest.approx(RASTER.geotransform)
         assert (ds.width, ds.height) == (w, h)
+    assert cog_validate(tmp_path / 'mosaic.tif', quiet=True) == (True, [], [])  # a Cloud Optimized GeoTIFF
     # mosaic.png: the pixels of the previous writer (cv2, from the whole render), RGBA for grey too.
     write_png(tmp_path / 'before.png', image, covered)
     assert np.array_equal(_read_png(tmp_path / 'mosaic.png'), _read_png(tmp_path / 'before.png'))
@@ -112,6 +114,8 @@ def test_the_threaded_writer_writes_the_pixels_of_the_one_thread_writer(channels
                 (b.crs, b.transform, b.colorinterp, b.overviews(1), b.block_shapes, b.tags())
             np.testing.assert_array_equal(a.read(1, out_shape=(h // 4, w // 4)), b.read(1, out_shape=(h // 4, w // 4)))
             assert b.compression == Compression.deflate
+        for tif in (one / 'mosaic.tif', two / 'mosaic.tif'):
+            assert cog_validate(tif, quiet=True) == (True, [], []), tif
 
 
 def test_a_failing_render_leaves_no_file_with_the_threaded_writer(tmp_path: Path) -> None:

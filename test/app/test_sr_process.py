@@ -39,7 +39,9 @@ def check_sr_geotiffs(out: Path, tiles: list[dict], mosaic: np.ndarray) -> None:
     """The georeferenced SR outputs, read back with rasterio (GDAL): each tile's GeoTIFF and the SR
     mosaic sit on mosaic.tif's map grid refined by the factor, and hold the tiles' pixels."""
     import rasterio
+    from rio_cogeo.cogeo import cog_validate
 
+    assert cog_validate(out / 'mosaic.tif', quiet=True) == (True, [], [])  # a Cloud Optimized GeoTIFF
     with rasterio.open(out / 'mosaic.tif') as m:
         crs, mosaic_t = m.crs, m.transform
     s = tiles[0]['factor']
@@ -50,6 +52,7 @@ def check_sr_geotiffs(out: Path, tiles: list[dict], mosaic: np.ndarray) -> None:
 
     for entry in tiles[:3]:
         png = cv2.imread(str(out / 'sr' / entry['file']), cv2.IMREAD_COLOR)[:, :, ::-1]
+        assert cog_validate(out / 'sr' / entry['file'].replace('.png', '.tif'), quiet=True)[0], entry['file']
         with rasterio.open(out / 'sr' / entry['file'].replace('.png', '.tif')) as t:
             assert t.crs == crs and (t.height, t.width) == png.shape[:2]
             np.testing.assert_array_equal(np.moveaxis(t.read(), 0, -1), png)
