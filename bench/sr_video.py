@@ -54,6 +54,8 @@ RUNS: dict[str, dict[str, Any]] = {
     'align translation': {'sr.local_align': 'translation'},
     '3 iterations': {'sr.iterations': 3},
     'self check 2': {'sr.self_check': 2},
+    'clamp off': {'sr.clamp': 'off'},
+    'clamp wide': {'sr.clamp': 'wide'},
 }
 
 

@@ -27,7 +27,7 @@ judged against its own input, re-read in frame order:
   each frame pixel's footprint (rendered SUPERSAMPLE times finer where the frame is magnified on it,
   then area-reduced), so a mosaic finer than the frame is not charged with aliasing. Sharpness is
   taken at the scale of a few frame pixels (both images smoothed by DETAIL_SIGMA_PX): a frame alone
-  under its own warp then scores NCC 1 and sharpness about 0.85 to 0.9, what the two bilinear
+  under its own warp then scores NCC 1 and sharpness about 0.85 to 0.9 painted bilinearly, what the two bilinear
   resamplings there and back cost (0.7 unsmoothed). Frames wider than the run's mosaic.max_width are
   compared at that width, the sampling the user chose for the mosaic.
 - Position error, when mosaic.tif exists and frames.csv carries ``meta_latitude,meta_longitude``
@@ -61,6 +61,7 @@ import numpy as np
 from tqdm import tqdm
 
 from ..core.image_ops import to_gray_float01
+from ..core.mosaic import resample
 from ..core.mosaic.best_view import clip_depth, clipped_polygon, depth_map
 from ..core.mosaic.minify import finest_stretch, minify_level, reduce_frame
 from ..core.metrics import apply_homography
@@ -212,13 +213,16 @@ class _MosaicWindows:
 
 
 def _agreement(stamp_ns: int, grey: np.ndarray, mosaic_H_frame: np.ndarray,
-               mosaic: _MosaicWindows, max_stretch: float = 0.0, max_width: int = 0) -> FrameAgreement:
+               mosaic: _MosaicWindows, max_stretch: float = 0.0, max_width: int = 0,
+               interpolation: str = 'linear') -> FrameAgreement:
     """NCC and sharpness ratio of one frame (grey (h, w) float32) against the mosaic under it, in the
     mosaic's pixels and in the frame's (:func:`_seen_from_frame`).
 
     max_stretch: the run's mosaic.max_stretch: only the part of the frame the canvas painted (its
     far field and sky cut off, core/mosaic/best_view.py) is compared. max_width: the run's
     mosaic.max_width (0: none): wider frames are compared at that width in the frame's pixels.
+    interpolation: the run's mosaic.interpolation (core/mosaic/resample.py; runs from before the key
+    were painted bilinearly): the frame is warped into the mosaic as the canvas painted it.
     """
     h, w = grey.shape
     corners = np.array([[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5], [-0.5, h - 0.5]])
@@ -261,10 +265,9 @@ def _agreement(stamp_ns: int, grey: np.ndarray, mosaic_H_frame: np.ndarray,
     scale = 1.0 / k
     grid_H_mosaic = np.array([[scale, 0.0, -x0 * scale], [0.0, scale, -y0 * scale], [0.0, 0.0, 1.0]])
     grid_H_frame = grid_H_mosaic @ m_red
-    # as the canvas paints: INTER_LINEAR, replicated border, and a separate validity mask
+    # as the canvas paints: its interpolation, replicated border, and a separate validity mask
     kept = np.isfinite(grey)
-    warped = cv2.warpPerspective(np.where(kept, grey, np.float32(0.0)), grid_H_frame, (bw, bh), flags=cv2.INTER_LINEAR,
-                                 borderMode=cv2.BORDER_REPLICATE)
+    warped = resample.warp(np.where(kept, grey, np.float32(0.0)), grid_H_frame, (bw, bh), interpolation)
     valid = cv2.warpPerspective(kept.astype(np.uint8), grid_H_frame, (bw, bh), flags=cv2.INTER_NEAREST,
                                 borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     kernel = np.ones((2 * _FRAME_ERODE_PX + 1,) * 2, np.uint8)
@@ -558,6 +561,11 @@ def evaluate_real(out_dir: Path, *, progress: bool = True, max_frames: int | Non
     mosaic_config = (report.get('config') or {}).get('mosaic') or {}
     max_stretch = float(mosaic_config.get('max_stretch', 0.0))
     max_width = int(mosaic_config.get('max_width', 0))
+    interpolation = str(mosaic_config.get('interpolation', 'linear'))  # before the key: bilinear
+    if interpolation not in resample.INTERPOLATIONS:
+        msg = (f"{out_dir / 'report.json'} says the mosaic was painted with interpolation {interpolation!r}, which "
+               f"this version does not know ({', '.join(resample.INTERPOLATIONS)}); evaluate it with the version that made it.")
+        raise InputError(msg)
 
     wanted = {main[i]['stamp_ns']: main[i] for i in _pick(len(main), max_frames)}
     mosaic = _MosaicWindows(out_dir)
@@ -575,7 +583,7 @@ def evaluate_real(out_dir: Path, *, progress: bool = True, max_frames: int | Non
                 size = size or (frame.image.shape[1], frame.image.shape[0])
                 results[item.stamp_ns] = _agreement(item.stamp_ns, to_gray_float01(frame.image),
                                                     wanted[item.stamp_ns]['mosaic_H_frame'], mosaic, max_stretch,
-                                                    max_width)
+                                                    max_width, interpolation)
                 bar.update(1)
                 if len(results) == len(wanted):
                     break  # the rest of the input holds no frame to compare

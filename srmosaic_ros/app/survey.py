@@ -546,6 +546,7 @@ def _paint_and_write(out: Path, config: PipelineConfig, stills: list[SurveyStill
                                 [_footprint_px(corners[k], raster_H_local) for k in placed], tile_bytes)
     canvas = TiledCanvas(3, config.mosaic.tile_size, blend=scfg.blend, max_canvas_side_px=config.mosaic.max_canvas_side_px,
                          max_tiles_in_memory=max_tiles, spill_dir=config.mosaic.spill_dir, seams=config.mosaic.seams,
+                         interpolation=config.mosaic.interpolation,
                          threads=min(output_threads(), 2))  # a still's tiles on two cores (the decoder mostly waits)
     canvas_H = {}
     refused: dict[int, str] = {}

@@ -10,6 +10,7 @@ import math
 
 from .blend import FEATHER_PROFILES
 from .config import BLEND_MODES, SEAM_MODES
+from .resample import INTERPOLATIONS
 
 __all__ = ['settings_problem']
 
@@ -31,6 +32,7 @@ def settings_problem(
     moving: float,
     moving_history: int = 5,
     seams: str = 'score',
+    interpolation: str = 'cubic',
 ) -> str | None:
     """The message of the first invalid ``TiledCanvas`` argument, None when all are valid."""
     if int(channels) != channels or channels < 1:
@@ -64,4 +66,6 @@ def settings_problem(
     if isinstance(moving_history, bool) or int(moving_history) != moving_history or not 3 <= moving_history <= 31 \
             or moving_history % 2 == 0:
         return f'moving_history must be an odd integer in 3..31, got {moving_history!r}.'
+    if interpolation not in INTERPOLATIONS:
+        return f"interpolation must be one of {', '.join(INTERPOLATIONS)}, got {interpolation!r}."
     return None

@@ -4,10 +4,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-__all__ = ['MosaicConfig', 'BLEND_MODES', 'SEAM_MODES']
+__all__ = ['MosaicConfig', 'BLEND_MODES', 'INTERPOLATION_MODES', 'SEAM_MODES']
 
 BLEND_MODES = ('feather', 'multiband', 'bestview')
 SEAM_MODES = ('cut', 'score')
+INTERPOLATION_MODES = ('cubic', 'lanczos', 'linear')  # resample.INTERPOLATIONS' keys
 
 
 @dataclass(frozen=True)
@@ -15,6 +16,7 @@ class MosaicConfig:
     tile_size: int = 256
     blend: str = 'bestview'
     max_stretch: float = 4.0  # frame pixels this many times coarser than the frame's finest are not painted (0: all)
+    interpolation: str = 'cubic'  # how frames are resampled onto the mosaic: cubic | lanczos (clamped) | linear (resample.py)
     recency_frames: int = 90  # bestview: a frame this many frames newer wins over an e-fold better view (0: none)
     seams: str = 'score'  # bestview, multiband: 'score' (where view scores cross) | 'cut' (graph cut: where frames agree, seam_cut.py)
     agree: float = 0.0  # bestview: frames within this of the winner (intensity) are averaged into it (0: none)
@@ -47,6 +49,10 @@ class MosaicConfig:
                 and (self.max_stretch == 0 or self.max_stretch > 1)):
             msg = (f'mosaic.max_stretch must be 0 (paint every frame pixel) or a number > 1, got {self.max_stretch!r}; '
                    '4 leaves out the far field and sky of oblique views.')
+            raise ValueError(msg)
+        if self.interpolation not in INTERPOLATION_MODES:
+            msg = (f"mosaic.interpolation must be one of {', '.join(INTERPOLATION_MODES)} (cubic: frames painted as "
+                   f"sharp as they are; linear: the fastest, softer), got {self.interpolation!r}.")
             raise ValueError(msg)
         if isinstance(self.recency_frames, bool) or not isinstance(self.recency_frames, int) or self.recency_frames < 0:
             msg = f'mosaic.recency_frames must be an integer >= 0 (0: no preference for newer frames), got {self.recency_frames!r}.'

@@ -37,7 +37,8 @@ class Segment:
                                       max_canvas_side_px=config.max_canvas_side_px,
                                       max_tiles_in_memory=config.max_tiles_in_memory, spill_dir=config.spill_dir,
                                       max_stretch=config.max_stretch, recency_frames=config.recency_frames, agree=config.agree, moving=config.moving,
-                                      moving_history=config.moving_history, seams=config.seams))
+                                      moving_history=config.moving_history, seams=config.seams,
+                                      interpolation=config.interpolation))
 
     def add(self, frame_index: int, image: np.ndarray, seg_H_frame: np.ndarray) -> None:
         """Paint a frame (float32 (H, W, C) in [0, 1]) into the segment at seg_H_frame."""

@@ -50,11 +50,12 @@ class PsfChoice:
 def held_out_residual(tile: TileFrames, j: int, factor: int, config: SRConfig) -> tuple[torch.Tensor, torch.Tensor] | None:
     """Frame ``j`` predicted from the tile's other frames through D B W_j with ``config.psf_sigma``:
     ``(squared residual (C, h, w), observed mask (1, h, w))`` on frame j's window of the tile, or None
-    when the others cannot be solved or j does not observe the tile."""
+    when the others cannot be solved or j does not observe the tile. The solve is not clamped
+    (sr.clamp, ringing.py): the ringing of a PSF too wide is what tells it apart."""
     others = [k for k in range(len(tile.frames)) if k != j]
     try:
         res = reconstruct_tile([tile.frames[k] for k in others], [tile.tile_H_frames[k] for k in others],
-                               tile.tile_shape, factor, config=config, anchor=False)
+                               tile.tile_shape, factor, config=config, anchor=False, clamp='off')
     except SRError:
         return None
     device = res.image.device

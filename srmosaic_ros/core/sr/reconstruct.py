@@ -60,6 +60,7 @@ from .moving import MIN_FRAMES as MOVING_MIN_FRAMES, moving_mask
 from .observation import FrameStack, build_frame_stack
 from .operators import Warp, gaussian_psf
 from .prior import HuberPrior, clique_differences, huber_sum
+from .ringing import CLAMP_MODES, clamp_to_lr_range
 from .scheduler import frame_centres
 from .solvers import LAMBDA_MODES, SOLVERS, IterationRecord, LambdaRule, Problem, solve
 
@@ -160,6 +161,9 @@ class SRConfig:
     anchor_compression: the threshold is also scaled down where the reference's residual is
         spatially correlated (what compression leaves; anchor.py): the tile then reproduces the
         reference frame as recorded, its compression included, instead of the ground.
+    clamp: each HR pixel of the result kept within the range of the LR pixels around it (the
+        frames' average and the reference; core/sr/ringing.py): 'cell' (the 2 x 2 around its LR
+        point), 'wide' (4 x 4) or 'off'. Against ringing where the PSF is over-estimated.
     """
 
     psf_sigma: float = 0.5
@@ -188,6 +192,7 @@ class SRConfig:
     anchor: bool = True
     anchor_noise: float = 2.0
     anchor_compression: bool = False
+    clamp: str = 'cell'
     local_align: str = 'affine'
     local_align_max_px: float = 1.5
     photometric: bool = True
@@ -198,6 +203,7 @@ class SRConfig:
             (self.solver in SOLVERS, f'solver must be one of {SOLVERS}, got {self.solver!r}'),
             (self.lambda_mode in LAMBDA_MODES, f'lambda_mode must be one of {LAMBDA_MODES}, got {self.lambda_mode!r}'),
             (self.local_align in ALIGN_MODES, f'local_align must be one of {ALIGN_MODES}, got {self.local_align!r}'),
+            (self.clamp in CLAMP_MODES, f'clamp must be one of {CLAMP_MODES}, got {self.clamp!r}'),
             (self.anchor_noise >= 0, f'anchor_noise must be >= 0 (noise stds), got {self.anchor_noise}'),
             (self.local_align_max_px > 0, f'local_align_max_px must be > 0 (LR pixels), got {self.local_align_max_px}'),
             (self.color in COLOR_MODES, f'color must be one of {COLOR_MODES}, got {self.color!r}'),
@@ -631,6 +637,11 @@ def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames:
             raise SRFramesDisagree(msg)
         x_final, anchor_rms = anchor_to_frame(res.x, y_obs, stack, ref, s, threshold=cfg.anchor_noise * noise,
                                               noise=noise, compression=cfg.anchor_compression)
+    if cfg.clamp != 'off':  # no ringing beyond the range the frames show (ringing.py)
+        bounds = [mosaic, torch.where(covered[ref] > 0, warped[ref], mosaic)]
+        if solve_c != channels:
+            bounds = [luma(b[None])[0] for b in bounds]
+        x_final = clamp_to_lr_range(x_final, bounds, s, cfg.clamp)
     if device.type == 'cuda':
         torch.cuda.synchronize(device)
     t3 = time.perf_counter()

@@ -10,6 +10,7 @@ import pytest
 
 from srmosaic_ros.core.mosaic import CanvasError, TiledCanvas, feather_weight
 from srmosaic_ros.core.mosaic import canvas as canvas_mod
+from srmosaic_ros.core.mosaic import resample
 from srmosaic_ros.errors import SrMosaicError
 
 BLENDS = ('feather', 'multiband', 'bestview')
@@ -214,13 +215,18 @@ def test_integer_translation_reproduces_frame(blend: str, offset: tuple[int, int
     ],
     ids=['subpixel', 'rot30', 'rot-97', 'projective'],
 )
-def test_warped_frame_matches_cv2(blend: str, mosaic_h_frame: np.ndarray) -> None:
+@pytest.mark.parametrize('interpolation', ['cubic', 'linear'])
+def test_warped_frame_matches_cv2(blend: str, mosaic_h_frame: np.ndarray, interpolation: str) -> None:
     frame = texture(60, 80)
-    c = TiledCanvas(3, tile_size=32, blend=blend)
+    c = TiledCanvas(3, tile_size=32, blend=blend, interpolation=interpolation)
     c.paint(frame, mosaic_h_frame)
     x0, y0, x1, y1 = region = c.bounds()
-    ref = cv2.warpPerspective(frame, translation(-x0, -y0) @ mosaic_h_frame, (x1 - x0, y1 - y0),
-                              flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    box_h_frame = translation(-x0, -y0) @ mosaic_h_frame
+    if interpolation == 'linear':  # OpenCV's own bilinear warp
+        ref = cv2.warpPerspective(frame, box_h_frame, (x1 - x0, y1 - y0), flags=cv2.INTER_LINEAR,
+                                  borderMode=cv2.BORDER_CONSTANT)
+    else:  # the clamped bicubic of core/mosaic/resample.py
+        ref = resample.warp(frame, box_h_frame, (x1 - x0, y1 - y0), interpolation)
     out, cov = c.render(region)
     inside = interior_mask(mosaic_h_frame, region, 80, 60, margin=0.0)
     assert cov[inside].all() and inside.sum() > 1000

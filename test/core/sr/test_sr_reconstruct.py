@@ -85,10 +85,11 @@ def test_lambda_noise_cap_acts_on_misfit_only(world, tile):
 def test_lambda_noise_floor_keeps_the_prior_on_a_single_frame(world):
     """One noisy frame can be fitted exactly: (5.6)'s lambda falls with the residual and the noise is
     amplified into the tile; with the residual floored at twice the noise lambda stays up, and the
-    tile is closer to the truth."""
+    tile is closer to the truth. (Unclamped, sr.clamp off: the option's effect
+    alone.)"""
     st = make_synthetic_tile(world, (150, 480), TILE, 2, 1, noise_sigma=4.0, seed=3)
     runs = {f: reconstruct_tile(st.frames, st.tile_H_frames, TILE, 2, iterations=10, device='cpu', consistency=0,
-                                anchor=False, lambda_noise_floor=f) for f in (0.0, 2.0)}
+                                anchor=False, lambda_noise_floor=f, clamp='off') for f in (0.0, 2.0)}
     assert runs[2.0].history[-1].lam > 3 * runs[0.0].history[-1].lam
     assert psnr(hwc(runs[2.0].image), st.truth) > psnr(hwc(runs[0.0].image), st.truth)
 
@@ -220,7 +221,8 @@ def test_moving_objects_are_kept_out_of_the_data_term(world) -> None:
     weight 1), so the data term fits it and leaves its trail in the SR tile (trail error 0.014,
     PSNR 37.8 dB; anchoring takes back part of it). With the per-pixel weights (core/sr/moving.py)
     every frame keeps the pixels the car did not cover: the trail's error is no worse than the
-    bicubic mosaic's of the frames without cars, and the tile gains 3 dB (measured 0.0077, 40.9 dB)."""
+    bicubic mosaic's of the frames without cars, and the tile gains 3 dB (measured 0.0077, 40.9 dB).
+    Unclamped (sr.clamp off), so that the data term's doing is what is measured."""
     st = make_synthetic_tile(world, (150, 480), TILE, 2, 8, noise_sigma=1.0, seed=6)
     frames = [f.copy() for f in st.frames]
     trail = np.zeros((TILE[0] * 2, TILE[1] * 2), bool)  # HR tile pixels a car covered
@@ -233,14 +235,14 @@ def test_moving_objects_are_kept_out_of_the_data_term(world) -> None:
     truth = st.truth
 
     def errors(**kw) -> tuple[float, float, float, int]:
-        res = reconstruct_tile(frames, st.tile_H_frames, TILE, 2, iterations=10, device='cpu', **kw)
+        res = reconstruct_tile(frames, st.tile_H_frames, TILE, 2, iterations=10, device='cpu', clamp='off', **kw)
         sr, bic = hwc(res.image).astype(np.float64), hwc(res.initial).astype(np.float64)
         return (float(np.abs(sr - truth)[trail].mean()), float(np.abs(bic - truth)[trail].mean()), psnr(sr, truth),
                 res.moving_pixels)
 
     plain_trail, plain_bicubic, plain_psnr, n0 = errors()
     moving_trail, moving_bicubic, moving_psnr, n1 = errors(moving=0.05)
-    clean = reconstruct_tile(st.frames, st.tile_H_frames, TILE, 2, iterations=10, device='cpu')
+    clean = reconstruct_tile(st.frames, st.tile_H_frames, TILE, 2, iterations=10, device='cpu', clamp='off')
     clean_bicubic = float(np.abs(hwc(clean.initial).astype(np.float64) - truth)[trail].mean())
     assert n0 == 0 and n1 > 0
     assert moving_trail < 0.6 * plain_trail      # the trail is gone from the SR tile
@@ -257,19 +259,20 @@ def test_the_leave_one_out_check_refuses_a_tile_made_to_ring(world) -> None:
     is made; with a PSF three times too wide the estimate rings (23 dB against the bicubic mosaic's
     33 on the truth), predicts the frame worse than the mosaic, and the tile is refused. (A PSF
     nearly twice too wide, 0.9, also loses to bicubic on the truth, 26 dB, but still predicts the
-    frame better than the mosaic: the check sees in the frames' resolution only.)"""
+    frame better than the mosaic: the check sees in the frames' resolution only.) The tile is made to
+    ring unclamped (sr.clamp off): clamped to the frames' range it no longer rings (core/sr/ringing.py)."""
     st = make_synthetic_tile(world, (150, 480), TILE, 2, 6, noise_sigma=1.0, seed=4)
     right = SRConfig(device='cpu', psf_sigma=0.5, self_check=1)
     sse_sr, sse_mosaic, n = held_out_errors(st.frames, st.tile_H_frames, TILE, 2, right)
     assert n > 500 and sse_sr < 0.5 * sse_mosaic
     res = reconstruct_checked_tile(st.frames, st.tile_H_frames, TILE, 2, right)
     assert psnr(hwc(res.image), st.truth) > psnr(hwc(res.initial), st.truth) + 3.0
-    ringing = SRConfig(device='cpu', psf_sigma=1.6, self_check=1)
+    ringing = SRConfig(device='cpu', psf_sigma=1.6, self_check=1, clamp='off')
     assert psnr(hwc(reconstruct_tile(st.frames, st.tile_H_frames, TILE, 2, config=ringing).image), st.truth) < 30.0
     with pytest.raises(SRNotBetterThanMosaic, match='no better than the mosaic'):
         reconstruct_checked_tile(st.frames, st.tile_H_frames, TILE, 2, ringing)
     # the check off: the ringing tile is made
-    reconstruct_checked_tile(st.frames, st.tile_H_frames, TILE, 2, SRConfig(device='cpu', psf_sigma=1.6, self_check=0))
+    reconstruct_checked_tile(st.frames, st.tile_H_frames, TILE, 2, SRConfig(device='cpu', psf_sigma=1.6, self_check=0, clamp='off'))
     # two frames: nothing to hold out, the tile is made
     assert held_out_errors(st.frames[:2], st.tile_H_frames[:2], TILE, 2, right) == (0.0, 0.0, 0)
 
@@ -278,10 +281,11 @@ def test_compression_in_the_reference_is_taken_back_only_when_asked(world, tile)
     """sr.anchor_compression: blotches like those a DCT quantiser leaves (correlated, under two grey
     levels) in the reference frame alone are the recorded frame's, not the ground's. By default the
     anchoring threshold keeps most of them out of the tile; with the option the tile takes them back
-    whole: further from the truth, closer to the reference as recorded."""
+    whole: further from the truth, closer to the reference as recorded. (Unclamped, sr.clamp off: the
+    option's effect alone.)"""
     import cv2
 
-    kw = {'iterations': 10, 'device': 'cpu', 'robust': False, 'consistency': 0}
+    kw = {'iterations': 10, 'device': 'cpu', 'robust': False, 'consistency': 0, 'clamp': 'off'}
     ref = reconstruct_tile(tile.frames, tile.tile_H_frames, TILE, 2, **kw).reference
     rng = np.random.default_rng(8)
     h, w = tile.frames[ref].shape[:2]
