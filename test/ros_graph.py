@@ -3,12 +3,35 @@ the supervision of the processes under test."""
 from __future__ import annotations
 
 import contextlib
+import itertools
+import os
 import signal
 import subprocess
 import threading
 import time
 from collections.abc import Callable, Iterator
 from typing import Any
+
+
+#: Waits on a graph are sized for a loaded 2-core machine (another test, or another CPU-heavy process,
+#: beside the graph): each timeout a test gives is multiplied by this. A passing wait returns as soon as
+#: its condition holds, so the factor only lengthens the wait of a test that fails.
+WAIT_SCALE = float(os.environ.get('SRMOSAIC_TEST_WAIT_SCALE', '3'))
+
+_DOMAINS = itertools.count()
+
+
+def ros_domain_id() -> int:
+    """A ROS_DOMAIN_ID for one test, in the portable range 1-100: the xdist workers of one run take
+    distinct residues (so concurrent tests never share a domain), successive tests of a worker take
+    successive slots (so a graph a test left behind does not talk to the next), and the run's own
+    offset keeps concurrent runs on the machine apart."""
+    workers = int(os.environ.get('PYTEST_XDIST_WORKER_COUNT', '1'))
+    worker = int(os.environ.get('PYTEST_XDIST_WORKER', 'gw0')[2:] or 0)
+    run = os.environ.get('PYTEST_XDIST_TESTRUNUID')
+    offset = int(run[:8], 16) if run else os.getpid()
+    slots = 100 // workers
+    return 1 + ((offset + next(_DOMAINS)) % slots) * workers + worker
 
 
 def stop_process(proc: subprocess.Popen, timeout: float = 60) -> str:
@@ -64,9 +87,10 @@ class GraphListener:
         while not self._stop:
             self.executor.spin_once(timeout_sec=0.1)
 
-    def wait_for(self, predicate: Callable[[], Any], timeout: float) -> bool:
-        """Poll `predicate` until it holds (True) or `timeout` seconds pass (False)."""
-        deadline = time.monotonic() + timeout
+    def wait_for(self, predicate: Callable[[], Any], timeout: float, *, scaled: bool = True) -> bool:
+        """Poll `predicate` until it holds (True) or `timeout` seconds pass (False), times WAIT_SCALE
+        unless ``scaled`` is False (a wait that is a retry's period, not a bound on the graph)."""
+        deadline = time.monotonic() + timeout * (WAIT_SCALE if scaled else 1.0)
         while time.monotonic() < deadline:
             if predicate():
                 return True

@@ -30,19 +30,9 @@ ROOT = REPO
 DEMO = ROOT / 'bags' / 'demo'
 pytestmark = pytest.mark.ros
 
-_DOMAIN = 30 + os.getpid() % 150  # test-unique domain, distinct from other runs on the machine
 MOSAIC = 'srmosaic: registration and mosaic'  # diagnostic status names of the nodes
 SR = 'srmosaic: super-resolution'
 GEOREF = 'srmosaic: georeferencing'
-
-
-@pytest.fixture
-def ros_env(monkeypatch, request):
-    domain = _DOMAIN + (hash(request.node.name) % 7)
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
-    monkeypatch.setenv('ROS_DOMAIN_ID', str(domain))
-    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    return env
 
 
 def srmosaic(*args: str, env: dict[str, str]) -> subprocess.Popen:
@@ -550,9 +540,11 @@ def test_sr_node_refreshes_a_tile_when_more_frames_cover_it(ros_env):
     from srmosaic_ros.nodes.common import encode_registration
     from srmosaic_ros.live.sr import SRTilePlacement
 
+    # stamp_tolerance_s 0 (the gate off): the test's stamps advance 1 s a frame whatever its waits take
+    # on a loaded machine, which the gate would rightly call a clock off the receive times
     node = srmosaic('node', 'sr', '--ros-args', '-p', 'live.sr_period_s:=0.2', '-p', 'live.sr_worker:=thread',
                     '-p', 'sr_tiles.tile_size:=64', '-p', 'sr_tiles.max_frames:=12', '-p', 'sr.iterations:=5',
-                    env=ros_env)
+                    '-p', 'stamp_tolerance_s:=0.0', env=ros_env)
     with supervised(node=node) as sup:
         listener = sup.listener
         images, regs = sr_node_inputs(listener)
@@ -570,7 +562,7 @@ def test_sr_node_refreshes_a_tile_when_more_frames_cover_it(ros_env):
             images.publish(numpy_to_image(frame, 'rgb8', stamp_ns=stamp, frame_id='camera'))
             time.sleep(0.05)
             regs.publish(encode_registration(stamp, True, 100, 0.1, 0, plane_H_frame, np.eye(3), True, None))
-            listener.wait_for(lambda: False, 0.6)
+            time.sleep(0.6)
             # The node's pace, not the test's: on a loaded machine a round may end after more frames
             # came, and a tile first published from 7 would never see the 14 that refresh it.
             if k == 2:
@@ -707,7 +699,7 @@ def test_sr_node_removes_lens_distortion_like_the_mosaic_node(ros_env):
                 time.sleep(0.05)
                 regs.publish(encode_registration(stamp, True, 100, 0.1, 0, _translation(*shift), np.eye(3), True,
                                                  None))
-                listener.wait_for(lambda: False, 0.4)
+                time.sleep(0.4)
             assert listener.wait_for(lambda: len(listener.tiles) >= 2, 30), 'no tiles'
             maes = []
             for tile in listener.tiles:
@@ -764,8 +756,11 @@ def test_node_survives_bad_input(ros_env, tmp_path):
         from sensor_msgs.msg import CameraInfo
 
         infos = listener.publisher(CameraInfo, '/camera/camera_info')
-        assert listener.wait_for(lambda: infos.get_subscription_count() >= 1, 20)
-        infos.publish(CameraInfo(width=16, height=16, k=[20.0, 0.0, 7.5, 0.0, 20.0, 7.5, 0.0, 0.0, 1.0]))
+        # matched by the three nodes (mosaic, SR, georef), each of which reads it; and sent before each
+        # image, as a camera driver does, so that one late on a loaded machine is not the only one
+        assert listener.wait_for(lambda: infos.get_subscription_count() >= 3, 20)
+        info = CameraInfo(width=16, height=16, k=[20.0, 0.0, 7.5, 0.0, 20.0, 7.5, 0.0, 0.0, 1.0])
+        infos.publish(info)
         time.sleep(0.3)
         crop = Image(height=20, width=32, encoding='mono8', step=32, data=bytes(640))  # another aspect ratio
         crop.header.stamp.sec = 99
@@ -775,6 +770,8 @@ def test_node_survives_bad_input(ros_env, tmp_path):
         later.header.stamp.sec = 100
         earlier = Image(height=32, width=32, encoding='mono8', step=32, data=bytes(1024))
         earlier.header.stamp.sec = 95  # within stamp_tolerance_s of the stream's clock: older, not off the clock
+        infos.publish(info)
+        time.sleep(0.3)
         images.publish(later)
         time.sleep(0.2)
         images.publish(earlier)
@@ -836,7 +833,8 @@ def test_one_future_stamp_costs_one_message_offline_and_live(ros_env, tmp_path):
     with supervised(graph=graph) as sup:
         listener = sup.listener
         assert listener.wait_for(lambda: listener.diagnostics, 30), 'no diagnostics'
-        play_into(listener, bag, 59, delay_s=5, env=ros_env, rate=4.0)  # reliable, a queue for all: none lost
+        # reliable, a queue for all: none lost; at twice the flight's pace, which a loaded 2-core machine keeps
+        play_into(listener, bag, 59, delay_s=5, env=ros_env, rate=2.0)
         assert listener.diag_value('rejected: image stamp off the clock') == '1'
         assert listener.diag_value('rejected: fix stamp off the clock') == '1'
         warned = [st for msg in list(listener.diagnostics) for st in msg.status

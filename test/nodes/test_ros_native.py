@@ -28,15 +28,6 @@ ROOT = REPO
 DEMO = ROOT / 'bags' / 'demo'
 LAUNCH = ROOT / 'launch' / 'srmosaic.launch.xml'
 MOSAIC = 'srmosaic: registration and mosaic'
-_DOMAIN = 190 + os.getpid() % 20
-
-
-@pytest.fixture
-def ros_env(monkeypatch, request):
-    domain = _DOMAIN + (hash(request.node.name) % 20)
-    monkeypatch.setenv('ROS_DOMAIN_ID', str(domain))
-    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    return dict(os.environ)
 
 
 def test_console_scripts_are_the_node_executables():
@@ -261,7 +252,7 @@ def _query(listener: Listener, client, request, tries: int = 3, timeout: float =
     response (timeout)"), which the first request right after discovery can meet."""
     for _ in range(tries - 1):
         future = client.call_async(request)
-        if listener.wait_for(future.done, timeout):
+        if listener.wait_for(future.done, timeout, scaled=False):
             return future.result()
         client.remove_pending_request(future)
     return _call(listener, client.call_async(request), timeout)

@@ -11,6 +11,7 @@ import textwrap
 import pytest
 
 from repo_paths import REPO
+from ros_graph import ros_domain_id
 
 pytestmark = pytest.mark.ros
 
@@ -45,7 +46,7 @@ NODE = textwrap.dedent('''
 def _run(signals: int, tmp_path) -> subprocess.CompletedProcess:
     script = tmp_path / 'stopper.py'
     script.write_text(NODE)
-    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', ROS_DOMAIN_ID=str(200 + os.getpid() % 30),
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', ROS_DOMAIN_ID=str(ros_domain_id()),
                PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get('PYTHONPATH', '')]))
     return subprocess.run([sys.executable, str(script), str(signals)], capture_output=True, text=True, timeout=60,
                           env=env, cwd=REPO)

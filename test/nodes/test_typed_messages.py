@@ -22,7 +22,6 @@ from repo_paths import REPO
 
 ROOT = REPO
 DEMO = ROOT / 'bags' / 'demo'
-_DOMAIN = 160 + os.getpid() % 20
 
 
 @pytest.fixture(scope='module')
@@ -46,13 +45,6 @@ def interfaces_env(tmp_path_factory) -> dict[str, str]:
     assert (site / 'srmosaic_interfaces' / 'msg' / '__init__.py').is_file()
     return {'PYTHONPATH': os.pathsep.join([str(site), *filter(None, [os.environ.get('PYTHONPATH')])]),
             'LD_LIBRARY_PATH': os.pathsep.join([str(prefix / 'lib'), *filter(None, [os.environ.get('LD_LIBRARY_PATH')])])}
-
-
-@pytest.fixture
-def ros_env(monkeypatch, request):
-    monkeypatch.setenv('ROS_DOMAIN_ID', str(_DOMAIN + hash(request.node.name) % 20))
-    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    return dict(os.environ)
 
 
 ROUND_TRIP = textwrap.dedent("""
