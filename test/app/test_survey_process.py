@@ -39,41 +39,56 @@ def drone_survey(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return root
 
 
+@pytest.fixture(scope='module')
+def default_run(drone_survey: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
+    """The simulated survey processed once with the defaults: (output folder, report). Shared by the
+    tests that check it or compare against it; they only read it."""
+    out = tmp_path_factory.mktemp('default_run')
+    return out, process_input(drone_survey / 'survey', out, pipeline_config(), progress=False)
+
+
+@pytest.fixture(scope='module')
+def caliterra_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
+    """The bundled caliterra stills processed once with the defaults: (output folder, report)."""
+    out = tmp_path_factory.mktemp('caliterra_run')
+    return out, process_input(CALITERRA, out, pipeline_config(), progress=False)
+
+
 def _placed_by(frames_csv: Path) -> list[str]:
     with open(frames_csv, newline='') as handle:
         return [r['placed_by'] for r in csv.DictReader(handle)]
 
 
-def test_a_survey_is_aligned_globally_and_placed_within_its_gps_error(drone_survey: Path, tmp_path: Path) -> None:
-    report = process_input(drone_survey / 'survey', tmp_path, pipeline_config(), progress=False)
+def test_a_survey_is_aligned_globally_and_placed_within_its_gps_error(drone_survey: Path, default_run) -> None:
+    out, report = default_run
     survey = report['survey']
     assert report['georeferenced']['method'] == 'global alignment'
     assert report['frames_registered'] == 20 and len(report['segments']) == 1
-    assert _placed_by(tmp_path / 'frames.csv') == ['registration'] * 20
+    assert _placed_by(out / 'frames.csv') == ['registration'] * 20
     # pairs beyond the consecutive ones: the two legs overlap
     assert survey['pairs_by_footprint_tried'] > 0 and survey['pairs_registered'] > 19
     assert survey['solver_converged']
     # the height above ground from GPS baselines over registered displacements (truth: 100 m)
     assert survey['height_above_ground_m'] == pytest.approx(100.0, rel=0.05)
-    figures = evaluate_dir(tmp_path, drone_survey / 'truth.json')
+    figures = evaluate_dir(out, drone_survey / 'truth.json')
     # measured: 1.36 m RMS on the ground (GNSS sigma 2.5 m, gimbal angles 0.5 deg; the filter: 1.30 m),
     # 0.17 px mean corner error of the mosaic
     assert figures['georef_error_rms_m'] < 2.0, figures
     assert figures['corner_error_mean_px'] < 1.5, figures
     for name in ('mosaic.png', 'mosaic.tif', 'mosaic.kml', 'preview.png', 'report.json'):
-        assert (tmp_path / name).is_file()
-    assert not (tmp_path / 'poses.csv').exists()
+        assert (out / name).is_file()
+    assert not (out / 'poses.csv').exists()
     json.dumps(report, allow_nan=False)
 
 
-def test_a_bounded_feature_cache_gives_the_same_survey(drone_survey: Path, tmp_path: Path) -> None:
+def test_a_bounded_feature_cache_gives_the_same_survey(drone_survey: Path, default_run, tmp_path: Path) -> None:
     """Two described stills kept instead of 48: stills are described again, the result is the same."""
     base = pipeline_config()
     small = dataclasses.replace(base, survey=dataclasses.replace(base.survey, feature_cache_frames=2))
-    a = process_input(drone_survey / 'survey', tmp_path / 'a', base, progress=False)
+    a_dir, a = default_run
     b = process_input(drone_survey / 'survey', tmp_path / 'b', small, progress=False)
     assert b['survey']['frames_described'] > a['survey']['frames_described'] == 20
-    ha = [r['mosaic_H_frame'] for r in read_frames_csv(tmp_path / 'a' / 'frames.csv')]
+    ha = [r['mosaic_H_frame'] for r in read_frames_csv(a_dir / 'frames.csv')]
     hb = [r['mosaic_H_frame'] for r in read_frames_csv(tmp_path / 'b' / 'frames.csv')]
     assert np.allclose(ha, hb, atol=1e-6)
 
@@ -138,13 +153,13 @@ def test_a_hover_is_aligned_but_not_georeferenced(tmp_path: Path) -> None:
     assert 'less than 10 m' in report['not_georeferenced_reason'], report['not_georeferenced_reason']
 
 
-def test_real_stills_in_one_mosaic_that_agrees_with_them(tmp_path: Path) -> None:
+def test_real_stills_in_one_mosaic_that_agrees_with_them(caliterra_run) -> None:
     """The 14 real caliterra stills (positions from telemetry_from_exif.csv, no focal length): one
     georeferenced mosaic, every still in it, each agreeing with the composite."""
-    report = process_input(CALITERRA, tmp_path, pipeline_config(), progress=False)
+    out, report = caliterra_run
     assert report['georeferenced']['method'] == 'global alignment'
     assert report['frames_registered'] == 14
-    fig = evaluate_real(tmp_path, progress=False)
+    fig = evaluate_real(out, progress=False)
     # measured: NCC median 0.95, p10 0.92; the chained pipeline on the same stills: 0.99 (it
     # upsamples them into a coarser mosaic, which hides misalignment)
     assert fig['ncc_median'] > 0.9 and fig['ncc_p10'] > 0.85, fig
@@ -182,14 +197,14 @@ def test_without_gps_the_chain_predicts_the_pairs_that_join_the_lines(drone_surv
     assert figures['corner_error_mean_px'] < 1.0, figures  # measured 0.13 px mean, 0.42 max (80 pairs predicted)
 
 
-def test_a_run_into_an_earlier_runs_folder_leaves_one_runs_files(tmp_path: Path) -> None:
+def test_a_run_into_an_earlier_runs_folder_leaves_one_runs_files(caliterra_run, tmp_path: Path) -> None:
     """A georeferenced run, then one without georeferencing into the same --out: the earlier
     mosaic.tif and mosaic.kml (which would place the new mosaic.png wrongly) are removed, and the
     report says so; the files of the new run stay."""
     import os
     import time
 
-    process_input(CALITERRA, tmp_path, pipeline_config(), progress=False)
+    shutil.copytree(caliterra_run[0], tmp_path, dirs_exist_ok=True)  # the earlier run's folder
     assert (tmp_path / 'mosaic.tif').is_file() and (tmp_path / 'mosaic.kml').is_file()
     old = time.time() - 60  # as if that run had ended a minute ago
     for f in tmp_path.iterdir():
@@ -203,7 +218,7 @@ def test_a_run_into_an_earlier_runs_folder_leaves_one_runs_files(tmp_path: Path)
         assert (tmp_path / name).stat().st_mtime > old + 30
 
 
-def test_stills_exposed_differently_are_matched_before_painting(drone_survey: Path, tmp_path: Path) -> None:
+def test_stills_exposed_differently_are_matched_before_painting(drone_survey: Path, default_run, tmp_path: Path) -> None:
     """Four stills of one leg darkened to 70 % and one given a blue cast (auto exposure and white
     balance): painted with their exposure gains (survey.exposure, the default 'channels') their
     ground comes out as the untouched survey's; without ('none') it stays 30 % dark."""
@@ -218,15 +233,16 @@ def test_stills_exposed_differently_are_matched_before_painting(drone_survey: Pa
             pixels, xmp, exif = np.asarray(im.convert('RGB'), np.float32), im.info.get('xmp'), im.getexif()
         Image.fromarray(np.clip(pixels * np.array(factor, np.float32), 0, 255).round().astype(np.uint8)).save(
             stills[k], quality=95, exif=exif, xmp=xmp)
-    reference = process_input(drone_survey / 'survey', tmp_path / 'ref', pipeline_config(), progress=False)
+    reference = default_run[1]
     report = process_input(folder, tmp_path / 'on', pipeline_config(), progress=False)
     process_input(folder, tmp_path / 'off', pipeline_config({'survey.exposure': 'none'}), progress=False)
     assert reference['exposure']['mode'] == 'channels' and report['exposure']['gain_max'][0] > 1.3
 
     def means(run: str) -> np.ndarray:
         """(still, channel) mean of the mosaic over the middle half of each changed still's footprint."""
-        mosaic = cv2.imread(str(tmp_path / run / 'mosaic.png'), cv2.IMREAD_UNCHANGED)
-        rows = read_frames_csv(tmp_path / run / 'frames.csv')
+        folder = default_run[0] if run == 'ref' else tmp_path / run
+        mosaic = cv2.imread(str(folder / 'mosaic.png'), cv2.IMREAD_UNCHANGED)
+        rows = read_frames_csv(folder / 'frames.csv')
         out = []
         for k in changed:
             inside = np.zeros(mosaic.shape[:2], np.uint8)
