@@ -370,7 +370,7 @@ def _copy_as_cog(src: str, dst: str, *, block_px: int, compress: str, threads: i
 
 def write_geotiff(path: str | os.PathLike[str], image: np.ndarray, raster: GeoRaster | GeoGrid, *,
                   coverage: np.ndarray | None = None, tiled: bool | None = None, overviews: bool | None = None,
-                  compress: str = 'deflate') -> None:
+                  compress: str = 'deflate', cog: bool = True) -> None:
     """Write ``image`` on ``raster``'s grid as a GeoTIFF.
 
     Args:
@@ -383,6 +383,8 @@ def write_geotiff(path: str | os.PathLike[str], image: np.ndarray, raster: GeoRa
             alpha channel if the image has one.
         tiled, overviews: default True when a side exceeds ``TILED_ABOVE_PX`` (256 x 256 tiles).
         compress: GDAL compression (deflate, lzw, none).
+        cog: a Cloud Optimized GeoTIFF (write_geotiff_blocks); False for a file whose georeference
+            is updated in place later (GDAL refuses to edit a COG's directory without breaking it).
     """
     img = np.asarray(image)
     if img.ndim not in (2, 3):
@@ -392,7 +394,7 @@ def write_geotiff(path: str | os.PathLike[str], image: np.ndarray, raster: GeoRa
     big = max(height, width) > TILED_ABOVE_PX
     write_geotiff_blocks(path, [(0, img, coverage)], raster, height, width, block_px=_BLOCK_PX,
                          tiled=big if tiled is None else tiled, overviews=big if overviews is None else overviews,
-                         compress=compress)
+                         compress=compress, cog=cog)
 
 
 def _grey_alpha_as_rgba_vrt(src: Path, width: int, height: int) -> str:

@@ -79,6 +79,7 @@ class TileRecorderNode(Node):
     def _update_geotransforms(self, raster: LiveRaster, placed: dict[Path, tuple[str, int, int]]) -> None:
         """Put the GeoTIFFs written so far where the newest raster estimate says (metadata only)."""
         import rasterio
+        from rasterio._err import CPLE_BaseError  # GDAL's errors as rasterio raises them
         from rasterio.transform import Affine
 
         for path, (frame_id, width, height) in placed.items():
@@ -91,7 +92,7 @@ class TileRecorderNode(Node):
                         continue
                     ds.crs = f'EPSG:{raster.epsg}'
                     ds.transform = Affine.from_gdal(*gt)
-            except (OSError, rasterio.errors.RasterioError) as exc:
+            except (OSError, rasterio.errors.RasterioError, CPLE_BaseError) as exc:
                 self.warn('geotransform update', f'{path}: geotransform not updated: {exc}')
 
     def _on_tile(self, msg: Image) -> None:
@@ -112,7 +113,8 @@ class TileRecorderNode(Node):
                 raster = self._raster
             if raster is not None:
                 gt = raster.image_geotransform(msg.header.frame_id, int(msg.width), int(msg.height))
-                write_geotiff(stem.with_suffix('.tif'), image, GeoGrid(raster.epsg, gt, abs(gt[1])))
+                # a plain GeoTIFF: its geotransform is updated in place as the raster estimate moves
+                write_geotiff(stem.with_suffix('.tif'), image, GeoGrid(raster.epsg, gt, abs(gt[1])), cog=False)
                 with self._lock:
                     self._placed[stem.with_suffix('.tif')] = (msg.header.frame_id, int(msg.width), int(msg.height))
             else:
