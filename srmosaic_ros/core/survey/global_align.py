@@ -16,6 +16,9 @@ divided by their standard deviations:
   planar model lacks: lens distortion, relief);
 - positions: G_i(0, 0) (where the principal ray meets the ground) - the GPS position, sd from
   the receiver and the unknown tilt;
+- ground control (core/survey's GroundControl, io/gcp.py): for target X (east, north, metres)
+  seen at normalised point x of frame k, G_k(x) - X, with sd sqrt((s0 sd_pick)^2 + sd_survey^2)
+  (sd_pick: the pick's pixels over the focal length; s0 the frames' scale);
 - shape: (g0 + g4) and (g1 - g3) over s0 (a reflected similarity has both zero), and g6, g7
   (small tilts), and the scale sqrt|det| - s0 over s0: weak priors that keep a frame with few
   constraints from folding;
@@ -23,6 +26,14 @@ with Huber's loss on every residual, minimised by Levenberg-Marquardt on the rew
 normal equations (an analytic Jacobian; see _levenberg_marquardt for why not scipy's solvers). A wrong match that survived RANSAC leaves
 a pair whose residuals stand far out from the rest: pairs whose RMS residual exceeds
 ``reject_sigma`` (and three times the median pair's) are dropped and the solve repeated.
+
+Ground control without GPS: the survey is first solved on its root frame's plane (the root held),
+then a similarity fit to the control observations (the two-target hypothesis that most targets
+agree with, refitted on them) takes it to the ground, and the solve is repeated with the control
+and without the root held: the control fixes position, turn and scale, and bends out the drift
+that chained registrations accumulate. A control observation whose residual stands far out
+(``control_reject_sigma`` and three times the median's) is dropped, the worst first, one per
+solve: one wrong pick or one wrong target's coordinates cannot bend the survey.
 
 Initialisation: a spanning tree of the registration graph (most inliers first) chains each
 connected component, which a similarity fit to its GPS positions places on the ground; frames
@@ -39,8 +50,8 @@ import numpy as np
 import scipy.sparse as sp
 
 
-__all__ = ['PairConstraint', 'SurveyPriors', 'SurveySolution', 'check_pairs_against_positions', 'estimate_scale',
-           'pair_constraint', 'solve_survey']
+__all__ = ['GroundControl', 'PairConstraint', 'SurveyPriors', 'SurveySolution', 'check_pairs_against_positions',
+           'control_residuals', 'estimate_scale', 'pair_constraint', 'solve_survey']
 
 _FLIP = np.diag([1.0, -1.0, 1.0])
 
@@ -79,17 +90,49 @@ class SurveyPriors:
     scale_rel_sigma: float = 0.25
 
 
+@dataclass(frozen=True)
+class GroundControl:
+    """Observations of surveyed targets. frame (M,) int: the frame each is seen in; point_n (M, 2):
+    where, in that frame's normalised coordinates; ground_m (M, 2): the target's surveyed position,
+    metres east and north on the survey's plane; sigma_n (M,): sd of the pick, normalised units
+    (pixels over the focal length); target (M,): target names; use (M,) bool: the observations that
+    constrain the solve (the others, check points and contradicting picks, only get residuals);
+    sigma_ground_m: sd of the surveyed positions."""
+
+    frame: np.ndarray
+    point_n: np.ndarray
+    ground_m: np.ndarray
+    sigma_n: np.ndarray
+    target: tuple[str, ...]
+    use: np.ndarray
+    sigma_ground_m: float = 0.02
+
+
 @dataclass
 class SurveySolution:
     """ground_H_frame (N, 3, 3): normalised frame coordinates -> ground metres (NaN: not placed);
     placed_by (N,): 'registration', 'pose' or ''; pair_rms_sigma (P,): RMS residual of each pair
-    in its standard deviations; pair_used (P,) bool; figures: counts and residuals for the report."""
+    in its standard deviations; pair_used (P,) bool; figures: counts and residuals for the report;
+    control_used (M,) bool: the ground control observations the final solve kept (None: no control)."""
 
     ground_H_frame: np.ndarray
     placed_by: list[str]
     pair_rms_sigma: np.ndarray
     pair_used: np.ndarray
     figures: dict = field(default_factory=dict)
+    control_used: np.ndarray | None = None
+
+
+def control_residuals(ground_H_frame: np.ndarray, control: GroundControl) -> np.ndarray:
+    """(M, 2) G_k(x) - X of every control observation, metres east and north (NaN where frame k
+    is not placed)."""
+    out = np.full((len(control.frame), 2), np.nan)
+    for m, (k, x) in enumerate(zip(control.frame, control.point_n)):
+        G = ground_H_frame[int(k)]
+        if np.all(np.isfinite(G)):
+            q = G @ np.array([x[0], x[1], 1.0])
+            out[m] = q[:2] / q[2] - control.ground_m[m]
+    return out
 
 
 def _apply(h: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -358,7 +401,8 @@ class _Problem:
     """Residuals and their sparse Jacobian over the free frames (module docstring)."""
 
     def __init__(self, free: list[int], pairs: list[PairConstraint], use: np.ndarray, pri: SurveyPriors,
-                 scale: float, anchor: dict[int, np.ndarray]) -> None:
+                 scale: float, anchor: dict[int, np.ndarray], control: GroundControl | None = None,
+                 control_use: np.ndarray | None = None) -> None:
         self.col = {k: c for c, k in enumerate(free)}
         self.n = len(free)
         sel = [p for p, u in zip(pairs, use) if u and p.i in self.col and p.j in self.col]
@@ -382,6 +426,14 @@ class _Problem:
         self.scale = scale
         self.pri = pri
         self.anchor = [(self.col[k], _h8(H)) for k, H in anchor.items() if k in self.col]
+        ctl = [] if control is None or control_use is None else \
+            [m for m in range(len(control.frame)) if control_use[m] and int(control.frame[m]) in self.col]
+        self.ctl_index = np.array(ctl, dtype=int)
+        if ctl:
+            self.ctl_col = np.array([self.col[int(control.frame[m])] for m in ctl])
+            self.ctl_pts = control.point_n[ctl]
+            self.ctl_ground = control.ground_m[ctl]
+            self.ctl_w = 1.0 / np.hypot(scale * control.sigma_n[ctl], control.sigma_ground_m)
         shp = [(self.col[k], G, sd) for k, (G, sd) in pri.shape.items() if k in self.col]
         if shp:
             m = len(_SHAPE_POINTS)
@@ -445,9 +497,20 @@ class _Problem:
             e, nn, _ = _apply(hs, self.shape_pts)
             e0, n0, _ = _apply(hs, np.zeros_like(self.shape_pts))
             out += [(e - e0 - self.shape_target[:, 0]) * self.shape_w, (nn - n0 - self.shape_target[:, 1]) * self.shape_w]
+        if len(self.ctl_index):
+            e, nn, _ = _apply(h[self.ctl_col], self.ctl_pts)
+            out += [(e - self.ctl_ground[:, 0]) * self.ctl_w, (nn - self.ctl_ground[:, 1]) * self.ctl_w]
         for c, target in self.anchor:  # no positions anywhere: the root holds the gauge
             out.append((h[c] - target) * 1e3)
         return np.concatenate(out)
+
+    def control_sigmas(self, x: np.ndarray) -> np.ndarray:
+        """(C,) RMS over east and north of each control observation's residual, in its sd."""
+        if not len(self.ctl_index):
+            return np.zeros(0)
+        e, nn, _ = _apply(x.reshape(self.n, 8)[self.ctl_col], self.ctl_pts)
+        r = np.stack([e - self.ctl_ground[:, 0], nn - self.ctl_ground[:, 1]], axis=1) * self.ctl_w[:, None]
+        return np.sqrt(np.mean(r**2, axis=1))
 
     def jacobian(self, x: np.ndarray) -> sp.csr_matrix:
         h = x.reshape(self.n, 8)
@@ -502,6 +565,15 @@ class _Problem:
                     rows.append(r0 + block * q + np.arange(q))
                     cols.append(self.shape_col * 8 + k)
                     vals.append((j1[:, k] - j0[:, k]) * self.shape_w)
+            r0 += 2 * q
+        if len(self.ctl_index):
+            je, jn = _point_jac(h[self.ctl_col], self.ctl_pts)
+            q = len(self.ctl_index)
+            for block, jac in enumerate((je, jn)):
+                for k in range(8):
+                    rows.append(r0 + block * q + np.arange(q))
+                    cols.append(self.ctl_col * 8 + k)
+                    vals.append(jac[:, k] * self.ctl_w)
             r0 += 2 * q
         for c, _ in self.anchor:
             rows.append(r0 + np.arange(8))
@@ -567,8 +639,45 @@ def _levenberg_marquardt(prob: _Problem, x0: np.ndarray, huber: float, *, max_it
     return x, max_iterations, False
 
 
+def _control_similarity(G: np.ndarray, placed_by: list[str], control: GroundControl,
+                        use: np.ndarray) -> np.ndarray | None:
+    """(3, 3) ground_S_plane: the similarity (turn, scale, shift; no reflection) from a survey solved
+    on its own plane to the ground that most control targets agree with. Every two observations of
+    different targets propose one; the proposal with the most targets within a tenth of the
+    targets' spread (then the smallest error) is refitted by least squares on those. None with
+    fewer than two targets seen in placed frames."""
+    idx = [m for m in range(len(control.frame)) if use[m] and placed_by[int(control.frame[m])]]
+    if len({control.target[m] for m in idx}) < 2:
+        return None
+    sub = GroundControl(control.frame[idx], control.point_n[idx], control.ground_m[idx], control.sigma_n[idx],
+                        tuple(control.target[m] for m in idx), np.ones(len(idx), bool), control.sigma_ground_m)
+    p_xy = control_residuals(G, sub) + sub.ground_m  # where the plane puts each observation
+    p = p_xy[:, 0] + 1j * p_xy[:, 1]
+    X = sub.ground_m[:, 0] + 1j * sub.ground_m[:, 1]
+    spread = float(np.sqrt(np.mean(np.abs(X - X.mean()) ** 2)))
+    tol = max(0.1 * spread, 0.5)
+    names = np.array(sub.target)
+    best, best_key = None, None
+    for a in range(len(idx)):
+        for b in range(a + 1, len(idx)):
+            if names[a] == names[b] or abs(p[a] - p[b]) < 1e-9 or abs(X[a] - X[b]) < 1e-6:
+                continue
+            s_ab = (X[a] - X[b]) / (p[a] - p[b])
+            err = np.abs(s_ab * (p - p[a]) + X[a] - X)
+            inl = err <= tol
+            key = (len(set(names[inl])), -float(np.minimum(err, tol).sum()))
+            if best_key is None or key > best_key:
+                best, best_key = inl, key
+    if best is None:
+        return None
+    A = np.stack([p[best], np.ones(int(best.sum()))], axis=1)
+    (s_fit, t_fit), *_ = np.linalg.lstsq(A, X[best], rcond=None)
+    return np.array([[s_fit.real, -s_fit.imag, t_fit.real], [s_fit.imag, s_fit.real, t_fit.imag], [0.0, 0.0, 1.0]])
+
+
 def solve_survey(n: int, pairs: list[PairConstraint], priors: SurveyPriors, *, min_extent_m: float = 10.0,
-                 reject_sigma: float = 5.0, rounds: int = 4, huber_sigma: float = 2.0) -> SurveySolution:
+                 reject_sigma: float = 5.0, rounds: int = 4, huber_sigma: float = 2.0,
+                 control: GroundControl | None = None, control_reject_sigma: float = 5.0) -> SurveySolution:
     """Solve every frame's ground homography (module docstring).
 
     Args:
@@ -576,7 +685,9 @@ def solve_survey(n: int, pairs: list[PairConstraint], priors: SurveyPriors, *, m
         priors: positions, their sd, the nominal scale and the flight direction;
         min_extent_m: a component's GPS positions must spread this far (RMS) to fit its own similarity;
         reject_sigma: a pair whose RMS residual exceeds this many sd (and 3x the median pair's) is dropped;
-        rounds: solves at most (each after dropping pairs); huber_sigma: Huber's threshold, in sd.
+        rounds: solves at most (each after dropping pairs); huber_sigma: Huber's threshold, in sd;
+        control: ground control observations (None: none); control_reject_sigma: a control observation
+            whose residual exceeds this many sd (and 3x the median's) is dropped, the worst first.
     """
     use = np.ones(len(pairs), dtype=bool)
     pos = np.asarray(priors.position_m, dtype=np.float64)
@@ -605,35 +716,61 @@ def solve_survey(n: int, pairs: list[PairConstraint], priors: SurveyPriors, *, m
     G, placed_by = _initial(n, pairs, use, priors, min_extent_m)
     free = [k for k in range(n) if placed_by[k] == 'registration']
     rms = np.full(len(pairs), np.nan)
-    scale = float(np.median([_angle_scale(G[k])[1] for k in free])) if free else priors.scale_m
-    total_iterations, converged, dropped = 0, False, 0
-    for _ in range(max(rounds, 1)):
-        if not free:
-            break
-        anchor = {} if georeferenced else {free[0]: G[free[0]]}
-        prob = _Problem(free, pairs, use, priors, scale, anchor)
-        x0 = np.concatenate([_h8(G[k]) for k in free])
-        x, iterations, converged = _levenberg_marquardt(prob, x0, huber_sigma)
-        total_iterations += iterations
-        sol = x.reshape(-1, 8)
-        for c, k in enumerate(free):
-            G[k] = _H(sol[c])
-        pr = prob.pair_rms(x)
-        idx = [k for k, (p, u) in enumerate(zip(pairs, use)) if u and p.i in prob.col and p.j in prob.col]
-        rms[:] = np.nan
-        rms[idx] = pr
-        med = float(np.median(pr)) if len(pr) else 0.0
-        bad = [k for k, r in zip(idx, pr) if r > reject_sigma and r > 3.0 * med]
-        if not bad:
-            break
-        use[bad] = False
-        dropped += len(bad)
-        # a frame left in no pair keeps its place from the last solve, as placed by its pose
-        in_pair = {p.i for p, u in zip(pairs, use) if u} | {p.j for p, u in zip(pairs, use) if u}
-        for k in free:
-            if k not in in_pair:
-                placed_by[k] = 'pose'
-        free = [k for k in free if k in in_pair]
+    ctl_use = None if control is None else np.asarray(control.use, dtype=bool).copy()
+    ctl_rejected: list[int] = []
+    state = {'iterations': 0, 'converged': False, 'dropped': 0}
+
+    def run(held: bool, with_control: bool, max_rounds: int) -> None:
+        nonlocal free
+        scale = float(np.median([_angle_scale(G[k])[1] for k in free])) if free else priors.scale_m
+        for _ in range(max(max_rounds, 1)):
+            if not free:
+                break
+            anchor = {free[0]: G[free[0]].copy()} if held else {}
+            prob = _Problem(free, pairs, use, priors, scale, anchor, control if with_control else None, ctl_use)
+            x0 = np.concatenate([_h8(G[k]) for k in free])
+            x, iterations, state['converged'] = _levenberg_marquardt(prob, x0, huber_sigma)
+            state['iterations'] += iterations
+            sol = x.reshape(-1, 8)
+            for c, k in enumerate(free):
+                G[k] = _H(sol[c])
+            pr = prob.pair_rms(x)
+            idx = [k for k, (p, u) in enumerate(zip(pairs, use)) if u and p.i in prob.col and p.j in prob.col]
+            rms[:] = np.nan
+            rms[idx] = pr
+            med = float(np.median(pr)) if len(pr) else 0.0
+            bad = [k for k, r in zip(idx, pr) if r > reject_sigma and r > 3.0 * med]
+            cs = prob.control_sigmas(x)
+            worst = int(np.argmax(cs)) if len(cs) else -1
+            ctl_bad = worst >= 0 and cs[worst] > control_reject_sigma and cs[worst] > 3.0 * float(np.median(cs)) \
+                and len({control.target[m] for m in prob.ctl_index}) > 2
+            if ctl_bad:  # one per solve: the others may have been bent by it
+                m = int(prob.ctl_index[worst])
+                ctl_use[m] = False
+                ctl_rejected.append(m)
+            if not bad and not ctl_bad:
+                break
+            use[bad] = False
+            state['dropped'] += len(bad)
+            # a frame left in no pair keeps its place from the last solve, as placed by its pose
+            in_pair = {p.i for p, u in zip(pairs, use) if u} | {p.j for p, u in zip(pairs, use) if u}
+            for k in free:
+                if k not in in_pair:
+                    placed_by[k] = 'pose'
+            free = [k for k in free if k in in_pair]
+
+    by_control = False
+    if control is not None and not georeferenced:
+        run(True, False, rounds)  # on the root's plane, then to the ground by the control
+        S = _control_similarity(G, placed_by, control, ctl_use)
+        if S is not None:
+            for k in range(n):
+                if placed_by[k]:
+                    G[k] = S @ G[k]
+            by_control = True
+            run(False, True, rounds + int(ctl_use.sum()))
+    else:
+        run(not georeferenced, control is not None, rounds + (int(ctl_use.sum()) if control is not None else 0))
     solved = [k for k in range(n) if placed_by[k] == 'registration']
     if solved:  # frames placed by their pose take the solved survey's scale
         s_med = float(np.median([_angle_scale(G[k])[1] for k in solved]))
@@ -645,11 +782,14 @@ def solve_survey(n: int, pairs: list[PairConstraint], priors: SurveyPriors, *, m
     for k in range(n):
         if placed_by[k] and np.isfinite(pos[k]).all():
             gps_res.append(float(np.hypot(G[k][0, 2] / G[k][2, 2] - pos[k, 0], G[k][1, 2] / G[k][2, 2] - pos[k, 1])))
-    figures = {'pairs': len(pairs), 'pairs_used': int(use.sum()), 'pairs_against_gps': gross, 'pairs_dropped': dropped,
-               'positions_rejected': rejected_positions,
+    figures = {'pairs': len(pairs), 'pairs_used': int(use.sum()), 'pairs_against_gps': gross,
+               'pairs_dropped': state['dropped'], 'positions_rejected': rejected_positions,
                'frames_by_registration': placed_by.count('registration'), 'frames_by_pose': placed_by.count('pose'),
                'frames_not_placed': placed_by.count(''),
                'median_pair_rms_sigma': float(np.nanmedian(rms)) if np.isfinite(rms).any() else None,
                'position_residual_rms_m': float(np.sqrt(np.mean(np.square(gps_res)))) if gps_res else None,
-               'solver_iterations': total_iterations, 'solver_converged': converged}
-    return SurveySolution(G, placed_by, rms, use, figures)
+               'solver_iterations': state['iterations'], 'solver_converged': state['converged']}
+    if control is not None:
+        figures['control_placed_survey'] = by_control  # no GPS: the control alone put it on the ground
+        figures['control_rejected'] = ctl_rejected
+    return SurveySolution(G, placed_by, rms, use, figures, ctl_use)
