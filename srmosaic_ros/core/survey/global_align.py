@@ -27,13 +27,16 @@ normal equations (an analytic Jacobian; see _levenberg_marquardt for why not sci
 a pair whose residuals stand far out from the rest: pairs whose RMS residual exceeds
 ``reject_sigma`` (and three times the median pair's) are dropped and the solve repeated.
 
-Ground control without GPS: the survey is first solved on its root frame's plane (the root held),
-then a similarity fit to the control observations (the two-target hypothesis that most targets
-agree with, refitted on them) takes it to the ground, and the solve is repeated with the control
-and without the root held: the control fixes position, turn and scale, and bends out the drift
-that chained registrations accumulate. A control observation whose residual stands far out
-(``control_reject_sigma`` and three times the median's) is dropped, the worst first, one per
-solve: one wrong pick or one wrong target's coordinates cannot bend the survey.
+Ground control without GPS: each connected part of the survey is first solved on its root frame's
+plane (the root held), then a similarity fit to its control observations (the two-target
+hypothesis that most targets agree with, refitted on them) takes it to the ground, and the solve is
+repeated with the control and without the roots held: the control fixes position, turn and scale,
+and bends out the drift that chained registrations accumulate. The control's residuals are least
+squares, not Huber's (a robust loss gives up on the targets that a drifted survey misses by more
+than a few sd: they would pull with a bounded force and the drift would stay). A wrong pick or a
+wrong target is found instead by leaving each target out in turn (_left_out_outlier: where the
+others put it, against its surveyed position) and dropped, the worst first, one per solve.
+A part of the survey with fewer than two targets is not placed.
 
 Initialisation: a spanning tree of the registration graph (most inliers first) chains each
 connected component, which a similarity fit to its GPS positions places on the ground; frames
@@ -345,7 +348,7 @@ def _pair_angles(pairs: list[PairConstraint], used: np.ndarray, pos: np.ndarray,
 
 
 def _initial(n: int, pairs: list[PairConstraint], used: np.ndarray, pri: SurveyPriors,
-             min_extent_m: float) -> tuple[np.ndarray, list[str]]:
+             min_extent_m: float, *, every_component: bool = False) -> tuple[np.ndarray, list[str]]:
     """Initial ground_H_frame (N, 3, 3) and placed_by.
 
     With positions, every frame starts where its position says, at the survey's scale, turned
@@ -353,18 +356,21 @@ def _initial(n: int, pairs: list[PairConstraint], used: np.ndarray, pri: SurveyP
     the track): a start a few metres from the solution whatever wrong matches there are, where
     chaining along a spanning tree would carry a wrong match into every frame behind it. Frames
     in a pair are 'registration' (solved), the others 'pose' (kept). Without any position, the
-    largest component is chained along its spanning tree on its root frame's plane.
+    largest component (every component of two frames or more with ``every_component``: ground
+    control will place each) is chained along its spanning tree on its root frame's plane.
     """
     pos = np.asarray(pri.position_m, dtype=np.float64)
     G = np.full((n, 3, 3), np.nan)
     placed_by = [''] * n
     comps = _components(n, pairs, used)
     if not np.isfinite(pos).all(axis=1).any():
-        comp = comps[0] if comps and len(comps[0]) >= 2 else []
-        chain = _chain_component(comp, pairs, used) if comp else {}
-        for k in comp:
-            G[k] = _FLIP @ chain[k]
-            placed_by[k] = 'registration'
+        for comp in comps[:len(comps) if every_component else 1]:
+            if len(comp) < 2:
+                continue
+            chain = _chain_component(comp, pairs, used)
+            for k in comp:
+                G[k] = _FLIP @ chain[k]
+                placed_by[k] = 'registration'
         return G, placed_by
     scale = pri.scale_m
     sigma = np.asarray(pri.position_sigma_m, dtype=np.float64)
@@ -405,6 +411,7 @@ class _Problem:
                  control_use: np.ndarray | None = None) -> None:
         self.col = {k: c for c, k in enumerate(free)}
         self.n = len(free)
+        self.sel_pairs, self.sel_use = pairs, use
         sel = [p for p, u in zip(pairs, use) if u and p.i in self.col and p.j in self.col]
         self.pair_of_point = np.concatenate([np.full(len(p.points_j), k) for k, p in enumerate(sel)]) \
             if sel else np.zeros(0, int)
@@ -504,6 +511,11 @@ class _Problem:
             out.append((h[c] - target) * 1e3)
         return np.concatenate(out)
 
+    def control_rows(self) -> slice:
+        """The rows of the control residuals in residuals()."""
+        start = 2 * len(self.w) + 2 * len(self.gps) + 5 * self.n + 2 * len(self.shape_col)
+        return slice(start, start + 2 * len(self.ctl_index))
+
     def control_sigmas(self, x: np.ndarray) -> np.ndarray:
         """(C,) RMS over east and north of each control observation's residual, in its sd."""
         if not len(self.ctl_index):
@@ -593,13 +605,17 @@ class _Problem:
         return np.sqrt(sq / np.maximum(cnt, 1))
 
 
-def _huber_cost(r: np.ndarray, k: float) -> float:
+def _huber_cost(r: np.ndarray, k: float, plain: slice | None = None) -> float:
+    """Huber's cost of residuals r, with threshold k; rows ``plain``: squares (least squares)."""
     a = np.abs(r)
-    return float(np.sum(np.where(a <= k, 0.5 * a * a, k * a - 0.5 * k * k)))
+    c = np.where(a <= k, 0.5 * a * a, k * a - 0.5 * k * k)
+    if plain is not None:
+        c[plain] = 0.5 * a[plain] ** 2
+    return float(np.sum(c))
 
 
 def _levenberg_marquardt(prob: _Problem, x0: np.ndarray, huber: float, *, max_iterations: int = 100,
-                         rel_tol: float = 1e-9) -> tuple[np.ndarray, int, bool]:
+                         rel_tol: float = 1e-9, plain: slice | None = None) -> tuple[np.ndarray, int, bool]:
     """Minimise the Huber cost of prob's residuals: Levenberg-Marquardt on the iteratively
     reweighted normal equations (J^T W J + mu diag(J^T W J)) dx = -J^T W r, solved as a sparse
     system (SuperLU). Returns (x, iterations, converged).
@@ -611,12 +627,14 @@ def _levenberg_marquardt(prob: _Problem, x0: np.ndarray, huber: float, *, max_it
 
     x = x0.copy()
     r = prob.residuals(x)
-    cost = _huber_cost(r, huber)
+    cost = _huber_cost(r, huber, plain)
     mu = 1e-4
     for it in range(1, max_iterations + 1):
         J = prob.jacobian(x)
         a = np.abs(r)
         w = np.where(a <= huber, 1.0, huber / np.maximum(a, 1e-300))
+        if plain is not None:
+            w[plain] = 1.0
         JtW = J.T @ sp.diags(w)
         A = (JtW @ J).tocsc()
         g = JtW @ r
@@ -625,7 +643,7 @@ def _levenberg_marquardt(prob: _Problem, x0: np.ndarray, huber: float, *, max_it
             dx = spsolve(A + sp.diags(mu * d), -g)
             xn = x + dx
             rn = prob.residuals(xn)
-            cn = _huber_cost(rn, huber) if np.all(np.isfinite(rn)) else math.inf
+            cn = _huber_cost(rn, huber, plain) if np.all(np.isfinite(rn)) else math.inf
             if cn < cost:
                 break
             mu *= 10.0
@@ -675,9 +693,58 @@ def _control_similarity(G: np.ndarray, placed_by: list[str], control: GroundCont
     return np.array([[s_fit.real, -s_fit.imag, t_fit.real], [s_fit.imag, s_fit.real, t_fit.imag], [0.0, 0.0, 1.0]])
 
 
+def _left_out_outlier(prob: _Problem, x: np.ndarray, huber: float, control: GroundControl, use: np.ndarray,
+                      reject_sigma: float, left_out: dict[str, np.ndarray]) -> list[int]:
+    """The control observations to drop, found by leaving each target out in turn: [] when none.
+
+    With the control fitted by least squares a wrong point bends the survey to itself and its own
+    residual stays small; left out, the others and the registrations say where it is. Each target
+    used is left out once (the solve warm-started from x) and the ground points of its picks
+    compared with its surveyed position:
+    - one pick away from the target's other picks (three or more; by more than reject_sigma times
+      the pick's sd): that pick is wrong;
+    - the target's mean off by more than reject_sigma sd and three times the median of the others':
+      its coordinates (or all its picks) are wrong, all its picks go.
+    The most extreme of these goes, one per solve. ``left_out`` gets each target's mean residual
+    (metres, east and north)."""
+    ci = prob.ctl_index
+    names = sorted({control.target[m] for m in ci})
+    if len(names) < 4:
+        return []
+    scale = prob.scale
+    sd = np.hypot(scale * control.sigma_n, control.sigma_ground_m)  # (M,) metres
+    per: dict[str, tuple[np.ndarray, list[int], np.ndarray]] = {}
+    for t in names:
+        mine = [int(m) for m in ci if control.target[m] == t]
+        rest = use.copy()
+        rest[mine] = False
+        sub = _Problem([k for k in prob.col], prob.sel_pairs, prob.sel_use, prob.pri, scale, {}, control, rest)
+        xt, _, _ = _levenberg_marquardt(sub, x, huber, plain=sub.control_rows(), max_iterations=30)
+        h = xt.reshape(prob.n, 8)
+        cols = np.array([prob.col[int(control.frame[m])] for m in mine])
+        e, nn, _ = _apply(h[cols], control.point_n[mine])
+        r = np.stack([e, nn], axis=1) - control.ground_m[mine]
+        per[t] = (r.mean(axis=0), mine, r)
+        left_out[t] = r.mean(axis=0)
+    worst: tuple[float, list[int]] = (0.0, [])
+    for t, (mean, mine, r) in per.items():
+        if len(mine) >= 3:  # one pick against the target's others
+            dev = np.hypot(*(r - np.median(r, axis=0)).T) / sd[mine]
+            k = int(np.argmax(dev))
+            if dev[k] > reject_sigma and dev[k] > worst[0]:
+                worst = (float(dev[k]), [mine[k]])
+        err = float(np.hypot(*mean))
+        others = np.median([float(np.hypot(*per[o][0])) for o in per if o != t])
+        z = err / float(np.mean(sd[mine]))
+        if z > reject_sigma and err > 3.0 * others and z > worst[0]:
+            worst = (z, mine)
+    return worst[1]
+
+
 def solve_survey(n: int, pairs: list[PairConstraint], priors: SurveyPriors, *, min_extent_m: float = 10.0,
                  reject_sigma: float = 5.0, rounds: int = 4, huber_sigma: float = 2.0,
-                 control: GroundControl | None = None, control_reject_sigma: float = 5.0) -> SurveySolution:
+                 control: GroundControl | None = None, control_reject_sigma: float = 5.0,
+                 control_loss: str = 'squares') -> SurveySolution:
     """Solve every frame's ground homography (module docstring).
 
     Args:
@@ -686,8 +753,12 @@ def solve_survey(n: int, pairs: list[PairConstraint], priors: SurveyPriors, *, m
         min_extent_m: a component's GPS positions must spread this far (RMS) to fit its own similarity;
         reject_sigma: a pair whose RMS residual exceeds this many sd (and 3x the median pair's) is dropped;
         rounds: solves at most (each after dropping pairs); huber_sigma: Huber's threshold, in sd;
-        control: ground control observations (None: none); control_reject_sigma: a control observation
-            whose residual exceeds this many sd (and 3x the median's) is dropped, the worst first.
+        control: ground control observations (None: none); control_reject_sigma: a control pick or
+            target that the others place this many sd away (and three times further than the median
+            target) is dropped, the worst first (_left_out_outlier); control_loss: 'squares' (the
+            survey bends to the control: the drift between targets is solved out) or 'huber' (each
+            observation's residual in Huber's loss, dropped beyond control_reject_sigma: robust, but
+            the control can no longer bend a survey that has drifted by more than a few sd).
     """
     use = np.ones(len(pairs), dtype=bool)
     pos = np.asarray(priors.position_m, dtype=np.float64)
@@ -713,12 +784,13 @@ def solve_survey(n: int, pairs: list[PairConstraint], priors: SurveyPriors, *, m
             ok = check_pairs_against_positions(pairs, pos, sd, priors.scale_m)
         use &= ok
         gross = int((~use).sum())
-    G, placed_by = _initial(n, pairs, use, priors, min_extent_m)
+    by_control = control is not None and not georeferenced
+    G, placed_by = _initial(n, pairs, use, priors, min_extent_m, every_component=by_control)
     free = [k for k in range(n) if placed_by[k] == 'registration']
     rms = np.full(len(pairs), np.nan)
     ctl_use = None if control is None else np.asarray(control.use, dtype=bool).copy()
     ctl_rejected: list[int] = []
-    state = {'iterations': 0, 'converged': False, 'dropped': 0}
+    state: dict = {'iterations': 0, 'converged': False, 'dropped': 0, 'left_out': {}}
 
     def run(held: bool, with_control: bool, max_rounds: int) -> None:
         nonlocal free
@@ -726,10 +798,12 @@ def solve_survey(n: int, pairs: list[PairConstraint], priors: SurveyPriors, *, m
         for _ in range(max(max_rounds, 1)):
             if not free:
                 break
-            anchor = {free[0]: G[free[0]].copy()} if held else {}
+            # held: each component's first frame holds its gauge
+            anchor = {c[0]: G[c[0]].copy() for c in _components(n, pairs, use) if c[0] in free} if held else {}
             prob = _Problem(free, pairs, use, priors, scale, anchor, control if with_control else None, ctl_use)
             x0 = np.concatenate([_h8(G[k]) for k in free])
-            x, iterations, state['converged'] = _levenberg_marquardt(prob, x0, huber_sigma)
+            x, iterations, state['converged'] = _levenberg_marquardt(
+                prob, x0, huber_sigma, plain=prob.control_rows() if control_loss == 'squares' else None)
             state['iterations'] += iterations
             sol = x.reshape(-1, 8)
             for c, k in enumerate(free):
@@ -740,12 +814,23 @@ def solve_survey(n: int, pairs: list[PairConstraint], priors: SurveyPriors, *, m
             rms[idx] = pr
             med = float(np.median(pr)) if len(pr) else 0.0
             bad = [k for k, r in zip(idx, pr) if r > reject_sigma and r > 3.0 * med]
-            cs = prob.control_sigmas(x)
-            worst = int(np.argmax(cs)) if len(cs) else -1
-            ctl_bad = worst >= 0 and cs[worst] > control_reject_sigma and cs[worst] > 3.0 * float(np.median(cs)) \
-                and len({control.target[m] for m in prob.ctl_index}) > 2
-            if ctl_bad:  # one per solve: the others may have been bent by it
-                m = int(prob.ctl_index[worst])
+            if with_control and not georeferenced:
+                # nothing but the registrations holds a part of the survey to the rest: a pair whose
+                # loss would cut it off stays (the control bends it instead)
+                parts = len(_components(n, pairs, use))
+                bad = [k for k in bad if len(_components(n, pairs, use & (np.arange(len(use)) != k))) == parts]
+            wrong: list[int] = []
+            if with_control and control_loss == 'squares' and not bad:
+                wrong = _left_out_outlier(prob, x, huber_sigma, control, ctl_use, control_reject_sigma,
+                                          state['left_out'])
+            elif with_control:
+                cs = prob.control_sigmas(x)
+                worst = int(np.argmax(cs)) if len(cs) else -1
+                if worst >= 0 and cs[worst] > control_reject_sigma and cs[worst] > 3.0 * float(np.median(cs)) \
+                        and len({control.target[m] for m in prob.ctl_index}) > 2:
+                    wrong = [int(prob.ctl_index[worst])]
+            ctl_bad = bool(wrong)
+            for m in wrong:  # one pick or one target per solve: the others may have been bent by it
                 ctl_use[m] = False
                 ctl_rejected.append(m)
             if not bad and not ctl_bad:
@@ -759,16 +844,32 @@ def solve_survey(n: int, pairs: list[PairConstraint], priors: SurveyPriors, *, m
                     placed_by[k] = 'pose'
             free = [k for k in free if k in in_pair]
 
-    by_control = False
-    if control is not None and not georeferenced:
-        run(True, False, rounds)  # on the root's plane, then to the ground by the control
-        S = _control_similarity(G, placed_by, control, ctl_use)
-        if S is not None:
-            for k in range(n):
-                if placed_by[k]:
-                    G[k] = S @ G[k]
-            by_control = True
+    if by_control:
+        # each component on its root's plane, then to the ground by its own control; a component
+        # with fewer than two targets cannot be placed with the others
+        run(True, False, rounds)
+        placed_any = False
+        for comp in _components(n, pairs, use):
+            members = [k for k in comp if placed_by[k]]
+            if not members:
+                continue
+            in_comp = np.isin(control.frame, members)
+            S = _control_similarity(G, placed_by, control, ctl_use & in_comp)
+            if S is None:
+                for k in members:
+                    G[k], placed_by[k] = np.nan, ''
+                continue
+            placed_any = True
+            for k in members:
+                G[k] = S @ G[k]
+        by_control = placed_any
+        free = [k for k in range(n) if placed_by[k] == 'registration']
+        if by_control:
             run(False, True, rounds + int(ctl_use.sum()))
+        else:  # no component holds two targets: back to the largest, on its own plane
+            G, placed_by = _initial(n, pairs, use, priors, min_extent_m)
+            free = [k for k in range(n) if placed_by[k] == 'registration']
+            run(True, False, rounds)
     else:
         run(not georeferenced, control is not None, rounds + (int(ctl_use.sum()) if control is not None else 0))
     solved = [k for k in range(n) if placed_by[k] == 'registration']
@@ -791,5 +892,7 @@ def solve_survey(n: int, pairs: list[PairConstraint], priors: SurveyPriors, *, m
                'solver_iterations': state['iterations'], 'solver_converged': state['converged']}
     if control is not None:
         figures['control_placed_survey'] = by_control  # no GPS: the control alone put it on the ground
+        # each control target's residual when the solve leaves it out (metres east, north; the last test)
+        figures['control_left_out_m'] = {t: [round(float(v), 4) for v in r] for t, r in state['left_out'].items()}
         figures['control_rejected'] = ctl_rejected
     return SurveySolution(G, placed_by, rms, use, figures, ctl_use)
