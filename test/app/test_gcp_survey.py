@@ -137,3 +137,19 @@ def test_check_points_by_count_are_inside_the_control_and_spread() -> None:
     assert check_point_names('1', names, xy, usable) != ['t4']
     assert check_point_names('gcp, t2 ,t3'.replace('gcp,', ''), names, xy, usable) == ['t2', 't3']
     assert check_point_names(None, names, xy, usable) == [] and check_point_names('0', names, xy, usable) == []
+
+
+def test_the_command_line_refuses_ground_control_for_a_bag_in_one_line(tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    from repo_paths import REPO
+
+    (tmp_path / 'gcp_list.txt').write_text('EPSG:32611\n')
+    run = subprocess.run([sys.executable, '-m', 'srmosaic_ros.cli', 'process', str(REPO / 'bags' / 'demo'), '--out',
+                          str(tmp_path / 'out'), '--gcp', str(tmp_path / 'gcp_list.txt'), '--no-progress'],
+                         capture_output=True, text=True, timeout=300)
+    assert run.returncode != 0
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and 'ground control for a video or a bag is not supported yet' in lines[0], run.stderr
+    assert not (tmp_path / 'out').exists()
