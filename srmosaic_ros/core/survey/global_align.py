@@ -702,7 +702,7 @@ def _left_out_outlier(prob: _Problem, x: np.ndarray, huber: float, control: Grou
     used is left out once (the solve warm-started from x) and the ground points of its picks
     compared with its surveyed position:
     - one pick away from the target's other picks (three or more; by more than reject_sigma times
-      the pick's sd): that pick is wrong;
+      the pick's sd and three times the median such distance over all targets): that pick is wrong;
     - the target's mean off by more than reject_sigma sd and three times the median of the others':
       its coordinates (or all its picks) are wrong, all its picks go.
     The most extreme of these goes, one per solve. ``left_out`` gets each target's mean residual
@@ -727,12 +727,17 @@ def _left_out_outlier(prob: _Problem, x: np.ndarray, huber: float, control: Grou
         per[t] = (r.mean(axis=0), mine, r)
         left_out[t] = r.mean(axis=0)
     worst: tuple[float, list[int]] = (0.0, [])
-    for t, (mean, mine, r) in per.items():
-        if len(mine) >= 3:  # one pick against the target's others
-            dev = np.hypot(*(r - np.median(r, axis=0)).T) / sd[mine]
+    # how far a pick strays from its target's other picks when the target is left out, over all
+    # targets: what the registrations between its stills allow (drift, relief), not a wrong pick
+    spread = {t: np.hypot(*(r - np.median(r, axis=0)).T) for t, (_, mine, r) in per.items() if len(mine) >= 3}
+    usual = float(np.median(np.concatenate(list(spread.values())))) if spread else 0.0
+    for t, (mean, mine, _) in per.items():
+        if t in spread:  # one pick against the target's others
+            dev = spread[t]
             k = int(np.argmax(dev))
-            if dev[k] > reject_sigma and dev[k] > worst[0]:
-                worst = (float(dev[k]), [mine[k]])
+            z = float(dev[k] / sd[mine[k]])
+            if z > reject_sigma and dev[k] > 3.0 * max(usual, 1e-9) and z > worst[0]:
+                worst = (z, [mine[k]])
         err = float(np.hypot(*mean))
         others = np.median([float(np.hypot(*per[o][0])) for o in per if o != t])
         z = err / float(np.mean(sd[mine]))
