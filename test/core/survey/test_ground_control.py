@@ -148,3 +148,22 @@ def test_with_gps_the_control_adds_to_the_positions():
     assert _target_rms_m(sol, control, ground, names, check) < 3.0 * GSD
     plain = solve_survey(len(Gs), pairs, pri)
     assert _target_rms_m(plain, control, ground, names, check) > 1.0  # the GPS alone: metres off
+
+
+def test_two_parts_that_no_pair_joins_are_each_placed_by_their_own_targets():
+    """The strip with no registration between its halves (a line turn that failed): without GPS,
+    each half with two targets or more is placed on the ground by them; a half with fewer would
+    not be."""
+    rng = np.random.default_rng(3)
+    Gs = _strip()
+    half = len(Gs) // 2
+    pairs = [p for p in _drifting_pairs(Gs, rng) if (p.i < half) == (p.j < half)]
+    names, ground, obs = _targets(Gs, rng)
+    control = _control(names, ground, obs, check=set())
+    sol = solve_survey(len(Gs), pairs, _no_gps(len(Gs)), control=control)
+    assert sol.placed_by.count('registration') == len(Gs)
+    assert _target_rms_m(sol, control, ground, names, set(names)) < 2.0 * GSD
+    # every target the second half sees held out: it cannot be placed with the first
+    second = {names[t] for t, k, _ in obs if k >= half}
+    sol = solve_survey(len(Gs), pairs, _no_gps(len(Gs)), control=_control(names, ground, obs, check=second))
+    assert sol.placed_by[:half] == ['registration'] * half and set(sol.placed_by[half:]) == {''}
