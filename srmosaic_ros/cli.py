@@ -77,6 +77,10 @@ def _run_process(args: argparse.Namespace) -> int:
           f"({len(report['segments'])} segment(s)), {report['frames_per_s']} frames/s, "
           f"peak {report['peak_rss_mb']} MB -> {args.out}")
     if (gcp := report.get('gcp')) is not None:
+        for point in gcp['points']:
+            what = (f"{point['error_m']:.3f} m ({point['error_gsd']} GSD)" if point['error_m'] is not None
+                    else point.get('note', 'not measured'))
+            print(f"  {point['name']} ({point['role']}): {what}")
         for role in ('control', 'check'):
             if gcp[f'{role}_rms_m'] is not None:
                 print(f"ground control: {gcp[f'{role}_targets_measured']} {role} target(s) {gcp[f'{role}_rms_m']:.3f} m "

@@ -66,11 +66,19 @@ def _write_gcp(path: Path, root: Path, targets, *, moved: dict[str, tuple[float,
 def test_control_alone_puts_stills_without_gps_on_the_ground_and_check_points_measure_it(survey, tmp_path: Path) -> None:
     root, targets = survey
     assert len(targets) >= 7 and all(len(seen) >= 2 for _, _, seen in targets)
+    import subprocess
+    import sys
+
     _write_gcp(root / 'survey' / 'gcp_list.txt', root, targets)  # found in the folder
     try:
-        report = process_input(root / 'survey', tmp_path / 'out', pipeline_config(), progress=False, check_points='2')
+        run = subprocess.run([sys.executable, '-m', 'srmosaic_ros.cli', 'process', str(root / 'survey'), '--out',
+                              str(tmp_path / 'out'), '--check-points', '2', '--no-progress'],
+                             capture_output=True, text=True, timeout=600)
     finally:
         (root / 'survey' / 'gcp_list.txt').unlink()
+    assert run.returncode == 0, run.stderr
+    report = json.loads((tmp_path / 'out' / 'report.json').read_text())
+    assert 'ground control: 2 check target(s)' in run.stdout and '(check): ' in run.stdout, run.stdout
     assert report['georeferenced'] is not None and report['georeferenced']['epsg'] // 100 in (326, 327)
     assert 'not_georeferenced_reason' not in report
     assert (tmp_path / 'out' / 'mosaic.tif').is_file()
