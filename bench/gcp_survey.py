@@ -57,6 +57,8 @@ def main() -> int:
     ap.add_argument('--gcp', type=Path, default=None, help='default: the survey\'s gcp_list.txt')
     ap.add_argument('--check-points', default='3')
     ap.add_argument('--json', type=Path, default=None, help='also write the figures here')
+    ap.add_argument('--working-megapixels', type=float, default=None,
+                    help='survey.working_megapixels for the registrations (default: the parameter file\'s)')
     ap.add_argument('--cache', type=Path, default=None,
                     help='keep the registrations in this file and use them when it exists (the solve only)')
     args = ap.parse_args()
@@ -71,7 +73,8 @@ def main() -> int:
     from srmosaic_ros.io.image_folder import ImageFolderReader
 
     gcp_file = args.gcp or find_gcp_file(args.survey)
-    config = pipeline_config()
+    config = pipeline_config({} if args.working_megapixels is None else
+                             {'survey.working_megapixels': args.working_megapixels})
     reader = ImageFolderReader(args.survey)
     stills, epsg, origin = survey_stills(reader)
     full = SurveyControl.load(gcp_file, stills, epsg, origin, None)

@@ -28,13 +28,16 @@ from ..io.gcp import GcpList, read_gcp_list
 if TYPE_CHECKING:
     from .survey import SurveyStill
 
-__all__ = ['GCP_PICK_SIGMA_PX', 'GCP_SURVEY_SIGMA_M', 'SurveyControl', 'check_point_names']
+__all__ = ['GCP_PICK_SIGMA_PX', 'GCP_REJECT_SIGMA', 'GCP_SURVEY_SIGMA_M', 'SurveyControl', 'check_point_names']
 
 _LOG = logging.getLogger(__name__)
 #: sd of a target's pick in a still (pixels of the still as stored).
 GCP_PICK_SIGMA_PX = 2.0
 #: sd of a target's surveyed position (metres, horizontal).
 GCP_SURVEY_SIGMA_M = 0.02
+#: A control pick or target this many sd from where the others put it is dropped (solve_survey's
+#: control_reject_sigma).
+GCP_REJECT_SIGMA = 5.0
 
 
 def check_point_names(spec: str | None, names: list[str], ground_m: np.ndarray, usable: list[bool]) -> list[str]:
@@ -201,6 +204,16 @@ class SurveyControl:
             out[f'{role}_rms_m'] = None if rms is None else round(rms, 4)
             out[f'{role}_rms_gsd'] = None if rms is None else in_gsd(rms)
             out[f'{role}_targets_measured'] = len(e)
+        left_out = sol.figures.get('control_left_out_m') or {}
+        median_left_out = float(np.median([np.hypot(*v) for v in left_out.values()])) if left_out else None
+        out['left_out_median_m'] = None if median_left_out is None else round(median_left_out, 4)
+        sd_m = math.hypot(GCP_PICK_SIGMA_PX * gsd_m, GCP_SURVEY_SIGMA_M) if math.isfinite(gsd_m) else math.nan
+        out['wrong_point_test'] = (
+            'not run (fewer than four control targets)' if median_left_out is None
+            else f'no power: each target left out, the survey misses it by {median_left_out:.2f} m (median), more '
+                 f'than {GCP_REJECT_SIGMA:g} sd ({GCP_REJECT_SIGMA * sd_m:.2f} m): a wrong point cannot be told from '
+                 'the survey\'s own error; check the picks by eye'
+            if median_left_out > GCP_REJECT_SIGMA * sd_m else 'run')
         out['rejected'] = [{'name': obs[m].name, 'image': obs[m].image, 'line': obs[m].line,
                             'error_m': round(float(np.hypot(*res[m])), 3)} for m in sorted(rejected)]
         out['contradicting_picks'] = self._contradictions(res)
@@ -256,6 +269,8 @@ class SurveyControl:
             dist = ', '.join(f'{k} {v:.2f} m' for k, v in c['distance_m'].items())
             _LOG.warning('gcp: the pick at %s (%.0f, %.0f) is %s from the solve%s', c['image'], c['pixel'][0],
                          c['pixel'][1], dist, f': it is {agree}; remove the other line' if agree else '')
+        if out['wrong_point_test'].startswith('no power'):
+            _LOG.warning('gcp: %s.', out['wrong_point_test'])
         for role in ('control', 'check'):
             if out[f'{role}_rms_m'] is not None:
                 _LOG.info('gcp: %d %s target(s) %.3f m RMS (%s GSD)', out[f'{role}_targets_measured'], role,

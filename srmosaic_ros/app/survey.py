@@ -56,7 +56,7 @@ from ..core.mosaic.tile_store import TileLayout
 from ..core.registration import make_registrar
 from ..core.survey.global_align import (GroundControl, PairConstraint, SurveyPriors, attitude_ground_H,
                                        estimate_scale, pair_constraint, solve_survey)
-from .ground_control import SurveyControl
+from .ground_control import GCP_REJECT_SIGMA, SurveyControl
 from ..core.survey.pairs import predicted_pairs
 from ..core.survey.paint_plan import tiles_to_paint
 from ..errors import InputError
@@ -494,7 +494,8 @@ def process_survey(path: Path, out: Path, config: PipelineConfig, reader: ImageF
     scale, scale_source, has_gps, georef_note = reg.scale, reg.scale_source, reg.has_gps, reg.georef_note
     t_reg = reg.register_s
     t_solve = time.perf_counter()
-    sol = solve_survey(n, pairs, reg.priors, control=None if ground is None else ground.control)
+    sol = solve_survey(n, pairs, reg.priors, control=None if ground is None else ground.control,
+                       control_reject_sigma=GCP_REJECT_SIGMA)
     t_solve = time.perf_counter() - t_solve
     by_control = bool(sol.figures.get('control_placed_survey'))
     if by_control:

@@ -85,6 +85,7 @@ def test_control_alone_puts_stills_without_gps_on_the_ground_and_check_points_me
     gcp = report['gcp']
     assert gcp['placed_survey'] and len(gcp['check']) == 2 and len(gcp['control']) == len(targets) - 2
     assert gcp['rejected'] == [] and gcp['check_targets_measured'] == 2
+    assert gcp['wrong_point_test'] == 'run'  # the stills place each target left out within a few sd
     # the simulated stills register to a fraction of a pixel: the check points land within a GSD or two
     assert gcp['check_rms_gsd'] < 3.0, gcp
     assert gcp['check_rms_m'] == pytest.approx(gcp['check_rms_gsd'] * gcp['gsd_m_per_px'], abs=0.01 * gcp['gsd_m_per_px'])

@@ -705,8 +705,9 @@ def _left_out_outlier(prob: _Problem, x: np.ndarray, huber: float, control: Grou
       the pick's sd and three times the median such distance over all targets): that pick is wrong;
     - the target's mean off by more than reject_sigma sd and three times the median of the others':
       its coordinates (or all its picks) are wrong, all its picks go.
-    The most extreme of these goes, one per solve. ``left_out`` gets each target's mean residual
-    (metres, east and north)."""
+    The most extreme of these goes, one per solve; nothing goes where the median target left out is
+    itself more than reject_sigma sd off (the test cannot tell a wrong point from the survey's own
+    error there). ``left_out`` gets each target's mean residual (metres, east and north)."""
     ci = prob.ctl_index
     names = sorted({control.target[m] for m in ci})
     if len(names) < 4:
@@ -726,6 +727,12 @@ def _left_out_outlier(prob: _Problem, x: np.ndarray, huber: float, control: Grou
         r = np.stack([e, nn], axis=1) - control.ground_m[mine]
         per[t] = (r.mean(axis=0), mine, r)
         left_out[t] = r.mean(axis=0)
+    # The test has power only where the survey, each target left out, still puts the targets within
+    # a few sd of their surveyed positions; where it misses them all by far more (drift, relief),
+    # a wrong point cannot be told from the survey's own error, and nothing is dropped.
+    typical_sd = float(np.median(sd[ci]))
+    if float(np.median([np.hypot(*per[t][0]) for t in per])) > reject_sigma * typical_sd:
+        return []
     worst: tuple[float, list[int]] = (0.0, [])
     # how far a pick strays from its target's other picks when the target is left out, over all
     # targets: what the registrations between its stills allow (drift, relief), not a wrong pick
