@@ -835,7 +835,7 @@ def solve_survey(n: int, pairs: list[PairConstraint], priors: SurveyPriors, *, m
             if with_control and control_loss == 'squares' and not bad:
                 wrong = _left_out_outlier(prob, x, huber_sigma, control, ctl_use, control_reject_sigma,
                                           state['left_out'])
-            elif with_control:
+            elif with_control and control_loss == 'huber':
                 cs = prob.control_sigmas(x)
                 worst = int(np.argmax(cs)) if len(cs) else -1
                 if worst >= 0 and cs[worst] > control_reject_sigma and cs[worst] > 3.0 * float(np.median(cs)) \
