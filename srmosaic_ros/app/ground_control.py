@@ -184,9 +184,10 @@ class SurveyControl:
                 if role == 'check' or any(used[m] for m in counted):
                     errors[role].append(err)
             else:
-                entry.update(residual_m=None, error_m=None, error_gsd=None,
-                             note='no pick that the solve kept: ' + ('all rejected' if rows and all(m in rejected for m in rows)
-                                                                     else 'contradicting picks only'))
+                why = ('all rejected' if all(m in rejected for m in rows)
+                       else 'contradicting picks only' if all(obs[m].excluded for m in rows)
+                       else 'the stills that see it are not placed')
+                entry.update(residual_m=None, error_m=None, error_gsd=None, note=f'no pick that the solve kept: {why}')
             entry['observations'] = [self._observation(m, res, used, rejected, in_gsd) for m in rows]
             points.append(entry)
         out: dict[str, Any] = {
@@ -218,6 +219,15 @@ class SurveyControl:
                             'error_m': round(float(np.hypot(*res[m])), 3)} for m in sorted(rejected)]
         out['contradicting_picks'] = self._contradictions(res)
         out['warnings'] = list(self.gcp.warnings)
+        unplaced = [k for k, by in enumerate(sol.placed_by) if not by]
+        if out['placed_survey'] and unplaced:
+            seen = sorted({self.gcp.observations[m].image for m in range(len(obs)) if int(ctl.frame[m]) in unplaced})
+            out['warnings'].append(
+                f'{len(unplaced)} stills not placed: no registration joins them to the stills the control places, and '
+                'their part of the survey sees fewer than two control targets' +
+                (f' ({", ".join(seen)} see targets held out or contradicting)' if seen else '') +
+                '; hold out other targets as check points, or add targets there.')
+            _LOG.warning('gcp: %s', out['warnings'][-1])
         out['points'] = points
         self._log(out)
         return out

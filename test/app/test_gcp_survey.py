@@ -162,3 +162,29 @@ def test_the_command_line_refuses_ground_control_for_a_bag_in_one_line(tmp_path:
     lines = [line for line in run.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and 'ground control for a video or a bag is not supported yet' in lines[0], run.stderr
     assert not (tmp_path / 'out').exists()
+
+
+def test_the_report_names_the_stills_that_no_control_could_place(tmp_path: Path) -> None:
+    """Two stills, the second in no pair and seeing only a check point: the report says why it is
+    not placed and what to do."""
+    from types import SimpleNamespace
+
+    from srmosaic_ros.app.ground_control import SurveyControl
+    from srmosaic_ros.core.survey.global_align import SurveySolution
+
+    K = np.array([[100.0, 0, 49.5], [0, 100.0, 49.5], [0, 0, 1]])
+    stills = [SimpleNamespace(file=Path(f'IMG_{k}.jpg'), size=(100, 100), K=K) for k in range(2)]
+    (tmp_path / 'gcp.txt').write_text('EPSG:32611\n500000 4000000 0 10 10 IMG_0.jpg a\n'
+                                      '500010 4000000 0 90 10 IMG_0.jpg b\n500020 4000000 0 50 50 IMG_1.jpg c\n')
+    ground = SurveyControl.load(tmp_path / 'gcp.txt', stills, 0, (0.0, 0.0), 'c')
+    assert ground.epsg == 32611 and ground.check == ['c']
+    G = np.full((2, 3, 3), np.nan)
+    G[0] = np.array([[10.0, 0, ground.control.ground_m[:2, 0].mean()], [0, -10.0, ground.control.ground_m[0, 1] - 4.0],
+                     [0, 0, 1]])
+    sol = SurveySolution(G, ['registration', ''], np.zeros(0), np.zeros(0, bool), {'control_placed_survey': True},
+                         ground.control.use.copy())
+    report = ground.report(sol, 0.1)
+    assert report['warnings'][-1].startswith('1 stills not placed') and 'IMG_1.jpg' in report['warnings'][-1]
+    assert report['wrong_point_test'] == 'not run (fewer than four control targets)'
+    (point,) = [p for p in report['points'] if p['name'] == 'c']
+    assert point['role'] == 'check' and point['error_m'] is None and point['note'].endswith('are not placed')
