@@ -167,3 +167,19 @@ def test_two_parts_that_no_pair_joins_are_each_placed_by_their_own_targets():
     second = {names[t] for t, k, _ in obs if k >= half}
     sol = solve_survey(len(Gs), pairs, _no_gps(len(Gs)), control=_control(names, ground, obs, check=second))
     assert sol.placed_by[:half] == ['registration'] * half and set(sol.placed_by[half:]) == {''}
+
+
+def test_one_wrong_pick_of_a_target_is_caught_and_its_other_picks_kept():
+    rng = np.random.default_rng(6)
+    Gs = _strip()
+    pairs = _drifting_pairs(Gs, rng)
+    names, ground, obs = _targets(Gs, rng)
+    control = _control(names, ground, obs, check=set())
+    seen = [m for m, t in enumerate(control.target) if t == 't06']
+    assert len(seen) >= 3
+    point_n = control.point_n.copy()
+    point_n[seen[1]] += np.array([40.0, -25.0]) / F  # a pick 47 px off the target
+    control = GroundControl(control.frame, point_n, control.ground_m, control.sigma_n, control.target, control.use)
+    sol = solve_survey(len(Gs), pairs, _no_gps(len(Gs)), control=control)
+    assert sol.figures['control_rejected'] == [seen[1]]
+    assert _target_rms_m(sol, control, ground, names, set(names) - {'t06'}) < 2.0 * GSD
