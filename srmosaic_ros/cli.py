@@ -52,6 +52,12 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
     p.add_argument('--sr', action='store_true', help='also write super-resolved tiles of the mosaic to DIR/sr/')
     p.add_argument('--sr-factor', type=int, default=None,
                    help=f'SR factor ({", ".join(map(str, SR_FACTORS))}; default sr_tiles.factor, 2); implies --sr')
+    p.add_argument('--gcp', type=Path, default=None, metavar='FILE',
+                   help="stills: ground control points in OpenDroneMap's gcp_list.txt format (default: a gcp_list.txt "
+                   'inside or beside the folder)')
+    p.add_argument('--check-points', default=None, metavar='N|NAMES',
+                   help='stills with ground control: hold out N targets (spread over the survey) or the named ones '
+                   '(comma-separated) as check points; their residuals go to report.json gcp')
     p.add_argument('--no-progress', action='store_true', help='no progress bar')
     p.set_defaults(func=_run_process)
 
@@ -75,13 +81,23 @@ def _run_process(args: argparse.Namespace) -> int:
                            hfov_deg=args.hfov, telemetry_csv=args.telemetry, mosaic_video=args.mosaic_video,
                            checkpoint_every=args.checkpoint_every, resume=args.resume,
                            sr_factor=(args.sr_factor or config.sr_tiles.factor) if (args.sr or args.sr_factor) else None,
-                           progress=not args.no_progress, deinterlace=args.deinterlace)
+                           progress=not args.no_progress, deinterlace=args.deinterlace, gcp_file=args.gcp,
+                           check_points=args.check_points)
     print(f"{report['frames_registered']}/{report['frames_in']} frames in mosaic.png "
           f"({len(report['segments'])} segment(s)), {report['frames_per_s']} frames/s, "
           f"peak {report['peak_rss_mb']} MB -> {args.out}")
     if left_out := report.get('images_left_out'):
         print(f"{len(left_out)} image(s) left out, neither placed nor painted: {', '.join(sorted(left_out))} "
               "(report.json images_left_out says why)")
+    if (gcp := report.get('gcp')) is not None:
+        for point in gcp['points']:
+            what = (f"{point['error_m']:.3f} m ({point['error_gsd']} GSD)" if point['error_m'] is not None
+                    else point.get('note', 'not measured'))
+            print(f"  {point['name']} ({point['role']}): {what}")
+        for role in ('control', 'check'):
+            if gcp[f'{role}_rms_m'] is not None:
+                print(f"ground control: {gcp[f'{role}_targets_measured']} {role} target(s) {gcp[f'{role}_rms_m']:.3f} m "
+                      f"RMS ({gcp[f'{role}_rms_gsd']} GSD)")
     if (mount := report.get('mount_from_frames')) is not None:
         print(f"camera mount from the frames (no attitude measured): {-mount['elevation_deg']:g} deg below the horizon, "
               f"{mount['azimuth_deg']:g} deg from the direction of travel; the run started again with it "

@@ -302,9 +302,14 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
                   select: str = 'all', camera_yaml: Path | None = None, hfov_deg: float | None = None,
                   telemetry_csv: Path | None = None, mosaic_video: bool = False,
                   checkpoint_every: int = 0, resume: bool = False, sr_factor: int | None = None,
-                  progress: bool = True, overlap: bool = True, deinterlace: str = 'auto') -> dict[str, Any]:
+                  progress: bool = True, overlap: bool = True, deinterlace: str = 'auto',
+                  gcp_file: Path | None = None, check_points: str | None = None) -> dict[str, Any]:
     """Run the pipeline over a bag, a video or a folder of stills and write the outputs into ``out``;
     returns the report (also in report.json).
+
+    gcp_file: ground control points for a folder of stills (OpenDroneMap's gcp_list.txt; None: the
+    gcp_list.txt inside or beside the folder, if any); check_points: the targets held out of the
+    control, a count or names separated by commas (app/ground_control.py).
 
     The run is written into a staging folder inside ``out`` and moved in when it ends
     (OutputTransaction): ``out`` holds one run's outputs, never a mix, and a second process writing
@@ -326,13 +331,15 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
     items, reader, kind = open_source(path, topics=topics, select=select, camera_yaml=camera_yaml,
                                       hfov_deg=hfov_deg, telemetry_csv=telemetry_csv,
                                       stamp_tolerance_s=config.stamp_tolerance_s, deinterlace=deinterlace)
+    gcp_file = _ground_control_file(path, kind, gcp_file, check_points)
     check_output_dir(out)  # before the work, not after it
     with OutputTransaction(out) as transaction:
         try:
             report = _process(path, out, transaction.stage, config, items, reader, kind, t0, topics=topics,
                               select=select, camera_yaml=camera_yaml, hfov_deg=hfov_deg, telemetry_csv=telemetry_csv,
                               mosaic_video=mosaic_video, checkpoint_every=checkpoint_every, resume=resume,
-                              sr_factor=sr_factor, progress=progress, overlap=overlap, deinterlace=deinterlace)
+                              sr_factor=sr_factor, progress=progress, overlap=overlap, deinterlace=deinterlace,
+                              gcp_file=gcp_file, check_points=check_points)
         except OSError as exc:
             if exc.errno not in FULL_DISK_ERRNOS:
                 raise
@@ -347,18 +354,22 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
              kind: str, t0: float, *, topics: TopicConfig | None, select: str, camera_yaml: Path | None,
              hfov_deg: float | None, telemetry_csv: Path | None, mosaic_video: bool, checkpoint_every: int,
              resume: bool, sr_factor: int | None, progress: bool, overlap: bool,
-             deinterlace: str = 'auto') -> dict[str, Any]:
+             deinterlace: str = 'auto', gcp_file: Path | None = None, check_points: str | None = None) -> dict[str, Any]:
     """process_input's work: outputs into ``stage``, checkpoints into ``out``."""
     summary = getattr(reader, 'summary', None)
     if kind == 'images':
         from .survey import use_global_alignment
 
-        if use_global_alignment(reader, config):
+        if use_global_alignment(reader, config, ground_control=gcp_file is not None):
             if resume or mosaic_video:
                 msg = ('--resume and --mosaic-video apply to the chained pipeline; a survey aligned globally runs in '
                        'one pass (no checkpoints). Drop them, or set survey.mode: chain.')
                 raise InputError(msg)
-            return _process_survey(path, stage, config, reader, t0, sr_factor=sr_factor, progress=progress)
+            return _process_survey(path, stage, config, reader, t0, sr_factor=sr_factor, progress=progress,
+                                   gcp_file=gcp_file, check_points=check_points)
+        if gcp_file is not None:
+            _LOG.warning('%s: ground control is used by the global alignment of stills, and survey.mode is chain: '
+                         'the points are not used (set survey.mode: auto or global to use them).', gcp_file)
     config = _with_ground_hint(config, summary)
     settings = {'select': select, 'topics': repr(topics), 'config': repr(config), 'mosaic_video': mosaic_video,
                 'camera': str(camera_yaml), 'hfov': hfov_deg, 'telemetry': str(telemetry_csv)}
@@ -529,12 +540,40 @@ def _timed(items: Iterable[Any], clock: StageClock) -> Iterator[Any]:
         yield item
 
 
+def _ground_control_file(path: Path, kind: str, gcp_file: Path | None, check_points: str | None) -> Path | None:
+    """The GCP file a run uses: ``gcp_file``, else a folder of stills' own gcp_list.txt (io/gcp.py);
+    refuses what cannot be used, before any work."""
+    from ..io.gcp import find_gcp_file
+
+    if kind != 'images':
+        if gcp_file is not None or check_points:
+            msg = (f'{path}: --gcp and --check-points apply to a folder of stills (aligned globally); ground control '
+                   'for a video or a bag is not supported yet: drop them.')
+            raise InputError(msg)
+        return None
+    if gcp_file is not None:
+        if not Path(gcp_file).is_file():
+            msg = f'--gcp {gcp_file}: no such file; give the path of an OpenDroneMap gcp_list.txt.'
+            raise InputError(msg)
+        return Path(gcp_file)
+    found = find_gcp_file(path)
+    if found is None and check_points:
+        msg = (f'--check-points {check_points}: {path} has no gcp_list.txt inside or beside it; give the ground '
+               'control points with --gcp FILE.')
+        raise InputError(msg)
+    if found is not None:
+        _LOG.info('ground control points: %s', found)
+    return found
+
+
 def _process_survey(path: Path, out: Path, config: PipelineConfig, reader: Any, t0: float, *,
-                    sr_factor: int | None, progress: bool) -> dict[str, Any]:
+                    sr_factor: int | None, progress: bool, gcp_file: Path | None = None,
+                    check_points: str | None = None) -> dict[str, Any]:
     """A folder of stills aligned globally (survey.py), with the report and SR as process_input's."""
     from .survey import process_survey
 
-    report = process_survey(path, out, config, reader, progress=progress)
+    report = process_survey(path, out, config, reader, progress=progress, gcp_file=gcp_file,
+                            check_points=check_points)
     report = {'input': str(path), 'input_kind': 'images', 'skipped_messages': dict(reader.skipped), **report}
     report['images_left_out'] = dict(reader.left_out)
     report['metadata'] = reader.summary.to_dict()

@@ -13,7 +13,9 @@ wide baselines, textureless fields end a segment and segments are never joined. 
    pair whose predicted footprints overlap (core/survey/pairs.py).
 4. One solve (core/survey/global_align.py): every still's ground homography from all pairs and
    the GPS positions, wrong matches dropped; stills in no pair placed by their position and
-   heading (frames.csv ``placed_by`` 'pose').
+   heading (frames.csv ``placed_by`` 'pose'). Ground control points (an OpenDroneMap
+   gcp_list.txt, app/ground_control.py) add their picks as constraints: without GPS they alone
+   put the survey on the ground (report.json ``gcp``: control and check points' residuals).
 5. The mosaic: a north-up UTM raster at the stills' ground sampling distance; each still decoded
    again at the reduction that still resolves that GSD, painted by best view (max-weight masks,
    eq. 4.7) and blended across the seams (Table 2), the next still decoded meanwhile. Memory: the
@@ -54,8 +56,9 @@ from ..core.mosaic.exposure import exposure_gains
 from ..core.mosaic.scratch import release as release_scratch
 from ..core.mosaic.tile_store import TileLayout
 from ..core.registration import make_registrar
-from ..core.survey.global_align import (PairConstraint, SurveyPriors, attitude_ground_H, estimate_scale,
-                                       pair_constraint, solve_survey)
+from ..core.survey.global_align import (GroundControl, PairConstraint, SurveyPriors, attitude_ground_H,
+                                       estimate_scale, pair_constraint, solve_survey)
+from .ground_control import GCP_REJECT_SIGMA, SurveyControl
 from ..core.survey.pairs import predicted_pairs
 from ..core.survey.paint_plan import tiles_to_paint
 from ..errors import InputError
@@ -133,12 +136,14 @@ def _full_from_reduced(r: int) -> np.ndarray:
     return np.array([[r, 0.0, (r - 1) / 2.0], [0.0, r, (r - 1) / 2.0], [0.0, 0.0, 1.0]])
 
 
-def use_global_alignment(reader: ImageFolderReader, config: PipelineConfig) -> bool:
-    """Whether `process` aligns this folder globally (survey.mode, 'auto': >= 3 stills with GPS)."""
+def use_global_alignment(reader: ImageFolderReader, config: PipelineConfig, *, ground_control: bool = False) -> bool:
+    """Whether `process` aligns this folder globally (survey.mode, 'auto': >= 3 stills with GPS, or
+    ground control points)."""
     mode = config.survey.mode
     if mode != 'auto':
         return mode == 'global'
-    return sum(1 for m in reader.meta if m is not None and m.has_position) >= 3 or len(reader.telemetry) >= 3
+    return ground_control or sum(1 for m in reader.meta if m is not None and m.has_position) >= 3 \
+        or len(reader.telemetry) >= 3
 
 
 def survey_stills(reader: ImageFolderReader) -> tuple[list[SurveyStill], int, tuple[float, float]]:
@@ -309,13 +314,34 @@ def _working_K(still: SurveyStill, r: int) -> np.ndarray:
     return np.linalg.inv(_full_from_reduced(r)) @ still.K
 
 
-def process_survey(path: Path, out: Path, config: PipelineConfig, reader: ImageFolderReader, *,
-                   progress: bool = True) -> dict[str, Any]:
-    """Align, mosaic and write a folder of stills (module docstring); returns the report (the caller
-    adds timings and writes report.json)."""
-    t0 = time.perf_counter()
+@dataclass
+class RegisteredSurvey:
+    """A survey's registrations and what the metadata says, ready for the solve: pairs (normalised
+    coordinates) and priors; registrations: every pair tried (i, j) -> Registration; reduction:
+    each still's working JPEG reduction; more: the pairs by footprint tried; the rest for the report."""
+
+    pairs: list[PairConstraint]
+    priors: SurveyPriors
+    registrations: dict[tuple[int, int], Any]
+    reduction: list[int]
+    more: list[tuple[int, int]]
+    second_opinions: list[list[int | bool]]
+    described: int
+    unreadable: dict[int, str]
+    scale: float
+    scale_source: str
+    focal_known: bool
+    has_gps: bool
+    georef_note: str
+    register_s: float
+
+
+def register_survey(stills: list[SurveyStill], config: PipelineConfig, *, progress: bool = True,
+                    control: GroundControl | None = None, reader: ImageFolderReader | None = None) -> RegisteredSurvey:
+    """Register a survey's pairs (consecutive stills, then those whose footprints overlap) and set its
+    priors from the metadata (module docstring, steps 2-3). control: ground control; without GPS it
+    places the chained stills (every stretch of them that sees two targets) to predict the pairs."""
     scfg = config.survey
-    stills, epsg, origin = survey_stills(reader)
     n = len(stills)
     reduction = [reduction_for(s.size[0], s.size[1], scfg.working_megapixels) for s in stills]
     registrar = make_registrar(config.registration, config.device)
@@ -381,8 +407,10 @@ def process_survey(path: Path, out: Path, config: PipelineConfig, reader: ImageF
     centres = pos
     if not has_gps:
         # No positions: the chain of consecutive pairs predicts the footprints (on the first
-        # still's plane, in its height's units), so a line that comes back over old ground finds it.
-        chain = solve_survey(n, pairs, SurveyPriors(np.full((n, 2), np.nan), np.full(n, np.nan), 1.0))
+        # still's plane, in its height's units; with ground control, on the ground, each stretch of
+        # the chain that sees two targets), so a line that comes back over old ground finds it.
+        chain = solve_survey(n, pairs, SurveyPriors(np.full((n, 2), np.nan), np.full(n, np.nan), 1.0),
+                             control=control)
         G = chain.ground_H_frame
         centres = np.array([G[k][:2, 2] / G[k][2, 2] if chain.placed_by[k] else [np.nan, np.nan] for k in range(n)])
         wh = np.array([[s.size[0] / s.K[0, 0], s.size[1] / s.K[1, 1]] for s in stills]) * np.array(
@@ -416,10 +444,11 @@ def process_survey(path: Path, out: Path, config: PipelineConfig, reader: ImageF
     # the solve sees the consecutive pairs first, then the others in (j, i) order
     pairs = [found[(i, i + 1)] for i in range(n - 1) if (i, i + 1) in found] + [found[p] for p in more if p in found]
     t_reg = time.perf_counter() - t_reg
+    if n == 1:  # a still in no pair is judged (decoded) before it is placed
+        cache.get(0)
     cache.cache.clear()  # the features are spent: the canvas gets the memory
     trim_heap()
 
-    t_solve = time.perf_counter()
     # Where each still's principal ray meets the ground: below the camera within the tilt allowance,
     # or, with gimbal angles, offset along the optical axis by the height (to within their 1 deg).
     target = pos.copy()
@@ -448,14 +477,42 @@ def process_survey(path: Path, out: Path, config: PipelineConfig, reader: ImageF
         if np.isfinite(a).all() and np.isfinite(b).all() and np.hypot(*(b - a)) >= 1.0:
             track[k] = math.atan2(b[1] - a[1], b[0] - a[0])
     priors = SurveyPriors(target, sigma, scale, track, shape)
-    sol = solve_survey(n, pairs, priors)
+    return RegisteredSurvey(pairs, priors, registrations, reduction, more, second_opinions, cache.described,
+                            dict(cache.unreadable), scale, scale_source, focal_known, has_gps, georef_note, t_reg)
+
+
+def process_survey(path: Path, out: Path, config: PipelineConfig, reader: ImageFolderReader, *,
+                   progress: bool = True, gcp_file: Path | None = None,
+                   check_points: str | None = None) -> dict[str, Any]:
+    """Align, mosaic and write a folder of stills (module docstring); returns the report (the caller
+    adds timings and writes report.json). gcp_file: ground control points (OpenDroneMap's
+    gcp_list.txt; None: none); check_points: the targets held out of the control
+    (app/ground_control.py's check_point_names)."""
+    t0 = time.perf_counter()
+    scfg = config.survey
+    stills, epsg, origin = survey_stills(reader)
+    n = len(stills)
+    ground = None
+    if gcp_file is not None:  # read before the registrations: a malformed file fails in seconds
+        ground = SurveyControl.load(gcp_file, stills, epsg, origin, check_points)
+        epsg, origin = ground.epsg, ground.origin
+    reg = register_survey(stills, config, progress=progress, control=None if ground is None else ground.control,
+                          reader=reader)
+    pairs, registrations, reduction, more = reg.pairs, reg.registrations, reg.reduction, reg.more
+    scale, scale_source, has_gps, georef_note = reg.scale, reg.scale_source, reg.has_gps, reg.georef_note
+    t_reg = reg.register_s
+    t_solve = time.perf_counter()
+    sol = solve_survey(n, pairs, reg.priors, control=None if ground is None else ground.control,
+                       control_reject_sigma=GCP_REJECT_SIGMA)
     t_solve = time.perf_counter() - t_solve
+    by_control = bool(sol.figures.get('control_placed_survey'))
+    if by_control:
+        georef_note = ''
+    georeferenced = has_gps or by_control
 
     t_paint = time.perf_counter()
-    if n == 1:  # a still in no pair is judged (decoded) before it is placed
-        cache.get(0)
-    report, rows = _paint_and_write(out, config, stills, sol, epsg, origin, progress=progress, has_gps=has_gps,
-                                    left_out=set(cache.unreadable), reader=reader)
+    report, rows = _paint_and_write(out, config, stills, sol, epsg, origin, progress=progress,
+                                    georeferenced=georeferenced, left_out=set(reg.unreadable), reader=reader)
     t_paint = time.perf_counter() - t_paint
     pairs_of = collections.Counter()
     for p, u in zip(pairs, sol.pair_used):
@@ -468,22 +525,23 @@ def process_survey(path: Path, out: Path, config: PipelineConfig, reader: ImageF
     if georef_note:
         report['not_georeferenced_reason'] = f'{georef_note}; the survey is aligned on its first still\'s plane only.'
     report['survey'] = {
-        'method': 'global alignment' if has_gps else 'global alignment (no GPS: not georeferenced)',
+        'method': 'global alignment' + ('' if has_gps else ' on ground control (no GPS)' if by_control
+                                        else ' (no GPS: not georeferenced)'),
         'working_reduction': collections.Counter(reduction).most_common(1)[0][0],
         'working_megapixels': scfg.working_megapixels,
         'scale_m': scale, 'scale_source': scale_source,
-        'height_above_ground_m': scale if focal_known else None,
-        'position_sigma_m': float(np.median(sigma)),
+        'height_above_ground_m': scale if reg.focal_known else None,
+        'position_sigma_m': float(np.median(reg.priors.position_sigma_m)),
         'pairs_tried': len(registrations), 'pairs_registered': len(pairs),
         'pairs_consecutive_tried': n - 1, 'pairs_by_footprint_tried': len(more),
         # the OpenCV registrar's second opinion: pairs it registered (also those of the consecutive
         # pass of a survey without GPS), and the pairs by footprint it was asked about ([i, j, registered])
         'pairs_by_second_opinion': sum(reg.ok and reg.extras.get('fallback_opencv') == 1.0
                                        for reg in registrations.values()),
-        'pairs_second_opinion': second_opinions,
+        'pairs_second_opinion': reg.second_opinions,
         'registration_failures': dict(failures),
-        'frames_described': cache.described, 'feature_cache_frames': scfg.feature_cache_frames,
-        'unreadable': {stills[k].file.name: why for k, why in cache.unreadable.items()},
+        'frames_described': reg.described, 'feature_cache_frames': scfg.feature_cache_frames,
+        'unreadable': {stills[k].file.name: why for k, why in reg.unreadable.items()},
         'median_pairs_per_frame': float(np.median([pairs_of[k] for k in range(n)])) if n else 0.0,
         **sol.figures,
         'pairs_graph': [[[p.i, p.j], bool(u)] for p, u in zip(pairs, sol.pair_used)],  # frame indices, used
@@ -501,11 +559,15 @@ def process_survey(path: Path, out: Path, config: PipelineConfig, reader: ImageF
               'position residual %.2f m RMS', sum(r['ok'] for r in rows), n, sol.placed_by.count('registration'),
               sol.placed_by.count('pose'), int(sol.pair_used.sum()), len(pairs),
               sol.figures['position_residual_rms_m'] or math.nan)
+    if ground is not None:
+        gsd = report['georeferenced']['gsd_m_per_px'] if report.get('georeferenced') else math.nan
+        report['gcp'] = ground.report(sol, gsd)
     return report
 
 
 def _paint_and_write(out: Path, config: PipelineConfig, stills: list[SurveyStill], sol: Any, epsg: int,
-                     origin: tuple[float, float], *, progress: bool, has_gps: bool, left_out: set[int] | None = None,
+                     origin: tuple[float, float], *, progress: bool, georeferenced: bool,
+                     left_out: set[int] | None = None,
                      reader: ImageFolderReader | None = None) -> tuple[dict[str, Any], list]:
     """Paint the placed stills on a north-up raster and write mosaic.png/.tif/.kml, preview.png,
     frames.csv; returns (the report without the survey entry, the frames.csv rows). The stills of
@@ -604,13 +666,13 @@ def _paint_and_write(out: Path, config: PipelineConfig, stills: list[SurveyStill
         x0, y0, x1, y1 = canvas.bounds()
         mosaic_raster = raster.shifted(x0, y0)
         preview = StripPreview(y1 - y0, x1 - x0, canvas.channels, config.mosaic.preview_max_side_px)
-        tif = out / 'mosaic.tif' if has_gps else None
-        write_canvas(canvas, tif, out / 'mosaic.png', mosaic_raster if has_gps else None, preview,
+        tif = out / 'mosaic.tif' if georeferenced else None
+        write_canvas(canvas, tif, out / 'mosaic.png', mosaic_raster if georeferenced else None, preview,
                      threads=output_threads(), zlevel=MOSAIC_TIF_ZLEVEL)
         write_png(out / 'preview.png', preview.image())
         write_s = time.perf_counter() - t_write
         canvas_stats = canvas.tile_stats()
-    if has_gps:
+    if georeferenced:
         write_kml_for_raster(out / 'mosaic.kml', 'mosaic.png', mosaic_raster, x1 - x0, y1 - y0)
     shift = np.array([[1.0, 0, -x0], [0, 1.0, -y0], [0, 0, 1]])
     rows = []
@@ -623,12 +685,12 @@ def _paint_and_write(out: Path, config: PipelineConfig, stills: list[SurveyStill
     report: dict[str, Any] = {
         'frames_registered': int(sum(r['ok'] for r in rows)),
         'frames_painted_any_segment': int(sum(r['ok'] for r in rows)),
-        'segments': [{'index': 0, 'frames': len(canvas_H), 'file': 'mosaic.png', 'georeferenced': has_gps,
+        'segments': [{'index': 0, 'frames': len(canvas_H), 'file': 'mosaic.png', 'georeferenced': georeferenced,
                       'size_px': [int(x1 - x0), int(y1 - y0)], 'origin_px': [0, 0]}],
         'placed_by': dict(collections.Counter(r['placed_by'] for r in rows if r['placed_by'])),
         'refused_by_canvas': {stills[k].file.name: why for k, why in refused.items()},
         'georeferenced': ({'method': 'global alignment', 'epsg': mosaic_raster.epsg, 'gsd_m_per_px': mosaic_raster.gsd_m_per_px,
-                           'geotransform': list(mosaic_raster.geotransform)} if has_gps else None),
+                           'geotransform': list(mosaic_raster.geotransform)} if georeferenced else None),
         'canvas': canvas_stats,
         'exposure': {'mode': scfg.exposure, 'time_s': round(t_exposure, 3),
                      'gain_min': [round(float(v), 4) for v in gains.min(axis=0)],

@@ -17,7 +17,8 @@ class SurveyConfig:
 
     mode: 'global' aligns every frame at once (pairs by predicted footprint, one robust solve);
         'chain' runs the stills through the video pipeline (consecutive pairs, segments);
-        'auto': global when at least three stills carry a GPS position, else chain.
+        'auto': global when at least three stills carry a GPS position or ground control points are
+        given (a gcp_list.txt in or beside the folder, or process --gcp), else chain.
     working_megapixels: stills are decoded reduced (JPEG DCT scaling by 2, 4 or 8) to at most
         this size for registration.
     min_overlap: smallest predicted footprint overlap (0..1) of a candidate pair;

@@ -16,6 +16,9 @@ divided by their standard deviations:
   planar model lacks: lens distortion, relief);
 - positions: G_i(0, 0) (where the principal ray meets the ground) - the GPS position, sd from
   the receiver and the unknown tilt;
+- ground control (core/survey's GroundControl, io/gcp.py): for target X (east, north, metres)
+  seen at normalised point x of frame k, G_k(x) - X, with sd sqrt((s0 sd_pick)^2 + sd_survey^2)
+  (sd_pick: the pick's pixels over the focal length; s0 the frames' scale);
 - shape: (g0 + g4) and (g1 - g3) over s0 (a reflected similarity has both zero), and g6, g7
   (small tilts), and the scale sqrt|det| - s0 over s0: weak priors that keep a frame with few
   constraints from folding;
@@ -23,6 +26,17 @@ with Huber's loss on every residual, minimised by Levenberg-Marquardt on the rew
 normal equations (an analytic Jacobian; see _levenberg_marquardt for why not scipy's solvers). A wrong match that survived RANSAC leaves
 a pair whose residuals stand far out from the rest: pairs whose RMS residual exceeds
 ``reject_sigma`` (and three times the median pair's) are dropped and the solve repeated.
+
+Ground control without GPS: each connected part of the survey is first solved on its root frame's
+plane (the root held), then a similarity fit to its control observations (the two-target
+hypothesis that most targets agree with, refitted on them) takes it to the ground, and the solve is
+repeated with the control and without the roots held: the control fixes position, turn and scale,
+and bends out the drift that chained registrations accumulate. The control's residuals are least
+squares, not Huber's (a robust loss gives up on the targets that a drifted survey misses by more
+than a few sd: they would pull with a bounded force and the drift would stay). A wrong pick or a
+wrong target is found instead by leaving each target out in turn (_left_out_outlier: where the
+others put it, against its surveyed position) and dropped, the worst first, one per solve.
+A part of the survey with fewer than two targets is not placed.
 
 Initialisation: a spanning tree of the registration graph (most inliers first) chains each
 connected component, which a similarity fit to its GPS positions places on the ground; frames
@@ -39,8 +53,8 @@ import numpy as np
 import scipy.sparse as sp
 
 
-__all__ = ['PairConstraint', 'SurveyPriors', 'SurveySolution', 'check_pairs_against_positions', 'estimate_scale',
-           'pair_constraint', 'solve_survey']
+__all__ = ['GroundControl', 'PairConstraint', 'SurveyPriors', 'SurveySolution', 'check_pairs_against_positions',
+           'control_residuals', 'estimate_scale', 'pair_constraint', 'solve_survey']
 
 _FLIP = np.diag([1.0, -1.0, 1.0])
 
@@ -79,17 +93,49 @@ class SurveyPriors:
     scale_rel_sigma: float = 0.25
 
 
+@dataclass(frozen=True)
+class GroundControl:
+    """Observations of surveyed targets. frame (M,) int: the frame each is seen in; point_n (M, 2):
+    where, in that frame's normalised coordinates; ground_m (M, 2): the target's surveyed position,
+    metres east and north on the survey's plane; sigma_n (M,): sd of the pick, normalised units
+    (pixels over the focal length); target (M,): target names; use (M,) bool: the observations that
+    constrain the solve (the others, check points and contradicting picks, only get residuals);
+    sigma_ground_m: sd of the surveyed positions."""
+
+    frame: np.ndarray
+    point_n: np.ndarray
+    ground_m: np.ndarray
+    sigma_n: np.ndarray
+    target: tuple[str, ...]
+    use: np.ndarray
+    sigma_ground_m: float = 0.02
+
+
 @dataclass
 class SurveySolution:
     """ground_H_frame (N, 3, 3): normalised frame coordinates -> ground metres (NaN: not placed);
     placed_by (N,): 'registration', 'pose' or ''; pair_rms_sigma (P,): RMS residual of each pair
-    in its standard deviations; pair_used (P,) bool; figures: counts and residuals for the report."""
+    in its standard deviations; pair_used (P,) bool; figures: counts and residuals for the report;
+    control_used (M,) bool: the ground control observations the final solve kept (None: no control)."""
 
     ground_H_frame: np.ndarray
     placed_by: list[str]
     pair_rms_sigma: np.ndarray
     pair_used: np.ndarray
     figures: dict = field(default_factory=dict)
+    control_used: np.ndarray | None = None
+
+
+def control_residuals(ground_H_frame: np.ndarray, control: GroundControl) -> np.ndarray:
+    """(M, 2) G_k(x) - X of every control observation, metres east and north (NaN where frame k
+    is not placed)."""
+    out = np.full((len(control.frame), 2), np.nan)
+    for m, (k, x) in enumerate(zip(control.frame, control.point_n)):
+        G = ground_H_frame[int(k)]
+        if np.all(np.isfinite(G)):
+            q = G @ np.array([x[0], x[1], 1.0])
+            out[m] = q[:2] / q[2] - control.ground_m[m]
+    return out
 
 
 def _apply(h: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -302,7 +348,7 @@ def _pair_angles(pairs: list[PairConstraint], used: np.ndarray, pos: np.ndarray,
 
 
 def _initial(n: int, pairs: list[PairConstraint], used: np.ndarray, pri: SurveyPriors,
-             min_extent_m: float) -> tuple[np.ndarray, list[str]]:
+             min_extent_m: float, *, every_component: bool = False) -> tuple[np.ndarray, list[str]]:
     """Initial ground_H_frame (N, 3, 3) and placed_by.
 
     With positions, every frame starts where its position says, at the survey's scale, turned
@@ -310,18 +356,21 @@ def _initial(n: int, pairs: list[PairConstraint], used: np.ndarray, pri: SurveyP
     the track): a start a few metres from the solution whatever wrong matches there are, where
     chaining along a spanning tree would carry a wrong match into every frame behind it. Frames
     in a pair are 'registration' (solved), the others 'pose' (kept). Without any position, the
-    largest component is chained along its spanning tree on its root frame's plane.
+    largest component (every component of two frames or more with ``every_component``: ground
+    control will place each) is chained along its spanning tree on its root frame's plane.
     """
     pos = np.asarray(pri.position_m, dtype=np.float64)
     G = np.full((n, 3, 3), np.nan)
     placed_by = [''] * n
     comps = _components(n, pairs, used)
     if not np.isfinite(pos).all(axis=1).any():
-        comp = comps[0] if comps and len(comps[0]) >= 2 else []
-        chain = _chain_component(comp, pairs, used) if comp else {}
-        for k in comp:
-            G[k] = _FLIP @ chain[k]
-            placed_by[k] = 'registration'
+        for comp in comps[:len(comps) if every_component else 1]:
+            if len(comp) < 2:
+                continue
+            chain = _chain_component(comp, pairs, used)
+            for k in comp:
+                G[k] = _FLIP @ chain[k]
+                placed_by[k] = 'registration'
         return G, placed_by
     scale = pri.scale_m
     sigma = np.asarray(pri.position_sigma_m, dtype=np.float64)
@@ -358,9 +407,11 @@ class _Problem:
     """Residuals and their sparse Jacobian over the free frames (module docstring)."""
 
     def __init__(self, free: list[int], pairs: list[PairConstraint], use: np.ndarray, pri: SurveyPriors,
-                 scale: float, anchor: dict[int, np.ndarray]) -> None:
+                 scale: float, anchor: dict[int, np.ndarray], control: GroundControl | None = None,
+                 control_use: np.ndarray | None = None) -> None:
         self.col = {k: c for c, k in enumerate(free)}
         self.n = len(free)
+        self.sel_pairs, self.sel_use = pairs, use
         sel = [p for p, u in zip(pairs, use) if u and p.i in self.col and p.j in self.col]
         self.pair_of_point = np.concatenate([np.full(len(p.points_j), k) for k, p in enumerate(sel)]) \
             if sel else np.zeros(0, int)
@@ -382,6 +433,14 @@ class _Problem:
         self.scale = scale
         self.pri = pri
         self.anchor = [(self.col[k], _h8(H)) for k, H in anchor.items() if k in self.col]
+        ctl = [] if control is None or control_use is None else \
+            [m for m in range(len(control.frame)) if control_use[m] and int(control.frame[m]) in self.col]
+        self.ctl_index = np.array(ctl, dtype=int)
+        if ctl:
+            self.ctl_col = np.array([self.col[int(control.frame[m])] for m in ctl])
+            self.ctl_pts = control.point_n[ctl]
+            self.ctl_ground = control.ground_m[ctl]
+            self.ctl_w = 1.0 / np.hypot(scale * control.sigma_n[ctl], control.sigma_ground_m)
         shp = [(self.col[k], G, sd) for k, (G, sd) in pri.shape.items() if k in self.col]
         if shp:
             m = len(_SHAPE_POINTS)
@@ -445,9 +504,25 @@ class _Problem:
             e, nn, _ = _apply(hs, self.shape_pts)
             e0, n0, _ = _apply(hs, np.zeros_like(self.shape_pts))
             out += [(e - e0 - self.shape_target[:, 0]) * self.shape_w, (nn - n0 - self.shape_target[:, 1]) * self.shape_w]
+        if len(self.ctl_index):
+            e, nn, _ = _apply(h[self.ctl_col], self.ctl_pts)
+            out += [(e - self.ctl_ground[:, 0]) * self.ctl_w, (nn - self.ctl_ground[:, 1]) * self.ctl_w]
         for c, target in self.anchor:  # no positions anywhere: the root holds the gauge
             out.append((h[c] - target) * 1e3)
         return np.concatenate(out)
+
+    def control_rows(self) -> slice:
+        """The rows of the control residuals in residuals()."""
+        start = 2 * len(self.w) + 2 * len(self.gps) + 5 * self.n + 2 * len(self.shape_col)
+        return slice(start, start + 2 * len(self.ctl_index))
+
+    def control_sigmas(self, x: np.ndarray) -> np.ndarray:
+        """(C,) RMS over east and north of each control observation's residual, in its sd."""
+        if not len(self.ctl_index):
+            return np.zeros(0)
+        e, nn, _ = _apply(x.reshape(self.n, 8)[self.ctl_col], self.ctl_pts)
+        r = np.stack([e - self.ctl_ground[:, 0], nn - self.ctl_ground[:, 1]], axis=1) * self.ctl_w[:, None]
+        return np.sqrt(np.mean(r**2, axis=1))
 
     def jacobian(self, x: np.ndarray) -> sp.csr_matrix:
         h = x.reshape(self.n, 8)
@@ -503,6 +578,15 @@ class _Problem:
                     cols.append(self.shape_col * 8 + k)
                     vals.append((j1[:, k] - j0[:, k]) * self.shape_w)
             r0 += 2 * q
+        if len(self.ctl_index):
+            je, jn = _point_jac(h[self.ctl_col], self.ctl_pts)
+            q = len(self.ctl_index)
+            for block, jac in enumerate((je, jn)):
+                for k in range(8):
+                    rows.append(r0 + block * q + np.arange(q))
+                    cols.append(self.ctl_col * 8 + k)
+                    vals.append(jac[:, k] * self.ctl_w)
+            r0 += 2 * q
         for c, _ in self.anchor:
             rows.append(r0 + np.arange(8))
             cols.append(c * 8 + np.arange(8))
@@ -521,13 +605,17 @@ class _Problem:
         return np.sqrt(sq / np.maximum(cnt, 1))
 
 
-def _huber_cost(r: np.ndarray, k: float) -> float:
+def _huber_cost(r: np.ndarray, k: float, plain: slice | None = None) -> float:
+    """Huber's cost of residuals r, with threshold k; rows ``plain``: squares (least squares)."""
     a = np.abs(r)
-    return float(np.sum(np.where(a <= k, 0.5 * a * a, k * a - 0.5 * k * k)))
+    c = np.where(a <= k, 0.5 * a * a, k * a - 0.5 * k * k)
+    if plain is not None:
+        c[plain] = 0.5 * a[plain] ** 2
+    return float(np.sum(c))
 
 
 def _levenberg_marquardt(prob: _Problem, x0: np.ndarray, huber: float, *, max_iterations: int = 100,
-                         rel_tol: float = 1e-9) -> tuple[np.ndarray, int, bool]:
+                         rel_tol: float = 1e-9, plain: slice | None = None) -> tuple[np.ndarray, int, bool]:
     """Minimise the Huber cost of prob's residuals: Levenberg-Marquardt on the iteratively
     reweighted normal equations (J^T W J + mu diag(J^T W J)) dx = -J^T W r, solved as a sparse
     system (SuperLU). Returns (x, iterations, converged).
@@ -539,12 +627,14 @@ def _levenberg_marquardt(prob: _Problem, x0: np.ndarray, huber: float, *, max_it
 
     x = x0.copy()
     r = prob.residuals(x)
-    cost = _huber_cost(r, huber)
+    cost = _huber_cost(r, huber, plain)
     mu = 1e-4
     for it in range(1, max_iterations + 1):
         J = prob.jacobian(x)
         a = np.abs(r)
         w = np.where(a <= huber, 1.0, huber / np.maximum(a, 1e-300))
+        if plain is not None:
+            w[plain] = 1.0
         JtW = J.T @ sp.diags(w)
         A = (JtW @ J).tocsc()
         g = JtW @ r
@@ -553,7 +643,7 @@ def _levenberg_marquardt(prob: _Problem, x0: np.ndarray, huber: float, *, max_it
             dx = spsolve(A + sp.diags(mu * d), -g)
             xn = x + dx
             rn = prob.residuals(xn)
-            cn = _huber_cost(rn, huber) if np.all(np.isfinite(rn)) else math.inf
+            cn = _huber_cost(rn, huber, plain) if np.all(np.isfinite(rn)) else math.inf
             if cn < cost:
                 break
             mu *= 10.0
@@ -567,8 +657,106 @@ def _levenberg_marquardt(prob: _Problem, x0: np.ndarray, huber: float, *, max_it
     return x, max_iterations, False
 
 
+def _control_similarity(G: np.ndarray, placed_by: list[str], control: GroundControl,
+                        use: np.ndarray) -> np.ndarray | None:
+    """(3, 3) ground_S_plane: the similarity (turn, scale, shift; no reflection) from a survey solved
+    on its own plane to the ground that most control targets agree with. Every two observations of
+    different targets propose one; the proposal with the most targets within a tenth of the
+    targets' spread (then the smallest error) is refitted by least squares on those. None with
+    fewer than two targets seen in placed frames."""
+    idx = [m for m in range(len(control.frame)) if use[m] and placed_by[int(control.frame[m])]]
+    if len({control.target[m] for m in idx}) < 2:
+        return None
+    sub = GroundControl(control.frame[idx], control.point_n[idx], control.ground_m[idx], control.sigma_n[idx],
+                        tuple(control.target[m] for m in idx), np.ones(len(idx), bool), control.sigma_ground_m)
+    p_xy = control_residuals(G, sub) + sub.ground_m  # where the plane puts each observation
+    p = p_xy[:, 0] + 1j * p_xy[:, 1]
+    X = sub.ground_m[:, 0] + 1j * sub.ground_m[:, 1]
+    spread = float(np.sqrt(np.mean(np.abs(X - X.mean()) ** 2)))
+    tol = max(0.1 * spread, 0.5)
+    names = np.array(sub.target)
+    best, best_key = None, None
+    for a in range(len(idx)):
+        for b in range(a + 1, len(idx)):
+            if names[a] == names[b] or abs(p[a] - p[b]) < 1e-9 or abs(X[a] - X[b]) < 1e-6:
+                continue
+            s_ab = (X[a] - X[b]) / (p[a] - p[b])
+            err = np.abs(s_ab * (p - p[a]) + X[a] - X)
+            inl = err <= tol
+            key = (len(set(names[inl])), -float(np.minimum(err, tol).sum()))
+            if best_key is None or key > best_key:
+                best, best_key = inl, key
+    if best is None:
+        return None
+    A = np.stack([p[best], np.ones(int(best.sum()))], axis=1)
+    (s_fit, t_fit), *_ = np.linalg.lstsq(A, X[best], rcond=None)
+    return np.array([[s_fit.real, -s_fit.imag, t_fit.real], [s_fit.imag, s_fit.real, t_fit.imag], [0.0, 0.0, 1.0]])
+
+
+def _left_out_outlier(prob: _Problem, x: np.ndarray, huber: float, control: GroundControl, use: np.ndarray,
+                      reject_sigma: float, left_out: dict[str, np.ndarray]) -> list[int]:
+    """The control observations to drop, found by leaving each target out in turn: [] when none.
+
+    With the control fitted by least squares a wrong point bends the survey to itself and its own
+    residual stays small; left out, the others and the registrations say where it is. Each target
+    used is left out once (the solve warm-started from x) and the ground points of its picks
+    compared with its surveyed position:
+    - one pick away from the target's other picks (three or more; by more than reject_sigma times
+      the pick's sd and three times the median such distance over all targets): that pick is wrong;
+    - the target's mean off by more than reject_sigma sd and three times the median of the others':
+      its coordinates (or all its picks) are wrong, all its picks go.
+    The most extreme of these goes, one per solve; nothing goes where the median target left out is
+    itself more than reject_sigma sd off (the test cannot tell a wrong point from the survey's own
+    error there). ``left_out`` gets each target's mean residual (metres, east and north)."""
+    ci = prob.ctl_index
+    names = sorted({control.target[m] for m in ci})
+    if len(names) < 4:
+        return []
+    scale = prob.scale
+    sd = np.hypot(scale * control.sigma_n, control.sigma_ground_m)  # (M,) metres
+    per: dict[str, tuple[np.ndarray, list[int], np.ndarray]] = {}
+    for t in names:
+        mine = [int(m) for m in ci if control.target[m] == t]
+        rest = use.copy()
+        rest[mine] = False
+        sub = _Problem([k for k in prob.col], prob.sel_pairs, prob.sel_use, prob.pri, scale, {}, control, rest)
+        xt, _, _ = _levenberg_marquardt(sub, x, huber, plain=sub.control_rows(), max_iterations=30)
+        h = xt.reshape(prob.n, 8)
+        cols = np.array([prob.col[int(control.frame[m])] for m in mine])
+        e, nn, _ = _apply(h[cols], control.point_n[mine])
+        r = np.stack([e, nn], axis=1) - control.ground_m[mine]
+        per[t] = (r.mean(axis=0), mine, r)
+        left_out[t] = r.mean(axis=0)
+    # The test has power only where the survey, each target left out, still puts the targets within
+    # a few sd of their surveyed positions; where it misses them all by far more (drift, relief),
+    # a wrong point cannot be told from the survey's own error, and nothing is dropped.
+    typical_sd = float(np.median(sd[ci]))
+    if float(np.median([np.hypot(*per[t][0]) for t in per])) > reject_sigma * typical_sd:
+        return []
+    worst: tuple[float, list[int]] = (0.0, [])
+    # how far a pick strays from its target's other picks when the target is left out, over all
+    # targets: what the registrations between its stills allow (drift, relief), not a wrong pick
+    spread = {t: np.hypot(*(r - np.median(r, axis=0)).T) for t, (_, mine, r) in per.items() if len(mine) >= 3}
+    usual = float(np.median(np.concatenate(list(spread.values())))) if spread else 0.0
+    for t, (mean, mine, _) in per.items():
+        if t in spread:  # one pick against the target's others
+            dev = spread[t]
+            k = int(np.argmax(dev))
+            z = float(dev[k] / sd[mine[k]])
+            if z > reject_sigma and dev[k] > 3.0 * max(usual, 1e-9) and z > worst[0]:
+                worst = (z, [mine[k]])
+        err = float(np.hypot(*mean))
+        others = np.median([float(np.hypot(*per[o][0])) for o in per if o != t])
+        z = err / float(np.mean(sd[mine]))
+        if z > reject_sigma and err > 3.0 * others and z > worst[0]:
+            worst = (z, mine)
+    return worst[1]
+
+
 def solve_survey(n: int, pairs: list[PairConstraint], priors: SurveyPriors, *, min_extent_m: float = 10.0,
-                 reject_sigma: float = 5.0, rounds: int = 4, huber_sigma: float = 2.0) -> SurveySolution:
+                 reject_sigma: float = 5.0, rounds: int = 4, huber_sigma: float = 2.0,
+                 control: GroundControl | None = None, control_reject_sigma: float = 5.0,
+                 control_loss: str = 'squares') -> SurveySolution:
     """Solve every frame's ground homography (module docstring).
 
     Args:
@@ -576,7 +764,13 @@ def solve_survey(n: int, pairs: list[PairConstraint], priors: SurveyPriors, *, m
         priors: positions, their sd, the nominal scale and the flight direction;
         min_extent_m: a component's GPS positions must spread this far (RMS) to fit its own similarity;
         reject_sigma: a pair whose RMS residual exceeds this many sd (and 3x the median pair's) is dropped;
-        rounds: solves at most (each after dropping pairs); huber_sigma: Huber's threshold, in sd.
+        rounds: solves at most (each after dropping pairs); huber_sigma: Huber's threshold, in sd;
+        control: ground control observations (None: none); control_reject_sigma: a control pick or
+            target that the others place this many sd away (and three times further than the median
+            target) is dropped, the worst first (_left_out_outlier); control_loss: 'squares' (the
+            survey bends to the control: the drift between targets is solved out) or 'huber' (each
+            observation's residual in Huber's loss, dropped beyond control_reject_sigma: robust, but
+            the control can no longer bend a survey that has drifted by more than a few sd).
     """
     use = np.ones(len(pairs), dtype=bool)
     pos = np.asarray(priors.position_m, dtype=np.float64)
@@ -602,38 +796,94 @@ def solve_survey(n: int, pairs: list[PairConstraint], priors: SurveyPriors, *, m
             ok = check_pairs_against_positions(pairs, pos, sd, priors.scale_m)
         use &= ok
         gross = int((~use).sum())
-    G, placed_by = _initial(n, pairs, use, priors, min_extent_m)
+    by_control = control is not None and not georeferenced
+    G, placed_by = _initial(n, pairs, use, priors, min_extent_m, every_component=by_control)
     free = [k for k in range(n) if placed_by[k] == 'registration']
     rms = np.full(len(pairs), np.nan)
-    scale = float(np.median([_angle_scale(G[k])[1] for k in free])) if free else priors.scale_m
-    total_iterations, converged, dropped = 0, False, 0
-    for _ in range(max(rounds, 1)):
-        if not free:
-            break
-        anchor = {} if georeferenced else {free[0]: G[free[0]]}
-        prob = _Problem(free, pairs, use, priors, scale, anchor)
-        x0 = np.concatenate([_h8(G[k]) for k in free])
-        x, iterations, converged = _levenberg_marquardt(prob, x0, huber_sigma)
-        total_iterations += iterations
-        sol = x.reshape(-1, 8)
-        for c, k in enumerate(free):
-            G[k] = _H(sol[c])
-        pr = prob.pair_rms(x)
-        idx = [k for k, (p, u) in enumerate(zip(pairs, use)) if u and p.i in prob.col and p.j in prob.col]
-        rms[:] = np.nan
-        rms[idx] = pr
-        med = float(np.median(pr)) if len(pr) else 0.0
-        bad = [k for k, r in zip(idx, pr) if r > reject_sigma and r > 3.0 * med]
-        if not bad:
-            break
-        use[bad] = False
-        dropped += len(bad)
-        # a frame left in no pair keeps its place from the last solve, as placed by its pose
-        in_pair = {p.i for p, u in zip(pairs, use) if u} | {p.j for p, u in zip(pairs, use) if u}
-        for k in free:
-            if k not in in_pair:
-                placed_by[k] = 'pose'
-        free = [k for k in free if k in in_pair]
+    ctl_use = None if control is None else np.asarray(control.use, dtype=bool).copy()
+    ctl_rejected: list[int] = []
+    state: dict = {'iterations': 0, 'converged': False, 'dropped': 0, 'left_out': {}}
+
+    def run(held: bool, with_control: bool, max_rounds: int) -> None:
+        nonlocal free
+        scale = float(np.median([_angle_scale(G[k])[1] for k in free])) if free else priors.scale_m
+        for _ in range(max(max_rounds, 1)):
+            if not free:
+                break
+            # held: each component's first frame holds its gauge
+            anchor = {c[0]: G[c[0]].copy() for c in _components(n, pairs, use) if c[0] in free} if held else {}
+            prob = _Problem(free, pairs, use, priors, scale, anchor, control if with_control else None, ctl_use)
+            x0 = np.concatenate([_h8(G[k]) for k in free])
+            x, iterations, state['converged'] = _levenberg_marquardt(
+                prob, x0, huber_sigma, plain=prob.control_rows() if control_loss == 'squares' else None)
+            state['iterations'] += iterations
+            sol = x.reshape(-1, 8)
+            for c, k in enumerate(free):
+                G[k] = _H(sol[c])
+            pr = prob.pair_rms(x)
+            idx = [k for k, (p, u) in enumerate(zip(pairs, use)) if u and p.i in prob.col and p.j in prob.col]
+            rms[:] = np.nan
+            rms[idx] = pr
+            med = float(np.median(pr)) if len(pr) else 0.0
+            bad = [k for k, r in zip(idx, pr) if r > reject_sigma and r > 3.0 * med]
+            if with_control and not georeferenced:
+                # nothing but the registrations holds a part of the survey to the rest: a pair whose
+                # loss would cut it off stays (the control bends it instead)
+                parts = len(_components(n, pairs, use))
+                bad = [k for k in bad if len(_components(n, pairs, use & (np.arange(len(use)) != k))) == parts]
+            wrong: list[int] = []
+            if with_control and control_loss == 'squares' and not bad:
+                wrong = _left_out_outlier(prob, x, huber_sigma, control, ctl_use, control_reject_sigma,
+                                          state['left_out'])
+            elif with_control and control_loss == 'huber':
+                cs = prob.control_sigmas(x)
+                worst = int(np.argmax(cs)) if len(cs) else -1
+                if worst >= 0 and cs[worst] > control_reject_sigma and cs[worst] > 3.0 * float(np.median(cs)) \
+                        and len({control.target[m] for m in prob.ctl_index}) > 2:
+                    wrong = [int(prob.ctl_index[worst])]
+            ctl_bad = bool(wrong)
+            for m in wrong:  # one pick or one target per solve: the others may have been bent by it
+                ctl_use[m] = False
+                ctl_rejected.append(m)
+            if not bad and not ctl_bad:
+                break
+            use[bad] = False
+            state['dropped'] += len(bad)
+            # a frame left in no pair keeps its place from the last solve, as placed by its pose
+            in_pair = {p.i for p, u in zip(pairs, use) if u} | {p.j for p, u in zip(pairs, use) if u}
+            for k in free:
+                if k not in in_pair:
+                    placed_by[k] = 'pose'
+            free = [k for k in free if k in in_pair]
+
+    if by_control:
+        # each component on its root's plane, then to the ground by its own control; a component
+        # with fewer than two targets cannot be placed with the others
+        run(True, False, rounds)
+        placed_any = False
+        for comp in _components(n, pairs, use):
+            members = [k for k in comp if placed_by[k]]
+            if not members:
+                continue
+            in_comp = np.isin(control.frame, members)
+            S = _control_similarity(G, placed_by, control, ctl_use & in_comp)
+            if S is None:
+                for k in members:
+                    G[k], placed_by[k] = np.nan, ''
+                continue
+            placed_any = True
+            for k in members:
+                G[k] = S @ G[k]
+        by_control = placed_any
+        free = [k for k in range(n) if placed_by[k] == 'registration']
+        if by_control:
+            run(False, True, rounds + int(ctl_use.sum()))
+        else:  # no component holds two targets: back to the largest, on its own plane
+            G, placed_by = _initial(n, pairs, use, priors, min_extent_m)
+            free = [k for k in range(n) if placed_by[k] == 'registration']
+            run(True, False, rounds)
+    else:
+        run(not georeferenced, control is not None, rounds + (int(ctl_use.sum()) if control is not None else 0))
     solved = [k for k in range(n) if placed_by[k] == 'registration']
     if solved:  # frames placed by their pose take the solved survey's scale
         s_med = float(np.median([_angle_scale(G[k])[1] for k in solved]))
@@ -645,11 +895,16 @@ def solve_survey(n: int, pairs: list[PairConstraint], priors: SurveyPriors, *, m
     for k in range(n):
         if placed_by[k] and np.isfinite(pos[k]).all():
             gps_res.append(float(np.hypot(G[k][0, 2] / G[k][2, 2] - pos[k, 0], G[k][1, 2] / G[k][2, 2] - pos[k, 1])))
-    figures = {'pairs': len(pairs), 'pairs_used': int(use.sum()), 'pairs_against_gps': gross, 'pairs_dropped': dropped,
-               'positions_rejected': rejected_positions,
+    figures = {'pairs': len(pairs), 'pairs_used': int(use.sum()), 'pairs_against_gps': gross,
+               'pairs_dropped': state['dropped'], 'positions_rejected': rejected_positions,
                'frames_by_registration': placed_by.count('registration'), 'frames_by_pose': placed_by.count('pose'),
                'frames_not_placed': placed_by.count(''),
                'median_pair_rms_sigma': float(np.nanmedian(rms)) if np.isfinite(rms).any() else None,
                'position_residual_rms_m': float(np.sqrt(np.mean(np.square(gps_res)))) if gps_res else None,
-               'solver_iterations': total_iterations, 'solver_converged': converged}
-    return SurveySolution(G, placed_by, rms, use, figures)
+               'solver_iterations': state['iterations'], 'solver_converged': state['converged']}
+    if control is not None:
+        figures['control_placed_survey'] = by_control  # no GPS: the control alone put it on the ground
+        # each control target's residual when the solve leaves it out (metres east, north; the last test)
+        figures['control_left_out_m'] = {t: [round(float(v), 4) for v in r] for t, r in state['left_out'].items()}
+        figures['control_rejected'] = ctl_rejected
+    return SurveySolution(G, placed_by, rms, use, figures, ctl_use)
