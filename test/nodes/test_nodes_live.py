@@ -756,25 +756,29 @@ def test_node_survives_bad_input(ros_env, tmp_path):
         from sensor_msgs.msg import CameraInfo
 
         infos = listener.publisher(CameraInfo, '/camera/camera_info')
-        # matched by the three nodes (mosaic, SR, georef), each of which reads it; and sent before each
-        # image, as a camera driver does, so that one late on a loaded machine is not the only one
-        assert listener.wait_for(lambda: infos.get_subscription_count() >= 3, 20)
+        assert listener.wait_for(lambda: infos.get_subscription_count() >= 3, 20)  # mosaic, SR and georef
         info = CameraInfo(width=16, height=16, k=[20.0, 0.0, 7.5, 0.0, 20.0, 7.5, 0.0, 0.0, 1.0])
-        infos.publish(info)
-        time.sleep(0.3)
-        crop = Image(height=20, width=32, encoding='mono8', step=32, data=bytes(640))  # another aspect ratio
-        crop.header.stamp.sec = 99
-        images.publish(crop)
-        time.sleep(0.1)
-        later, earlier = Image(height=32, width=32, encoding='mono8', step=32, data=bytes(1024)), None
-        later.header.stamp.sec = 100
-        earlier = Image(height=32, width=32, encoding='mono8', step=32, data=bytes(1024))
-        earlier.header.stamp.sec = 95  # within stamp_tolerance_s of the stream's clock: older, not off the clock
-        infos.publish(info)
-        time.sleep(0.3)
-        images.publish(later)
+        # The camera info and the images come on two topics, handled in two callback groups: the node
+        # may see an image before a camera info sent just ahead of it. So, as a camera driver does, the
+        # info is sent before each 32x32 frame (same aspect ratio: scaled to it) until the mosaic node
+        # counts one scaled; stamps follow the wall clock from 100 s, so the stamp gate passes them.
+        t0 = time.monotonic()
+
+        def frame(height: int, width: int, stamp_ns: int) -> Image:
+            msg = Image(height=height, width=width, encoding='mono8', step=width, data=bytes(height * width))
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 10**9)
+            return msg
+
+        for _ in range(40):
+            infos.publish(info)
+            time.sleep(0.3)
+            stamp_ns = 100 * 10**9 + int((time.monotonic() - t0) * 1e9)
+            images.publish(frame(32, 32, stamp_ns))
+            if listener.wait_for(lambda: listener.diag_value('camera_info_scaled', MOSAIC), 2.0, scaled=False):
+                break
+        images.publish(frame(20, 32, stamp_ns + 10**9))  # another aspect ratio: refused
         time.sleep(0.2)
-        images.publish(earlier)
+        images.publish(frame(32, 32, stamp_ns - 5 * 10**9))  # within stamp_tolerance_s: older, not off the clock
 
         expected = {
             MOSAIC: ('rejected: image: MessageError', 'rejected: fix', 'rejected: image time going backwards',
