@@ -8,6 +8,9 @@ STAMP  := $(VENV)/.installed
 # pytest-xdist workers of make test (one per core of the 2-core machines it is sized for); each test
 # file runs whole on one worker, so a module's shared fixtures are built once
 TEST_WORKERS ?= 2
+# OpenMP (torch) threads per test process: the workers already fill the cores, and more threads than
+# cores spin-wait for each other
+TEST_THREADS ?= 1
 
 .PHONY: demo test venv bench clean demo-bag docs reference
 
@@ -26,7 +29,7 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(VENV)/bin/ruff check .
 	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict --quiet --site-dir site
-	$(VENV)/bin/python -m pytest -q -ra --durations=20 -n $(TEST_WORKERS) --dist loadfile
+	OMP_NUM_THREADS=$(TEST_THREADS) $(VENV)/bin/python -m pytest -q -ra --durations=20 -n $(TEST_WORKERS) --dist loadfile
 
 # The documentation site (mkdocs.yml, docs/) into site/; --strict: a broken link or a missing page fails it.
 docs: $(STAMP)
