@@ -5,9 +5,10 @@
 PYTHON ?= python3
 VENV   := .venv
 STAMP  := $(VENV)/.installed
-# pytest-xdist workers of make test (one per core of the 2-core machines it is sized for); each test
-# file runs whole on one worker, so a module's shared fixtures are built once
-TEST_WORKERS ?= 2
+# pytest-xdist workers of make test: three on the 2-core machines it is sized for, because the live
+# tests wait on DDS much of their time; each test file runs whole on one worker, so a module's
+# shared fixtures are built once
+TEST_WORKERS ?= 3
 # OpenMP (torch) threads per test process: the workers already fill the cores, and more threads than
 # cores spin-wait for each other
 TEST_THREADS ?= 1
