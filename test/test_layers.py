@@ -2,7 +2,7 @@
 
     core (pure algorithm, and errors)  <-  io, msg_adapters (files, bags, messages)
         <-  pipeline (pipeline, config, sim)  <-  live/ (sr, raster)
-        <-  app/ (process, sr_process, evaluate, survey, ...)  <-  nodes/, cli
+        <-  app/ (process, sr_process, evaluate, survey, ...), web/ (tiles, page, map server)  <-  nodes/, cli
 
 Every import statement counts, the lazy ones inside functions too (a lazy import hides a circle,
 it does not remove it); those under ``if TYPE_CHECKING:`` (annotations only) do not.
@@ -23,6 +23,7 @@ LAYERS = [
     ('srmosaic_ros.pipeline', 2), ('srmosaic_ros.config', 2), ('srmosaic_ros.param_files', 2),
     ('srmosaic_ros.malloc_tuning', 2), ('srmosaic_ros.sim', 2),
     ('srmosaic_ros.live', 3),
+    ('srmosaic_ros.web', 4),  # tiles, the page and the map server: reads outputs (io) and the live raster (live)
     ('srmosaic_ros.app', 4),  # process, sr_process, evaluate*, survey, psf, checkpoint, georeference, inspect_tool
     ('srmosaic_ros.nodes', 5), ('srmosaic_ros.cli', 5),
     ('srmosaic_ros.docs_reference', 5),  # the generated reference pages: reads the nodes and the command line
