@@ -13,7 +13,7 @@ if TYPE_CHECKING:
 
     from rosbags.interfaces import Connection
 
-from .bag_storage import _describe
+from .bag_problems import _describe
 from .bag_types import _ROSBAG2_VERSION, STORAGES
 
 __all__ = ['BagWriter']

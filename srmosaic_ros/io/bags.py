@@ -1,5 +1,6 @@
 """Reading flights from bags and writing bags, through rosbags: the way in to the bag layer
-(bag_types.py: the records; bag_storage.py: metadata.yaml and the storage files; bag_writer.py).
+(bag_types.py: the records; bag_storage.py: a bag opened with the reader of its kind,
+bag_rosbag2.py or bag_rosbag1.py; bag_writer.py).
 
 Reads rosbag2 (sqlite3 and mcap, a bag folder or a bare ``.db3``/``.mcap`` file; split bags; zstd
 file or message compression; metadata.yaml versions 1 to 9) and ROS 1 ``.bag`` files; writes
@@ -131,7 +132,7 @@ def bag_summary(
                     f'messages ({_describe(exc)}); {_repair_hint(path)}.'
                 )
                 raise BagError(msg) from exc
-        unreadable = bag.prepare_types(bag.connections)
+        unreadable = bag.types.prepare_types(bag.connections)
         if bag.meta is not None:
             meta_counts: dict[str, int] = {t: m.count for t, m in bag.meta.topics.items()}
         else:
@@ -139,7 +140,7 @@ def bag_summary(
         entries: dict[str, TopicCount] = {}
         for name, summary in info.topics.items():
             notes = [n for n in (bag.format_problem(name), unreadable.get(name, ''),
-                                 bag.type_notes.get(name, '')) if n]
+                                 bag.types.type_notes.get(name, '')) if n]
             if name in bag.missing:
                 notes.append(f'{bag.missing[name]} messages counted in metadata.yaml are not in the files')
             entries[name] = TopicCount(
@@ -250,11 +251,11 @@ def _resolve_flight(
     refusal = _format_refusal(path, bag, roles)
     if refusal:
         raise BagError(refusal)
-    refusal = _types_refusal(path, bag.prepare_types(c for c in bag.connections if c.topic in roles))
+    refusal = _types_refusal(path, bag.types.prepare_types(c for c in bag.connections if c.topic in roles))
     if refusal:
         raise BagError(refusal)
     notes = tuple(
-        f'Bag {str(path)!r}: topic {t!r}: {bag.type_notes[t]}.' for t in roles if t in bag.type_notes)
+        f'Bag {str(path)!r}: topic {t!r}: {bag.types.type_notes[t]}.' for t in roles if t in bag.types.type_notes)
     image_summary = info.topics.get(image_topic)
     return _Flight(
         image_topic=image_topic,
@@ -369,7 +370,7 @@ class FlightReader:
         self, bag: _Bag, connection: Connection, raw: bytes
     ) -> Any | None:
         try:
-            return bag.deserialize(raw, connection.msgtype)
+            return bag.types.deserialize(raw, connection.msgtype)
         except Exception as exc:  # noqa: BLE001 - one bad message must not stop the flight
             reason = f'cannot deserialise {connection.msgtype}: {_describe(exc)}'
             self._skip(connection.topic, reason)
@@ -422,7 +423,7 @@ class FlightReader:
         self.messages_read = 0
         with _open_bag(self.path) as bag:
             refusal = _types_refusal(
-                self.path, bag.prepare_types(c for c in bag.connections if c.topic in self._roles))
+                self.path, bag.types.prepare_types(c for c in bag.connections if c.topic in self._roles))
             if refusal:  # the bag changed since it was opened
                 raise BagError(refusal)
             yield from self._read(bag)
@@ -526,7 +527,7 @@ def iter_raw(
         refusal = _format_refusal(path, bag, {c.topic for c in connections})
         ros1 = bag.storage == 'rosbag1'
         if refusal is None and ros1:
-            refusal = _types_refusal(path, bag.prepare_ros1_to_cdr(connections))
+            refusal = _types_refusal(path, bag.types.prepare_ros1_to_cdr(connections))
         if refusal:
             raise BagError(refusal)
         for warning in bag.warnings:
@@ -537,7 +538,7 @@ def iter_raw(
             try:
                 connection, log_ns, raw = next(stream)
                 if ros1:
-                    raw = bag.ros1_to_cdr(raw, connection.msgtype)
+                    raw = bag.types.ros1_to_cdr(raw, connection.msgtype)
             except StopIteration:
                 return
             except Exception as exc:
