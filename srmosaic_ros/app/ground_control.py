@@ -26,7 +26,7 @@ from ..errors import InputError
 from ..io.gcp import GcpList, read_gcp_list
 
 if TYPE_CHECKING:
-    from .survey import SurveyStill
+    from .survey_still import SurveyStill
 
 __all__ = ['GCP_PICK_SIGMA_PX', 'GCP_REJECT_SIGMA', 'GCP_SURVEY_SIGMA_M', 'SurveyControl', 'check_point_names']
 

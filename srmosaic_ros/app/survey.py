@@ -59,6 +59,7 @@ from ..core.registration import make_registrar
 from ..core.survey.global_align import (GroundControl, PairConstraint, SurveyPriors, attitude_ground_H,
                                        estimate_scale, pair_constraint, solve_survey)
 from .ground_control import GCP_REJECT_SIGMA, SurveyControl
+from .survey_still import SurveyStill
 from ..core.survey.pairs import predicted_pairs
 from ..core.survey.paint_plan import tiles_to_paint
 from ..errors import InputError
@@ -86,23 +87,6 @@ TILE_MEMORY_BUDGET_BYTES = 3 << 29  # 1.5 GiB
 #: Unknown focal length: the normalised coordinates use this many pixels per unit of the longer
 #: side (about a 55 deg field of view); the scale the solve finds is then not a height.
 NOMINAL_FOCAL_PER_SIDE = 1.0
-
-
-@dataclass
-class SurveyStill:
-    """One still: file, size (w, h) as decoded at full size, stamp_ns, K (3, 3) full-size intrinsics,
-    position_m (east, north on the survey plane, NaN), latlon (the GPS fix at capture, NaN)."""
-
-    file: Path
-    size: tuple[int, int]
-    stamp_ns: int
-    K: np.ndarray
-    focal_known: bool
-    position_m: np.ndarray
-    latlon: tuple[float, float]
-    nadir_view: bool
-    R_enu_from_cam: np.ndarray | None = None  # from the gimbal angles (None: unknown)
-    height_m: float = math.nan  # above the ground: the XMP's height above take-off (NaN: unknown)
 
 
 def reduction_for(width: int, height: int, max_megapixels: float) -> int:

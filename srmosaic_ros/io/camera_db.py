@@ -12,7 +12,7 @@ or without the make in front ('FC300S', 'DJI FC300S', make 'DJI' + model 'FC300S
 several cameras behind one name (a thermal and a visual sensor under 'XT2' or 'ZH20T') picks the
 sensor whose native size or aspect ratio fits the image.
 
-:func:`intrinsics_from_metadata` turns a :class:`~srmosaic_ros.io.exif.StillMetadata` into a
+:func:`intrinsics_from_metadata` turns a :class:`~srmosaic_ros.io.still_metadata.StillMetadata` into a
 :class:`~srmosaic_ros.core.types.CameraIntrinsics` for the image as decoded (as stored, before any
 EXIF orientation is applied), in this order of preference:
 
@@ -38,7 +38,7 @@ from typing import TYPE_CHECKING
 from ..core.types import CameraIntrinsics
 
 if TYPE_CHECKING:
-    from .exif import StillMetadata
+    from .still_metadata import StillMetadata
 
 __all__ = [
     'CAMERAS',

@@ -42,7 +42,6 @@ import math
 import re
 import warnings
 import xml.etree.ElementTree as ET  # the usual alias
-from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
 from typing import Any
@@ -51,6 +50,7 @@ from PIL import Image, UnidentifiedImageError
 
 from ..errors import MetadataError
 from .camera_db import intrinsics_from_metadata
+from .still_metadata import StillMetadata
 
 __all__ = ['StillMetadata', 'intrinsics_from_metadata', 'parse_xmp', 'read_still_metadata']
 
@@ -83,52 +83,6 @@ _NS_TIFF = 'ns.adobe.com/tiff/1.0'
 # prefixes these namespaces are written under, for a packet that is not well-formed XML
 _PREFIX_NS = {'drone-dji': _NS_DJI, 'drone-parrot': _NS_PARROT, 'drone-skydio': _NS_SKYDIO,
               'camera': _NS_PIX4D, 'tiff': _NS_TIFF}
-
-
-@dataclass(frozen=True)
-class StillMetadata:
-    """What a still's EXIF and XMP say about its capture.
-
-    Sizes are pixels of the image as decoded (as stored, before EXIF orientation is applied);
-    ``exif_width_px`` is the width the EXIF describes (``PixelXDimension``), which the focal
-    plane resolution and DJI's calibrated values refer to: a resized still keeps its original
-    EXIF, so scale those by ``width_px / exif_width_px``. Positions are WGS84 degrees (S and W
-    negative) and metres (``altitude_m`` as the EXIF states it: above sea level for ref 0/1);
-    NaN when absent. ``stamp_ns`` is UTC nanoseconds since the Unix epoch (the capture);
-    ``gps_stamp_ns`` when the GPS position was fixed, which a camera's GPS tags can trail by seconds
-    (caliterra: 0 to 2 s; one still repeats its predecessor's fix). Angles are degrees:
-    ``gimbal_ypr_deg`` = (yaw clockwise from north, pitch with -90 nadir and 0 horizon, roll) of
-    the camera; ``flight_ypr_deg`` = (yaw clockwise from north, pitch nose up +, roll right wing
-    down +) of the aircraft. ``calibrated_optical_center_px`` is (cx, cy) in this package's
-    convention (pixel centres at integers) scaled to the decoded size. ``notes`` lists what was
-    missing or assumed, one short phrase each.
-    """
-
-    path: Path
-    width_px: int
-    height_px: int
-    exif_width_px: int | None
-    stamp_ns: int | None
-    latitude_deg: float
-    longitude_deg: float
-    altitude_m: float
-    relative_altitude_m: float
-    make: str
-    model: str
-    focal_length_mm: float | None
-    focal_length_35mm_mm: float | None
-    focal_plane_x_res_px_per_mm: float | None
-    calibrated_focal_length_px: float | None
-    calibrated_optical_center_px: tuple[float, float] | None
-    gimbal_ypr_deg: tuple[float, float, float] | None
-    flight_ypr_deg: tuple[float, float, float] | None
-    exif_orientation: int
-    notes: tuple[str, ...]
-    gps_stamp_ns: int | None = None          # GPSDateStamp + GPSTimeStamp (UTC): when the position was fixed
-
-    @property
-    def has_position(self) -> bool:
-        return math.isfinite(self.latitude_deg) and math.isfinite(self.longitude_deg)
 
 
 def read_still_metadata(path: str | Path) -> StillMetadata:
