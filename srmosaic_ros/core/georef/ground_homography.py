@@ -11,8 +11,10 @@ from __future__ import annotations
 import numpy as np
 
 from ..homography import apply_homography as apply_H  # the georef modules' name
+from .frames import CameraPose
 
 __all__ = [
+    'camera_pose_from_enu_H_image',
     'image_H_ground',
     'ground_H_image',
     'frame2_H_frame1',
@@ -98,3 +100,32 @@ def homographies_from_corners(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     b = dst.reshape(n, 8)                                 # u0, v0, u1, v1, ...
     h = np.linalg.solve(A, b[..., None])[..., 0]
     return np.concatenate([h, np.ones((n, 1))], axis=1).reshape(n, 3, 3)
+
+
+def camera_pose_from_enu_H_image(K: np.ndarray, enu_H_image: np.ndarray, *,
+                                 ground_z_m: float = 0.0) -> CameraPose:
+    """Camera pose of a flat-ground homography: the inverse of :func:`ground_H_image`.
+
+    image_H_ground = K R^T [e1, e2, P0 - C] up to scale (P0 = (0, 0, ground_z_m)); the two first
+    columns give R (orthonormalised by SVD), the third the centre, with the sign that puts the
+    camera above the ground.
+    """
+    K_inv = np.linalg.inv(np.asarray(K, dtype=np.float64))
+    A = K_inv @ np.linalg.inv(np.asarray(enu_H_image, dtype=np.float64))  # K^-1 image_H_ground
+    lam = 0.5 * (np.linalg.norm(A[:, 0]) + np.linalg.norm(A[:, 1]))
+    best = None
+    for sign in (1.0, -1.0):
+        B = sign * A / lam
+        M = np.c_[B[:, 0], B[:, 1], np.cross(B[:, 0], B[:, 1])]  # columns: R^T e1, R^T e2, R^T e3
+        u, _, vt = np.linalg.svd(M)
+        Rt = u @ vt  # R_cam_from_enu
+        if np.linalg.det(Rt) < 0:
+            continue
+        R = Rt.T  # R_enu_from_cam
+        center = np.array([0.0, 0.0, ground_z_m]) - R @ B[:, 2]
+        if center[2] > ground_z_m and best is None:
+            best = CameraPose(R, center)
+    if best is None:
+        msg = 'the homography does not describe a camera above the ground plane.'
+        raise ValueError(msg)
+    return best
