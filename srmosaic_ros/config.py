@@ -16,11 +16,12 @@ from .core.sr.scheduler import SRTileConfig
 from .core.registration import RegistrationConfig
 from .core.survey.config import SurveyConfig
 from .bounded_yaml import preview
+from .core.settings import Bounds, bounds_of, setting
 from .errors import ConfigError, SrMosaicError
 from .param_files import default_params, default_params_path, load_params, yaml_problem  # re-exported
 
-__all__ = ['PipelineConfig', 'check_type', 'default_params', 'default_params_path', 'load_params', 'pipeline_config',
-           'yaml_problem']
+__all__ = ['SECTIONS', 'PipelineConfig', 'check_type', 'default_params', 'default_params_path', 'load_params',
+           'pipeline_config', 'setting_bounds', 'yaml_problem']
 
 DEVICES = ('auto', 'cpu', 'cuda')
 #: A section's refusal longer than this (characters: a long value quoted whole) is shortened.
@@ -40,9 +41,9 @@ REPLACED_KEYS = {
 class PipelineConfig:
     """Everything the offline and live pipelines need; mirrors params/default.yaml."""
 
-    device: str = 'auto'
+    device: str = setting('auto', choices=DEVICES)
     undistort: bool = True
-    stamp_tolerance_s: float = 10.0  # see core/stamp_gate.py
+    stamp_tolerance_s: float = setting(10.0, lo=0.0, unit='s')  # see core/stamp_gate.py
     registration: RegistrationConfig = RegistrationConfig()
     mosaic: MosaicConfig = MosaicConfig()
     georef_enabled: bool = True
@@ -50,6 +51,19 @@ class PipelineConfig:
     sr: SRConfig = field(default_factory=SRConfig)
     sr_tiles: SRTileConfig = field(default_factory=SRTileConfig)
     survey: SurveyConfig = field(default_factory=SurveyConfig)
+
+
+#: The sections of params/*.yaml and the config dataclass whose fields are their keys.
+SECTIONS: dict[str, type] = {'registration': RegistrationConfig, 'mosaic': MosaicConfig, 'georef': GeorefConfig,
+                             'sr': SRConfig, 'sr_tiles': SRTileConfig, 'survey': SurveyConfig}
+
+
+def setting_bounds() -> dict[str, Bounds]:
+    """Dotted key -> Bounds of every setting declared with core/settings.setting (the one declaration of
+    its range: the ROS descriptors and the docs take it from here)."""
+    out = {f'{section}.{name}': b for section, cls in SECTIONS.items() for name, b in bounds_of(cls).items()}
+    out.update({name: b for name, b in bounds_of(PipelineConfig).items() if name in ('device', 'stamp_tolerance_s')})
+    return out
 
 
 def _build(cls: type, prefix: str, flat: dict[str, Any]) -> Any:

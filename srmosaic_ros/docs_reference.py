@@ -315,6 +315,9 @@ def parameters_markdown(interfaces: list[NodeInterface], params_dir: Path | None
             declared_by.setdefault(name, []).append(info.executable.removesuffix('_node') +
                                                     ('' if p.read_only else ' (changeable)'))
     ranges = {name: p.range for info in interfaces for name, p in info.parameters.items() if p.range}
+    from .nodes.parameters import parameter_bounds  # the one declaration of each range (core/settings.py)
+
+    declared = parameter_bounds()
     total = sum(len(s.keys) for s in sections)
     counts = {f: sum(k.file == f for s in sections for k in s.keys) for f in PARAM_FILES}
     lines = [GENERATED.format(source='params/default.yaml, params/advanced.yaml and the nodes\' declarations'),
@@ -326,8 +329,9 @@ def parameters_markdown(interfaces: list[NodeInterface], params_dir: Path | None
              'See [Parameters](../parameters.md) for how the files combine.', '',
              '- **file**: where the default is written (`default`: params/default.yaml, `advanced`: '
              'params/advanced.yaml).',
-             '- **range**: the range the nodes declare (a value outside it is refused at start); the '
-             'configuration classes check their values again, also offline.',
+             '- **range**: the values accepted, declared once with the configuration (core/settings.py): '
+             'the nodes\' ROS descriptors state the same range, and a value outside it is refused at start, '
+             'live and offline.',
              '- **nodes**: the nodes that declare it (`ros2 param list`); *changeable* ones take '
              '`ros2 param set` while the node runs, all others are read-only. `-`: offline runs '
              '(`srmosaic process`) only.', '']
@@ -339,7 +343,8 @@ def parameters_markdown(interfaces: list[NodeInterface], params_dir: Path | None
         lines += ['| name | default | range | file | nodes | description |', '|---|---|---|---|---|---|']
         for key in section.keys:
             rng = ranges.get(key.name)
-            rng_text = f'{_fmt_num(rng[0])} .. {_fmt_num(rng[1])}' if rng else ''
+            rng_text = _cell(declared[key.name].text()) if key.name in declared else \
+                f'{_fmt_num(rng[0])} .. {_fmt_num(rng[1])}' if rng else ''
             nodes = ', '.join(declared_by.get(key.name, [])) or '-'
             lines.append(f'| `{key.name}` | {_value(key.default)} | {rng_text} | {key.file.removesuffix(".yaml")} | '
                          f'{nodes} | {_cell(key.description)} |')

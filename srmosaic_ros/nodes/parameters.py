@@ -21,8 +21,9 @@ from typing import Any
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.node import Node
 
-from ..config import PipelineConfig, pipeline_config
-from ..core.sr_factors import SR_FACTORS
+from ..config import PipelineConfig, pipeline_config, setting_bounds
+from ..core.settings import Bounds, bounds_of
+from ..live.live_config import LiveConfig, live_config
 from ..param_files import advanced_params_path, default_params, default_params_path
 
 __all__ = ['MOSAIC_PARAMETERS', 'GEOREF_PARAMETERS', 'SR_PARAMETERS', 'declare_pipeline_parameters', 'read_pipeline_config', 'on_parameter_change']
@@ -37,22 +38,9 @@ SR_PARAMETERS = ('device', 'undistort', 'stamp_tolerance_s', 'sr', 'sr_tiles', '
                  'live.sr_period_s', 'live.sr_tiles_per_round', 'live.sr_refresh_growth', 'live.sr_frames_kept',
                  'live.sr_images_pending', 'live.sr_worker', 'live.message_types')
 
-# Ranges stated once here for the ROS parameter descriptors; the dataclasses check them again.
+# Ranges of the sections whose config dataclasses do not declare them yet (core/settings.py); every other
+# key's range comes from its one declaration (config.setting_bounds, live/live_config.LiveConfig).
 _RANGES: dict[str, tuple[float, float]] = {
-    'registration.max_features': (8, 100000),
-    'registration.contrast_threshold': (0.0, 1.0),
-    'registration.ratio': (0.0, 1.0),
-    'registration.ransac_threshold_px': (0.01, 50.0),
-    'registration.ransac_confidence': (0.5, 0.999999),
-    'registration.ransac_max_iterations': (1, 1000000),
-    'registration.min_inliers': (4, 100000),
-    'registration.min_inlier_ratio': (0.0, 1.0),
-    'registration.max_rms_px': (0.01, 50.0),
-    'registration.max_scale_change': (1.0, 10.0),
-    'registration.max_perspective': (0.001, 10.0),
-    'registration.guided_radius_px': (0.0, 100.0),
-    'registration.max_width': (0, 100000),
-    'registration.track_frames': (0, 100000),
     'mosaic.tile_size': (64, 4096),
     'mosaic.max_canvas_side_px': (256, 10000000),
     'mosaic.preview_max_side_px': (16, 16384),
@@ -62,25 +50,15 @@ _RANGES: dict[str, tuple[float, float]] = {
     'mosaic.revisit_spread_frames': (0, 1000),
     'mosaic.keyframe_min_correction_px': (0.0, 1000.0),
     'mosaic.max_width': (0, 100000),
-    'live.queue_size': (1, 100),
-    'live.max_rate_hz': (0.0, 1000.0),
-    'live.torch_threads': (0, 256),
-    'live.preview_period_s': (0.05, 3600.0),
-    'live.sr_period_s': (0.1, 3600.0),
-    'live.sr_tiles_per_round': (1, 100),
-    'live.sr_frames_kept': (1, 1000),
-    'live.sr_refresh_growth': (0.0, 100.0),
-    'live.sr_images_pending': (1, 1000),
     'sr.psf_sigma': (0.0, 10.0),
     'sr.iterations': (0, 10000),
     'sr.margin': (0, 256),
-    'sr_tiles.factor': (min(SR_FACTORS), max(SR_FACTORS)),
-    'sr_tiles.tile_size': (16, 2048),
-    'sr_tiles.min_frames': (1, 1000),
-    'sr_tiles.max_frames': (1, 1000),
-    'sr_tiles.max_tiles': (1, 1000000),
-    'sr_tiles.min_coverage': (0.0, 1.0),
 }
+
+
+def parameter_bounds() -> dict[str, Bounds]:
+    """Dotted key -> Bounds of every parameter that declares its range once (config dataclasses, LiveConfig)."""
+    return {**setting_bounds(), **{f'live.{name}': b for name, b in bounds_of(LiveConfig).items()}}
 
 
 def _comments(path: Path) -> dict[str, str]:
@@ -103,10 +81,19 @@ def _comments(path: Path) -> dict[str, str]:
     return out
 
 
-def _descriptor(name: str, value: Any, description: str, read_only: bool) -> ParameterDescriptor:
+def _descriptor(name: str, value: Any, description: str, read_only: bool,
+                bounds: dict[str, Bounds] | None = None) -> ParameterDescriptor:
     desc = ParameterDescriptor(name=name, description=description, read_only=read_only)
-    if name in _RANGES and not isinstance(value, bool):
-        lo, hi = _RANGES[name]
+    if isinstance(value, bool):
+        return desc
+    declared = (bounds if bounds is not None else parameter_bounds()).get(name)
+    if declared is not None:
+        desc.additional_constraints = declared.text()
+        span = declared.ros_range(isinstance(value, int))
+    else:
+        span = _RANGES.get(name)
+    if span is not None:
+        lo, hi = span
         if isinstance(value, int):
             desc.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi), step=0)]
         elif isinstance(value, float):
@@ -121,9 +108,10 @@ def declare_pipeline_parameters(node: Node, own: Collection[str], changeable: Co
     which rclpy ignores."""
     defaults = default_params()
     comments = {**_comments(default_params_path()), **_comments(advanced_params_path())}
+    bounds = parameter_bounds()
     for name, value in defaults.items():
         if _is_own(name, own) and not node.has_parameter(name):
-            node.declare_parameter(name, value, _descriptor(name, value, comments.get(name, ''), name not in changeable))
+            node.declare_parameter(name, value, _descriptor(name, value, comments.get(name, ''), name not in changeable, bounds))
     if unknown := [name for name in changeable if name not in defaults or not _is_own(name, own)]:
         msg = f'changeable parameters {unknown} are not among the node\'s own'
         raise ValueError(msg)
@@ -138,6 +126,7 @@ def read_pipeline_config(node: Node, defaults: dict[str, Any]) -> PipelineConfig
     """PipelineConfig from the node's parameter values, the defaults for keys it does not declare
     (raises ConfigError when invalid)."""
     values = {name: node.get_parameter(name).value for name in defaults if node.has_parameter(name)}
+    live_config(values)  # the live.* keys' checks (ConfigError), from their one declaration
     return pipeline_config(values, defaults=defaults)
 
 

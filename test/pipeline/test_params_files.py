@@ -27,19 +27,60 @@ def test_shipped_files():
 
 
 def test_live_keys_have_descriptions_and_ranges():
-    """Every live.* key of default.yaml and advanced.yaml is described (its comment) and numeric ones
-    have a range."""
-    from srmosaic_ros.nodes.parameters import _RANGES, _comments
+    """Every live.* key of default.yaml and advanced.yaml is described (its comment), is a LiveConfig field
+    with the same default, and numeric ones declare a range."""
+    import dataclasses
 
+    from srmosaic_ros.live.live_config import LiveConfig
+    from srmosaic_ros.nodes.parameters import _comments, parameter_bounds
+
+    bounds = parameter_bounds()
+    live = {}
     for path in (default_params_path(), advanced_params_path()):
         comments = _comments(path)
         for key, value in load_params(path).items():
             if key.startswith('live.'):
+                live[key[5:]] = value
                 assert comments.get(key), f'{key} has no description comment in {path.name}'
                 if isinstance(value, int | float) and not isinstance(value, bool):
-                    assert key in _RANGES, f'{key} has no range in nodes/parameters.py'
-                    lo, hi = _RANGES[key]
-                    assert lo <= value <= hi, key
+                    assert key in bounds, f'{key} declares no range (live/live_config.py)'
+                    assert bounds[key].holds(value), key
+    assert live == dataclasses.asdict(LiveConfig()), 'params/*.yaml live.* and LiveConfig disagree'
+
+
+def test_each_range_is_declared_once_and_agrees_everywhere():
+    """The YAML default, the ROS descriptor a node declares and the configuration's check come from one
+    declaration: the default is accepted, every value the check accepts lies inside the descriptor's
+    range, and a value outside the declared range is refused by the check (offline) and by the node."""
+    import math
+
+    from srmosaic_ros.config import pipeline_config
+    from srmosaic_ros.errors import ConfigError
+    from srmosaic_ros.live.live_config import live_config
+    from srmosaic_ros.nodes.parameters import _descriptor, parameter_bounds
+
+    defaults = {**load_params(default_params_path()), **load_params(advanced_params_path())}
+    bounds = parameter_bounds()
+    assert len(bounds) >= 80, len(bounds)
+    for key, b in bounds.items():
+        assert key in defaults, f'{key} is declared but in no params file'
+        value = defaults[key]
+        assert b.holds(tuple(value) if isinstance(value, list) else value), f'{key}: default {value!r} outside {b.text()}'
+        desc = _descriptor(key, value, '', True, bounds)
+        ros = desc.integer_range or desc.floating_point_range
+        if ros and not b.choices:
+            lo, hi = ros[0].from_value, ros[0].to_value
+            assert lo <= value <= hi, key
+            for edge in (lo, hi):  # just outside the descriptor: the check refuses it too
+                outside = edge - 1 if edge == lo else edge + 1
+                if isinstance(value, float):
+                    outside = edge - max(abs(edge) * 1e-6, 1e-9) if edge == lo else edge + max(abs(edge) * 1e-6, 1e-9)
+                if math.isinf(outside) or abs(outside) > 1e300 or abs(outside) >= 2**62:
+                    continue
+                assert not b.holds(type(value)(outside)), f'{key}: {outside!r} outside the descriptor yet accepted'
+                build = live_config if key.startswith('live.') else pipeline_config
+                with pytest.raises(ConfigError):
+                    build({key: type(value)(outside)})
 
 
 def test_users_see_their_parameters_and_the_internals_apart():

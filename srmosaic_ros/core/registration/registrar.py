@@ -19,6 +19,7 @@ import numpy as np
 
 from ..homography import apply_homography
 from ..image_ops import to_gray_u8
+from ..settings import check_settings, setting
 from .validity import check_homography
 
 __all__ = ['BACKENDS', 'Features', 'Registrar', 'Registration', 'RegistrationConfig']
@@ -44,48 +45,26 @@ class RegistrationConfig:
     features. The opencv backend does not track.
     """
 
-    backend: str = 'torch'
+    backend: str = setting('torch', choices=BACKENDS)
     opencv_fallback: bool = True
-    max_features: int = 1000
-    contrast_threshold: float = 0.02
-    ratio: float = 0.8
-    ransac_threshold_px: float = 1.5
-    ransac_confidence: float = 0.999
-    ransac_max_iterations: int = 5000
-    min_inliers: int = 15
-    min_inlier_ratio: float = 0.15
-    max_rms_px: float = 1.5
-    max_scale_change: float = 1.6
-    max_perspective: float = 0.3
-    guided_radius_px: float = 3.0
-    max_width: int = 1280
-    photometric_loss: str = 'huber'
-    track_frames: int = 10
+    max_features: int = setting(1000, lo=8, hi=100000)
+    contrast_threshold: float = setting(0.02, gt=0.0, lt=1.0)
+    ratio: float = setting(0.8, gt=0.0, hi=1.0)
+    ransac_threshold_px: float = setting(1.5, lo=0.01, hi=50.0, unit='px')
+    ransac_confidence: float = setting(0.999, lo=0.5, hi=0.999999)
+    ransac_max_iterations: int = setting(5000, lo=1, hi=1000000)
+    min_inliers: int = setting(15, lo=4, hi=100000)
+    min_inlier_ratio: float = setting(0.15, lo=0.0, hi=1.0)
+    max_rms_px: float = setting(1.5, lo=0.01, hi=50.0, unit='px')
+    max_scale_change: float = setting(1.6, lo=1.0, hi=10.0)
+    max_perspective: float = setting(0.3, lo=0.001, hi=10.0)
+    guided_radius_px: float = setting(3.0, lo=0.0, hi=100.0, unit='px')
+    max_width: int = setting(1280, lo=64, hi=100000, zero=True, unit='px')
+    photometric_loss: str = setting('huber', choices=('huber', 'tukey'))
+    track_frames: int = setting(10, lo=0, hi=100000)
 
     def __post_init__(self) -> None:
-        checks = {
-            'backend': self.backend in BACKENDS,
-            'max_features': self.max_features >= 8,
-            'contrast_threshold': 0.0 < self.contrast_threshold < 1.0,
-            'ratio': 0.0 < self.ratio <= 1.0,
-            'ransac_threshold_px': self.ransac_threshold_px > 0.0,
-            'ransac_confidence': 0.0 < self.ransac_confidence < 1.0,
-            'ransac_max_iterations': self.ransac_max_iterations >= 1,
-            'min_inliers': self.min_inliers >= 4,
-            'min_inlier_ratio': 0.0 <= self.min_inlier_ratio <= 1.0,
-            'max_rms_px': self.max_rms_px > 0.0,
-            'max_scale_change': self.max_scale_change >= 1.0,
-            'max_perspective': self.max_perspective > 0.0,
-            'guided_radius_px': self.guided_radius_px >= 0.0,
-            'max_width': self.max_width == 0 or self.max_width >= 64,
-            'photometric_loss': self.photometric_loss in ('huber', 'tukey'),
-            'track_frames': self.track_frames >= 0,
-        }
-        bad = [name for name, ok in checks.items() if not ok]
-        if bad:
-            values = ', '.join(f'{name}={getattr(self, name)!r}' for name in bad)
-            msg = f'invalid registration settings: {values}; see params/default.yaml for the valid ranges.'
-            raise ValueError(msg)
+        check_settings(self, 'registration')
 
     @classmethod
     def keys(cls) -> list[str]:

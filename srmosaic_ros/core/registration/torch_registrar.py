@@ -48,6 +48,7 @@ import torch
 from ...errors import RegistrationError
 from ..device import resolve_device
 from ..homography import corner_shift_px
+from ..settings import check_settings, setting
 from .covariance import homography_covariance_ut
 from .registrar import Features, Registration, RegistrationConfig
 from .static_describe import StaticDescriber
@@ -118,37 +119,26 @@ class TorchRegistrarOptions:
 
     features: FeatureOptions = field(default_factory=FeatureOptions)
     photometric: PhotometricOptions | None = field(default_factory=PhotometricOptions)
-    pyramid_sigma: float = 1.25
-    ransac_batch: int = 256
-    lm_iterations: int = 10
-    guided_rounds: int = 2
+    pyramid_sigma: float = setting(1.25, lo=0.0, hi=3.0)
+    ransac_batch: int = setting(256, lo=8)
+    lm_iterations: int = setting(10, lo=1)
+    guided_rounds: int = setting(2, lo=0)
     covariance: bool = True
-    covariance_iterations: int = 1
-    max_refine_shift_px: float = 2.0
+    covariance_iterations: int = setting(1, lo=1)
+    max_refine_shift_px: float = setting(2.0, gt=0.0)
     max_refine_shift_converged_px: float = 6.0
     estimation_on_host: bool = True
     static_shapes: bool | None = None
     cuda_graphs: bool = False
-    static_candidates: int = 2048
+    static_candidates: int = setting(2048, lo=16)
     seed: int = 0
-    track_radius_px: float = 4.0
+    track_radius_px: float = setting(4.0, gt=0.0)
 
     def __post_init__(self) -> None:
-        checks = {
-            'pyramid_sigma': 0.0 <= self.pyramid_sigma <= 3.0,
-            'ransac_batch': self.ransac_batch >= 8,
-            'lm_iterations': self.lm_iterations >= 1,
-            'guided_rounds': self.guided_rounds >= 0,
-            'covariance_iterations': self.covariance_iterations >= 1,
-            'max_refine_shift_px': self.max_refine_shift_px > 0.0,
-            'max_refine_shift_converged_px': self.max_refine_shift_converged_px >= self.max_refine_shift_px,
-            'static_candidates': self.static_candidates >= 16,
-            'track_radius_px': self.track_radius_px > 0.0,
-        }
-        bad = [name for name, ok in checks.items() if not ok]
-        if bad:
-            values = ', '.join(f'{name}={getattr(self, name)!r}' for name in bad)
-            msg = f'invalid torch registrar options: {values}.'
+        check_settings(self, 'torch registrar')
+        if not self.max_refine_shift_converged_px >= self.max_refine_shift_px:
+            msg = (f'invalid torch registrar settings: max_refine_shift_converged_px={self.max_refine_shift_converged_px!r} '
+                   f'is below max_refine_shift_px={self.max_refine_shift_px!r}.')
             raise ValueError(msg)
 
 

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..metrics import apply_homography
+from ..settings import check_settings, setting
 from ..sr_factors import SR_FACTORS
 
 __all__ = ['SR_FACTORS', 'SRTileConfig', 'TilePlan', 'frame_centres', 'frame_holds_rect', 'plan_tiles']
@@ -23,23 +24,18 @@ __all__ = ['SR_FACTORS', 'SRTileConfig', 'TilePlan', 'frame_centres', 'frame_hol
 class SRTileConfig:
     """Keys under `sr_tiles.` in params/*.yaml (``factor``: one of SR_FACTORS)."""
 
-    factor: int = 2
-    tile_size: int = 128
-    min_frames: int = 3
-    max_frames: int = 8
-    max_tiles: int = 48
-    min_coverage: float = 0.98
+    factor: int = setting(2, choices=SR_FACTORS)
+    tile_size: int = setting(128, lo=16, hi=2048, unit='mosaic px')
+    min_frames: int = setting(3, lo=1, hi=1000)
+    max_frames: int = setting(8, lo=1, hi=1000)
+    max_tiles: int = setting(48, lo=1, hi=1000000)
+    min_coverage: float = setting(0.98, gt=0.0, hi=1.0)
 
     def __post_init__(self) -> None:
-        bad = [name for name, ok in {
-            'factor': self.factor in SR_FACTORS, 'tile_size': 16 <= self.tile_size <= 2048,
-            'min_frames': self.min_frames >= 1, 'max_frames': self.max_frames >= self.min_frames,
-            'max_tiles': self.max_tiles >= 1, 'min_coverage': 0.0 < self.min_coverage <= 1.0,
-        }.items() if not ok]
-        if bad:
-            values = ', '.join(f'{n}={getattr(self, n)!r}' for n in bad)
-            msg = (f'invalid SR tile settings: {values}; see params/default.yaml (sr_tiles; factor is one of '
-                   f'{", ".join(map(str, SR_FACTORS))}).')
+        check_settings(self, 'sr_tiles')
+        if self.max_frames < self.min_frames:
+            msg = (f'invalid sr_tiles settings: sr_tiles.max_frames={self.max_frames!r} is below '
+                   f'sr_tiles.min_frames={self.min_frames!r}; raise max_frames or lower min_frames.')
             raise ValueError(msg)
 
 

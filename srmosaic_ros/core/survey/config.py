@@ -5,6 +5,7 @@ import math
 from dataclasses import dataclass
 
 from ..mosaic.exposure import EXPOSURE_MODES
+from ..settings import check_settings, setting
 
 __all__ = ['SURVEY_MODES', 'SurveyConfig']
 
@@ -41,39 +42,18 @@ class SurveyConfig:
         covers ground (core/survey/paint_plan.py); 0: every still wherever it falls.
     """
 
-    mode: str = 'auto'
-    working_megapixels: float = 1.0
-    min_overlap: float = 0.2
-    max_pairs_per_frame: int = 10
-    mosaic_gsd_m: float = math.nan
-    max_mosaic_megapixels: float = 150.0
-    blend: str = 'multiband'
-    feature_cache_frames: int = 48
-    model_px: float = 1.0
-    tilt_allowance_deg: float = 5.0
-    exposure: str = 'channels'
-    paint_rank: int = 2
+    mode: str = setting('auto', choices=SURVEY_MODES)
+    working_megapixels: float = setting(1.0, lo=0.05, hi=100.0, unit='Mpx')
+    min_overlap: float = setting(0.2, lo=0.0, lt=1.0)
+    max_pairs_per_frame: int = setting(10, lo=0)
+    mosaic_gsd_m: float = setting(math.nan, gt=0.0, nan=True, unit='m/px')
+    max_mosaic_megapixels: float = setting(150.0, lo=1.0, unit='Mpx')
+    blend: str = setting('multiband', choices=('feather', 'multiband'))
+    feature_cache_frames: int = setting(48, lo=2)
+    model_px: float = setting(1.0, gt=0.0, unit='px')
+    tilt_allowance_deg: float = setting(5.0, lo=0.0, lt=45.0, unit='deg')
+    exposure: str = setting('channels', choices=EXPOSURE_MODES)
+    paint_rank: int = setting(2, lo=0)
 
     def __post_init__(self) -> None:
-        checks = {
-            'mode': self.mode in SURVEY_MODES,
-            'working_megapixels': 0.05 <= self.working_megapixels <= 100.0,
-            'min_overlap': 0.0 <= self.min_overlap < 1.0,
-            'max_pairs_per_frame': isinstance(self.max_pairs_per_frame, int) and self.max_pairs_per_frame >= 0,
-            'mosaic_gsd_m': math.isnan(self.mosaic_gsd_m) or self.mosaic_gsd_m > 0.0,
-            'max_mosaic_megapixels': self.max_mosaic_megapixels >= 1.0,
-            'blend': self.blend in ('feather', 'multiband'),
-            'feature_cache_frames': isinstance(self.feature_cache_frames, int) and self.feature_cache_frames >= 2,
-            'model_px': self.model_px > 0.0,
-            'tilt_allowance_deg': 0.0 <= self.tilt_allowance_deg < 45.0,
-            'exposure': self.exposure in EXPOSURE_MODES,
-            'paint_rank': isinstance(self.paint_rank, int) and self.paint_rank >= 0,
-        }
-        bad = [name for name, ok in checks.items() if not ok]
-        if bad:
-            values = ', '.join(f'survey.{name}={getattr(self, name)!r}' for name in bad)
-            msg = (f'invalid survey parameters: {values} (mode auto|global|chain, working_megapixels 0.05..100, '
-                   'min_overlap [0, 1), max_pairs_per_frame >= 0, mosaic_gsd_m > 0 or NaN, max_mosaic_megapixels >= 1, blend feather|multiband, '
-                   'feature_cache_frames >= 2, model_px > 0, tilt_allowance_deg [0, 45), exposure channels|gain|none, '
-                   'paint_rank >= 0).')
-            raise ValueError(msg)
+        check_settings(self, 'survey')
