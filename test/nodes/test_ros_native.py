@@ -1,7 +1,7 @@
 """The package as ROS 2 tools see it: node executables, launch files, namespaces, /diagnostics, colcon.
 
 DDS tests use their own ROS_DOMAIN_ID and ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, as in
-test_nodes_live.py; waits are conditions polled with generous timeouts.
+test_mosaic_node.py, test_sr_node.py and test_launch.py; waits are conditions polled with generous timeouts.
 """
 from __future__ import annotations
 

@@ -28,7 +28,7 @@ class SRTileConfig:
     tile_size: int = setting(128, lo=16, hi=2048, unit='mosaic px')
     min_frames: int = setting(3, lo=1, hi=1000)
     max_frames: int = setting(8, lo=1, hi=1000)
-    max_tiles: int = setting(48, lo=1, hi=1000000)
+    max_tiles: int = setting(48, lo=1)
     min_coverage: float = setting(0.98, gt=0.0, hi=1.0)
 
     def __post_init__(self) -> None:
