@@ -41,15 +41,6 @@ SR_PARAMETERS = ('device', 'undistort', 'stamp_tolerance_s', 'sr', 'sr_tiles', '
 # Ranges of the sections whose config dataclasses do not declare them yet (core/settings.py); every other
 # key's range comes from its one declaration (config.setting_bounds, live/live_config.LiveConfig).
 _RANGES: dict[str, tuple[float, float]] = {
-    'mosaic.tile_size': (64, 4096),
-    'mosaic.max_canvas_side_px': (256, 10000000),
-    'mosaic.preview_max_side_px': (16, 16384),
-    'mosaic.max_tiles_in_memory': (0, 1000000),
-    'mosaic.settle_s': (0.0, 600.0),
-    'mosaic.settle_max_frames': (1, 1000),
-    'mosaic.revisit_spread_frames': (0, 1000),
-    'mosaic.keyframe_min_correction_px': (0.0, 1000.0),
-    'mosaic.max_width': (0, 100000),
     'sr.psf_sigma': (0.0, 10.0),
     'sr.iterations': (0, 10000),
     'sr.margin': (0, 256),

@@ -135,6 +135,6 @@ def test_more_channels_than_opencv_warps_at_once() -> None:
 def test_an_unknown_interpolation_is_refused() -> None:
     with pytest.raises(CanvasError, match='interpolation must be one of cubic, lanczos, linear'):
         TiledCanvas(3, interpolation='nearest')
-    with pytest.raises(ValueError, match='mosaic.interpolation must be one of'):
+    with pytest.raises(ValueError, match='mosaic.interpolation=.*must be one of'):
         MosaicConfig(interpolation='area')
     assert MosaicConfig().interpolation == TiledCanvas(3).interpolation == 'cubic'
