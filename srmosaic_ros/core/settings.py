@@ -131,8 +131,15 @@ def default_of(cls: type, name: str) -> Any:
 
 def check_settings(obj: Any, section: str) -> None:
     """Raise ValueError naming every field of ``obj`` outside its declared range, with the range."""
-    bad = [(name, b) for name, b in bounds_of(type(obj)).items() if not b.holds(getattr(obj, name))]
+    integers = {f.name for f in fields(obj) if f.type in ('int', int)}
+    bad = [(name, b) for name, b in bounds_of(type(obj)).items() if not b.holds(getattr(obj, name))
+           or (name in integers and not _is_integer(getattr(obj, name)))]
     if bad:
-        said = '; '.join(f'{section}.{name}={getattr(obj, name)!r} (must be {b.text()})' for name, b in bad)
+        said = '; '.join(f'{section}.{name}={getattr(obj, name)!r} (must be {"an integer, " if name in integers else ""}'
+                         f'{b.text()})' for name, b in bad)
         msg = f'invalid {section} settings: {said}; see params/default.yaml and params/advanced.yaml.'
         raise ValueError(msg)
+
+
+def _is_integer(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)

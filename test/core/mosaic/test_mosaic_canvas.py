@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from srmosaic_ros.core.mosaic import CanvasError, TiledCanvas, feather_weight
-from srmosaic_ros.core.mosaic import canvas as canvas_mod
+from srmosaic_ros.core.mosaic import canvas_reader as reader_mod
 from srmosaic_ros.core.mosaic import resample
 from srmosaic_ros.errors import SrMosaicError
 
@@ -374,7 +374,7 @@ def test_multiband_blocked_render_matches_whole(monkeypatch: pytest.MonkeyPatch)
     c.paint(a, np.eye(3))
     c.paint(b, rotation(3.0, 90.0, 60.0, 120.0, 10.0))
     whole, cov_whole = c.render()
-    monkeypatch.setattr(canvas_mod, 'RENDER_BLOCK_PX', 70)
+    monkeypatch.setattr(reader_mod, 'RENDER_BLOCK_PX', 70)
     blocked, cov_blocked = c.render()
     np.testing.assert_array_equal(cov_whole, cov_blocked)
     np.testing.assert_allclose(blocked, whole, atol=2e-4)
@@ -431,7 +431,7 @@ def _block_means(c: TiledCanvas, f: int) -> tuple[np.ndarray, np.ndarray]:
     bx0, by0 = x0 // f * f, y0 // f * f
     bx1, by1 = -(-x1 // f) * f, -(-y1 // f) * f
     region = (bx0, by0, bx1, by1)
-    acc_full, w = c._gather(region, ('acc', 'wsum'))  # the feather accumulators, whatever the blend
+    acc_full, w = c._reader._gather(region, ('acc', 'wsum'))  # the feather accumulators, whatever the blend
     h, wd = (by1 - by0) // f, (bx1 - bx0) // f
     acc = acc_full.astype(np.float64).reshape(h, f, wd, f, -1).sum(axis=(1, 3))
     ws = w.astype(np.float64).reshape(h, f, wd, f).sum(axis=(1, 3))

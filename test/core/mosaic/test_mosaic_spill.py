@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from srmosaic_ros.core.mosaic import CanvasError, MosaicConfig, TiledCanvas
-from srmosaic_ros.core.mosaic import canvas as canvas_mod
+from srmosaic_ros.core.mosaic import canvas_reader as reader_mod
 from srmosaic_ros.core.mosaic.segments import Segment
 from srmosaic_ros.core.mosaic.tile_store import TileStoreError
 
@@ -83,7 +83,7 @@ def test_spilled_canvas_renders_bit_identical(blend: str, tmp_path: Path) -> Non
 @pytest.mark.parametrize('channels', [1, 3])
 def test_render_blocks_reassemble_render(blend: str, channels: int, tmp_path: Path,
                                          monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(canvas_mod, 'RENDER_BLOCK_PX', 70)  # several block rows, strips across them
+    monkeypatch.setattr(reader_mod, 'RENDER_BLOCK_PX', 70)  # several block rows, strips across them
     c = TiledCanvas(channels, tile_size=T, blend=blend, max_tiles_in_memory=3, spill_dir=tmp_path)
     paint_flight(c, channels=channels)
     for region in (None, (-13, 4, 150, 201)):
