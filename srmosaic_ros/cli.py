@@ -1,4 +1,4 @@
-"""`srmosaic` command line: process, evaluate, inspect, simulate, launch, play, node, record-tiles, psf.
+"""`srmosaic` command line: process, evaluate, inspect, simulate, launch, play, node, record-tiles, psf, serve.
 
 Every SrMosaicError ends the command with a one-line message on stderr and exit status 2;
 nothing half-written is left under a final file name.
@@ -123,6 +123,9 @@ FLAG_RANGES: dict[str, list[tuple[str, str, Callable[[Any], bool], str]]] = {
     ],
     'play': [
         ('delay', '--delay', lambda v: v >= 0.0, '>= 0 seconds'),
+    ],
+    'serve': [
+        ('port', '--port', lambda v: 1 <= v <= 65535, 'between 1 and 65535'),
     ],
 }
 
@@ -290,6 +293,29 @@ def _run_inspect(args: argparse.Namespace) -> int:
     return 0
 
 
+def _add_serve(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser('serve', help='serve a georeferenced process output as a web map (the mosaic and SR layers, the '
+                       'track and the last footprint) at http://BIND:PORT/; read only')
+    p.add_argument('dir', type=Path, help='output directory of `srmosaic process` (with mosaic.tif: a georeferenced run)')
+    p.add_argument('--port', type=int, default=8080, help='TCP port, between 1 and 65535 (default 8080)')
+    p.add_argument('--bind', default='127.0.0.1', help='address to listen on (default 127.0.0.1, this machine only; '
+                   '0.0.0.0 opens the map to the network, without any login)')
+    p.set_defaults(func=_run_serve)
+
+
+def _run_serve(args: argparse.Namespace) -> int:
+    from .web.run_source import RunSource
+    from .web.server import serve
+
+    source = RunSource(args.dir)
+    try:
+        serve(source, port=args.port, bind=args.bind, page_config={'title': f'srmosaic map: {args.dir.resolve().name}'})
+    except OSError as exc:
+        msg = f'cannot listen on {args.bind} port {args.port} ({exc.strerror or exc}); give another --port or --bind.'
+        raise ConfigError(msg) from None
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog='srmosaic', description=__doc__.splitlines()[0],
                                      epilog='Each command has --help. Documentation: docs/getting-started.md, and every '
@@ -304,6 +330,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_play(sub)
     _add_psf(sub)
     _add_record_tiles(sub)
+    _add_serve(sub)
     return parser
 
 

@@ -117,6 +117,8 @@ def write_outputs(result: PipelineResult, out: Path, config: PipelineConfig, ext
         'failure_reasons': dict(failures),
         'registration': registration_report(regs),
         'telemetry': {'fixes': len(result.fixes), 'imu': len(result.imus)},
+        # (w, h) of the last frame in mosaic.png: with its frames.csv row, the footprint the map shows (web/run_source.py)
+        'frame_size_px': next((list(rec.size) for rec in reversed(result.records) if rec.segment in main_segments), None),
         'keyframes': keyframe_report(result.records),
         'georeferenced': geo or None,
         **({'pose_placement': result.pose_check.as_dict()} if result.pose_check is not None else {}),
