@@ -18,6 +18,7 @@ import json
 import math
 import threading
 import time
+import warnings
 from collections import OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -124,10 +125,13 @@ class RunSource:
         rgba = render_tile(self._dataset(run.sr, z), z, x, y)
         if rgba is None:
             return None
+        from rasterio.errors import NotGeoreferencedWarning
         from rasterio.features import rasterize
 
-        inside = rasterize(run.sr_shapes, out_shape=(TILE_SIZE, TILE_SIZE), transform=tile_transform(z, x, y),
-                           fill=0, default_value=1, dtype='uint8', all_touched=False)
+        with warnings.catch_warnings():  # the tile's transform is given: the array has no CRS of its own to miss
+            warnings.simplefilter('ignore', NotGeoreferencedWarning)
+            inside = rasterize(run.sr_shapes, out_shape=(TILE_SIZE, TILE_SIZE), transform=tile_transform(z, x, y),
+                               fill=0, default_value=1, dtype='uint8', all_touched=False)
         rgba[:, :, 3] *= inside
         rgba[rgba[:, :, 3] == 0, :3] = 0
         return rgba if rgba[:, :, 3].any() else None
