@@ -58,6 +58,11 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
     p.add_argument('--check-points', default=None, metavar='N|NAMES',
                    help='stills with ground control: hold out N targets (spread over the survey) or the named ones '
                    '(comma-separated) as check points; their residuals go to report.json gcp')
+    p.add_argument('--tiles', nargs='?', const='png', choices=['png', 'webp'], default=None,
+                   help='georeferenced runs: also write the web map, XYZ tiles (EPSG:3857, default png) in DIR/tiles/ '
+                   '(and DIR/sr/ with --sr) with DIR/map.html, a page that opens offline')
+    p.add_argument('--kmz', action='store_true', help='georeferenced runs: also write DIR/mosaic.kmz (Google Earth: the '
+                   'mosaic as a ground overlay)')
     p.add_argument('--no-progress', action='store_true', help='no progress bar')
     p.set_defaults(func=_run_process)
 
@@ -82,10 +87,16 @@ def _run_process(args: argparse.Namespace) -> int:
                            checkpoint_every=args.checkpoint_every, resume=args.resume,
                            sr_factor=(args.sr_factor or config.sr_tiles.factor) if (args.sr or args.sr_factor) else None,
                            progress=not args.no_progress, deinterlace=args.deinterlace, gcp_file=args.gcp,
-                           check_points=args.check_points)
+                           check_points=args.check_points, tiles=args.tiles, kmz=args.kmz)
     print(f"{report['frames_registered']}/{report['frames_in']} frames in mosaic.png "
           f"({len(report['segments'])} segment(s)), {report['frames_per_s']} frames/s, "
           f"peak {report['peak_rss_mb']} MB -> {args.out}")
+    for name, figures in (report.get('map_outputs') or {}).items():
+        if name == 'tiles':
+            counts = ', '.join(f"{layer} {f['tiles']} (zoom {f['minzoom']}-{f['maxzoom']})" for layer, f in figures['layers'].items())
+            print(f"web map: {args.out / 'map.html'} ({figures['format']} tiles: {counts}); or `srmosaic serve {args.out}`")
+        elif name == 'kmz':
+            print(f"KMZ: {args.out / figures['file']}")
     if left_out := report.get('images_left_out'):
         print(f"{len(left_out)} image(s) left out, neither placed nor painted: {', '.join(sorted(left_out))} "
               "(report.json images_left_out says why)")

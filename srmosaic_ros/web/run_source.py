@@ -62,8 +62,10 @@ class RunSource:
     open datasets.
     """
 
-    def __init__(self, out_dir: str | Path) -> None:
+    def __init__(self, out_dir: str | Path, *, report: dict[str, Any] | None = None) -> None:
+        """report: the run's report, where report.json is not written yet (``process --tiles``)."""
         self.out = Path(out_dir)
+        self._report = report
         self._lock = threading.Lock()
         self._local = threading.local()
         self._cache: OrderedDict[tuple[int, str, int, int, int], bytes | None] = OrderedDict()
@@ -161,7 +163,7 @@ class RunSource:
         if not out.is_dir():
             msg = f'{out}: no such folder; give the --out folder of a `srmosaic process` run.'
             raise InputError(msg)
-        report = _read_json(out / 'report.json')
+        report = self._report if self._report is not None else _read_json(out / 'report.json')
         tif = out / 'mosaic.tif'
         if not tif.is_file():
             if report is None and not (out / 'mosaic.png').is_file():
@@ -207,7 +209,7 @@ class RunSource:
         t = run.grid.transform  # tiles.json boxes are in mosaic pixels (mosaic.tif's grid), corners at integers
         for entry in listing:
             x0, y0, w, h = (float(entry[k]) for k in ('x0', 'y0', 'width', 'height'))
-            ring = [list(t * (c, r)) for c, r in ((x0, y0), (x0 + w, y0), (x0 + w, y0 + h), (x0, y0 + h), (x0, y0))]
+            ring = [list(t @ (c, r)) for c, r in ((x0, y0), (x0 + w, y0), (x0 + w, y0 + h), (x0, y0 + h), (x0, y0))]
             shape = transform_geom(run.grid.crs, WEB_MERCATOR, {'type': 'Polygon', 'coordinates': [ring]})
             xs, ys = zip(*shape['coordinates'][0], strict=True)
             run.sr_shapes.append(shape)
@@ -238,7 +240,7 @@ class RunSource:
         corners = _last_footprint_px(self.out / 'frames.csv', report.get('frame_size_px'))
         if corners is not None:
             t = run.grid.transform
-            xy = [t * (u + 0.5, v + 0.5) for u, v in corners]  # mosaic pixel centres at integers -> corner convention
+            xy = [t @ (u + 0.5, v + 0.5) for u, v in corners]  # mosaic pixel centres at integers -> corner convention
             lon, lat = transform(run.grid.crs, 'EPSG:4326', [p[0] for p in xy], [p[1] for p in xy])
             ring = [[float(a), float(b)] for a, b in zip(lon, lat, strict=True)]
             footprint = {'type': 'Polygon', 'coordinates': [ring + ring[:1]]}
@@ -247,7 +249,7 @@ class RunSource:
         return {
             'frames': report.get('frames_in'),
             'pose': pose, 'footprint': footprint, 'track': track,
-            'bounds': [round(v, 9) for v in run.grid.bounds_lonlat()],
+            'bounds': [round(v, 9) for v in run.grid.bounds_lonlat],
             'minzoom': run.zooms[0], 'maxzoom': run.zooms[1],
             'sr_minzoom': run.sr_zooms[0] if run.sr_zooms else None,
             'sr_maxzoom': run.sr_zooms[1] if run.sr_zooms else None,

@@ -19,6 +19,7 @@ from PROJ through rasterio.
 """
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -35,7 +36,21 @@ __all__ = ['WEB_MERCATOR', 'RasterGrid', 'encode_tile', 'render_tile', 'tile_bou
 WEB_MERCATOR = 'EPSG:3857'
 
 
+@functools.cache
+def _quiet_rasterio() -> None:
+    """rasterio warns that the in-memory datasets it makes of reproject's arrays have no transform, before it
+    sets the one given; said once per process, it is noise in a command's output. Only that message is
+    silenced (a filter, not catch_warnings, which is not safe across the server's threads)."""
+    import warnings
+
+    from rasterio.errors import NotGeoreferencedWarning
+
+    warnings.filterwarnings('ignore', message='Dataset has no geotransform', category=NotGeoreferencedWarning)
+
+
+@functools.cache
 def _tms() -> Any:
+    """The WebMercatorQuad grid (morecantile copies it on each ``get``: kept once)."""
     import morecantile
 
     return morecantile.tms.get('WebMercatorQuad')
@@ -56,6 +71,7 @@ def tile_transform(z: int, x: int, y: int) -> Any:
     return from_bounds(*tile_bounds(z, x, y), TILE_SIZE, TILE_SIZE)
 
 
+@functools.cache
 def _tile_pixel_3857(z: int) -> float:
     """The side of one tile pixel at zoom z, in EPSG:3857 metres (its true ground size shrinks away from the equator)."""
     return float(_tms().matrix(z).cellSize)
@@ -80,6 +96,7 @@ class RasterGrid:
     width: int
     height: int
 
+    @functools.cached_property
     def bounds_3857(self) -> tuple[float, float, float, float]:
         """(left, bottom, right, top) of the raster in EPSG:3857 (its edges densified)."""
         from rasterio.warp import transform_bounds
@@ -87,6 +104,7 @@ class RasterGrid:
         left, bottom, right, top = self._native_bounds()
         return tuple(transform_bounds(self.crs, WEB_MERCATOR, left, bottom, right, top, densify_pts=21))
 
+    @functools.cached_property
     def bounds_lonlat(self) -> tuple[float, float, float, float]:
         """(west, south, east, north) of the raster in degrees (WGS84)."""
         from rasterio.warp import transform_bounds
@@ -95,7 +113,7 @@ class RasterGrid:
 
     def _native_bounds(self) -> tuple[float, float, float, float]:
         t, w, h = self.transform, self.width, self.height
-        xs, ys = zip(*(t * (c, r) for c, r in ((0, 0), (w, 0), (w, h), (0, h))), strict=True)
+        xs, ys = zip(*(t @ (c, r) for c, r in ((0, 0), (w, 0), (w, h), (0, h))), strict=True)
         return (min(xs), min(ys), max(xs), max(ys))
 
     def pixel_size(self) -> float:
@@ -103,11 +121,12 @@ class RasterGrid:
         t = self.transform
         return math.hypot(t.a, t.d)
 
+    @functools.cached_property
     def pixel_size_3857(self) -> float:
         """Side of one raster pixel at its centre, in EPSG:3857 metres (PROJ maps a pixel-sized step there)."""
         from rasterio.warp import transform
 
-        cx, cy = self.transform * (self.width / 2.0, self.height / 2.0)
+        cx, cy = self.transform @ (self.width / 2.0, self.height / 2.0)
         step = self.pixel_size()
         xs, ys = transform(self.crs, WEB_MERCATOR, [cx - step / 2, cx + step / 2], [cy, cy])
         return math.hypot(xs[1] - xs[0], ys[1] - ys[0])
@@ -121,12 +140,25 @@ def zoom_range(grid: RasterGrid, *, max_zoom: int = MAX_ZOOM) -> tuple[int, int]
     which the raster's longer side in EPSG:3857 is at most one tile (so one to four tiles hold it),
     never above maxzoom.
     """
-    px = grid.pixel_size_3857()
+    px = grid.pixel_size_3857
     maxzoom = next((z for z in range(max_zoom + 1) if _tile_pixel_3857(z) <= px), max_zoom)
-    left, bottom, right, top = grid.bounds_3857()
+    left, bottom, right, top = grid.bounds_3857
     side = max(right - left, top - bottom)
     minzoom = max((z for z in range(maxzoom + 1) if TILE_SIZE * _tile_pixel_3857(z) >= side), default=0)
     return min(minzoom, maxzoom), maxzoom
+
+
+def dataset_grid(dataset: Any) -> RasterGrid:
+    """The RasterGrid of an open rasterio dataset (kept per file and grid: its bounds are computed once)."""
+    return _grid(dataset.name, dataset.crs.to_wkt(), tuple(dataset.transform)[:6], dataset.width, dataset.height)
+
+
+@functools.lru_cache(maxsize=64)
+def _grid(name: str, crs_wkt: str, transform: tuple[float, ...], width: int, height: int) -> RasterGrid:
+    from rasterio.crs import CRS
+    from rasterio.transform import Affine
+
+    return RasterGrid(CRS.from_wkt(crs_wkt), Affine(*transform), width, height)
 
 
 def overview_for(dataset: Any, z: int) -> int | None:
@@ -135,11 +167,11 @@ def overview_for(dataset: Any, z: int) -> int | None:
     factors = dataset.overviews(1)
     if not factors:
         return None
-    grid = RasterGrid(dataset.crs, dataset.transform, dataset.width, dataset.height)
+    grid = dataset_grid(dataset)
     tile_px = _tile_pixel_3857(z)
     level = None
     for i, f in enumerate(factors):
-        if grid.pixel_size_3857() * f <= tile_px:
+        if grid.pixel_size_3857 * f <= tile_px:
             level = i
     return level
 
@@ -170,6 +202,7 @@ def render_tile(source: Any, z: int, x: int, y: int, *, transform: Any = None, c
     from rasterio.enums import Resampling
     from rasterio.warp import reproject
 
+    _quiet_rasterio()
     dst_transform = tile_transform(z, x, y)
     if isinstance(source, np.ndarray):
         bands = source if source.ndim == 3 else source[None]
@@ -182,9 +215,9 @@ def render_tile(source: Any, z: int, x: int, y: int, *, transform: Any = None, c
 
         count = source.count
         alpha = _alpha_band(source)
-        grid = RasterGrid(source.crs, source.transform, source.width, source.height)
+        grid = dataset_grid(source)
         src_args = {'source': rasterio.band(source, list(range(1, count + 1)))}
-    if not _meets(grid.bounds_3857(), tile_bounds(z, x, y)):
+    if not _meets(grid.bounds_3857, tile_bounds(z, x, y)):
         return None
     colour = count - (1 if alpha else 0)
     out_count = colour + 1
