@@ -373,7 +373,7 @@ def _map_outputs(stage: Path, report: dict[str, Any], t0: float, *, tiles: str |
     figures: dict[str, Any] = {}
     outputs = report.setdefault('stage_times', {}).setdefault('outputs', {})
     for name, wanted, write in (('tiles', tiles, lambda: write_tiles(stage, tiles, threads=output_threads(),
-                                                                     report=report)),
+                                                                     report=report, name=stage.parent.resolve().name)),
                                 ('kmz', kmz, lambda: write_kmz(stage))):
         if not wanted:
             continue

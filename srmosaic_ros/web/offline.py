@@ -44,10 +44,12 @@ KMZ_MAX_SIDE = 8192
 KMZ_PNG_LEVEL = 3
 
 
-def write_tiles(out: Path, fmt: str = 'png', *, threads: int = 1, report: dict[str, Any] | None = None) -> dict[str, Any]:
+def write_tiles(out: Path, fmt: str = 'png', *, threads: int = 1, report: dict[str, Any] | None = None,
+                name: str | None = None) -> dict[str, Any]:
     """The XYZ tiles of both layers and the offline page into ``out`` (a georeferenced run's folder).
 
-    report: the run's report when report.json is not written yet (its frame count goes on the page).
+    report: the run's report when report.json is not written yet (its frame count goes on the page);
+    name: the run's name in the page's title (default: the folder's).
     Returns report.json's figures: tiles written per layer, zooms, format, bytes.
     """
     if fmt not in TILE_FORMATS:
@@ -55,6 +57,7 @@ def write_tiles(out: Path, fmt: str = 'png', *, threads: int = 1, report: dict[s
         raise ValueError(msg)
     source = RunSource(out, report=report)
     status = source.status()
+    status['diagnostics'].pop('out_dir', None)  # the page goes where the folder goes
     ext = ENCODINGS[fmt][0]
     figures: dict[str, Any] = {'format': fmt, 'layers': {}}
     jobs = []
@@ -86,7 +89,7 @@ def write_tiles(out: Path, fmt: str = 'png', *, threads: int = 1, report: dict[s
                 figures['layers'][layer]['tiles'] += 1
                 figures['layers'][layer]['bytes'] += size
     layers = {'mosaic': f'tiles/{{z}}/{{x}}/{{y}}{ext}', 'sr': f'sr/{{z}}/{{x}}/{{y}}{ext}'}
-    write_page(out, status, layers, title=f'srmosaic map: {out.resolve().name}')
+    write_page(out, status, layers, title=f'srmosaic map: {name or out.resolve().name}')
     figures['page'] = 'map.html'
     return figures
 
