@@ -66,9 +66,10 @@ def tile_bounds(z: int, x: int, y: int) -> tuple[float, float, float, float]:
 
 def tile_transform(z: int, x: int, y: int) -> Any:
     """The affine transform (pixel corners, rasterio's ``Affine``) of tile (z, x, y)'s 256x256 pixels in EPSG:3857."""
-    from rasterio.transform import from_bounds
+    from rasterio.transform import Affine
 
-    return from_bounds(*tile_bounds(z, x, y), TILE_SIZE, TILE_SIZE)
+    left, bottom, right, top = tile_bounds(z, x, y)
+    return Affine((right - left) / TILE_SIZE, 0.0, left, 0.0, -(top - bottom) / TILE_SIZE, top)
 
 
 @functools.cache
