@@ -88,9 +88,11 @@
         map.fitBounds(box, {padding: [20, 20], animate: false});
         state.fitted = true;
       }
-      // tiles are asked for only inside the mosaic's box
+      // tiles are asked for only inside the mosaic's box; a live mosaic's box grows: ask for the new ones
+      var grew = !mosaic.options.bounds || !mosaic.options.bounds.equals(box);
       mosaic.options.bounds = box;
       sr.options.bounds = box;
+      if (grew && started) { mosaic._update(); sr._update(); }
     }
     var zooms = setZooms(mosaic, 0, status.maxzoom);
     zooms = setZooms(sr, status.sr_minzoom || 0, status.sr_maxzoom) || zooms;
