@@ -214,3 +214,38 @@ def test_every_covered_tile_of_a_zoom_is_served(server, run):
     status = json.loads(get(server, '/status.json')[2])
     codes = [get(server, f'/tiles/{z}/{x}/{y}.png')[0] for z, x, y in tiles_covering(status['bounds'], status['maxzoom'])]
     assert set(codes) <= {200, 404} and codes.count(200) >= 1
+
+
+class Growing:
+    """A live source that has nothing yet, then the synthetic run (a late first fix)."""
+
+    def __init__(self, inner: RunSource) -> None:
+        self.inner, self.ready = inner, False
+
+    def tile_png(self, layer, z, x, y):
+        return self.inner.tile_png(layer, z, x, y) if self.ready else None
+
+    def status(self):
+        if not self.ready:
+            return {'frames': 0, 'pose': None, 'footprint': None, 'track': None, 'bounds': None, 'minzoom': None,
+                    'maxzoom': None, 'diagnostics': {}, 'version': 1, 'live': True}
+        return {**self.inner.status(), 'version': 2, 'live': True}
+
+    def version(self):
+        return 2 if self.ready else 1
+
+
+def test_page_starts_empty_and_shows_the_map_when_it_comes(run, chromium):
+    """The page opened before anything is painted shows the mosaic once the source has it, without a reload."""
+    source = Growing(RunSource(run.out))
+    with start_in_thread(source) as srv:
+        page = chromium.new_page(viewport={'width': 800, 'height': 600})
+        page.goto(srv.url)
+        page.wait_for_function('() => srmosaic.statusLoads >= 1 && srmosaic.events >= 1', timeout=30_000)
+        assert page.evaluate("document.querySelectorAll('.srm-layer-1 img').length") == 0
+        source.ready = True
+        page.wait_for_function("""() => srmosaic.fitted && Array.from(document.querySelectorAll('.srm-layer-1 img'))
+            .some(img => img.complete && img.naturalWidth > 0)""", timeout=30_000)
+        assert page.evaluate("document.querySelector('.srm-aircraft') !== null")
+        assert 'live' in page.inner_text('#info')
+        page.close()
