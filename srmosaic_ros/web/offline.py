@@ -32,12 +32,15 @@ import numpy as np
 from ..io.mosaic_files import atomic_path
 from .run_source import RunSource
 from .server import ASSETS, PAGE_FILE, STATIC_FILES, page_config_js, static_bytes
+from .source import TILE_SIZE
 from .tiles import ENCODINGS, encode_tile, tiles_covering
 
 __all__ = ['KMZ_MAX_SIDE', 'TILE_FORMATS', 'write_kmz', 'write_page', 'write_tiles']
 
 #: Formats of ``process --tiles``.
 TILE_FORMATS = tuple(ENCODINGS)
+#: Tiles on a side of the blocks ``write_tiles`` warps at once (16 MB of RGBA at 8).
+BLOCK_TILES = 8
 #: Longest side (px) of the image in mosaic.kmz.
 KMZ_MAX_SIDE = 8192
 #: zlib level of the KMZ's PNG (as the tiles': level 6 makes them a sixth smaller at twice the time).
@@ -68,30 +71,47 @@ def write_tiles(out: Path, fmt: str = 'png', *, threads: int = 1, report: dict[s
         root = out / folder
         if folder == 'tiles' and root.exists():
             shutil.rmtree(root)  # an earlier --tiles run's: its zooms or format may differ
-        jobs += [(layer, root, z, x, y) for z in range(zooms[0], zooms[1] + 1)
-                 for _, x, y in tiles_covering(status['bounds'], z)]
+        for z in range(zooms[0], zooms[1] + 1):
+            jobs += _blocks(layer, root, z, [(x, y) for _, x, y in tiles_covering(status['bounds'], z)])
         figures['layers'][layer] = {'minzoom': zooms[0], 'maxzoom': zooms[1], 'tiles': 0, 'bytes': 0}
 
-    def one(job: tuple[str, Path, int, int, int]) -> tuple[str, int]:
-        layer, root, z, x, y = job
-        rgba = source.tile_rgba(layer, z, x, y)
-        if rgba is None:
-            return layer, -1
-        data = encode_tile(rgba, fmt)
-        path = root / str(z) / str(x) / f'{y}{ext}'
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_bytes(data)  # inside the run's staging folder, or a folder the run owns
-        return layer, len(data)
+    def one(job: tuple[str, Path, int, int, int, int, int]) -> tuple[str, int, int]:
+        layer, root, z, x0, y0, nx, ny = job
+        block = source.block_rgba(layer, z, x0, y0, nx, ny)
+        count = size = 0
+        for j in range(ny if block is not None else 0):
+            for i in range(nx):
+                rgba = block[TILE_SIZE * j:TILE_SIZE * (j + 1), TILE_SIZE * i:TILE_SIZE * (i + 1)]
+                if not rgba[:, :, 3].any():
+                    continue
+                data = encode_tile(np.ascontiguousarray(rgba), fmt)
+                path = root / str(z) / str(x0 + i) / f'{y0 + j}{ext}'
+                path.parent.mkdir(parents=True, exist_ok=True)
+                path.write_bytes(data)  # inside the run's staging folder, or a folder the run owns
+                count, size = count + 1, size + len(data)
+        return layer, count, size
 
     with ThreadPoolExecutor(max(1, threads)) as pool:
-        for layer, size in pool.map(one, jobs):
-            if size >= 0:
-                figures['layers'][layer]['tiles'] += 1
-                figures['layers'][layer]['bytes'] += size
+        for layer, count, size in pool.map(one, jobs):
+            figures['layers'][layer]['tiles'] += count
+            figures['layers'][layer]['bytes'] += size
     layers = {'mosaic': f'tiles/{{z}}/{{x}}/{{y}}{ext}', 'sr': f'sr/{{z}}/{{x}}/{{y}}{ext}'}
     write_page(out, status, layers, title=f'srmosaic map: {name or out.resolve().name}')
     figures['page'] = 'map.html'
     return figures
+
+
+def _blocks(layer: str, root: Path, z: int, tiles: list[tuple[int, int]]) -> list[tuple[str, Path, int, int, int, int, int]]:
+    """The tiles of one zoom as blocks of at most BLOCK_TILES x BLOCK_TILES (one warp each):
+    (layer, root, z, x0, y0, nx, ny)."""
+    groups: dict[tuple[int, int], list[tuple[int, int]]] = {}
+    for x, y in tiles:
+        groups.setdefault((x // BLOCK_TILES, y // BLOCK_TILES), []).append((x, y))
+    blocks = []
+    for members in groups.values():
+        xs, ys = [x for x, _ in members], [y for _, y in members]
+        blocks.append((layer, root, z, min(xs), min(ys), max(xs) - min(xs) + 1, max(ys) - min(ys) + 1))
+    return blocks
 
 
 def write_page(out: Path, status: dict[str, Any], layers: dict[str, str], *, title: str = 'srmosaic map') -> None:

@@ -18,7 +18,6 @@ import json
 import math
 import threading
 import time
-import warnings
 from collections import OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,8 +26,8 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError
-from .source import LAYERS, MAX_ZOOM, TILE_SIZE
-from .tiles import WEB_MERCATOR, RasterGrid, encode_tile, overview_for, render_tile, tile_transform, zoom_range
+from .source import LAYERS, MAX_ZOOM
+from .tiles import WEB_MERCATOR, RasterGrid, encode_tile, overview_for, render_block, tile_bounds, tile_transform, zoom_range
 
 __all__ = ['RunSource', 'TRACK_POINTS_MAX']
 
@@ -117,26 +116,31 @@ class RunSource:
     # -- rendering ---------------------------------------------------------------------------------
     def tile_rgba(self, layer: str, z: int, x: int, y: int) -> np.ndarray | None:
         """(256, 256, 4) uint8 RGBA of a tile of ``layer``, or None where nothing is painted."""
-        run = self._run
         if z > MAX_ZOOM or not (0 <= x < 1 << z and 0 <= y < 1 << z):
             return None
+        block = self.block_rgba(layer, z, x, y, 1, 1)
+        return None if block is None or not block[:, :, 3].any() else block
+
+    def block_rgba(self, layer: str, z: int, x0: int, y0: int, nx: int, ny: int) -> np.ndarray | None:
+        """(256 ny, 256 nx, 4) uint8 RGBA of the nx x ny tiles of ``layer`` from (x0, y0) (tiles.render_block),
+        or None where the layer does not reach them."""
+        run = self._run
         if layer == 'mosaic':
-            return render_tile(self._dataset(run.mosaic, z), z, x, y)
-        if run.sr is None or not _any_meets(run.sr_boxes, z, x, y):
+            return render_block(self._dataset(run.mosaic, z), z, x0, y0, nx, ny)
+        first, last = tile_bounds(z, x0, y0), tile_bounds(z, x0 + nx - 1, y0 + ny - 1)
+        box = (first[0], last[1], last[2], first[3])
+        if run.sr is None or not any(_meets(b, box) for b in run.sr_boxes):
             return None
-        rgba = render_tile(self._dataset(run.sr, z), z, x, y)
+        rgba = render_block(self._dataset(run.sr, z), z, x0, y0, nx, ny)
         if rgba is None:
             return None
-        from rasterio.errors import NotGeoreferencedWarning
         from rasterio.features import rasterize
 
-        with warnings.catch_warnings():  # the tile's transform is given: the array has no CRS of its own to miss
-            warnings.simplefilter('ignore', NotGeoreferencedWarning)
-            inside = rasterize(run.sr_shapes, out_shape=(TILE_SIZE, TILE_SIZE), transform=tile_transform(z, x, y),
-                               fill=0, default_value=1, dtype='uint8', all_touched=False)
+        inside = rasterize(run.sr_shapes, out_shape=rgba.shape[:2], transform=tile_transform(z, x0, y0), fill=0,
+                           default_value=1, dtype='uint8', all_touched=False)
         rgba[:, :, 3] *= inside
         rgba[rgba[:, :, 3] == 0, :3] = 0
-        return rgba if rgba[:, :, 3].any() else None
+        return rgba
 
     def _dataset(self, path: Path, z: int) -> Any:
         """``path`` opened in this thread, at the overview that suits zoom z."""
@@ -313,8 +317,5 @@ def _last_footprint_px(frames_csv: Path, size: Any) -> list[tuple[float, float]]
     return [(float(u), float(v)) for u, v in xy]
 
 
-def _any_meets(boxes: list[tuple[float, float, float, float]], z: int, x: int, y: int) -> bool:
-    from .tiles import tile_bounds
-
-    left, bottom, right, top = tile_bounds(z, x, y)
-    return any(b[0] < right and left < b[2] and b[1] < top and bottom < b[3] for b in boxes)
+def _meets(a: tuple[float, float, float, float], b: tuple[float, float, float, float]) -> bool:
+    return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
