@@ -319,6 +319,9 @@ def _run_serve(args: argparse.Namespace) -> int:
     from .web.server import serve
 
     source = RunSource(args.dir)
+    if args.bind not in ('127.0.0.1', 'localhost', '::1'):
+        print(f'srmosaic serve: the map is open to every host that reaches {args.bind} port {args.port}, without a login',
+              file=sys.stderr)
     try:
         serve(source, port=args.port, bind=args.bind, page_config={'title': f'srmosaic map: {args.dir.resolve().name}'})
     except OSError as exc:
