@@ -123,6 +123,7 @@ def test_page_config_and_files(server):
     html = body.decode()
     assert 'map_config.js' in html and 'map_files/leaflet.js' in html
     assert 'http://' not in html and 'https://' not in html  # nothing from the internet
+    assert "default-src 'self'" in headers['content-security-policy'] and headers['x-content-type-options'] == 'nosniff'
     code, _, body = get(server, '/map_config.js')
     assert code == 200 and body.startswith(b'window.SRMOSAIC_CONFIG = ')
     config = json.loads(body.decode().split('=', 1)[1].strip().rstrip(';'))
