@@ -53,7 +53,6 @@ from typing import Any
 import cv2
 import numpy as np
 
-from srmosaic_ros.errors import SrMosaicError
 
 from ..homography import project_points
 from .best_view import (clip_depth, clipped_polygon, depth_map, magnified_somewhere, resolution_factor, update_best)
@@ -62,7 +61,7 @@ from .blend import MULTIBAND_MARGIN as MULTIBAND_MARGIN  # importable from here 
 from .blend import feather_weight, update_max_weight
 from .canvas_reader import RENDER_BLOCK_PX as RENDER_BLOCK_PX  # importable from here as before
 from .canvas_reader import CanvasReader
-from .canvas_settings import settings_problem
+from .canvas_settings import CanvasError, settings_problem
 from .resample import DEFAULT_INTERPOLATION, FILL_RINGS, FrameSampler
 from .scratch import scratch
 from .seam_cut import block_means, block_size, cut_nodes, expand
@@ -70,10 +69,6 @@ from .tile_store import TileKey, TileLayout, TileStore, TileStoreError
 
 __all__ = ['CanvasError', 'PaintResult', 'TileKey', 'TileStoreError', 'TiledCanvas']
 
-
-
-class CanvasError(SrMosaicError, ValueError):
-    """A frame cannot be painted or a region rendered (absurd homography, bad image or mask)."""
 
 
 @dataclass(frozen=True, eq=False)

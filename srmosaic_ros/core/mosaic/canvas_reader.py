@@ -10,16 +10,16 @@ from __future__ import annotations
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import nullcontext
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from .best_view import transition_image
 from .blend import auto_bands, feather_divide, multiband_blend, pyramid_region
+from .canvas_settings import CanvasError
 from .preview import assemble, block_sums, preview_factor
 
 if TYPE_CHECKING:
-    from .canvas import TiledCanvas
     from .tile_store import TileKey
 
 __all__ = ['RENDER_BLOCK_PX', 'CanvasReader']
@@ -34,7 +34,7 @@ class CanvasReader:
     """Reads ``canvas``'s tiles (its store, tile counts and bounds) into images; keeps the incremental
     preview's block sums (recomputed only for the tiles painted since the last preview)."""
 
-    def __init__(self, canvas: TiledCanvas) -> None:
+    def __init__(self, canvas: Any) -> None:  # the TiledCanvas it reads (canvas.py imports this module)
         self.canvas = canvas
         self._preview_dirty: set[TileKey] = set()
         self._preview_sums: dict[TileKey, tuple[np.ndarray, np.ndarray]] = {}
@@ -50,14 +50,14 @@ class CanvasReader:
             return self.canvas.bounds()
         if len(region) != 4 or any(int(v) != v for v in region):
             msg = f'region must be four integers (x0, y0, x1, y1), got {region!r}.'
-            raise _canvas_error(msg)
+            raise CanvasError(msg)
         x0, y0, x1, y1 = (int(v) for v in region)
         if x1 < x0 or y1 < y0:
             msg = f'region {region!r} is inverted: need x0 <= x1 and y0 <= y1 (inclusive-exclusive).'
-            raise _canvas_error(msg)
+            raise CanvasError(msg)
         if max(x1 - x0, y1 - y0) > self.canvas._max_side:
             msg = f'region {region!r} is larger than max_canvas_side_px={self.canvas._max_side}; render it in pieces.'
-            raise _canvas_error(msg)
+            raise CanvasError(msg)
         return x0, y0, x1, y1
 
     def _keys_in(self, x0: int, y0: int, x1: int, y1: int) -> list[TileKey]:
@@ -119,7 +119,7 @@ class CanvasReader:
         self.canvas._check_open()
         if self.canvas._blend == 'feather':
             msg = 'a feather canvas averages every frame over a pixel: it has no labels (blend bestview or multiband).'
-            raise _canvas_error(msg)
+            raise CanvasError(msg)
         return self._gather(self._region(region), ('best_id',))[0]
 
     def weights(self, region: tuple[int, int, int, int] | None = None) -> np.ndarray:
@@ -179,7 +179,7 @@ class CanvasReader:
         self.canvas._check_open()
         if int(max_side) < 1:
             msg = f'max_side must be a positive integer, got {max_side!r}.'
-            raise _canvas_error(msg)
+            raise CanvasError(msg)
         c = self.canvas._channels
         if self.canvas._bounds is None:
             empty = np.zeros((0, 0, c) if c > 1 else (0, 0), np.float32)
@@ -217,7 +217,7 @@ class CanvasReader:
         """
         if isinstance(block_rows, bool) or int(block_rows) != block_rows or block_rows < 1:
             msg = f'block_rows must be a positive integer, got {block_rows!r}.'
-            raise _canvas_error(msg)
+            raise CanvasError(msg)
         self.canvas._check_open()
         block_rows = int(block_rows)
         x0, y0, x1, y1 = self._region(region)
@@ -313,8 +313,3 @@ class CanvasReader:
         crop = (slice(y0 - ey0, y1 - ey0), slice(x0 - ex0, x1 - ex0))
         return out[crop], covered[crop]
 
-
-def _canvas_error(msg: str) -> Exception:
-    from .canvas import CanvasError  # the canvas's own error (canvas.py imports this module)
-
-    return CanvasError(msg)

@@ -8,11 +8,17 @@ from __future__ import annotations
 
 import math
 
+from srmosaic_ros.errors import SrMosaicError
+
 from .blend import FEATHER_PROFILES
 from .config import BLEND_MODES, SEAM_MODES
 from .resample import INTERPOLATIONS
 
-__all__ = ['settings_problem']
+
+class CanvasError(SrMosaicError, ValueError):
+    """A frame cannot be painted or a region rendered (absurd homography, bad image or mask)."""
+
+__all__ = ['CanvasError', 'settings_problem']
 
 
 def settings_problem(
