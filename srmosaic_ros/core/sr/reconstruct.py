@@ -140,6 +140,10 @@ class SRConfig:
         (core/sr/self_check.py: a tile that does not is left to the mosaic); 0: no check (the
         default: on real video the check's verdict does not follow the tiles' gain, docs/results.md). Read
         by :func:`~srmosaic_ros.core.sr.self_check.reconstruct_checked_tile`, not by reconstruct_tile.
+    fallback: frames held out per tile by `process --sr` to decide between SR and the best frame's
+        upsampling (core/sr/fallback.py: a tile whose SR predicts them no better than that frame shows
+        the frame upsampled, and says so in tiles.json); 0: only tiles SR cannot serve fall back. Read
+        by :func:`~srmosaic_ros.core.sr.fallback.super_resolve_or_fallback`, not by reconstruct_tile.
     moving: frames' LR pixels that differ from the per-pixel median of the frames on the tile by
         more than this (intensity; core/sr/moving.py) saw something move and weigh 0 in the data
         term and the initial estimate; 0: off.
@@ -186,6 +190,7 @@ class SRConfig:
     outlier_power: float = 2.0
     consistency: float = 0.8
     self_check: int = 0
+    fallback: int = 1
     moving: float = 0.0
     min_observed: int = 16
     lm_inner: int = 8
@@ -222,6 +227,8 @@ class SRConfig:
             (0.0 <= self.moving < 1.0, f'moving must be in [0, 1) (intensity; 0: off), got {self.moving}'),
             (isinstance(self.self_check, int) and not isinstance(self.self_check, bool) and 0 <= self.self_check <= 8,
              f'self_check must be an integer in 0..8 (held-out frames per tile; 0: off), got {self.self_check!r}'),
+            (isinstance(self.fallback, int) and not isinstance(self.fallback, bool) and 0 <= self.fallback <= 8,
+             f'fallback must be an integer in 0..8 (held-out frames per tile; 0: no check), got {self.fallback!r}'),
             (self.lm_inner >= 1, f'lm_inner must be >= 1, got {self.lm_inner}'),
         ]
         for ok, msg in checks:
