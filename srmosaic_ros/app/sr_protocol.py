@@ -199,12 +199,15 @@ def _nearest(covering: list[int], centres: np.ndarray, c: np.ndarray, count: int
 
 
 def score_sr_run(out: Path, original: Path, *, methods: dict[str, TileMethod] | None = None,
-                 loo: bool = True, compare: bool = True, max_tiles: int | None = None) -> dict[str, Any]:
+                 loo: bool = True, compare: bool = True, max_tiles: int | None = None,
+                 images_out: dict[str, dict[str, np.ndarray]] | None = None) -> dict[str, Any]:
     """Score the SR tiles of the run ``out`` (made by `process --sr` from a video halved from
     ``original`` by :func:`halve_video`) against the original frames (module docstring).
 
     methods: name -> :data:`TileMethod` scored beside SR on the same tiles (protocol b and c).
     loo: reconstruct each tile without its truth frame (protocol c; one more solve per tile).
+    images_out: when given, filled with each tile's luma images (HR grid, 0..255) by tile file and
+    name ('truth', 'sr', 'sr_only', 'mosaic_bicubic', 'frame_bicubic', 'other_bicubic', 'loo_sr', ...).
     compare: write DIR/sr/protocol_compare.png (the first COMPARE_TILES tiles: truth | mosaic
     bicubic | frame bicubic | SR | other frame bicubic | SR without the truth frame | moving mask).
 
@@ -298,6 +301,13 @@ def score_sr_run(out: Path, original: Path, *, methods: dict[str, TileMethod] | 
             'frame_bicubic': luma255(_sample(lr[truth_k], frame_H_grid(truth_k), shape)),
         }
         tile_H = {i: translation(-entry['x0'], -entry['y0']) @ mosaic_H[i] for i in need_lr if i in lr}
+        images['sr_only'] = images['sr']
+        if entry.get('fallback') == 'held_out_worse_than_frame':
+            try:  # what SR alone would have shown on a tile that fell back
+                res = reconstruct_tile([lr[i] for i in chosen], [tile_H[i] for i in chosen], tile_shape, s, config=sr_config)
+                images['sr_only'] = luma255(255.0 * res.image.detach().cpu().numpy().transpose(1, 2, 0))
+            except SRError:
+                pass
         for name, method in methods.items():
             images[f'{name}'] = luma255(255.0 * np.asarray(method([lr[i] for i in chosen], [tile_H[i] for i in chosen],
                                                                     tile_shape, s, sr_config.psf_sigma)))
@@ -326,6 +336,8 @@ def score_sr_run(out: Path, original: Path, *, methods: dict[str, TileMethod] | 
         for key, img in images.items():
             record[f'sse_{key}'] = _sse(img, truth, keep)
             record[f'ssim_{key}'] = masked_ssim(img, truth, keep)
+        if images_out is not None:
+            images_out[entry['file']] = {'truth': truth, 'moving': moved, **images}
         dx, dy = subpixel_shift(images['sr'], truth)
         record['sr_shift_px'] = [round(dx, 3), round(dy, 3)]
         per_tile.append(record)
@@ -365,6 +377,7 @@ def score_sr_run(out: Path, original: Path, *, methods: dict[str, TileMethod] | 
 #: (comparison, the estimate's key, the baseline's key) in the per-tile records.
 def _comparisons(methods: list[str]) -> list[tuple[str, str, str]]:
     pairs = [('mosaic', 'sr', 'mosaic_bicubic'), ('frame', 'sr', 'frame_bicubic'), ('loo', 'loo_sr', 'other_bicubic'),
+             ('mosaic_sr_only', 'sr_only', 'mosaic_bicubic'), ('frame_sr_only', 'sr_only', 'frame_bicubic'),
              ('loo_sr_only', 'loo_sr_only', 'other_bicubic')]
     for m in methods:
         pairs += [(f'frame:{m}', m, 'frame_bicubic'), (f'loo:{m}', f'loo_{m}', 'other_bicubic'),
@@ -395,7 +408,9 @@ def _summary(per_tile: list[dict[str, Any]], methods: list[str]) -> dict[str, An
 _LABELS = {'mosaic': '(a) SR against the bicubic of mosaic.png',
            'frame': "(b) SR against the reference frame's own bicubic",
            'loo': '(c) leave-one-out: SR without the truth frame against the nearest other frame\'s bicubic',
-           'loo_sr_only': '    the same without the fallback to the best frame'}
+           'mosaic_sr_only': '    (a) without the fallback to the best frame',
+           'frame_sr_only': '    (b) without the fallback to the best frame',
+           'loo_sr_only': '    (c) without the fallback to the best frame'}
 
 
 def format_protocol(result: dict[str, Any]) -> list[str]:
