@@ -16,8 +16,9 @@ SR scoring"; bench/sr_video.py and `srmosaic evaluate DIR --original VIDEO`):
    - (b) ``frame``: SR against frame k's own halved image sampled bicubically (single-frame upsampling);
    - (c) ``loo`` (leave-one-out): the tile reconstructed again **without frame k** (from the frames the
      scheduler would choose among the others, with the run's settings and its fallback rule,
-     core/sr/fallback.py) against the bicubic of the nearest other frame j (the frame that SR then
-     anchors to). Neither side has seen frame k's noise or compression: the baseline that counts.
+     core/sr/fallback.py) against the bicubic of the nearest other frame in time j (k +- 1 where it
+     holds the tile; the leave-one-out solve is anchored to it, so both show the same instant).
+     Neither side has seen frame k's noise or compression: the baseline that counts.
 
    Luma (Rec. 601) PSNR and SSIM on static pixels only: the original frames that hold the tile (up to
    ``MEDIAN_FRAMES``, spread over the run) are sampled onto the tile's grid and their per-pixel
@@ -264,7 +265,13 @@ def score_sr_run(out: Path, original: Path, *, methods: dict[str, TileMethod] | 
         order = sorted(covering, key=lambda i: float(np.hypot(*(centres[i] - c))))
         truth = order[0]
         chosen = sorted(order[:tile_config.max_frames])
-        without = sorted(order[1:1 + tile_config.max_frames])
+        # the nearest other frame in time (k +- 1 where it holds the tile): it never saw frame k's noise or
+        # compression; the leave-one-out solve anchors to it, among the frames the scheduler would take
+        other = min((i for i in covering if i != truth), key=lambda i: (abs(i - truth), i), default=None)
+        if other is None:
+            without = []
+        else:
+            without = [other] + [i for i in order[1:] if i != other][:tile_config.max_frames - 1]
         spread = [covering[int(v)] for v in np.unique(np.round(np.linspace(0, len(covering) - 1,
                                                                             min(MEDIAN_FRAMES, len(covering)))))]
         plans.append((entry, truth, chosen, without, spread))
@@ -319,11 +326,12 @@ def score_sr_run(out: Path, original: Path, *, methods: dict[str, TileMethod] | 
             images['other_bicubic'] = luma255(_sample(lr[other], frame_H_grid(other), shape))
             frames_wo = [lr[i] for i in without]
             mats_wo = [tile_H[i] for i in without]
-            outcome = super_resolve_or_fallback(frames_wo, mats_wo, tile_shape, s, sr_config, holdouts=sr_config.fallback)
+            outcome = super_resolve_or_fallback(frames_wo, mats_wo, tile_shape, s, sr_config, holdouts=sr_config.fallback,
+                                                reference=0)
             images['loo_sr'] = luma255(255.0 * outcome.image)
             if outcome.fallback == 'held_out_worse_than_frame':
                 try:  # what SR alone would have shown
-                    res = reconstruct_tile(frames_wo, mats_wo, tile_shape, s, config=sr_config)
+                    res = reconstruct_tile(frames_wo, mats_wo, tile_shape, s, config=sr_config, reference=0)
                     images['loo_sr_only'] = luma255(255.0 * res.image.detach().cpu().numpy().transpose(1, 2, 0))
                 except SRError:
                     images['loo_sr_only'] = images['loo_sr']

@@ -88,16 +88,20 @@ def frame_upsampled(frame: np.ndarray, tile_H_frame: np.ndarray, tile_shape: tup
 
 
 def held_out_against_frame(frames: Sequence[np.ndarray], tile_H_frames: Sequence[np.ndarray], tile_shape: tuple[int, int],
-                           factor: int, config: SRConfig, *, holdouts: int = 1) -> dict[str, float] | None:
+                           factor: int, config: SRConfig, *, holdouts: int = 1,
+                           reference: int | None = None) -> dict[str, float] | None:
     """Sums of squared errors (intensity^2 over channels) of predicting up to ``holdouts`` held-out
     frames (module docstring) from the SR estimate of the others (``sr``), from the reference's LR
     pixels resampled at theirs (``frame``) and from the others' LR mosaic resampled at their pixels (``mosaic``),
     over the ``n`` values all three predict. None when no frame could be held out (fewer than three
-    frames, or the others cannot be solved)."""
+    frames, or the others cannot be solved). ``reference``: the best frame's index (default: the
+    nearest, as :func:`super_resolve_or_fallback`)."""
     if len(frames) < 3 or holdouts < 1:
         return None
-    order = _holdout_order(frames, tile_H_frames, tile_shape)
-    ref = int(order[0])
+    order = [int(v) for v in _holdout_order(frames, tile_H_frames, tile_shape)]
+    if reference is not None:
+        order = [reference] + [k for k in order if k != reference]
+    ref = order[0]
     device = resolve_device(config.device)
     s = int(factor)
     # the best frame on the LR tile grid (bicubic), resampled at the held-out frame's pixels as the mosaic is
@@ -109,7 +113,7 @@ def held_out_against_frame(frames: Sequence[np.ndarray], tile_H_frames: Sequence
         others = [k for k in range(len(frames)) if k != j]
         try:
             res = reconstruct_tile([frames[k] for k in others], [tile_H_frames[k] for k in others], tile_shape, s,
-                                   config=config)
+                                   config=config, reference=others.index(ref))
         except SRError:
             continue
         stack = build_frame_stack(_frames_to_tensors([frames[j]], device), [np.asarray(tile_H_frames[j])], tile_shape,
@@ -131,15 +135,16 @@ def held_out_against_frame(frames: Sequence[np.ndarray], tile_H_frames: Sequence
 
 def super_resolve_or_fallback(frames: Sequence[np.ndarray], tile_H_frames: Sequence[np.ndarray],
                               tile_shape: tuple[int, int], factor: int, config: SRConfig, *,
-                              holdouts: int = 1) -> TileOutcome:
-    """The tile as `process --sr` writes it: SR when it predicts held-out frames better than the best
-    frame's upsampling does, else that upsampling (module docstring); ``holdouts`` 0: only a tile SR
-    cannot serve falls back. Never raises SRError for a tile its frames observe."""
+                              holdouts: int = 1, reference: int | None = None) -> TileOutcome:
+    """The tile as `process --sr` writes it: SR when it predicts held-out frames about as well as the
+    best frame does or better, else that frame upsampled (module docstring); ``holdouts`` 0: only a
+    tile SR cannot serve falls back. ``reference``: the best frame's index into ``frames`` (default:
+    the one whose centre lands nearest the tile's). Never raises SRError for a tile its frames observe."""
     s = int(factor)
     if not frames:
         msg = 'no frame covers this tile.'
         raise SRError(msg)
-    ref = int(_holdout_order(frames, tile_H_frames, tile_shape)[0])
+    ref = int(_holdout_order(frames, tile_H_frames, tile_shape)[0]) if reference is None else int(reference)
     fallback_image = frame_upsampled(frames[ref], tile_H_frames[ref], tile_shape, s)
 
     def fall_back(reason: str, detail: str, rms: dict[str, float] | None = None) -> TileOutcome:
@@ -149,7 +154,7 @@ def super_resolve_or_fallback(frames: Sequence[np.ndarray], tile_H_frames: Seque
     if holdouts > 0:
         check = replace(config, device=str(resolve_device(config.device)))
         try:
-            sums = held_out_against_frame(frames, tile_H_frames, tile_shape, s, check, holdouts=holdouts)
+            sums = held_out_against_frame(frames, tile_H_frames, tile_shape, s, check, holdouts=holdouts, reference=ref)
         except SRError:
             sums = None
         if sums is not None:
@@ -160,7 +165,7 @@ def super_resolve_or_fallback(frames: Sequence[np.ndarray], tile_H_frames: Seque
                                  f'does (RMS {rms["sr"]:.2f} against {rms["frame"]:.2f} grey levels): its '
                                  'detail is not the ground\'s; the tile shows the best frame upsampled (bicubic).', rms)
     try:
-        res = reconstruct_tile(frames, tile_H_frames, tile_shape, s, config=config)
+        res = reconstruct_tile(frames, tile_H_frames, tile_shape, s, config=config, reference=ref)
     except SRFramesDisagree as exc:
         return fall_back('frames_disagree', f'{exc} The tile shows the best frame upsampled (bicubic).', rms)
     except SRError as exc:

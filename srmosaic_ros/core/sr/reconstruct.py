@@ -437,7 +437,7 @@ TileCallback = Callable[[int, torch.Tensor], None]
 
 def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames: Sequence[np.ndarray],
                      tile_shape: tuple[int, int], factor: int, *, psf: torch.Tensor | None = None,
-                     config: SRConfig | None = None, callback: TileCallback | None = None,
+                     config: SRConfig | None = None, callback: TileCallback | None = None, reference: int | None = None,
                      **settings: object) -> SRResult:
     """Super-resolve the LR tile ``tile_shape = (H, W)`` by ``factor`` from ``frames``.
 
@@ -450,6 +450,9 @@ def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames:
     psf: optional (k, k) PSF on the HR grid (k of the parity of ``factor``) replacing the Gaussian.
     config / settings: an :class:`SRConfig` and/or any of its fields as keywords (keywords win);
         unknown keys are refused.
+    reference: index into ``frames`` of the frame the tile is anchored to and aligned on (default: the
+        frame whose centre lands nearest the tile's, the one the mosaic shows there); ignored when
+        that frame does not observe the tile.
     callback(iteration, image (C, H s, W s)): called with the current tile estimate (iteration 0 is
         the initial estimate); for studies, it costs a colour composition per iteration.
 
@@ -508,7 +511,8 @@ def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames:
     # noise of the frames themselves (luminance): the bilinear warp smooths it, which a high-pass
     # estimate on the warped frames would take for less noise
     noise = noise_sigma(luma(stack.crops), stack.in_frame)
-    ref = _nearest_frame(stack.index, tilem_H_frames, ts, (hm, wm))
+    ref = (stack.index.index(reference) if reference is not None and reference in stack.index
+           else _nearest_frame(stack.index, tilem_H_frames, ts, (hm, wm)))
     if cfg.local_align != 'off' and k_frames >= 2:  # each frame superposed on the reference here (local_align.py)
         corr = align_to_reference(luma(warped), covered, ref, mode=cfg.local_align, max_shift=cfg.local_align_max_px)
         ref_frame = stack.index[ref]
