@@ -1,5 +1,8 @@
 """`srmosaic process ... --sr`: super-resolved tiles of the finished mosaic (DIR/sr/).
 
+A tile SR cannot improve shows its best frame upsampled instead (core/sr/fallback.py); tiles.json
+says so after the contract's keys ("source": "sr" or "frame", "fallback": null or the reason).
+
 Tiles are chosen by the SR scheduler (core/sr/scheduler.py); the frames they need are read again
 from the input in a second pass (only those frames are kept), and each tile is reconstructed by
 MAP with the Huber prior (core/sr/reconstruct.py). Output contract (DESIGN.md): DIR/sr/tiles.json,
