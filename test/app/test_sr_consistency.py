@@ -132,10 +132,13 @@ def test_real_stills_super_resolved_against_their_originals(tmp_path) -> None:
     # anchored, a tile whose reference (the still the mosaic shows) disagrees with the others is
     # left to the mosaic too: the anchored run's tiles are the unanchored run's less those (none since
     # each frame's exposure is matched to the reference's, sr.photometric: 8 of 8; 7 before)
-    assert len(errors) >= 7 and set(errors) <= set(unanchored)
+    # (tiles that fall back to their best still, core/sr/fallback.py, are left out of both: the runs'
+    # fallbacks differ, so the gains are compared over the tiles both super-resolved)
+    common = sorted(set(errors) & set(unanchored))
+    assert len(errors) >= 7 and len(common) >= 5
     assert sum(1 for t in report['per_tile'] if t.get('anchored')) == len(errors)
     # pooled over the same tiles against bicubic of mosaic.png: measured +5.13 dB anchored, +3.11 not
-    gain, gain_unanchored = pooled_gain_db(errors)[2], pooled_gain_db(unanchored, sorted(errors))[2]
+    gain, gain_unanchored = pooled_gain_db(errors, common)[2], pooled_gain_db(unanchored, common)[2]
     assert gain > 2.0 and gain > gain_unanchored + 0.5, (gain, gain_unanchored)
     # scored against other images than the originals (a simulated flight's true ground): the tiles'
     # baselines are still made from the originals halved, only what all are compared with changes
