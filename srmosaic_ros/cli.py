@@ -185,7 +185,7 @@ def _run_evaluate(args: argparse.Namespace) -> int:
     if args.original is not None:
         from .app.sr_protocol import format_protocol, score_sr_run
 
-        result = score_sr_run(args.dir, args.original)
+        result = score_sr_run(args.dir, args.original, input_path=args.input)
         print(json.dumps(result, indent=2) if args.json else '\n'.join(format_protocol(result)))
         return 0
     if args.truth is None:

@@ -67,6 +67,8 @@ MOVING_THRESHOLD = 20.0
 #: Gaussian sigma (HR px) of the smoothing before that test, and the growth (HR px) of the moving mask.
 MOVING_SMOOTH_PX = 1.5
 MOVING_GROW_PX = 4
+#: Gaussian sigma (HR px) both images are smoothed by before their sub-pixel shift is read.
+SHIFT_SMOOTH_PX = 1.0
 #: Tiles drawn in the compare image.
 COMPARE_TILES = 4
 #: A method beside SR: (LR frames (h, w, 3) uint8 RGB, tile_H_frames, tile_shape (H, W), factor, psf sigma LR px)
@@ -162,11 +164,16 @@ def masked_ssim(a: np.ndarray, b: np.ndarray, keep: np.ndarray, *, border: int =
 
 
 def subpixel_shift(image: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
-    """(dx, dy) HR pixels by which luma ``image`` is displaced against ``truth`` (phase correlation, Hann window)."""
-    a, b = image.astype(np.float32), truth.astype(np.float32)
+    """(dx, dy) HR pixels by which luma ``image`` is displaced against ``truth``: phase correlation (Hann
+    window) of both smoothed by ``SHIFT_SMOOTH_PX`` (the whitened correlation would otherwise weigh the
+    band near Nyquist, where an interpolated image, a bob-deinterlaced one above all, holds only
+    replicas, as much as the rest), less what it reads for the truth against itself (OpenCV's
+    phaseCorrelate reads half a pixel on sizes it pads)."""
+    a, b = (cv2.GaussianBlur(x.astype(np.float32), (0, 0), SHIFT_SMOOTH_PX) for x in (image, truth))
     win = cv2.createHanningWindow(a.shape[::-1], cv2.CV_32F)
     (dx, dy), _ = cv2.phaseCorrelate(b, a, win)
-    return float(dx), float(dy)
+    (bx, by), _ = cv2.phaseCorrelate(b, b, win)
+    return float(dx - bx), float(dy - by)
 
 
 def _sse(x: np.ndarray, truth: np.ndarray, keep: np.ndarray) -> float:
@@ -201,11 +208,13 @@ def _nearest(covering: list[int], centres: np.ndarray, c: np.ndarray, count: int
 
 def score_sr_run(out: Path, original: Path, *, methods: dict[str, TileMethod] | None = None,
                  loo: bool = True, compare: bool = True, max_tiles: int | None = None,
-                 images_out: dict[str, dict[str, np.ndarray]] | None = None) -> dict[str, Any]:
+                 images_out: dict[str, dict[str, np.ndarray]] | None = None,
+                 input_path: Path | None = None) -> dict[str, Any]:
     """Score the SR tiles of the run ``out`` (made by `process --sr` from a video halved from
     ``original`` by :func:`halve_video`) against the original frames (module docstring).
 
     methods: name -> :data:`TileMethod` scored beside SR on the same tiles (protocol b and c).
+    input_path: the halved video the run was made from, when it moved (default: report.json "input").
     loo: reconstruct each tile without its truth frame (protocol c; one more solve per tile).
     images_out: when given, filled with each tile's luma images (HR grid, 0..255) by tile file and
     name ('truth', 'sr', 'sr_only', 'mosaic_bicubic', 'frame_bicubic', 'other_bicubic', 'loo_sr', ...).
@@ -214,7 +223,8 @@ def score_sr_run(out: Path, original: Path, *, methods: dict[str, TileMethod] | 
 
     Returns a JSON-serialisable dict: ``tiles`` (scored), ``summary`` ({comparison: {psnr_sr,
     psnr_baseline, gain_db (pooled), mean_gain_db, min_gain_db, fraction_gaining, ssim_sr,
-    ssim_baseline}} for 'mosaic', 'frame', 'loo' and, per method, 'frame:NAME' and 'loo:NAME'),
+    ssim_baseline}} for 'mosaic', 'frame', 'loo' and, per method, 'frame:NAME' and 'loo:NAME';
+    'originals_apart_psnr': the truth frame's original against the nearest other frame's, registered),
     ``masked_fraction`` (static-pixel mask), ``per_tile``; written also to DIR/sr/protocol.json.
     Raises InputError when the run is not one of a halved video (another input kind, another
     --select, a camera calibration) or its files are missing.
@@ -233,9 +243,10 @@ def score_sr_run(out: Path, original: Path, *, methods: dict[str, TileMethod] | 
         msg = (f'{out} is not a run of a halved video processed frame by frame (input_kind video, --select all, no '
                '--camera); make one with `srmosaic halve VIDEO HALVED.mp4` and `srmosaic process HALVED.mp4 --sr`.')
         raise InputError(msg)
-    halved = Path(report.get('input', ''))
+    halved = Path(input_path) if input_path is not None else Path(report.get('input', ''))
     if not halved.is_file():
-        msg = f'the run\'s input {halved} (report.json "input") no longer exists; the protocol reads its frames again.'
+        msg = (f'the run\'s input {halved} (report.json "input", or --input) does not exist; the protocol reads its frames '
+               'again: pass the halved video (--input).')
         raise InputError(msg)
     tiles = json.loads((out / 'sr' / 'tiles.json').read_text())
     if max_tiles is not None:
@@ -297,8 +308,10 @@ def score_sr_run(out: Path, original: Path, *, methods: dict[str, TileMethod] | 
         truth = luma255(_sample(hr[truth_k], _HR_H_LR @ frame_H_grid(truth_k), shape))
         others_hr = [luma255(_sample(hr[i], _HR_H_LR @ frame_H_grid(i), shape)) for i in spread]
         moved = moving_mask(truth, others_hr)
+        other_hr = None
         if loo and without:  # and where the nearest other frame, the leave-one-out's baseline, saw something move
-            moved |= moving_mask(luma255(_sample(hr[without[0]], _HR_H_LR @ frame_H_grid(without[0]), shape)), others_hr)
+            other_hr = luma255(_sample(hr[without[0]], _HR_H_LR @ frame_H_grid(without[0]), shape))
+            moved |= moving_mask(other_hr, others_hr)
         keep = ~moved
         n = int(keep.sum())
         sr_bgr = cv2.imread(str(out / 'sr' / entry['file']), cv2.IMREAD_COLOR).astype(np.float64)
@@ -344,10 +357,15 @@ def score_sr_run(out: Path, original: Path, *, methods: dict[str, TileMethod] | 
         for key, img in images.items():
             record[f'sse_{key}'] = _sse(img, truth, keep)
             record[f'ssim_{key}'] = masked_ssim(img, truth, keep)
+        if other_hr is not None:  # how far two full-size originals a frame apart are: what no method removes
+            record['sse_other_original'] = _sse(other_hr, truth, keep)
         if images_out is not None:
-            images_out[entry['file']] = {'truth': truth, 'moving': moved, **images}
+            images_out[entry['file']] = {'truth': truth, 'moving': moved, **images,
+                                         **({'other_original': other_hr} if other_hr is not None else {})}
         dx, dy = subpixel_shift(images['sr'], truth)
         record['sr_shift_px'] = [round(dx, 3), round(dy, 3)]
+        dx, dy = subpixel_shift(images['frame_bicubic'], truth)
+        record['frame_shift_px'] = [round(dx, 3), round(dy, 3)]  # the truth frame's own: the protocol's sampling
         per_tile.append(record)
         if compare and len(panels) < COMPARE_TILES:
             row = [truth, images['mosaic_bicubic'], images['frame_bicubic'], images['sr']]
@@ -362,6 +380,10 @@ def score_sr_run(out: Path, original: Path, *, methods: dict[str, TileMethod] | 
             labels.append('moving (white)')
             panels.append(side_by_side([np.clip(r / 255.0, 0, 1) for r in row], labels, zoom=2 if shape[0] <= 160 else 1))
     summary = _summary(per_tile, list(methods))
+    use = [t for t in per_tile if 'sse_other_original' in t and t['pixels'] > 0]
+    if use:  # the originals of the truth frame and of the nearest other frame, against each other
+        summary['originals_apart_psnr'] = round(_psnr(sum(t['sse_other_original'] for t in use),
+                                                      sum(t['pixels'] for t in use)), 3)
     masked = [t['masked_fraction'] for t in per_tile]
     result = {'original': str(original), 'halved': str(halved), 'tiles': len(per_tile),
               'psf_sigma_px': sr_config.psf_sigma,
@@ -426,10 +448,15 @@ def format_protocol(result: dict[str, Any]) -> list[str]:
     lines = [f'SR protocol: {result["tiles"]} tiles against the original frames of {result["original"]} (luma, static '
              f'pixels; {100 * (result["masked_fraction"] or 0):.1f} % masked as moving)']
     for key, s in result['summary'].items():
+        if not isinstance(s, dict):
+            continue
         label = _LABELS.get(key, f'{key.replace(":", " ")} against its baseline')
         lines.append(f'{label}: PSNR {s["psnr"]:.2f} vs {s["psnr_baseline"]:.2f} dB, gain {s["gain_db"]:+.2f} dB '
                      f'(per tile mean {s["mean_gain_db"]:+.2f}, worst {s["min_gain_db"]:+.2f}, '
                      f'{100 * s["fraction_gaining"]:.0f} % gaining); SSIM {s["ssim"]:.3f} vs {s["ssim_baseline"]:.3f}')
+    if result['summary'].get('originals_apart_psnr') is not None:
+        lines.append(f'the truth frame\'s original against the nearest other frame\'s (registered, full size): PSNR '
+                     f'{result["summary"]["originals_apart_psnr"]:.2f} dB (what two recordings of the same ground differ by)')
     if result.get('compare'):
         lines.append(f'original | mosaic bicubic | frame bicubic | SR | ...: {result["compare"]}')
     return lines
