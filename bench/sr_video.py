@@ -53,6 +53,14 @@ def _cell(s: dict[str, Any] | None) -> str:
             f'worst {s["min_gain_db"]:+.2f}) | {s["ssim"]:.3f} vs {s["ssim_baseline"]:.3f}')
 
 
+def textured(images: dict[str, dict[str, np.ndarray]], n: int) -> list[str]:
+    """The ``n`` tiles whose originals hold the most detail (Laplacian energy): where SR has something to show."""
+    import cv2
+
+    energy = {f: float(cv2.Laplacian(im['truth'].astype(np.float32), cv2.CV_32F).var()) for f, im in images.items()}
+    return sorted(energy, key=lambda f: -energy[f])[:n]
+
+
 def side_by_side_picture(images: dict[str, dict[str, np.ndarray]], files: list[str]) -> np.ndarray:
     """Rows of original | frame bicubic | SR | peer | SR error | frame error (x4 + 128) for ``files``."""
     rows = []
@@ -163,7 +171,7 @@ def main() -> None:
               f'|dy| {np.median(np.abs(fshifts[:, 1])):.3f} HR px')
         print(error_split(images))
         print(high_band_agreement(images), f'; originals a frame apart: PSNR {result["summary"].get("originals_apart_psnr")} dB')
-        files = [t['file'] for t in result['per_tile']][:3]
+        files = textured(images, 3)
         write_png(work / f'{video.stem}_side_by_side.png', side_by_side_picture(images, files) / 255.0)
         print(f'pictures: {out / "sr" / "protocol_compare.png"}, {work / f"{video.stem}_side_by_side.png"}', flush=True)
 

@@ -25,7 +25,7 @@ from srmosaic_ros.sim import SimConfig, simulate
 from srmosaic_ros.sim.ortho_error import ortho_in_plane
 from srmosaic_ros.sim.traffic import vehicle_mask
 
-SIM = SimConfig(rate_hz=25.0, speed_m_s=3.0, frames=20, altitude_m=80.0, seed=0, vehicles=6, width=256, height=192)
+SIM = SimConfig(rate_hz=25.0, speed_m_s=3.0, frames=12, altitude_m=80.0, seed=0, vehicles=6, width=256, height=192)
 
 
 @pytest.fixture(scope='module')
