@@ -1,4 +1,5 @@
-"""`srmosaic` command line: process, evaluate, inspect, simulate, launch, play, node, record-tiles, psf, serve.
+"""`srmosaic` command line: process, evaluate, halve, inspect, simulate, launch, play, node, record-tiles, psf,
+serve.
 
 Every SrMosaicError ends the command with a one-line message on stderr and exit status 2;
 nothing half-written is left under a final file name.
@@ -132,6 +133,9 @@ FLAG_RANGES: dict[str, list[tuple[str, str, Callable[[Any], bool], str]]] = {
         ('jpeg_quality', '--jpeg-quality', lambda v: 1 <= v <= 100, 'between 1 and 100'),
         ('gop', '--gop', lambda v: v >= 1, '>= 1'),
     ],
+    'halve': [
+        ('frames', '--frames', lambda v: v >= 1, '>= 1'),
+    ],
     'play': [
         ('delay', '--delay', lambda v: v >= 0.0, '>= 0 seconds'),
     ],
@@ -162,14 +166,43 @@ def _add_evaluate(sub: argparse._SubParsersAction) -> None:
     p.add_argument('--camera', type=Path, default=None,
                    help='video: the camera calibration YAML the run was processed with, when it moved (default: the one '
                    'report.json names), so that the frames are compared undistorted as the run saw them')
+    p.add_argument('--original', type=Path, default=None,
+                   help='a run of a video halved by `srmosaic halve`: the full-size video it was halved from; scores every '
+                   'SR tile against the original frames (the real-video SR protocol: against the bicubic of mosaic.png, of '
+                   'the frame itself, and leave-one-out against the nearest other frame; luma PSNR and SSIM on static '
+                   'pixels), writes DIR/sr/protocol.json and DIR/sr/protocol_compare.png')
     p.add_argument('--json', action='store_true', help='print the figures as JSON')
     p.add_argument('--no-progress', action='store_true', help='no progress bar')
     p.set_defaults(func=_run_evaluate)
 
 
+def _add_halve(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser('halve', help='halve a video (area filter, H.264 at high quality) for the real-video SR protocol: '
+                       'process the halved copy with --sr, then `evaluate DIR --original VIDEO`')
+    p.add_argument('video', type=Path, help='the full-size video')
+    p.add_argument('out', type=Path, help='the halved video to write (e.g. halved.mp4)')
+    p.add_argument('--frames', type=int, default=None, help='only the first N frames (>= 1; default: all)')
+    p.set_defaults(func=_run_halve)
+
+
+def _run_halve(args: argparse.Namespace) -> int:
+    from .app.sr_protocol import halve_video
+
+    n = halve_video(args.video, args.out, frames=args.frames)
+    print(f'{n} frames halved into {args.out}; next: srmosaic process {args.out} --out DIR --sr, then '
+          f'srmosaic evaluate DIR --original {args.video}')
+    return 0
+
+
 def _run_evaluate(args: argparse.Namespace) -> int:
     from .app.evaluate import evaluate_dir
 
+    if args.original is not None:
+        from .app.sr_protocol import format_protocol, score_sr_run
+
+        result = score_sr_run(args.dir, args.original, input_path=args.input)
+        print(json.dumps(result, indent=2) if args.json else '\n'.join(format_protocol(result)))
+        return 0
     if args.truth is None:
         from .app.evaluate_real import evaluate_real, format_real_figures
 
@@ -337,6 +370,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest='command', required=True)
     _add_process(sub)
     _add_evaluate(sub)
+    _add_halve(sub)
     _add_inspect(sub)
     _add_simulate(sub)
     _add_node(sub)

@@ -1,5 +1,8 @@
 """`srmosaic process ... --sr`: super-resolved tiles of the finished mosaic (DIR/sr/).
 
+A tile SR cannot improve shows its best frame upsampled instead (core/sr/fallback.py); tiles.json
+says so after the contract's keys ("source": "sr" or "frame", "fallback": null or the reason).
+
 Tiles are chosen by the SR scheduler (core/sr/scheduler.py); the frames they need are read again
 from the input in a second pass (only those frames are kept), and each tile is reconstructed by
 MAP with the Huber prior (core/sr/reconstruct.py). Output contract (DESIGN.md): DIR/sr/tiles.json,
@@ -32,8 +35,8 @@ from tqdm import tqdm
 from ..core.homography import translation as _translation
 from ..config import PipelineConfig
 from ..core.sr.psf_select import TileFrames, choose_psf_sigma
-from ..core.sr.reconstruct import SRError, SRFramesDisagree
-from ..core.sr.self_check import SRNotBetterThanMosaic, reconstruct_checked_tile
+from ..core.sr.reconstruct import SRError
+from ..core.sr.fallback import FALLBACK_REASONS, super_resolve_or_fallback
 from ..core.sr.scheduler import plan_tiles
 from ..core.types import CameraIntrinsics, Frame
 from ..core.undistort import Undistorter
@@ -98,18 +101,17 @@ def super_resolve_mosaic(out: Path, items: Iterable[Any], config: PipelineConfig
 
     sr_config, selection = _flight_psf(config, [tile_inputs(p) for p in plans[:PSF_TILES]], s)
     entries, figures, pasted = [], [], []
+    holdouts = max(sr_config.fallback, sr_config.self_check)
     for plan in tqdm(plans, unit='tile', desc='super-resolve', disable=not progress):
         t0 = time.perf_counter()
         tile = tile_inputs(plan)
-        try:
-            res = reconstruct_checked_tile(tile.frames, tile.tile_H_frames, tile.tile_shape, s, sr_config)
-        except SRError as exc:
-            figures.append({'x0': plan.x0, 'y0': plan.y0, 'frames': len(tile.frames), 'error': str(exc),
-                            'frames_disagree': isinstance(exc, SRFramesDisagree),
-                            'not_better_than_mosaic': isinstance(exc, SRNotBetterThanMosaic)})
+        if not tile.frames:
+            figures.append({'x0': plan.x0, 'y0': plan.y0, 'frames': 0, 'error': 'no frame of the tile was read again',
+                            'frames_disagree': False, 'not_better_than_mosaic': False})
             continue
-        image = res.image.detach().cpu().numpy().transpose(1, 2, 0)
-        image = np.clip(image, 0.0, 1.0)
+        outcome = super_resolve_or_fallback(tile.frames, tile.tile_H_frames, tile.tile_shape, s, sr_config,
+                                            holdouts=holdouts)
+        image = outcome.image
         name = f'tile_x{plan.x0:06d}_y{plan.y0:06d}.png'
         write_png(tiles_dir / name, image)
         if raster is not None:
@@ -117,9 +119,20 @@ def super_resolve_mosaic(out: Path, items: Iterable[Any], config: PipelineConfig
             place = SRTilePlacement(0, plan.x0, plan.y0, plan.width, plan.height, s)
             write_geotiff(tiles_dir / name.replace('.png', '.tif'), image[:, :, 0] if image.shape[2] == 1 else image,
                           raster.transformed(place.plane_H_tile()))
+        # the contract's keys first; then what the tile shows: 'sr', or 'frame' (its best frame
+        # upsampled) with the reason (core/sr/fallback.py)
         entries.append({'file': name, 'x0': plan.x0, 'y0': plan.y0, 'width': plan.width, 'height': plan.height,
-                        'factor': s})
+                        'factor': s, 'source': 'frame' if outcome.fallback else 'sr',
+                        'fallback': outcome.fallback or None})
         pasted.append((plan.x0, plan.y0, np.clip(image * 255.0 + 0.5, 0, 255).astype(np.uint8)))
+        held_out = {'held_out_rms_by': outcome.held_out_rms} if outcome.held_out_rms else {}
+        if outcome.result is None:
+            figures.append({'file': name, 'x0': plan.x0, 'y0': plan.y0, 'frames': len(tile.frames),
+                            'error': outcome.detail, 'frames_disagree': outcome.fallback == 'frames_disagree',
+                            'not_better_than_mosaic': False, 'fallback': outcome.fallback, **held_out,
+                            'time_s': round(time.perf_counter() - t0, 3)})
+            continue
+        res = outcome.result
         last = res.history[-1] if res.history else None
         weights = np.asarray(res.frame_weights, dtype=float)
         figures.append({'file': name, 'frames': len(tile.frames), 'frames_covering': plan.frames_covering,
@@ -132,6 +145,7 @@ def super_resolve_mosaic(out: Path, items: Iterable[Any], config: PipelineConfig
                         'lambda': float(getattr(last, 'lam', float('nan'))) if last is not None else None,
                         'min_frame_weight': float(weights[np.isfinite(weights)].min()) if weights.size else None,
                         'held_out_rms': [round(v, 3) if np.isfinite(v) else None for v in res.held_out_rms],
+                        **held_out, 'fallback': '',
                         'time_s': round(time.perf_counter() - t0, 3)})
     write_json(tiles_dir / 'tiles.json', entries)
     h, w = coverage.shape
@@ -148,23 +162,24 @@ def super_resolve_mosaic(out: Path, items: Iterable[Any], config: PipelineConfig
                          raster.transformed(whole.plane_H_tile()), h * s, w * s, block_px=MOSAIC_BLOCK_PX)
     write_png(tiles_dir / 'preview.png', preview.image())
     refused = sum(1 for f in figures if f.get('frames_disagree'))
-    not_better = sum(1 for f in figures if f.get('not_better_than_mosaic'))
-    failed = [f['error'] for f in figures
-              if 'error' in f and not f.get('frames_disagree') and not f.get('not_better_than_mosaic')]
-    if refused:
-        _LOG.warning('%d of %d SR tiles left to the mosaic (mosaic_sr.tif) because their frames disagree; per tile '
-                     'in report.json sr.per_tile, e.g.: %s', refused, len(plans),
-                     next(f['error'] for f in figures if f.get('frames_disagree')))
-    if not_better:
-        _LOG.warning('%d of %d SR tiles left to the mosaic because they predict a held-out frame no better than it '
-                     '(sr.self_check); per tile in report.json sr.per_tile', not_better, len(plans))
+    fallbacks = {reason: sum(1 for f in figures if f.get('fallback') == reason) for reason in FALLBACK_REASONS}
+    failed = [f['error'] for f in figures if 'error' in f and not f.get('fallback')]
+    if sum(fallbacks.values()):
+        _LOG.warning('%d of %d SR tiles show their best frame upsampled instead of SR (%s); named in sr/tiles.json '
+                     '"fallback", the reasons in report.json sr.per_tile', sum(fallbacks.values()), len(plans),
+                     ', '.join(f'{n} {r}' for r, n in fallbacks.items() if n))
     if failed:
         _LOG.warning('%d of %d SR tiles failed: %s', len(failed), len(plans), failed[0])
-    return {'factor': s, 'tiles': len(entries), 'tiles_planned': len(plans), 'tiles_refused': refused + not_better,
-            'tiles_frames_disagree': refused, 'tiles_not_better_than_mosaic': not_better,
+    return {'factor': s, 'tiles': len(entries), 'tiles_planned': len(plans), 'tiles_refused': refused,
+            'tiles_frames_disagree': refused, 'tiles_not_better_than_mosaic': 0,
+            'tiles_sr': sum(1 for e in entries if e['source'] == 'sr'),
+            'tiles_fallback': sum(fallbacks.values()), 'tiles_fallback_by_reason': fallbacks,
+            'fallback_holdouts': holdouts,
             'frames_read': len(frames),
             'solver': config.sr.solver, 'iterations_cap': config.sr.iterations,
-            'psf_sigma_px': sr_config.psf_sigma, 'psf_selection': selection, 'per_tile': figures}
+            'psf_sigma_px': sr_config.psf_sigma, 'psf_selection': selection,
+            'settings': {k: list(v) if isinstance(v, tuple) else v for k, v in vars(sr_config).items()},
+            'tile_settings': dict(vars(cfg_tiles)), 'per_tile': figures}
 
 
 #: Tiles (the best covered) on which the flight's PSF is chosen.

@@ -22,7 +22,10 @@ def test_process_sr_writes_tiles_contract(tmp_path):
     assert len(tiles) >= 5
     mosaic = cv2.imread(str(out / 'mosaic.png'), cv2.IMREAD_UNCHANGED)
     for entry in tiles[:5]:
-        assert set(entry) == {'file', 'x0', 'y0', 'width', 'height', 'factor'} and entry['factor'] == 2
+        # the contract's keys first, then what the tile shows (SR, or its best frame upsampled and why)
+        assert list(entry)[:6] == ['file', 'x0', 'y0', 'width', 'height', 'factor'] and entry['factor'] == 2
+        assert list(entry)[6:] == ['source', 'fallback'] and entry['source'] in ('sr', 'frame')
+        assert (entry['fallback'] is None) == (entry['source'] == 'sr')
         tile = cv2.imread(str(out / 'sr' / entry['file']), cv2.IMREAD_COLOR)
         assert tile.shape[:2] == (entry['height'] * 2, entry['width'] * 2)
         # Downsampled back by the factor, the SR tile shows the same ground as the mosaic region.
@@ -32,6 +35,10 @@ def test_process_sr_writes_tiles_contract(tmp_path):
         assert np.abs(back[4:-4, 4:-4] - region[4:-4, 4:-4]).mean() < 4.0
     report = json.loads((out / 'report.json').read_text())
     assert report['sr']['tiles'] == len(tiles) and (out / 'sr' / 'preview.png').is_file()
+    # a simulated flight fits the model: SR is kept on most tiles, and the fallbacks are counted
+    fell_back = [t for t in tiles if t['source'] == 'frame']
+    assert report['sr']['tiles_fallback'] == len(fell_back) == sum(report['sr']['tiles_fallback_by_reason'].values())
+    assert report['sr']['tiles_sr'] == len(tiles) - len(fell_back) >= len(tiles) // 2
     check_sr_geotiffs(out, tiles, mosaic)
 
 

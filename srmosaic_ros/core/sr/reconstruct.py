@@ -140,6 +140,10 @@ class SRConfig:
         (core/sr/self_check.py: a tile that does not is left to the mosaic); 0: no check (the
         default: on real video the check's verdict does not follow the tiles' gain, docs/results.md). Read
         by :func:`~srmosaic_ros.core.sr.self_check.reconstruct_checked_tile`, not by reconstruct_tile.
+    fallback: frames held out per tile by `process --sr` to decide between SR and the best frame's
+        upsampling (core/sr/fallback.py: a tile whose SR predicts them no better than that frame shows
+        the frame upsampled, and says so in tiles.json); 0: only tiles SR cannot serve fall back. Read
+        by :func:`~srmosaic_ros.core.sr.fallback.super_resolve_or_fallback`, not by reconstruct_tile.
     moving: frames' LR pixels that differ from the per-pixel median of the frames on the tile by
         more than this (intensity; core/sr/moving.py) saw something move and weigh 0 in the data
         term and the initial estimate; 0: off.
@@ -186,6 +190,7 @@ class SRConfig:
     outlier_power: float = 2.0
     consistency: float = 0.8
     self_check: int = 0
+    fallback: int = 1
     moving: float = 0.0
     min_observed: int = 16
     lm_inner: int = 8
@@ -222,6 +227,8 @@ class SRConfig:
             (0.0 <= self.moving < 1.0, f'moving must be in [0, 1) (intensity; 0: off), got {self.moving}'),
             (isinstance(self.self_check, int) and not isinstance(self.self_check, bool) and 0 <= self.self_check <= 8,
              f'self_check must be an integer in 0..8 (held-out frames per tile; 0: off), got {self.self_check!r}'),
+            (isinstance(self.fallback, int) and not isinstance(self.fallback, bool) and 0 <= self.fallback <= 8,
+             f'fallback must be an integer in 0..8 (held-out frames per tile; 0: no check), got {self.fallback!r}'),
             (self.lm_inner >= 1, f'lm_inner must be >= 1, got {self.lm_inner}'),
         ]
         for ok, msg in checks:
@@ -430,7 +437,7 @@ TileCallback = Callable[[int, torch.Tensor], None]
 
 def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames: Sequence[np.ndarray],
                      tile_shape: tuple[int, int], factor: int, *, psf: torch.Tensor | None = None,
-                     config: SRConfig | None = None, callback: TileCallback | None = None,
+                     config: SRConfig | None = None, callback: TileCallback | None = None, reference: int | None = None,
                      **settings: object) -> SRResult:
     """Super-resolve the LR tile ``tile_shape = (H, W)`` by ``factor`` from ``frames``.
 
@@ -443,6 +450,9 @@ def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames:
     psf: optional (k, k) PSF on the HR grid (k of the parity of ``factor``) replacing the Gaussian.
     config / settings: an :class:`SRConfig` and/or any of its fields as keywords (keywords win);
         unknown keys are refused.
+    reference: index into ``frames`` of the frame the tile is anchored to and aligned on (default: the
+        frame whose centre lands nearest the tile's, the one the mosaic shows there); ignored when
+        that frame does not observe the tile.
     callback(iteration, image (C, H s, W s)): called with the current tile estimate (iteration 0 is
         the initial estimate); for studies, it costs a colour composition per iteration.
 
@@ -501,7 +511,8 @@ def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames:
     # noise of the frames themselves (luminance): the bilinear warp smooths it, which a high-pass
     # estimate on the warped frames would take for less noise
     noise = noise_sigma(luma(stack.crops), stack.in_frame)
-    ref = _nearest_frame(stack.index, tilem_H_frames, ts, (hm, wm))
+    ref = (stack.index.index(reference) if reference is not None and reference in stack.index
+           else _nearest_frame(stack.index, tilem_H_frames, ts, (hm, wm)))
     if cfg.local_align != 'off' and k_frames >= 2:  # each frame superposed on the reference here (local_align.py)
         corr = align_to_reference(luma(warped), covered, ref, mode=cfg.local_align, max_shift=cfg.local_align_max_px)
         ref_frame = stack.index[ref]
