@@ -2,7 +2,8 @@
 and params/advanced.yaml.
 
 Those two files are the one source of defaults: every key in them is declared with its default,
-the comment after it as description, and a range where the config dataclass has one. Values
+the comment after it as description, and the range its configuration dataclass declares once
+(core/settings.setting; live.* on live/live_config.LiveConfig). Values
 given with `--ros-args --params-file FILE` or `-p name:=value` override them; invalid values are
 refused at start (ConfigError) with the dataclass's message.
 
@@ -38,15 +39,6 @@ SR_PARAMETERS = ('device', 'undistort', 'stamp_tolerance_s', 'sr', 'sr_tiles', '
                  'live.sr_period_s', 'live.sr_tiles_per_round', 'live.sr_refresh_growth', 'live.sr_frames_kept',
                  'live.sr_images_pending', 'live.sr_worker', 'live.message_types')
 
-# Ranges of the sections whose config dataclasses do not declare them yet (core/settings.py); every other
-# key's range comes from its one declaration (config.setting_bounds, live/live_config.LiveConfig).
-_RANGES: dict[str, tuple[float, float]] = {
-    'sr.psf_sigma': (0.0, 10.0),
-    'sr.iterations': (0, 10000),
-    'sr.margin': (0, 256),
-}
-
-
 def parameter_bounds() -> dict[str, Bounds]:
     """Dotted key -> Bounds of every parameter that declares its range once (config dataclasses, LiveConfig)."""
     return {**setting_bounds(), **{f'live.{name}': b for name, b in bounds_of(LiveConfig).items()}}
@@ -78,11 +70,10 @@ def _descriptor(name: str, value: Any, description: str, read_only: bool,
     if isinstance(value, bool):
         return desc
     declared = (bounds if bounds is not None else parameter_bounds()).get(name)
-    if declared is not None:
-        desc.additional_constraints = declared.text()
-        span = declared.ros_range(isinstance(value, int))
-    else:
-        span = _RANGES.get(name)
+    if declared is None:
+        return desc
+    desc.additional_constraints = declared.text()
+    span = declared.ros_range(isinstance(value, int))
     if span is not None:
         lo, hi = span
         if isinstance(value, int):

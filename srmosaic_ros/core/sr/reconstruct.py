@@ -53,6 +53,7 @@ import torch.nn.functional as F
 
 from ...errors import SrMosaicError
 from ..device import resolve_device
+from ..settings import Bounds, check_settings, setting
 from .anchor import anchor_to_frame, neighbour_correlation, reference_on_hr, structure_threshold
 from .consistency import consistent_frames, noise_sigma
 from .local_align import ALIGN_MODES, align_to_reference, photometric_to_reference
@@ -170,70 +171,44 @@ class SRConfig:
         point), 'wide' (4 x 4) or 'off'. Against ringing where the PSF is over-estimated.
     """
 
-    psf_sigma: float = 0.5
-    psf_ladder: tuple[float, ...] = (0.2, 0.35, 0.5, 0.7, 0.9)
-    solver: str = 'cg'
-    iterations: int = 10
-    tol: float = 1e-4
-    lambda_mode: str = 'adaptive'
-    lam: float = 0.01
-    lambda_gamma: float = 0.1
-    lambda_reference: str = 'initial'
-    lambda_noise_cap: float = 0.0
-    lambda_noise_floor: float = 0.0
-    huber_alpha: float = 0.02
-    color: str = 'luma'
-    margin: int = 4
+    psf_sigma: float = setting(0.5, lo=0.0, hi=10.0, unit='LR px')
+    psf_ladder: tuple[float, ...] = setting((0.2, 0.35, 0.5, 0.7, 0.9), items=Bounds(lo=0.0, hi=10.0))
+    solver: str = setting('cg', choices=SOLVERS)
+    iterations: int = setting(10, lo=0, hi=10000)
+    tol: float = setting(1e-4, lo=0.0)
+    lambda_mode: str = setting('adaptive', choices=LAMBDA_MODES)
+    lam: float = setting(0.01, lo=0.0)
+    lambda_gamma: float = setting(0.1, lo=0.0)
+    lambda_reference: str = setting('initial', choices=('initial', 'current'))
+    lambda_noise_cap: float = setting(0.0, lo=0.0)
+    lambda_noise_floor: float = setting(0.0, lo=0.0)
+    huber_alpha: float = setting(0.02, gt=0.0)
+    color: str = setting('luma', choices=COLOR_MODES)
+    margin: int = setting(4, lo=0, hi=256, unit='LR px')
     robust: bool = True
     reweight_at: tuple[int, ...] = (3,)
     outlier_threshold: float = 3.0
     outlier_power: float = 2.0
-    consistency: float = 0.8
-    self_check: int = 0
-    fallback: int = 1
-    moving: float = 0.0
+    consistency: float = setting(0.8, lo=0.0, lt=1.0)
+    self_check: int = setting(0, lo=0, hi=8)
+    fallback: int = setting(1, lo=0, hi=8)
+    moving: float = setting(0.0, lo=0.0, lt=1.0)
     min_observed: int = 16
-    lm_inner: int = 8
+    lm_inner: int = setting(8, lo=1)
     anchor: bool = True
-    anchor_noise: float = 2.0
+    anchor_noise: float = setting(2.0, lo=0.0)
     anchor_compression: bool = False
-    clamp: str = 'cell'
-    local_align: str = 'affine'
-    local_align_max_px: float = 1.5
+    clamp: str = setting('cell', choices=CLAMP_MODES)
+    local_align: str = setting('affine', choices=ALIGN_MODES)
+    local_align_max_px: float = setting(1.5, gt=0.0, unit='LR px')
     photometric: bool = True
     device: str = 'auto'
 
     def __post_init__(self) -> None:
-        checks = [
-            (self.solver in SOLVERS, f'solver must be one of {SOLVERS}, got {self.solver!r}'),
-            (self.lambda_mode in LAMBDA_MODES, f'lambda_mode must be one of {LAMBDA_MODES}, got {self.lambda_mode!r}'),
-            (self.local_align in ALIGN_MODES, f'local_align must be one of {ALIGN_MODES}, got {self.local_align!r}'),
-            (self.clamp in CLAMP_MODES, f'clamp must be one of {CLAMP_MODES}, got {self.clamp!r}'),
-            (self.anchor_noise >= 0, f'anchor_noise must be >= 0 (noise stds), got {self.anchor_noise}'),
-            (self.local_align_max_px > 0, f'local_align_max_px must be > 0 (LR pixels), got {self.local_align_max_px}'),
-            (self.color in COLOR_MODES, f'color must be one of {COLOR_MODES}, got {self.color!r}'),
-            (self.lambda_reference in ('initial', 'current'),
-             f"lambda_reference must be 'initial' or 'current', got {self.lambda_reference!r}"),
-            (self.psf_sigma >= 0, f'psf_sigma must be >= 0 (LR pixels), got {self.psf_sigma}'),
-            (all(isinstance(v, (int, float)) and 0 <= v <= 10 for v in self.psf_ladder),
-             f'psf_ladder holds sigmas in [0, 10] LR pixels (or none), got {list(self.psf_ladder)}'),
-            (self.iterations >= 0, f'iterations must be >= 0, got {self.iterations}'),
-            (self.huber_alpha > 0, f'huber_alpha must be > 0, got {self.huber_alpha}'),
-            (self.lam >= 0 and self.lambda_gamma >= 0, 'lam and lambda_gamma must be >= 0'),
-            (self.margin >= 0, f'margin must be >= 0 LR pixels, got {self.margin}'),
-            (self.lambda_noise_cap >= 0, f'lambda_noise_cap must be >= 0 (0: off), got {self.lambda_noise_cap}'),
-            (self.lambda_noise_floor >= 0, f'lambda_noise_floor must be >= 0 (0: off), got {self.lambda_noise_floor}'),
-            (0.0 <= self.consistency < 1.0, f'consistency must be in [0, 1) (0: off), got {self.consistency}'),
-            (0.0 <= self.moving < 1.0, f'moving must be in [0, 1) (intensity; 0: off), got {self.moving}'),
-            (isinstance(self.self_check, int) and not isinstance(self.self_check, bool) and 0 <= self.self_check <= 8,
-             f'self_check must be an integer in 0..8 (held-out frames per tile; 0: off), got {self.self_check!r}'),
-            (isinstance(self.fallback, int) and not isinstance(self.fallback, bool) and 0 <= self.fallback <= 8,
-             f'fallback must be an integer in 0..8 (held-out frames per tile; 0: no check), got {self.fallback!r}'),
-            (self.lm_inner >= 1, f'lm_inner must be >= 1, got {self.lm_inner}'),
-        ]
-        for ok, msg in checks:
-            if not ok:
-                raise SRError(msg + '.')
+        try:
+            check_settings(self, 'sr')
+        except ValueError as exc:
+            raise SRError(str(exc)) from None
 
 
 @dataclass
