@@ -24,6 +24,7 @@ INSTALL_REQUIRES = [
     'av==18.1.0',      # PyAV: video decoding with picture types (I-frame selection) and H.264 encoding; KLV and GPMF data streams
     'Pillow==13.0.0',  # EXIF and XMP of stills, read without decoding the pixels (io/exif.py)
     'PyMaxflow==1.3.2',  # Boykov-Kolmogorov max-flow: seams where frames agree (core/mosaic/seam_cut.py)
+    'matplotlib==3.11.2',  # the figures of report.html, which every `process` run writes (app/report_figures.py)
 ]
 
 setup(
@@ -53,7 +54,6 @@ setup(
                  'ros-jazzy-ament-cmake-ros==0.12.0', 'ros-jazzy-ament-cmake-gmock==2.5.4',
                  'ros-jazzy-ament-cmake-gtest==2.5.4', 'ros-jazzy-ament-cmake-pytest==2.5.4',
                  'mkdocs==1.6.1', 'mkdocs-material==9.8.1'],
-        'bench': ['matplotlib==3.11.2'],
     },
     python_requires='>=3.11',
     zip_safe=False,

@@ -203,14 +203,12 @@ def pair_graph_figure(thumb: np.ndarray | None, size_px: tuple[int, int], centre
 def stage_times_figure(seconds: dict[str, float]) -> bytes:
     """Horizontal bars of the time per stage (s), in the order given."""
     names = list(seconds)
-    fig = _figure(6.4, 0.5 + 0.28 * len(names))
+    fig = _figure(6.4, 0.8 + 0.22 * len(names), left=1.6)
     ax = fig.add_subplot()
     y = np.arange(len(names))
     vals = np.array([seconds[k] for k in names], dtype=float)
     ax.barh(y, vals, color=PLACED)
-    for yi, v in zip(y, vals):
-        ax.text(v, yi, f' {v:.2f} s', va='center', fontsize=7)
-    ax.set_yticks(y, names, fontsize=8)
+    ax.set_yticks(y, [f'{k} {v:.2f} s' for k, v in zip(names, vals)], fontsize=8)
     ax.invert_yaxis()
     ax.set_xlim(0, max(float(vals.max()) * 1.2, 1e-3) if len(vals) else 1.0)
     ax.set_xlabel('seconds', fontsize=8)
