@@ -131,7 +131,7 @@ def map_figure(tracks: Sequence[tuple[str, np.ndarray, str, str]], gcp: Sequence
                np.ndarray | None]] = (), vector_scale: float = 1.0) -> bytes:
     """Positions on the ground, metres east and north of a local origin.
 
-    tracks: (label, (N, 2) east/north, colour, style: 'line' or 'dots'); gcp: (name, role 'control'
+    tracks: (label, (N, 2) east/north, colour, style: 'line', 'dots' or 'rings'); gcp: (name, role 'control'
     or 'check', (2,) surveyed east/north, (2,) residual east/north or None), the residuals drawn as
     arrows ``vector_scale`` times their length.
     """
@@ -145,6 +145,8 @@ def map_figure(tracks: Sequence[tuple[str, np.ndarray, str, str]], gcp: Sequence
             continue
         if style == 'line':
             ax.plot(en[:, 0], en[:, 1], '-', color=colour, lw=1.2, label=label)
+        elif style == 'rings':
+            ax.plot(en[:, 0], en[:, 1], 'o', mfc='none', color=colour, ms=6, label=label)
         else:
             ax.plot(en[:, 0], en[:, 1], '.', color=colour, ms=4, label=label)
     for role, marker, colour in (('control', '^', '#9467bd'), ('check', 's', FAILED)):

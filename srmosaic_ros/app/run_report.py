@@ -266,7 +266,7 @@ def _map(run: _Run) -> ReportSection:
         return sec
     tracks: list[tuple[str, np.ndarray, str, str]] = []
     if len(gnss):
-        tracks.append((f'GNSS ({len(gnss)})', _to_utm(gnss, epsg), figs.GNSS, 'dots'))
+        tracks.append((f'GNSS ({len(gnss)})', _to_utm(gnss, epsg), figs.GNSS, 'rings'))
     if len(fused):
         tracks.append((f'fused poses ({len(fused)})', _to_utm(fused, epsg), figs.FUSED, 'line'))
     has_meta = np.isfinite(meta).all(axis=1)
