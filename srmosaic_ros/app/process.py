@@ -487,6 +487,9 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
         report_extra['error'] = str(error)
     if restart is not None:
         report_extra['mount_from_frames'] = restart
+    from .run_report import start_warm_up
+
+    warm = start_warm_up()  # report.html's imports while GDAL and the PNG writer compress the mosaic
     with clock.stage('outputs'):
         report = write_outputs(result, stage, config, report_extra,
                                meta_centres=summary.centres if summary is not None else None)
@@ -516,7 +519,8 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
         report['wall_s'] = round(time.perf_counter() - t0, 3)
         report['peak_rss_mb'] = round(peak_rss_mb(), 1)
     _write_reports(stage, report, t0, frame_sizes=[rec.size for rec in result.records],
-                   gnss_latlon=np.array([(f.latitude_deg, f.longitude_deg) for f in result.fixes]).reshape(-1, 2))
+                   gnss_latlon=np.array([(f.latitude_deg, f.longitude_deg) for f in result.fixes]).reshape(-1, 2),
+                   warm=warm)
     if error is not None:
         raise error
     shutil.rmtree(checkpoint_path(out).parent, ignore_errors=True)  # complete: the checkpoint is spent
@@ -606,13 +610,13 @@ def _process_survey(path: Path, out: Path, config: PipelineConfig, reader: Any, 
 
 
 def _write_reports(out: Path, report: dict[str, Any], t0: float, *, frame_sizes: list[tuple[int, int]],
-                   gnss_latlon: np.ndarray) -> None:
+                   gnss_latlon: np.ndarray, warm: Any = None) -> None:
     """report.html (run_report.py), then report.json with the page's time counted in ``wall_s`` and
     in ``stage_times.outputs`` (where the run keeps stage times) and the page's figures in
     ``report_html``."""
     from .run_report import write_run_report
 
-    page = write_run_report(out, report, frame_sizes=frame_sizes, gnss_latlon=gnss_latlon)
+    page = write_run_report(out, report, frame_sizes=frame_sizes, gnss_latlon=gnss_latlon, warm=warm)
     report['report_html'] = page
     wall = time.perf_counter() - t0
     report['wall_s'] = round(wall, 3)

@@ -14,12 +14,24 @@ from typing import Any
 import numpy as np
 
 __all__ = ['FIG_DPI', 'coverage_figure', 'map_figure', 'pair_graph_figure', 'registration_figure', 'sr_figure',
-           'stage_times_figure', 'survey_pairs_figure']
+           'stage_times_figure', 'survey_pairs_figure', 'warm_up']
 
 #: Dots per inch of every figure (the page shows them at about their own size).
 FIG_DPI = 80
 #: Colours: placed frames, failed frames, frames placed by their pose alone, GNSS, fused.
 PLACED, FAILED, BY_POSE, GNSS, FUSED = '#1f77b4', '#d62728', '#ff7f0e', '#7f7f7f', '#2ca02c'
+
+
+def warm_up() -> None:
+    """Import matplotlib and draw one small figure with text (fonts found, caches filled): what a
+    first figure costs beyond its own drawing. `process` runs it on a thread while GDAL and the PNG
+    writer compress the mosaic (io/outputs.py; their work releases the GIL), so report.html's
+    figures start warm; it touches nothing the run uses."""
+    fig = _figure(1.0, 1.0)
+    ax = fig.add_subplot()
+    ax.plot([0, 1], [0, 1])
+    ax.set_xlabel('x', fontsize=8)
+    _png(fig)
 
 
 def _figure(width_in: float, height_in: float, *, left: float = 0.75, bottom: float = 0.5) -> Any:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import csv
 import logging
 import math
+import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -23,7 +24,7 @@ import numpy as np
 from ..io.report_html import ReportFigure, ReportSection, write_report_html
 from . import report_figures as figs
 
-__all__ = ['REPORT_HTML', 'RunFrames', 'read_run_frames', 'write_run_report']
+__all__ = ['REPORT_HTML', 'RunFrames', 'read_run_frames', 'start_warm_up', 'write_run_report']
 
 _LOG = logging.getLogger(__name__)
 REPORT_HTML = 'report.html'
@@ -385,13 +386,30 @@ TITLES = {'_summary': 'Summary', '_coverage': 'Coverage', '_registration': 'Regi
           '_sr': 'Super-resolution'}
 
 
+def start_warm_up() -> threading.Thread:
+    """report_figures.warm_up on a daemon thread, started: give it to write_run_report (``warm``).
+    A failure there is left for the figures themselves to meet and report."""
+    def run() -> None:
+        try:
+            figs.warm_up()
+        except Exception as exc:  # noqa: BLE001 -- the figures meet it again, and say so on the page
+            _LOG.debug('report.html warm-up: %s', exc)
+
+    thread = threading.Thread(target=run, name='report-figures-warm-up', daemon=True)
+    thread.start()
+    return thread
+
+
 def write_run_report(out: Path, report: dict[str, Any], *, frame_sizes: Sequence[Sequence[int]] | np.ndarray | None = None,
-                     gnss_latlon: np.ndarray | None = None) -> dict[str, Any]:
+                     gnss_latlon: np.ndarray | None = None, warm: threading.Thread | None = None) -> dict[str, Any]:
     """Write ``out``/report.html from the run's files in ``out`` and its ``report`` (report.json's
     content). frame_sizes: (N, 2) (width, height) of each frames.csv row's frame (None: outlines not
-    drawn); gnss_latlon: (M, 2) degrees, the input's GNSS fixes. Returns report.json's ``report_html``:
+    drawn); gnss_latlon: (M, 2) degrees, the input's GNSS fixes; warm: start_warm_up()'s thread, waited
+    for (its wait counted in ``time_s``). Returns report.json's ``report_html``:
     the file, the figures drawn, the sections that failed and the seconds it took."""
     t0 = time.perf_counter()
+    if warm is not None:
+        warm.join()
     run = _Run(out, report, None if frame_sizes is None else np.asarray(frame_sizes), gnss_latlon)
     sections, failed = [], []
     for build in SECTIONS:
