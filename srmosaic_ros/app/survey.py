@@ -438,9 +438,12 @@ def register_survey(stills: list[SurveyStill], config: PipelineConfig, *, progre
                else 'the stills carry no usable GPS positions')
         scale, scale_source, scale_is_guess = metadata_scale(stills, config, reader, why=why)
     if scale_is_guess:
-        _LOG.warning('survey: the ground scale is a guess, %s; the mosaic\'s size on the ground may be wrong by the '
-                     'ratio of the true height to it (set georef.nominal_agl_m, or georef.ground_altitude_m with GPS '
-                     'altitudes).', scale_source)
+        # a warning where the GPS puts the survey on the ground at that guess; without GPS the survey is
+        # not georeferenced, or ground control sets its scale
+        _LOG.log(logging.WARNING if has_gps and control is None else logging.INFO,
+                 'survey: the ground scale is a guess, %s; the mosaic\'s size on the ground may be wrong by the '
+                 'ratio of the true height to it (set georef.nominal_agl_m, or georef.ground_altitude_m with GPS '
+                 'altitudes).', scale_source)
     else:
         _LOG.info('survey: ground scale %.1f m from %s', scale, scale_source)
     # footprint on the ground at the survey's scale: width / fx x scale
@@ -571,7 +574,9 @@ def process_survey(path: Path, out: Path, config: PipelineConfig, reader: ImageF
                                         else ' (no GPS: not georeferenced)'),
         'working_reduction': collections.Counter(reduction).most_common(1)[0][0],
         'working_megapixels': scfg.working_megapixels,
-        'scale_m': scale, 'scale_source': scale_source, 'scale_is_guess': reg.scale_is_guess,
+        'scale_m': scale,
+        'scale_source': scale_source + ('; the ground control points set the survey\'s scale' if by_control else ''),
+        'scale_is_guess': reg.scale_is_guess and not by_control,
         'height_above_ground_m': scale if reg.focal_known else None,
         'position_sigma_m': float(np.median(reg.priors.position_sigma_m)),
         'pairs_tried': len(registrations), 'pairs_registered': len(pairs),
