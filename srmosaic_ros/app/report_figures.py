@@ -1,4 +1,5 @@
-"""The figures of report.html (app/run_report.py), drawn with matplotlib's Agg canvas into PNG bytes.
+"""The figures of report.html (app/run_report.py), drawn with matplotlib's Agg canvas into PNG bytes
+(JPEG for the two drawn over the mosaic's thumbnail).
 
 matplotlib is imported when the first figure is drawn, never at the package's import. Every figure
 is small (FIG_DPI, a few inches) and draws its many items as one collection each (PolyCollection,
@@ -47,9 +48,19 @@ def _figure(width_in: float, height_in: float, *, left: float = 0.75, bottom: fl
     return fig
 
 
+#: JPEG quality of the figures drawn over the mosaic (a photograph: as PNG, three times the bytes).
+JPEG_QUALITY = 85
+
+
 def _png(fig: Any) -> bytes:
     buf = io.BytesIO()
     fig.savefig(buf, format='png', dpi=FIG_DPI, pil_kwargs={'compress_level': 3})
+    return buf.getvalue()
+
+
+def _jpeg(fig: Any) -> bytes:
+    buf = io.BytesIO()
+    fig.savefig(buf, format='jpeg', dpi=FIG_DPI, pil_kwargs={'quality': JPEG_QUALITY})
     return buf.getvalue()
 
 
@@ -84,7 +95,7 @@ def coverage_figure(thumb: np.ndarray | None, size_px: tuple[int, int], footprin
     ax.set_xlabel('mosaic.png x (px)', fontsize=8)
     ax.set_ylabel('y (px)', fontsize=8)
     ax.tick_params(labelsize=7)
-    return _png(fig)
+    return _jpeg(fig) if thumb is not None else _png(fig)
 
 
 def registration_figure(index: np.ndarray, inliers: np.ndarray, rms_px: np.ndarray, ok: np.ndarray,
@@ -211,7 +222,7 @@ def pair_graph_figure(thumb: np.ndarray | None, size_px: tuple[int, int], centre
     ax.tick_params(labelsize=7)
     if len(edges):
         ax.legend(fontsize=7, loc='upper right')
-    return _png(fig)
+    return _jpeg(fig) if thumb is not None else _png(fig)
 
 
 def stage_times_figure(seconds: dict[str, float]) -> bytes:

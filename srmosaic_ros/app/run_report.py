@@ -73,20 +73,20 @@ def _frame_points(H: np.ndarray, sizes: np.ndarray) -> tuple[np.ndarray, np.ndar
     return xy[:, :4], xy[:, 4]
 
 
-def _thumb(out: Path) -> tuple[np.ndarray | None, float]:
-    """preview.png as RGB(A) uint8 at most THUMB_MAX_SIDE_PX, and its pixels per mosaic.png pixel
-    (computed by the caller from the mosaic's size; here 1.0 means as stored)."""
+def _thumb(out: Path) -> np.ndarray | None:
+    """preview.png (the whole main mosaic, downscaled) as RGB(A) uint8 of at most THUMB_MAX_SIDE_PX;
+    the figures stretch it over the mosaic's extent. None: no preview.png."""
     import cv2
 
     img = cv2.imread(str(out / 'preview.png'), cv2.IMREAD_UNCHANGED)
     if img is None:
-        return None, 1.0
+        return None
     f = min(1.0, THUMB_MAX_SIDE_PX / max(img.shape[:2]))
     if f < 1.0:
         img = cv2.resize(img, (max(1, round(img.shape[1] * f)), max(1, round(img.shape[0] * f))),
                          interpolation=cv2.INTER_AREA)
     code = {3: cv2.COLOR_BGR2RGB, 4: cv2.COLOR_BGRA2RGBA}.get(img.shape[2] if img.ndim == 3 else 1)
-    return (cv2.cvtColor(img, code) if code is not None else img), f
+    return cv2.cvtColor(img, code) if code is not None else img
 
 
 def _main_size(report: dict[str, Any]) -> tuple[int, int] | None:
@@ -121,11 +121,11 @@ class _Run:
         self.outline = self.centre = None
         if self.frames is not None and self.sizes is not None:
             self.outline, self.centre = _frame_points(self.frames.mosaic_H_frame, self.sizes)
-        self._thumb: tuple[np.ndarray | None, float] | None = None
+        self._thumb: list[np.ndarray | None] = []
 
     def thumb(self) -> np.ndarray | None:
-        if self._thumb is None:
-            self._thumb = _thumb(self.out)
+        if not self._thumb:
+            self._thumb.append(_thumb(self.out))
         return self._thumb[0]
 
 

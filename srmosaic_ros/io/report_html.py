@@ -1,6 +1,6 @@
 """report.html: a run's report as one self-contained page that opens offline.
 
-The page is plain HTML with its CSS inline and its figures inline as base64 PNG (``data:`` URLs):
+The page is plain HTML with its CSS inline and its figures inline as base64 PNG or JPEG (``data:`` URLs):
 no script, no font, no stylesheet and no image from anywhere else, and a Content-Security-Policy
 that forbids the browser to fetch anything but ``data:`` images. A section says plainly when the
 run has no data for it.
@@ -39,10 +39,10 @@ nav a { margin-right: 1em; }
 
 @dataclass
 class ReportFigure:
-    """One figure: its PNG bytes, alt text, a caption and extra ``data-*`` attributes (name without
-    the prefix -> value)."""
+    """One figure: its PNG (or JPEG) bytes, alt text, a caption and extra ``data-*`` attributes (name
+    without the prefix -> value)."""
 
-    png: bytes
+    image: bytes
     alt: str
     caption: str = ''
     attrs: dict[str, str] = field(default_factory=dict)
@@ -68,10 +68,11 @@ def _attr(name: str) -> str:
 
 
 def _figure_html(section: str, fig: ReportFigure) -> str:
-    data = base64.b64encode(fig.png).decode('ascii')
+    mime = 'image/jpeg' if fig.image[:2] == b'\xff\xd8' else 'image/png'
+    data = base64.b64encode(fig.image).decode('ascii')
     extra = ''.join(f' data-{_attr(k)}="{html.escape(str(v))}"' for k, v in fig.attrs.items())
     caption = f'<figcaption>{html.escape(fig.caption)}</figcaption>' if fig.caption else ''
-    return (f'<figure><img src="data:image/png;base64,{data}" alt="{html.escape(fig.alt)}" '
+    return (f'<figure><img src="data:{mime};base64,{data}" alt="{html.escape(fig.alt)}" '
             f'data-figure="{html.escape(section)}"{extra}>{caption}</figure>')
 
 
