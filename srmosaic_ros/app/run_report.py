@@ -187,8 +187,10 @@ def _coverage(run: _Run) -> ReportSection:
     else:
         sec.notes.append('The frames\' sizes are not known here: their outlines are not drawn.')
     n_bad = int((~ok).sum())
-    caption = (f'{int(ok.sum())} frames outlined on the mosaic (blue; orange: placed by their pose alone); '
-               f'{n_bad} not in it (red x, drawn between their placed neighbours).')
+    pose = int(by_pose.sum()) if by_pose is not None else 0
+    caption = (f'{int(ok.sum())} frames outlined on the mosaic (blue' + (f'; orange: {pose} placed by their pose alone'
+                                                                          if pose else '') +
+               f'); {n_bad} not in it' + (' (red x, drawn between their placed neighbours).' if n_bad else '.'))
     sec.figures.append(ReportFigure(figs.coverage_figure(thumb, run.size_px, outlines, failed, by_pose),
                                     'mosaic coverage with frame outlines', caption,
                                     {'failed-frames': str(n_bad), 'outlines': str(len(outlines))}))
