@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 __all__ = ['FIG_DPI', 'coverage_figure', 'map_figure', 'pair_graph_figure', 'registration_figure', 'sr_figure',
-           'stage_times_figure', 'survey_pairs_figure', 'warm_up']
+           'sr_compare_figure', 'stage_times_figure', 'survey_pairs_figure', 'warm_up']
 
 #: Dots per inch of every figure (the page shows them at about their own size).
 FIG_DPI = 80
@@ -239,6 +239,19 @@ def stage_times_figure(seconds: dict[str, float]) -> bytes:
     ax.set_xlabel('seconds', fontsize=8)
     ax.tick_params(axis='x', labelsize=7)
     return _png(fig)
+
+
+def sr_compare_figure(bicubic: np.ndarray, sr: np.ndarray, factor: int) -> bytes:
+    """One SR tile beside the mosaic's same region upsampled bicubically: two RGB uint8 (h, w, 3)
+    images of one size."""
+    h, w = sr.shape[:2]
+    fig = _figure(6.4, float(np.clip(3.1 * h / max(w, 1) + 0.45, 1.6, 4.5)), left=0.1, bottom=0.1)
+    for k, (img, title) in enumerate(((bicubic, f'mosaic, bicubic x{factor}'), (sr, f'SR x{factor}'))):
+        ax = fig.add_subplot(1, 2, k + 1)
+        ax.imshow(img, interpolation='nearest')
+        ax.set_title(title, fontsize=8)
+        ax.set_axis_off()
+    return _jpeg(fig)
 
 
 def sr_figure(gain_db: np.ndarray, refused: int) -> bytes:

@@ -364,6 +364,12 @@ def _sr(run: _Run) -> ReportSection:
     sec.rows = [('Factor', _fmt(sr.get('factor'))), ('Tiles written', _fmt(sr.get('tiles'))),
                 ('Tiles planned', _fmt(sr.get('tiles_planned'))), ('Tiles left to the mosaic', _fmt(sr.get('tiles_refused'))),
                 ('PSF sigma', _fmt(sr.get('psf_sigma_px'), ' px'))]
+    example = _sr_example(run)
+    if example is not None:
+        name, bicubic, image = example
+        sec.figures.append(ReportFigure(figs.sr_compare_figure(bicubic, image, int(sr['factor'])), 'an SR tile beside '
+                                        'the mosaic', f'{name} (the tile made from the most frames) beside the same '
+                                        'region of mosaic.png upsampled bicubically.', {'example': name}))
     gains = []
     for t in sr.get('per_tile') or []:
         rms = t.get('held_out_rms') or [None, None]
@@ -371,7 +377,7 @@ def _sr(run: _Run) -> ReportSection:
             gains.append(20.0 * math.log10(rms[1] / rms[0]))
     if not gains:
         sec.notes.append('No tile was checked against a frame left out (sr.self_check 0, or too few frames): '
-                         'no gain to show.')
+                         'no gain to show (srmosaic evaluate measures SR against ground truth or held-out frames).')
         return sec
     sec.rows.append(('Median gain over the mosaic', f'{float(np.median(gains)):.2f} dB'))
     sec.figures.append(ReportFigure(figs.sr_figure(np.array(gains), int(sr.get('tiles_refused') or 0)),
@@ -379,6 +385,43 @@ def _sr(run: _Run) -> ReportSection:
                                     'it was not given than the mosaic does (RMS ratio, dB; core/sr/self_check.py).',
                                     {'tiles': str(len(gains))}))
     return sec
+
+
+#: The mosaic is read for the SR example only up to this size when it has no mosaic.tif to read a window of.
+SR_EXAMPLE_MAX_MOSAIC_PX = 64_000_000
+
+
+def _sr_example(run: _Run) -> tuple[str, np.ndarray, np.ndarray] | None:
+    """(file, the mosaic's region bicubic, the SR tile), RGB uint8 of one size, of the tile made from
+    the most frames (sr/tiles.json and report.json sr.per_tile); None when there is none to show."""
+    import json
+
+    import cv2
+
+    sr_dir = run.out / 'sr'
+    if not (sr_dir / 'tiles.json').is_file():
+        return None
+    frames = {t['file']: t.get('frames', 0) for t in run.report['sr'].get('per_tile') or [] if t.get('file')}
+    tiles = [t for t in json.loads((sr_dir / 'tiles.json').read_text()) if (sr_dir / t['file']).is_file()]
+    if not tiles:
+        return None
+    tile = max(tiles, key=lambda t: (frames.get(t['file'], 0), -t['y0'], -t['x0']))
+    x0, y0, w, h, f = (int(tile[k]) for k in ('x0', 'y0', 'width', 'height', 'factor'))
+    image = cv2.imread(str(sr_dir / tile['file']), cv2.IMREAD_COLOR)
+    if (run.out / 'mosaic.tif').is_file():
+        import rasterio
+        from rasterio.windows import Window
+
+        with rasterio.open(run.out / 'mosaic.tif') as ds:
+            region = np.moveaxis(ds.read(indexes=[1, 2, 3] if ds.count >= 3 else [1, 1, 1], window=Window(x0, y0, w, h)),
+                                 0, -1)[:, :, ::-1]
+    elif run.size_px is not None and run.size_px[0] * run.size_px[1] <= SR_EXAMPLE_MAX_MOSAIC_PX:
+        region = cv2.imread(str(run.out / 'mosaic.png'), cv2.IMREAD_COLOR)[y0:y0 + h, x0:x0 + w]
+    else:
+        return None
+    # tile pixel (u, v) shows mosaic point (x0 + (u + 0.5) / f - 0.5, ...): cv2.resize's half-pixel convention
+    bicubic = cv2.resize(np.ascontiguousarray(region), (image.shape[1], image.shape[0]), interpolation=cv2.INTER_CUBIC)
+    return tile['file'], cv2.cvtColor(bicubic, cv2.COLOR_BGR2RGB), cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
 
 
 SECTIONS: tuple[Callable[[_Run], ReportSection], ...] = (_summary, _coverage, _registration, _map, _pair_graph,
