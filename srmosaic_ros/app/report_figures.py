@@ -48,7 +48,7 @@ def _figure(width_in: float, height_in: float, *, left: float = 0.75, bottom: fl
     return fig
 
 
-#: JPEG quality of the figures drawn over the mosaic (a photograph: as PNG, three times the bytes).
+#: JPEG quality of the figures drawn over the mosaic (a photograph: PNG would store it in far more bytes).
 JPEG_QUALITY = 85
 
 

@@ -40,8 +40,9 @@ A part of the survey with fewer than two targets is not placed.
 
 Initialisation: a spanning tree of the registration graph (most inliers first) chains each
 connected component, which a similarity fit to its GPS positions places on the ground; frames
-in no pair are placed by their position, the survey's median scale and their heading (the track
-direction plus the camera's median offset from it), and stay fixed (``placed_by`` 'pose').
+in no pair are placed by their position, the survey's median scale and their heading (their own
+attitude's, else the track direction plus the camera's median offset from it, or the default
+mount's when no frame shows it), and stay fixed (``placed_by`` 'pose').
 """
 from __future__ import annotations
 
