@@ -26,6 +26,7 @@ INSTALL_REQUIRES = [
     'PyMaxflow==1.3.2',  # Boykov-Kolmogorov max-flow: seams where frames agree (core/mosaic/seam_cut.py)
     'aiohttp==3.14.5',  # the map server (web/server.py): HTTP routes and server-sent events in one package
     'morecantile==7.1.0',  # XYZ tile grid of EPSG:3857 (WebMercatorQuad): tile bounds and the tiles of a box (web/tiles.py)
+    'matplotlib==3.11.2',  # the figures of report.html, which every `process` run writes (app/report_figures.py)
 ]
 
 setup(
@@ -59,7 +60,6 @@ setup(
                  'ros-jazzy-ament-cmake-ros==0.12.0', 'ros-jazzy-ament-cmake-gmock==2.5.4',
                  'ros-jazzy-ament-cmake-gtest==2.5.4', 'ros-jazzy-ament-cmake-pytest==2.5.4',
                  'mkdocs==1.6.1', 'mkdocs-material==9.8.1'],
-        'bench': ['matplotlib==3.11.2'],
     },
     python_requires='>=3.11',
     zip_safe=False,

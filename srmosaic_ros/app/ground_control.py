@@ -175,7 +175,10 @@ class SurveyControl:
             role = 'check' if name in self.check else 'control'
             counted = [m for m in rows if not obs[m].excluded and m not in rejected and np.isfinite(res[m]).all()]
             entry: dict[str, Any] = {'name': name, 'role': role,
-                                     'surveyed': [round(float(v), 4) for v in obs[rows[0]].geo_xyz]}
+                                     'surveyed': [round(float(v), 4) for v in obs[rows[0]].geo_xyz],
+                                     # east, north in the survey's projected CRS (``epsg``): report.html's map
+                                     'surveyed_utm': [round(float(ctl.ground_m[rows[0]][i] + self.origin[i]), 3)
+                                                      for i in (0, 1)]}
             if counted:
                 r = res[counted].mean(axis=0)
                 err = float(np.hypot(*r))

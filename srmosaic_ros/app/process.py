@@ -525,6 +525,9 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
         report_extra['error'] = str(error)
     if restart is not None:
         report_extra['mount_from_frames'] = restart
+    from .run_report import start_warm_up
+
+    warm = start_warm_up()  # report.html's imports while GDAL and the PNG writer compress the mosaic
     with clock.stage('outputs'):
         report = write_outputs(result, stage, config, report_extra,
                                meta_centres=summary.centres if summary is not None else None)
@@ -553,7 +556,9 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
         report['sr']['wall_s'] = round(time.perf_counter() - t_sr, 3)
         report['wall_s'] = round(time.perf_counter() - t0, 3)
         report['peak_rss_mb'] = round(peak_rss_mb(), 1)
-    write_json(stage / 'report.json', report)
+    _write_reports(stage, report, t0, frame_sizes=[rec.size for rec in result.records],
+                   gnss_latlon=np.array([(f.latitude_deg, f.longitude_deg) for f in result.fixes]).reshape(-1, 2),
+                   warm=warm)
     if error is not None:
         raise error
     shutil.rmtree(checkpoint_path(out).parent, ignore_errors=True)  # complete: the checkpoint is spent
@@ -608,7 +613,7 @@ def _process_survey(path: Path, out: Path, config: PipelineConfig, reader: Any, 
                     sr_factor: int | None, progress: bool, gcp_file: Path | None = None,
                     check_points: str | None = None) -> dict[str, Any]:
     """A folder of stills aligned globally (survey.py), with the report and SR as process_input's."""
-    from .survey import process_survey
+    from .survey import process_survey, survey_stills
 
     report = process_survey(path, out, config, reader, progress=progress, gcp_file=gcp_file,
                             check_points=check_points)
@@ -636,8 +641,34 @@ def _process_survey(path: Path, out: Path, config: PipelineConfig, reader: Any, 
         report['sr']['wall_s'] = round(time.perf_counter() - t_sr, 3)
         report['wall_s'] = round(time.perf_counter() - t0, 3)
         report['peak_rss_mb'] = round(peak_rss_mb(), 1)
-    write_json(out / 'report.json', report)
+    stills, _, _ = survey_stills(reader)
+    _write_reports(out, report, t0, frame_sizes=[s.size for s in stills],
+                   gnss_latlon=np.array([s.latlon for s in stills]).reshape(-1, 2))
     return report
+
+
+def _write_reports(out: Path, report: dict[str, Any], t0: float, *, frame_sizes: list[tuple[int, int]],
+                   gnss_latlon: np.ndarray, warm: Any = None) -> None:
+    """report.html (run_report.py), then report.json with the page's time counted in ``wall_s`` and
+    in ``stage_times.outputs`` (where the run keeps stage times) and the page's figures in
+    ``report_html``."""
+    from .run_report import write_run_report
+
+    page = write_run_report(out, report, frame_sizes=frame_sizes, gnss_latlon=gnss_latlon, warm=warm)
+    report['report_html'] = page
+    wall = time.perf_counter() - t0
+    report['wall_s'] = round(wall, 3)
+    if report.get('frames_per_s'):  # the frames over the time before SR (as before), the page's added
+        report['frames_per_s'] = round(report['frames_in'] / (report['frames_in'] / report['frames_per_s']
+                                                              + page['time_s']), 2)
+    for name in ('outputs', 'total'):
+        times = (report.get('stage_times') or {}).get(name)
+        if times is not None:
+            times['total_s'] = round(times['total_s'] + page['time_s'], 3)
+            if name == 'outputs':  # once per run: its per-frame figures are its total spread over the frames
+                per_frame = round(times['total_s'] / max(times.get('frames') or 1, 1) * 1e3, 3)
+                times.update(median_ms=per_frame, p95_ms=per_frame, mean_ms=per_frame)
+    write_json(out / 'report.json', report)
 
 
 def _with_ground_hint(config: PipelineConfig, summary: Any) -> PipelineConfig:

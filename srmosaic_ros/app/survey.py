@@ -68,7 +68,7 @@ from ..io.metadata import RECORDED_ATTITUDE_SIGMA_DEG
 from ..io.outputs import MOSAIC_TIF_ZLEVEL, output_threads
 from ..malloc_tuning import trim_heap
 
-__all__ = ['SurveyStill', 'process_survey', 'read_reduced', 'reduction_for', 'still_gains',
+__all__ = ['SurveyStill', 'metadata_scale', 'process_survey', 'read_reduced', 'reduction_for', 'still_gains',
            'survey_stills', 'tiles_in_memory', 'use_global_alignment']
 
 _LOG = logging.getLogger(__name__)
@@ -140,19 +140,21 @@ def survey_stills(reader: ImageFolderReader) -> tuple[list[SurveyStill], int, tu
         meta = reader.meta[i]
         stamp = reader.stamp_ns(i, file.name)
         row = reader.telemetry.get(file.name)
-        lat = lon = math.nan
+        lat = lon = alt = math.nan
         if row:
             try:
                 lat, lon = float(row['lat']), float(row['lon'])
                 fixes.append((stamp, lon, lat))
+                alt = float(row.get('alt_msl') or 'nan')
             except (KeyError, ValueError):
                 pass
         elif meta is not None and meta.has_position:
             fixes.append((reader.fix_stamp_ns(i, stamp), meta.longitude_deg, meta.latitude_deg))
-        stills_meta.append((file, meta, stamp))
+            alt = meta.altitude_m
+        stills_meta.append((file, meta, stamp, alt))
     fixes.sort()
     dedup = [f for k, f in enumerate(fixes) if k == 0 or f[1:] != fixes[k - 1][1:]]  # a tag repeating the last fix
-    stamps = np.array([s for _, _, s in stills_meta], dtype=np.int64)
+    stamps = np.array([s for _, _, s, _ in stills_meta], dtype=np.int64)
     if dedup:
         lonlat = geotags_at(np.array([f[0] for f in dedup], dtype=np.int64), np.array([f[1:] for f in dedup]),
                             stamps, max_gap_s=30.0)
@@ -168,7 +170,7 @@ def survey_stills(reader: ImageFolderReader) -> tuple[list[SurveyStill], int, tu
         e, n = to_utm.transform(lonlat[ok, 0], lonlat[ok, 1])
         origin = (float(np.round(np.mean(e))), float(np.round(np.mean(n))))
     stills = []
-    for k, (file, meta, stamp) in enumerate(stills_meta):
+    for k, (file, meta, stamp, alt) in enumerate(stills_meta):
         w, h = (meta.width_px, meta.height_px) if meta is not None else reader.size(k)
         camera = reader.camera(meta, w, h) if meta is not None else None
         if camera is not None:
@@ -186,7 +188,7 @@ def survey_stills(reader: ImageFolderReader) -> tuple[list[SurveyStill], int, tu
             R = R_enu_from_cam_aviation(*meta.gimbal_ypr_deg)
         height = meta.relative_altitude_m if meta is not None else math.nan
         stills.append(SurveyStill(file, (w, h), int(stamp), K, camera is not None, pos,
-                                  (float(lonlat[k, 1]), float(lonlat[k, 0])), nadir, R, float(height)))
+                                  (float(lonlat[k, 1]), float(lonlat[k, 0])), nadir, R, float(height), float(alt)))
     return stills, epsg, origin
 
 
@@ -294,6 +296,35 @@ def still_gains(stills: list[SurveyStill], placed: list[int], raster_H_frame: li
                           [None if h is None else H @ h for (_, h), H in zip(thumbs, raster_H_frame)], mode)
 
 
+def metadata_scale(stills: list[SurveyStill], config: PipelineConfig, reader: ImageFolderReader | None, *,
+                   why: str) -> tuple[float, str, bool]:
+    """The survey's scale (metres per normalised unit: the height above the ground of a nadir still)
+    from the metadata, when no GPS baseline gives it (``why``); (scale, its source, whether it is a guess).
+
+    In order: the stills' height above take-off (DJI XMP RelativeAltitude, Camera:AboveGroundAltitude;
+    io/exif.py) with their intrinsics, the median over the stills that carry it; then their GPS
+    altitude above the ground height prior (georef.ground_altitude_m, else the one the metadata
+    implies, io/image_folder.py); then, a guess, georef.nominal_agl_m. Without the intrinsics a
+    height is no scale (the normalised coordinates use a nominal focal length): the guess it is.
+    """
+    nominal = float(config.georef.nominal_agl_m)
+    if not all(s.focal_known for s in stills):
+        return nominal, f'georef.nominal_agl_m ({nominal:g} m), a guess: {why}, and the intrinsics are unknown', True
+    rel = [s.height_m for s in stills if math.isfinite(s.height_m) and s.height_m > 0.0]
+    if rel:
+        return (float(np.median(rel)), f'the stills\' height above take-off (XMP RelativeAltitude; median of {len(rel)} '
+                f'of {len(stills)}) with their intrinsics: {why}', False)
+    ground, source = float(config.georef.ground_altitude_m), 'georef.ground_altitude_m'
+    summary = getattr(reader, 'summary', None)
+    if not math.isfinite(ground) and summary is not None and math.isfinite(summary.ground_altitude_m):
+        ground, source = float(summary.ground_altitude_m), summary.ground_altitude_source
+    above = [s.altitude_m - ground for s in stills if math.isfinite(s.altitude_m - ground) and s.altitude_m > ground]
+    if above:
+        return (float(np.median(above)), f'the stills\' GPS altitude above the ground height {ground:.1f} m ({source}; '
+                f'median of {len(above)} of {len(stills)}) with their intrinsics: {why}', False)
+    return nominal, f'georef.nominal_agl_m ({nominal:g} m), a guess: {why}, and no height above the ground is known', True
+
+
 def _working_K(still: SurveyStill, r: int) -> np.ndarray:
     return np.linalg.inv(_full_from_reduced(r)) @ still.K
 
@@ -318,6 +349,7 @@ class RegisteredSurvey:
     has_gps: bool
     georef_note: str
     register_s: float
+    scale_is_guess: bool = False
 
 
 def register_survey(stills: list[SurveyStill], config: PipelineConfig, *, progress: bool = True,
@@ -383,9 +415,20 @@ def register_survey(stills: list[SurveyStill], config: PipelineConfig, *, progre
     scale = estimate_scale(pairs, pos, min_baseline_m=3.0 * sigma_gps) if has_gps else math.nan
     focal_known = all(s.focal_known for s in stills)
     scale_source = 'GPS baselines over the registered displacements of consecutive stills'
+    scale_is_guess = False
     if not math.isfinite(scale):
-        scale = float(config.georef.nominal_agl_m)
-        scale_source = f'georef.nominal_agl_m ({scale:g} m): no consecutive pair with a GPS baseline registered'
+        why = ('no consecutive pair with a GPS baseline registered' if has_gps
+               else 'the stills carry no usable GPS positions')
+        scale, scale_source, scale_is_guess = metadata_scale(stills, config, reader, why=why)
+    if scale_is_guess:
+        # a warning where the GPS puts the survey on the ground at that guess; without GPS the survey is
+        # not georeferenced, or ground control sets its scale
+        _LOG.log(logging.WARNING if has_gps and control is None else logging.INFO,
+                 'survey: the ground scale is a guess, %s; the mosaic\'s size on the ground may be wrong by the '
+                 'ratio of the true height to it (set georef.nominal_agl_m, or georef.ground_altitude_m with GPS '
+                 'altitudes).', scale_source)
+    else:
+        _LOG.info('survey: ground scale %.1f m from %s', scale, scale_source)
     # footprint on the ground at the survey's scale: width / fx x scale
     wh = np.array([[s.size[0] / s.K[0, 0] * scale, s.size[1] / s.K[1, 1] * scale] for s in stills])
     centres = pos
@@ -462,7 +505,8 @@ def register_survey(stills: list[SurveyStill], config: PipelineConfig, *, progre
             track[k] = math.atan2(b[1] - a[1], b[0] - a[0])
     priors = SurveyPriors(target, sigma, scale, track, shape)
     return RegisteredSurvey(pairs, priors, registrations, reduction, more, second_opinions, cache.described,
-                            dict(cache.unreadable), scale, scale_source, focal_known, has_gps, georef_note, t_reg)
+                            dict(cache.unreadable), scale, scale_source, focal_known, has_gps, georef_note, t_reg,
+                            scale_is_guess)
 
 
 def process_survey(path: Path, out: Path, config: PipelineConfig, reader: ImageFolderReader, *,
@@ -513,7 +557,9 @@ def process_survey(path: Path, out: Path, config: PipelineConfig, reader: ImageF
                                         else ' (no GPS: not georeferenced)'),
         'working_reduction': collections.Counter(reduction).most_common(1)[0][0],
         'working_megapixels': scfg.working_megapixels,
-        'scale_m': scale, 'scale_source': scale_source,
+        'scale_m': scale,
+        'scale_source': scale_source + ('; the ground control points set the survey\'s scale' if by_control else ''),
+        'scale_is_guess': reg.scale_is_guess and not by_control,
         'height_above_ground_m': scale if reg.focal_known else None,
         'position_sigma_m': float(np.median(reg.priors.position_sigma_m)),
         'pairs_tried': len(registrations), 'pairs_registered': len(pairs),
@@ -529,6 +575,9 @@ def process_survey(path: Path, out: Path, config: PipelineConfig, reader: ImageF
         'median_pairs_per_frame': float(np.median([pairs_of[k] for k in range(n)])) if n else 0.0,
         **sol.figures,
         'pairs_graph': [[[p.i, p.j], bool(u)] for p, u in zip(pairs, sol.pair_used)],  # frame indices, used
+        # beside pairs_graph, pair by pair: [inliers, RMS residual (px)] of its registration
+        'pairs_quality': [[int(p.inliers), _rounded(getattr(registrations.get((p.i, p.j)), 'rms_px', math.nan))]
+                          for p in pairs],
         'time_s': {'register': round(t_reg, 3), 'solve': round(t_solve, 3), 'paint': report.pop('paint_s'),
                    'write': report.pop('write_s'), 'paint_and_write': round(t_paint, 3),
                    'total': round(time.perf_counter() - t0, 3)},
@@ -547,6 +596,10 @@ def process_survey(path: Path, out: Path, config: PipelineConfig, reader: ImageF
         gsd = report['georeferenced']['gsd_m_per_px'] if report.get('georeferenced') else math.nan
         report['gcp'] = ground.report(sol, gsd)
     return report
+
+
+def _rounded(v: float, digits: int = 3) -> float | None:
+    return round(float(v), digits) if math.isfinite(v) else None
 
 
 def _paint_and_write(out: Path, config: PipelineConfig, stills: list[SurveyStill], sol: Any, epsg: int,

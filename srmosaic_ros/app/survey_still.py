@@ -29,3 +29,4 @@ class SurveyStill:
     nadir_view: bool
     R_enu_from_cam: np.ndarray | None = None  # from the gimbal angles (None: unknown)
     height_m: float = math.nan  # above the ground: the XMP's height above take-off (NaN: unknown)
+    altitude_m: float = math.nan  # the GPS altitude (EXIF, or the telemetry CSV's alt_msl; NaN: unknown)

@@ -81,6 +81,8 @@ def test_control_alone_puts_stills_without_gps_on_the_ground_and_check_points_me
     assert 'ground control: 2 check target(s)' in run.stdout and '(check): ' in run.stdout, run.stdout
     assert report['georeferenced'] is not None and report['georeferenced']['epsg'] // 100 in (326, 327)
     assert 'not_georeferenced_reason' not in report
+    # no GPS and no height: the scale's prior is the nominal height, but the control sets the scale
+    assert report['survey']['scale_is_guess'] is False and 'ground control points set' in report['survey']['scale_source']
     assert (tmp_path / 'out' / 'mosaic.tif').is_file()
     gcp = report['gcp']
     assert gcp['placed_survey'] and len(gcp['check']) == 2 and len(gcp['control']) == len(targets) - 2

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -39,6 +40,14 @@ def test_process_sr_writes_tiles_contract(tmp_path):
     fell_back = [t for t in tiles if t['source'] == 'frame']
     assert report['sr']['tiles_fallback'] == len(fell_back) == sum(report['sr']['tiles_fallback_by_reason'].values())
     assert report['sr']['tiles_sr'] == len(tiles) - len(fell_back) >= len(tiles) // 2
+    # report.html shows the tile made from the most frames beside the mosaic, and the gain of every
+    # tile checked against a frame it was not given (or says that none was)
+    frames = {t['file']: t['frames'] for t in report['sr']['per_tile'] if 'file' in t}
+    checked = sum(1 for t in report['sr']['per_tile'] if all(t.get('held_out_rms') or [None]))
+    page = (out / 'report.html').read_text(encoding='utf-8')
+    example = re.search(r'data-figure="sr" data-example="([^"]+)"', page).group(1)
+    assert frames[example] == max(frames.values())
+    assert (f'data-figure="sr" data-tiles="{checked}"' in page) if checked else ('no gain to show' in page)
     check_sr_geotiffs(out, tiles, mosaic)
 
 

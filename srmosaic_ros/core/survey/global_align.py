@@ -40,8 +40,9 @@ A part of the survey with fewer than two targets is not placed.
 
 Initialisation: a spanning tree of the registration graph (most inliers first) chains each
 connected component, which a similarity fit to its GPS positions places on the ground; frames
-in no pair are placed by their position, the survey's median scale and their heading (the track
-direction plus the camera's median offset from it), and stay fixed (``placed_by`` 'pose').
+in no pair are placed by their position, the survey's median scale and their heading (their own
+attitude's, else the track direction plus the camera's median offset from it, or the default
+mount's when no frame shows it), and stay fixed (``placed_by`` 'pose').
 """
 from __future__ import annotations
 
@@ -327,6 +328,14 @@ def _angle_scale(G: np.ndarray) -> tuple[float, float]:
     return math.atan2(a[1, 0], a[0, 0]), math.sqrt(abs(float(np.linalg.det(a))))
 
 
+def _attitude_angle(G: np.ndarray) -> float:
+    """Angle of the image x axis on the ground at the principal point of a ground_H_frame (3, 3)
+    (attitude_ground_H): the homography's Jacobian there is A - t g^T (G = [[A, t], [g^T, 1]])."""
+    G = G / G[2, 2]
+    J = G[:2, :2] - np.outer(G[:2, 2], G[2, :2])
+    return math.atan2(J[1, 0], J[0, 0])
+
+
 def _pair_angles(pairs: list[PairConstraint], used: np.ndarray, pos: np.ndarray, n: int,
                  min_baseline_m: float) -> list[list[float]]:
     """Per frame, the angle of its image x axis on the ground that each of its pairs implies: the
@@ -379,7 +388,9 @@ def _initial(n: int, pairs: list[PairConstraint], used: np.ndarray, pri: SurveyP
     track = pri.track_rad if pri.track_rad is not None else np.full(n, np.nan)
     own = np.array([_circular_median(np.array(a)) if a else np.nan for a in angles])
     offset = _circular_median(own - track)
-    offset = 0.0 if not math.isfinite(offset) else offset
+    # no pair to tell it: the default mount, image top toward the nose, so the image x axis (toward
+    # the right wing) is 90 deg clockwise of the track
+    offset = -math.pi / 2.0 if not math.isfinite(offset) else offset
     known = np.flatnonzero(np.isfinite(own))
     for comp in comps:
         has = [k for k in comp if np.isfinite(pos[k]).all()]
@@ -388,6 +399,8 @@ def _initial(n: int, pairs: list[PairConstraint], used: np.ndarray, pri: SurveyP
         for k in comp:
             if math.isfinite(own[k]):
                 angle = own[k]
+            elif k in pri.shape:  # its own attitude (gimbal yaw): the turn its footprint has
+                angle = _attitude_angle(pri.shape[k][0])
             elif math.isfinite(track[k]):
                 angle = track[k] + offset
             elif len(known):
