@@ -488,7 +488,7 @@ def test_launcher_brings_the_managed_nodes_up(ros_env):
                              capture_output=True, text=True, timeout=180)
     assert refused.returncode == 2, refused.stderr
     assert '/bad/srmosaic_mosaic refused to configure' in refused.stderr, refused.stderr
-    assert "mosaic.blend must be one of" in refused.stderr
+    assert "mosaic.blend=" in refused.stderr and 'must be one of feather, multiband, bestview' in refused.stderr
 
 
 @pytest.mark.ros

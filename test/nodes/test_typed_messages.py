@@ -163,4 +163,4 @@ def test_typed_without_the_interfaces_is_refused_with_the_way_out(ros_env):
     assert 'colcon' in run.stderr and 'live.message_types: portable' in run.stderr
     run = subprocess.run([sys.executable, '-m', 'srmosaic_ros.nodes.executables', 'sr_node', '--ros-args', '-p',
                           'live.message_types:=json'], env=ros_env, capture_output=True, text=True, timeout=120)
-    assert run.returncode == 2 and 'live.message_types must be one of portable, typed' in run.stderr, run.stderr
+    assert run.returncode == 2 and "live.message_types='json' (must be one of portable, typed)" in run.stderr, run.stderr
