@@ -990,6 +990,26 @@ class TiledCanvas:
                                                           self._background)
         return (out[:, :, 0] if c == 1 else out), covered
 
+    def tile_blocks(self, key: TileKey, f: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """One tile reduced by ``f`` (a divisor of the tile size) as the preview reduces it: the
+        feather blend of each f x f block (best view: the block mean of the winners' pixels).
+
+        Returns ``(image, covered)``: image float32 (T/f, T/f, C) with ``background`` where nothing is
+        painted, covered bool (T/f, T/f); image pixel (i, j) covers mosaic pixels
+        [tx T + f j, tx T + f (j + 1)) x [ty T + f i, ...). None when the tile does not exist.
+        For the live map's changed tiles (with :meth:`pop_touched`); reads the tile only.
+        """
+        self._check_open()
+        if int(f) < 1 or self._tile_size % int(f):
+            msg = f'the reduction must divide the tile size {self._tile_size}, got {f!r}.'
+            raise CanvasError(msg)
+        tile = self._store.peek(key)
+        if tile is None:
+            return None
+        acc, wsum = block_sums(tile, int(f), self._tile_size, self._channels)
+        out = np.full(acc.shape, self._background, np.float32)
+        return out, feather_divide(acc, wsum, out)
+
     def render_blocks(self, block_rows: int = 256, region: tuple[int, int, int, int] | None = None, *,
                       threads: int = 1) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
         """The mosaic of ``render(region)`` in strips of ``block_rows`` rows, top to bottom.
