@@ -245,11 +245,13 @@ class MapTileStream:
             f *= 2
         return f
 
-    def collect(self, segments: Sequence[Any], now_s: float) -> list[tuple[MapTileKey, ImagePlacement, np.ndarray, np.ndarray]]:
+    def collect(self, segments: Sequence[Any], now_s: float, *,
+                send: bool = True) -> list[tuple[MapTileKey, ImagePlacement, np.ndarray, np.ndarray]]:
         """Mark the tiles the segments' canvases painted since the last call (``canvas.pop_touched``),
         and take the reduced images of those this round may send, oldest change first:
-        (key, placement, image float32 (n, n[, C]), covered bool (n, n)). Call under the lock that
-        guards the canvases (the pipeline's)."""
+        (key, placement, image float32 (n, n[, C]), covered bool (n, n)); ``send`` False: only mark
+        (nobody listens: they wait, and go to the first subscriber). Call under the lock that guards
+        the canvases (the pipeline's)."""
         canvases = {}
         for seg in segments:
             canvas = seg.canvas
@@ -261,7 +263,7 @@ class MapTileStream:
             for owner, canvas in canvases.items():
                 self.queue.mark(((owner, tx, ty) for tx, ty in sorted(canvas.pop_touched(), key=lambda k: (k[1], k[0]))),
                                 now_s)
-            keys = self.queue.candidates(now_s)
+            keys = self.queue.candidates(now_s) if send else []
         batch = []
         for key in keys:
             canvas = canvases.get(key[0])
@@ -290,6 +292,15 @@ class MapTileStream:
                 self.tile_px = int(covered.shape[0])
             out.append((frame_id, data))
         return out
+
+    def spend(self, nbytes: int) -> None:
+        """Bytes sent besides the tiles (the summary) leave the budget too."""
+        with self._lock:
+            self.queue.spend(nbytes)
+
+    def set_budget(self, bytes_per_s: float) -> None:
+        with self._lock:
+            self.queue.bytes_per_s = float(bytes_per_s)
 
     def summary(self) -> str:
         """The JSON of /srmosaic/map_tiles (:func:`summary_text`)."""

@@ -8,7 +8,14 @@ Subscribes (sensor-data QoS) to /camera/image_raw (sensor_msgs/Image) and
 in the local ENU plane tangent at the first fix, frame_id live.map_frame; covariance of
 (east, north, up, roll, pitch, yaw)), /srmosaic/fix (NavSatFix of the same pose, covariance ENU),
 /srmosaic/odom (nav_msgs/Odometry of the same pose, child_frame_id live.body_frame)
-and /srmosaic/diagnostics (diagnostic_msgs/DiagnosticArray, also on /diagnostics). These are the
+and /srmosaic/diagnostics (diagnostic_msgs/DiagnosticArray, also on /diagnostics). With
+`live.map_tiles` (default) and while something subscribes to it, /srmosaic/map_tile
+(sensor_msgs/CompressedImage, format png, reliable) carries the canvas tiles painted since the last
+round (the preview's period), reduced by 2^`live.map_level`, RGBA (transparent where nothing is
+painted), header.frame_id their region of the live plane (live.raster.ImagePlacement), within
+`live.map_bytes_per_s` (oldest change first; the rest wait, none is lost); /srmosaic/map_tiles
+(std_msgs/String JSON, transient local) lists the tiles sent, and the service /srmosaic/get_map
+(std_srvs/Trigger) answers the whole map sent so far, PNGs in base64 (live/map_tiles.py). These are the
 names in the root namespace: the node uses relative names (nodes.common.TOPICS), so under
 `-r __ns:=/uav1` they are /uav1/camera/image_raw, /uav1/srmosaic/..., and all are remappable.
 The georeferencing filter runs inside this node (each frame is placed on the georeferenced raster
@@ -43,6 +50,8 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, NavSatFix
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
 
 from msg_adapters import (
     camera_info_to_intrinsics,
@@ -54,13 +63,14 @@ from msg_adapters import (
 )
 
 from ..errors import SrMosaicError
+from ..live.map_tiles import MAP_TILE_FORMAT, MapTileStream
 from ..live.raster import ImagePlacement, LiveRaster
 from ..core.types import Frame
 from ..io.mosaic_files import write_json
 from ..io.outputs import peak_rss_mb, preview_image
 from ..app.process import write_outputs
 from ..pipeline import FrameRecord, Pipeline
-from .common import (IMAGE_QOS_DEPTH, REGISTRATION_LAYOUT, TELEMETRY_QOS_DEPTH, TOPICS, DiagnosticsPublisher,
+from .common import (IMAGE_QOS_DEPTH, REGISTRATION_LAYOUT, SERVICES, TELEMETRY_QOS_DEPTH, TOPICS, DiagnosticsPublisher,
                      PosePublisher, StreamOrder, WarnOnce, camera_image, frame_ids, input_qos,
                      subscribe_input)
 from .messages import Messages, message_kind
@@ -95,9 +105,11 @@ class MosaicNode(ManagedNode):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('srmosaic_mosaic', **kwargs)
-        self._defaults = declare_pipeline_parameters(self, MOSAIC_PARAMETERS, changeable=('live.preview_period_s',))
+        self._defaults = declare_pipeline_parameters(self, MOSAIC_PARAMETERS,
+                                                     changeable=('live.preview_period_s', 'live.map_bytes_per_s'))
         self.warn = WarnOnce(self)  # the counters of the diagnostics; rejected inputs logged once per kind
-        on_parameter_change(self, {'live.preview_period_s': self._set_period})
+        on_parameter_change(self, {'live.preview_period_s': self._set_period,
+                                   'live.map_bytes_per_s': self._set_map_budget})
         autostart(self)
 
     def _configure(self) -> None:
@@ -172,6 +184,17 @@ class MosaicNode(ManagedNode):
                              history=HistoryPolicy.KEEP_LAST)
         self.pub_raster = self.create_publisher(self.messages.raster_type, TOPICS['raster'], latched)
         self._raster_sent: LiveRaster | None = None
+        self._map: MapTileStream | None = None  # live.map_tiles: the changed tiles on /srmosaic/map_tile
+        if self.get_parameter('live.map_tiles').value:
+            self._map = MapTileStream(int(self.get_parameter('live.map_level').value),
+                                      float(self.get_parameter('live.map_bytes_per_s').value))
+            # reliable and deep enough for a round's tiles: a tile sent is not lost on the way
+            tiles_qos = QoSProfile(depth=256, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
+            self.pub_map_tile = self.create_publisher(CompressedImage, TOPICS['map_tile'], tiles_qos)
+            self.pub_map_summary = self.create_publisher(String, TOPICS['map_tiles'], latched)
+            self._map_summary_sent = ''
+            self.create_service(Trigger, SERVICES['get_map'], self._get_map,
+                                callback_group=MutuallyExclusiveCallbackGroup())
         if not self.georef_standalone:  # else the georef node publishes them (one publisher per graph)
             self.pub_poses = PosePublisher(self)
         self._preview_thread: threading.Thread | None = None
@@ -323,6 +346,7 @@ class MosaicNode(ManagedNode):
 
     def _render_and_publish(self) -> None:
         image = coverage = raster = None
+        tiles: list = []
         region = 'srmosaic_mosaic'
         if self._lock.acquire(timeout=2.0):  # the worker holds it per frame; skip a round when busy
             try:
@@ -337,6 +361,9 @@ class MosaicNode(ManagedNode):
                     # grow with the mosaic (a full render of a long flight takes seconds).
                     image, coverage = seg.canvas.render_preview(self.config.mosaic.preview_max_side_px)
                     region = ImagePlacement(seg.index, *seg.canvas.last_preview_region).frame_id()
+                if self._map is not None:  # the changed tiles: marked always, read only for a subscriber
+                    send = self.pub_map_tile.get_subscription_count() > 0
+                    tiles = self._map.collect(self.pipeline.segments, time.monotonic(), send=send)
             finally:
                 self._lock.release()
         if raster is not None:
@@ -349,7 +376,32 @@ class MosaicNode(ManagedNode):
             # header.frame_id: the plane region the preview shows (live.raster.ImagePlacement)
             self.pub_preview.publish(numpy_to_image(u8, encoding, stamp_ns=stamp, frame_id=region))
             self.pub_preview_c.publish(numpy_to_compressed(u8, stamp_ns=stamp, frame_id=region))
+        if self._map is not None:
+            self._publish_map_tiles(tiles)
         self.pub_diag.publish(self._diagnostics())
+
+    def _publish_map_tiles(self, batch: list) -> None:
+        """Encode and publish the round's changed tiles within the budget, then the summary when it
+        changed (its bytes count against the budget too). Outside the pipeline lock."""
+        for frame_id, data in self._map.encode(batch, self.get_clock().now().nanoseconds):
+            msg = CompressedImage(format=MAP_TILE_FORMAT, data=data)
+            msg.header.stamp = self.get_clock().now().to_msg()
+            msg.header.frame_id = frame_id
+            self.pub_map_tile.publish(msg)
+        summary = self._map.summary()
+        if summary != self._map_summary_sent:
+            self.pub_map_summary.publish(String(data=summary))
+            self._map.spend(len(summary))
+            self._map_summary_sent = summary
+
+    def _get_map(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        """srmosaic/get_map: every map tile sent so far (live/map_tiles.whole_map_text)."""
+        response.success, response.message = True, self._map.whole_map()
+        return response
+
+    def _set_map_budget(self, value: float) -> None:
+        if self._map is not None:
+            self._map.set_budget(float(value))
 
     def _live_raster(self) -> LiveRaster | None:
         """The raster to publish on /srmosaic/raster: when it is new, or drift control's canvas
