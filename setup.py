@@ -24,12 +24,18 @@ INSTALL_REQUIRES = [
     'av==18.1.0',      # PyAV: video decoding with picture types (I-frame selection) and H.264 encoding; KLV and GPMF data streams
     'Pillow==13.0.0',  # EXIF and XMP of stills, read without decoding the pixels (io/exif.py)
     'PyMaxflow==1.3.2',  # Boykov-Kolmogorov max-flow: seams where frames agree (core/mosaic/seam_cut.py)
+    'aiohttp==3.14.5',  # the map server (web/server.py): HTTP routes and server-sent events in one package
+    'morecantile==7.1.0',  # XYZ tile grid of EPSG:3857 (WebMercatorQuad): tile bounds and the tiles of a box (web/tiles.py)
 ]
 
 setup(
     name=PACKAGE,
     version='0.1.0',
     packages=find_packages(include=[PACKAGE, PACKAGE + '.*', 'msg_adapters', 'msg_adapters.*']),
+    # the map page and the vendored Leaflet (web/server.py STATIC_FILES), installed beside the modules
+    package_data={PACKAGE + '.web': ['static/*.html', 'static/*.js', 'static/*.css', 'static/leaflet/*.js', 'static/leaflet/*.css',
+                                     'static/leaflet/LICENSE', 'static/leaflet/VENDORED.md',
+                                     'static/leaflet/images/*.png']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
         ('share/' + PACKAGE, ['package.xml']),
