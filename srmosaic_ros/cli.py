@@ -1,4 +1,4 @@
-"""`srmosaic` command line: process, evaluate, inspect, simulate, launch, play, node, record-tiles, psf.
+"""`srmosaic` command line: process, evaluate, inspect, simulate, launch, play, node, record-tiles, map-server, psf.
 
 Every SrMosaicError ends the command with a one-line message on stderr and exit status 2;
 nothing half-written is left under a final file name.
@@ -240,6 +240,15 @@ def _add_record_tiles(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run_record_tiles)
 
 
+def _add_map_server(sub: argparse._SubParsersAction) -> None:
+    from .nodes.executables import map_server_arguments, run_map_server
+
+    p = sub.add_parser('map-server', help='serve the live map (mosaic, SR tiles, aircraft, footprint) as a web page '
+                       '(a ground station; then --ros-args ...)')
+    map_server_arguments(p)
+    p.set_defaults(func=run_map_server)
+
+
 def _add_play(sub: argparse._SubParsersAction) -> None:
     from .nodes.executables import play_arguments, run_play
 
@@ -304,6 +313,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_play(sub)
     _add_psf(sub)
     _add_record_tiles(sub)
+    _add_map_server(sub)
     return parser
 
 

@@ -38,9 +38,12 @@ import numpy as np
 from ..errors import SrMosaicError
 from .raster import ImagePlacement
 
-__all__ = ['MAP_TILE_FORMAT', 'SUMMARY_VERSION', 'ChangedTiles', 'MapTileKey', 'MapTileStream', 'encode_tile', 'decode_tile',
+__all__ = ['FOOTPRINT_FRAME', 'MAP_TILE_FORMAT', 'SUMMARY_VERSION', 'ChangedTiles', 'MapTileKey', 'MapTileStream', 'encode_tile', 'decode_tile',
            'placement_of', 'summary_text', 'whole_map_text', 'parse_whole_map']
 
+#: header.frame_id of /srmosaic/footprint (geometry_msgs/PolygonStamped): its points are pixels (x right,
+#: y down, centres at integers) of the /srmosaic/raster grid: LiveRaster.utm_H_raster puts them in UTM.
+FOOTPRINT_FRAME = 'srmosaic_raster'
 #: CompressedImage.format of /srmosaic/map_tile
 MAP_TILE_FORMAT = 'png'
 #: 'version' of the summary (/srmosaic/map_tiles) and of the whole map (the srmosaic/get_map service):

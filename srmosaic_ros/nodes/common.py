@@ -46,6 +46,7 @@ TOPICS = {
     'sr_tile': 'srmosaic/sr_tile',
     'map_tile': 'srmosaic/map_tile',
     'map_tiles': 'srmosaic/map_tiles',
+    'footprint': 'srmosaic/footprint',
 }
 #: Services, relative as TOPICS: the whole live map so far (std_srvs/Trigger; live/map_tiles.py).
 SERVICES = {'get_map': 'srmosaic/get_map'}

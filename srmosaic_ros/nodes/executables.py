@@ -16,7 +16,7 @@ from pathlib import Path
 from ..errors import SrMosaicError
 
 __all__ = ['EXECUTABLES', 'split_ros_args', 'run_executable', 'node_main', 'record_tiles_arguments', 'run_record_tiles',
-           'play_arguments', 'run_play', 'player_main', 'tile_recorder_main', 'main']
+           'play_arguments', 'run_play', 'player_main', 'tile_recorder_main', 'map_server_arguments', 'run_map_server', 'main']
 
 #: name -> 'module:function'; setup.py's console_scripts list the same (a test compares them).
 EXECUTABLES = {
@@ -25,6 +25,7 @@ EXECUTABLES = {
     'sr_node': 'srmosaic_ros.nodes.sr_node:main',
     'tile_recorder': 'srmosaic_ros.nodes.executables:tile_recorder_main',
     'player': 'srmosaic_ros.nodes.executables:player_main',
+    'map_server': 'srmosaic_ros.nodes.map_server:main',
 }
 
 
@@ -78,6 +79,27 @@ def run_record_tiles(args: argparse.Namespace) -> int:
     check_output_dir(args.dir, 'record-tiles DIR')  # before joining the graph, not at the first tile
     node = functools.partial(TileRecorderNode, args.dir, previews=args.preview)
     return run_nodes([node], ['tile_recorder', *args.ros_args])
+
+
+def map_server_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('--port', type=int, default=None,
+                        help='TCP port of the web map (default: live.map_port, 8080; 0: any free port)')
+    parser.add_argument('--bind', default=None,
+                        help='address to listen on (default: live.map_bind, 127.0.0.1: this machine only; '
+                             '0.0.0.0: every interface, the network too)')
+
+
+def run_map_server(args: argparse.Namespace) -> int:
+    import functools
+
+    from .map_server import MapServerNode
+    from .runner import run_nodes
+
+    if args.port is not None and not 0 <= args.port <= 65535:
+        msg = f'--port must be in 0..65535, got {args.port}.'
+        raise SrMosaicError(msg)
+    node = functools.partial(MapServerNode, port=args.port, bind=args.bind)
+    return run_nodes([node], ['map_server', *args.ros_args])
 
 
 def positive_float(text: str) -> float:

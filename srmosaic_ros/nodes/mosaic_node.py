@@ -15,7 +15,9 @@ round (the preview's period), reduced by 2^`live.map_level`, RGBA (transparent w
 painted), header.frame_id their region of the live plane (live.raster.ImagePlacement), within
 `live.map_bytes_per_s` (oldest change first; the rest wait, none is lost); /srmosaic/map_tiles
 (std_msgs/String JSON, transient local) lists the tiles sent, and the service /srmosaic/get_map
-(std_srvs/Trigger) answers the whole map sent so far, PNGs in base64 (live/map_tiles.py). These are the
+(std_srvs/Trigger) answers the whole map sent so far, PNGs in base64 (live/map_tiles.py);
+/srmosaic/footprint (geometry_msgs/PolygonStamped) is the ground the newest fused frame sees by its
+pose, in pixels of the /srmosaic/raster grid (frame_id srmosaic_raster). These are the
 names in the root namespace: the node uses relative names (nodes.common.TOPICS), so under
 `-r __ns:=/uav1` they are /uav1/camera/image_raw, /uav1/srmosaic/..., and all are remappable.
 The georeferencing filter runs inside this node (each frame is placed on the georeferenced raster
@@ -47,6 +49,7 @@ from typing import Any
 import numpy as np
 import torch
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from geometry_msgs.msg import Point32, PolygonStamped
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, NavSatFix
@@ -63,7 +66,7 @@ from msg_adapters import (
 )
 
 from ..errors import SrMosaicError
-from ..live.map_tiles import MAP_TILE_FORMAT, MapTileStream
+from ..live.map_tiles import FOOTPRINT_FRAME, MAP_TILE_FORMAT, MapTileStream
 from ..live.raster import ImagePlacement, LiveRaster
 from ..core.types import Frame
 from ..io.mosaic_files import write_json
@@ -192,6 +195,7 @@ class MosaicNode(ManagedNode):
             tiles_qos = QoSProfile(depth=256, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
             self.pub_map_tile = self.create_publisher(CompressedImage, TOPICS['map_tile'], tiles_qos)
             self.pub_map_summary = self.create_publisher(String, TOPICS['map_tiles'], latched)
+            self.pub_footprint = self.create_publisher(PolygonStamped, TOPICS['footprint'], 10)
             self._map_summary_sent = ''
             self.create_service(Trigger, SERVICES['get_map'], self._get_map,
                                 callback_group=MutuallyExclusiveCallbackGroup())
@@ -312,6 +316,9 @@ class MosaicNode(ManagedNode):
                     self.get_logger().error(traceback.format_exc())
                     continue
                 fused = self.pipeline.take_fused()
+                footprint = self._footprint(fused[-1]) if fused and self._map is not None else None
+            if footprint is not None:
+                self._publish_footprint(*footprint)
             if records:
                 self._latency_ms.append((time.perf_counter() - t0) * 1e3)
             self.warn.count('frames_processed', len(records))
@@ -379,6 +386,29 @@ class MosaicNode(ManagedNode):
         if self._map is not None:
             self._publish_map_tiles(tiles)
         self.pub_diag.publish(self._diagnostics())
+
+    def _footprint(self, record: FrameRecord) -> tuple[int, np.ndarray] | None:
+        """(stamp, (4, 2) raster pixels) of the ground a fused frame sees, by its pose (the filter's
+        best estimate now, whether or not the frame is painted yet); None without one. Under the lock."""
+        georef = self.pipeline.georef
+        if georef is None or georef.raster is None or record.pose is None or not record.pose.valid:
+            return None
+        w, h = record.size
+        corners = np.array([[-0.5, w - 0.5, w - 0.5, -0.5], [-0.5, -0.5, h - 0.5, h - 0.5], [1.0, 1.0, 1.0, 1.0]])
+        try:
+            p = georef.raster_H_frame(record.pose, record.camera) @ corners
+        except (SrMosaicError, ValueError, np.linalg.LinAlgError):
+            return None
+        if not np.all(np.isfinite(p)) or np.any(p[2] <= 0):  # a corner above the horizon
+            return None
+        return record.stamp_ns, (p[:2] / p[2]).T
+
+    def _publish_footprint(self, stamp_ns: int, corners: np.ndarray) -> None:
+        msg = PolygonStamped()
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(stamp_ns), 1_000_000_000)
+        msg.header.frame_id = FOOTPRINT_FRAME
+        msg.polygon.points = [Point32(x=float(x), y=float(y), z=0.0) for x, y in corners]
+        self.pub_footprint.publish(msg)
 
     def _publish_map_tiles(self, batch: list) -> None:
         """Encode and publish the round's changed tiles within the budget, then the summary when it

@@ -43,6 +43,7 @@ class _PlaneTile:
     placement: ImagePlacement
     rgba: np.ndarray  # (h, w, 4) uint8
     serial: int
+    stamp_ns: int | None = None
 
     @property
     def box(self) -> tuple[int, int, int, int]:
@@ -63,7 +64,7 @@ class LiveMapSource:
         self._frames = 0
         self._pose: dict[str, float | None] | None = None
         self._yaw: float | None = None
-        self._footprint_plane: np.ndarray | None = None  # (4, 2) plane pixels
+        self._footprint_raster: np.ndarray | None = None  # (N, 2) raster pixels
         self._track: list[tuple[float, float]] = []
         self._diagnostics: dict[str, Any] = {}
         self._cache: collections.OrderedDict[tuple[str, int, int, int], tuple[Any, bytes | None]] = collections.OrderedDict()
@@ -81,9 +82,10 @@ class LiveMapSource:
             self._raster_serial += 1
             self._changed()
 
-    def add_tile(self, layer: str, frame_id: str, rgba: np.ndarray) -> None:
+    def add_tile(self, layer: str, frame_id: str, rgba: np.ndarray, *, stamp_ns: int | None = None) -> None:
         """A tile of ``layer`` ('mosaic' or 'sr'): its placement text (header.frame_id) and image, RGBA
-        uint8 (h, w, 4) (or RGB / grey: opaque). A newer tile of the same region replaces it."""
+        uint8 (h, w, 4) (or RGB / grey: opaque). It replaces the tile of the same region unless both
+        have stamps and the one held is newer (a late joiner's whole map after the topic's tiles)."""
         if layer not in LAYERS:
             msg = f'layer {layer!r} is not one of {LAYERS}.'
             raise SrMosaicError(msg)
@@ -100,13 +102,25 @@ class LiveMapSource:
         img[img[:, :, 3] == 0, :3] = 0  # premultiplied where transparent (what the reduction averages)
         key = (placement.segment, placement.x0, placement.y0, placement.width, placement.height)
         with self._lock:
+            held = self._tiles[layer].get(key)
+            if held is not None and held.stamp_ns is not None and stamp_ns is not None and stamp_ns < held.stamp_ns:
+                return
             self._serial += 1
-            self._tiles[layer][key] = _PlaneTile(placement, img, self._serial)
+            self._tiles[layer][key] = _PlaneTile(placement, img, self._serial, stamp_ns)
             self._changed()
 
-    def add_png(self, layer: str, frame_id: str, data: bytes) -> None:
+    def add_png(self, layer: str, frame_id: str, data: bytes, *, stamp_ns: int | None = None) -> None:
         """:meth:`add_tile` of a tile's PNG (as /srmosaic/map_tile carries it)."""
-        self.add_tile(layer, frame_id, decode_tile(bytes(data)))
+        self.add_tile(layer, frame_id, decode_tile(bytes(data)), stamp_ns=stamp_ns)
+
+    def holds(self, layer: str, frame_ids: list[str]) -> bool:
+        """Whether every tile named (placement texts) is held."""
+        keys = set()
+        for frame_id in frame_ids:
+            p = ImagePlacement.parse(frame_id)
+            keys.add((p.segment, p.x0, p.y0, p.width, p.height))
+        with self._lock:
+            return keys <= self._tiles[layer].keys()
 
     def set_frames(self, frames: int) -> None:
         with self._lock:
@@ -143,14 +157,14 @@ class LiveMapSource:
                 self._pose['heading_deg'] = (90.0 - self._yaw) % 360.0
             self._changed()
 
-    def set_footprint(self, plane_H_frame: np.ndarray, width: int, height: int) -> None:
-        """The newest frame's footprint: its (3, 3) homography frame pixels -> live plane and its size."""
-        corners = np.array([[-0.5, -0.5, 1], [width - 0.5, -0.5, 1], [width - 0.5, height - 0.5, 1], [-0.5, height - 0.5, 1]]).T
-        p = np.asarray(plane_H_frame, np.float64) @ corners
-        if not np.all(np.isfinite(p)) or np.any(p[2] <= 0):
+    def set_footprint(self, corners_raster: np.ndarray) -> None:
+        """The ground the aircraft's camera sees now: (N, 2) corners in pixels of the /srmosaic/raster
+        grid (as /srmosaic/footprint carries them; LiveRaster.utm_H_raster puts them on the map)."""
+        pts = np.asarray(corners_raster, np.float64).reshape(-1, 2)
+        if len(pts) < 3 or not np.all(np.isfinite(pts)):
             return
         with self._lock:
-            self._footprint_plane = (p[:2] / p[2]).T
+            self._footprint_raster = pts
             self._changed()
 
     def set_diagnostics(self, values: dict[str, Any]) -> None:
@@ -176,7 +190,7 @@ class LiveMapSource:
                                    'tiles': {layer: len(b) for layer, b in boxes.items()},
                                    'track': {'type': 'LineString', 'coordinates': [list(p) for p in self._track]}
                                    if len(self._track) >= 2 else None}
-            footprint = self._footprint_plane
+            footprint = self._footprint_raster
         out.update({'footprint': None, 'bounds': None, 'minzoom': 0, 'maxzoom': 0, 'sr_minzoom': None, 'sr_maxzoom': None,
                     'georeferenced': raster is not None})
         if raster is None:
@@ -185,7 +199,7 @@ class LiveMapSource:
 
         crs = f'EPSG:{raster.epsg}'
         if footprint is not None:
-            utm = _apply(raster.utm_H_plane(), footprint)
+            utm = _apply(raster.utm_H_raster, footprint)
             lon, lat = transform(crs, 'EPSG:4326', list(utm[:, 0]), list(utm[:, 1]))
             ring = [[float(a), float(b)] for a, b in zip(lon, lat, strict=True)]
             out['footprint'] = {'type': 'Polygon', 'coordinates': [[*ring, ring[0]]]}

@@ -109,7 +109,7 @@ def test_status_pose_footprint_track_and_zooms(source: LiveMapSource) -> None:
     source.set_pose(lat, lon, 100.0)
     source.set_pose(lat + 1e-5, lon + 1e-5, 101.0)
     source.set_frames(7)
-    source.set_footprint(np.array([[1.0, 0, 100], [0, 1.0, 20], [0, 0, 1]]), 40, 30)
+    source.set_footprint(np.array([[99.5, 19.5], [139.5, 19.5], [139.5, 49.5], [99.5, 49.5]]))  # raster pixels
     source.set_diagnostics({'message': 'registering', 'frames_processed': '7'})
     status = source.status()
     assert status['frames'] == 7 and status['pose']['alt'] == 101.0
