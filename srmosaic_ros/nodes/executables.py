@@ -16,7 +16,8 @@ from pathlib import Path
 from ..errors import SrMosaicError
 
 __all__ = ['EXECUTABLES', 'split_ros_args', 'run_executable', 'node_main', 'record_tiles_arguments', 'run_record_tiles',
-           'play_arguments', 'run_play', 'player_main', 'tile_recorder_main', 'map_server_arguments', 'run_map_server', 'main']
+           'play_arguments', 'run_play', 'player_main', 'tile_recorder_main', 'map_server_arguments', 'run_map_server',
+           'map_server_main', 'main']
 
 #: name -> 'module:function'; setup.py's console_scripts list the same (a test compares them).
 EXECUTABLES = {
@@ -25,7 +26,7 @@ EXECUTABLES = {
     'sr_node': 'srmosaic_ros.nodes.sr_node:main',
     'tile_recorder': 'srmosaic_ros.nodes.executables:tile_recorder_main',
     'player': 'srmosaic_ros.nodes.executables:player_main',
-    'map_server': 'srmosaic_ros.nodes.map_server:main',
+    'map_server': 'srmosaic_ros.nodes.executables:map_server_main',
 }
 
 
@@ -151,6 +152,12 @@ def tile_recorder_main(argv: list[str] | None = None) -> int:
     """`ros2 run srmosaic_ros tile_recorder DIR [--preview] [--ros-args ...]`."""
     return run_executable('tile_recorder', record_tiles_arguments, run_record_tiles, argv,
                           description='write the live SR tiles (and the preview) into a folder as GeoTIFFs')
+
+
+def map_server_main(argv: list[str] | None = None) -> int:
+    """`ros2 run srmosaic_ros map_server [--port N] [--bind ADDR] [--ros-args ...]`."""
+    return run_executable('map_server', map_server_arguments, run_map_server, argv,
+                          description='serve the live map (mosaic, SR tiles, aircraft, footprint) as a web page')
 
 
 def player_main(argv: list[str] | None = None) -> int:

@@ -40,7 +40,7 @@ from .common import SERVICES, TOPICS, WarnOnce
 from .messages import Messages, message_kind
 from .parameters import MAP_SERVER_PARAMETERS, declare_pipeline_parameters
 
-__all__ = ['MapServerNode', 'MOSAIC_STATUS', 'main']
+__all__ = ['MapServerNode', 'MOSAIC_STATUS']
 
 #: The diagnostic status of the mosaic node (nodes/mosaic_node.py) whose values the status shows.
 MOSAIC_STATUS = 'srmosaic: registration and mosaic'
@@ -178,10 +178,3 @@ class MapServerNode(Node):
     def finish(self) -> None:
         self.server.stop()
 
-
-def main(argv: list[str] | None = None) -> int:
-    """`ros2 run srmosaic_ros map_server [--port N] [--bind ADDR] [--ros-args ...]`."""
-    from .executables import map_server_arguments, run_executable, run_map_server
-
-    return run_executable('map_server', map_server_arguments, run_map_server, argv,
-                          description='serve the live map (mosaic, SR tiles, aircraft, footprint) as a web page')
