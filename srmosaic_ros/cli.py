@@ -1,4 +1,4 @@
-"""`srmosaic` command line: process, evaluate, inspect, simulate, launch, play, node, record-tiles, map-server, psf.
+"""`srmosaic` command line: process, evaluate, inspect, simulate, launch, play, node, record-tiles, map-server, psf, serve.
 
 Every SrMosaicError ends the command with a one-line message on stderr and exit status 2;
 nothing half-written is left under a final file name.
@@ -58,6 +58,11 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
     p.add_argument('--check-points', default=None, metavar='N|NAMES',
                    help='stills with ground control: hold out N targets (spread over the survey) or the named ones '
                    '(comma-separated) as check points; their residuals go to report.json gcp')
+    p.add_argument('--tiles', nargs='?', const='png', choices=['png', 'webp'], default=None,
+                   help='georeferenced runs: also write the web map, XYZ tiles (EPSG:3857, default png) in DIR/tiles/ '
+                   '(and DIR/sr/ with --sr) with DIR/map.html, a page that opens offline')
+    p.add_argument('--kmz', action='store_true', help='georeferenced runs: also write DIR/mosaic.kmz (Google Earth: the '
+                   'mosaic as a ground overlay)')
     p.add_argument('--no-progress', action='store_true', help='no progress bar')
     p.set_defaults(func=_run_process)
 
@@ -82,10 +87,16 @@ def _run_process(args: argparse.Namespace) -> int:
                            checkpoint_every=args.checkpoint_every, resume=args.resume,
                            sr_factor=(args.sr_factor or config.sr_tiles.factor) if (args.sr or args.sr_factor) else None,
                            progress=not args.no_progress, deinterlace=args.deinterlace, gcp_file=args.gcp,
-                           check_points=args.check_points)
+                           check_points=args.check_points, tiles=args.tiles, kmz=args.kmz)
     print(f"{report['frames_registered']}/{report['frames_in']} frames in mosaic.png "
           f"({len(report['segments'])} segment(s)), {report['frames_per_s']} frames/s, "
           f"peak {report['peak_rss_mb']} MB -> {args.out}")
+    for name, figures in (report.get('map_outputs') or {}).items():
+        if name == 'tiles':
+            counts = ', '.join(f"{layer} {f['tiles']} (zoom {f['minzoom']}-{f['maxzoom']})" for layer, f in figures['layers'].items())
+            print(f"web map: {args.out / 'map.html'} ({figures['format']} tiles: {counts}); or `srmosaic serve {args.out}`")
+        elif name == 'kmz':
+            print(f"KMZ: {args.out / figures['file']}")
     if left_out := report.get('images_left_out'):
         print(f"{len(left_out)} image(s) left out, neither placed nor painted: {', '.join(sorted(left_out))} "
               "(report.json images_left_out says why)")
@@ -123,6 +134,9 @@ FLAG_RANGES: dict[str, list[tuple[str, str, Callable[[Any], bool], str]]] = {
     ],
     'play': [
         ('delay', '--delay', lambda v: v >= 0.0, '>= 0 seconds'),
+    ],
+    'serve': [
+        ('port', '--port', lambda v: 1 <= v <= 65535, 'between 1 and 65535'),
     ],
 }
 
@@ -299,6 +313,32 @@ def _run_inspect(args: argparse.Namespace) -> int:
     return 0
 
 
+def _add_serve(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser('serve', help='serve a georeferenced process output as a web map (the mosaic and SR layers, the '
+                       'track and the last footprint) at http://BIND:PORT/; read only')
+    p.add_argument('dir', type=Path, help='output directory of `srmosaic process` (with mosaic.tif: a georeferenced run)')
+    p.add_argument('--port', type=int, default=8080, help='TCP port, between 1 and 65535 (default 8080)')
+    p.add_argument('--bind', default='127.0.0.1', help='address to listen on (default 127.0.0.1, this machine only; '
+                   '0.0.0.0 opens the map to the network, without any login)')
+    p.set_defaults(func=_run_serve)
+
+
+def _run_serve(args: argparse.Namespace) -> int:
+    from .web.run_source import RunSource
+    from .web.server import serve
+
+    source = RunSource(args.dir)
+    if args.bind not in ('127.0.0.1', 'localhost', '::1'):
+        print(f'srmosaic serve: the map is open to every host that reaches {args.bind} port {args.port}, without a login',
+              file=sys.stderr)
+    try:
+        serve(source, port=args.port, bind=args.bind, page_config={'title': f'srmosaic map: {args.dir.resolve().name}'})
+    except OSError as exc:
+        msg = f'cannot listen on {args.bind} port {args.port} ({exc.strerror or exc}); give another --port or --bind.'
+        raise ConfigError(msg) from None
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog='srmosaic', description=__doc__.splitlines()[0],
                                      epilog='Each command has --help. Documentation: docs/getting-started.md, and every '
@@ -313,6 +353,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_play(sub)
     _add_psf(sub)
     _add_record_tiles(sub)
+    _add_serve(sub)
     _add_map_server(sub)
     return parser
 

@@ -117,6 +117,8 @@ def write_outputs(result: PipelineResult, out: Path, config: PipelineConfig, ext
         'failure_reasons': dict(failures),
         'registration': registration_report(regs),
         'telemetry': {'fixes': len(result.fixes), 'imu': len(result.imus)},
+        # (w, h) of the last frame in mosaic.png: with its frames.csv row, the footprint the map shows (web/run_source.py)
+        'frame_size_px': next((list(rec.size) for rec in reversed(result.records) if rec.segment in main_segments), None),
         'keyframes': keyframe_report(result.records),
         'georeferenced': geo or None,
         **({'pose_placement': result.pose_check.as_dict()} if result.pose_check is not None else {}),
@@ -303,9 +305,13 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
                   telemetry_csv: Path | None = None, mosaic_video: bool = False,
                   checkpoint_every: int = 0, resume: bool = False, sr_factor: int | None = None,
                   progress: bool = True, overlap: bool = True, deinterlace: str = 'auto',
-                  gcp_file: Path | None = None, check_points: str | None = None) -> dict[str, Any]:
+                  gcp_file: Path | None = None, check_points: str | None = None, tiles: str | None = None,
+                  kmz: bool = False) -> dict[str, Any]:
     """Run the pipeline over a bag, a video or a folder of stills and write the outputs into ``out``;
     returns the report (also in report.json).
+
+    tiles: also write the web map's XYZ tiles in this format ('png' or 'webp') with the offline page
+    (web/offline.py); kmz: also write mosaic.kmz. Both need a georeferenced mosaic (mosaic.tif).
 
     gcp_file: ground control points for a folder of stills (OpenDroneMap's gcp_list.txt; None: the
     gcp_list.txt inside or beside the folder, if any); check_points: the targets held out of the
@@ -340,6 +346,8 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
                               mosaic_video=mosaic_video, checkpoint_every=checkpoint_every, resume=resume,
                               sr_factor=sr_factor, progress=progress, overlap=overlap, deinterlace=deinterlace,
                               gcp_file=gcp_file, check_points=check_points)
+            if tiles or kmz:
+                report = _map_outputs(transaction.stage, report, t0, tiles=tiles, kmz=kmz)
         except OSError as exc:
             if exc.errno not in FULL_DISK_ERRNOS:
                 raise
@@ -347,6 +355,36 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
                    '(the earlier run there is untouched).')
             raise OutputError(msg) from None
     report['stale_outputs_removed'] = transaction.removed
+    return report
+
+
+def _map_outputs(stage: Path, report: dict[str, Any], t0: float, *, tiles: str | None, kmz: bool) -> dict[str, Any]:
+    """--tiles and --kmz into the finished run in ``stage`` (web/offline.py), timed into
+    stage_times.outputs (``tiles_s``, ``kmz_s``, and their total_s); report.json written again."""
+    if not (stage / 'mosaic.tif').is_file():
+        why = ('--tiles and --kmz need a georeferenced mosaic (mosaic.tif), and this one is not: '
+               f'{report.get("not_georeferenced_reason") or "no positions"}')
+        _LOG.warning('%s', why)
+        report['map_outputs'] = {'skipped': why}
+        write_json(stage / 'report.json', report)
+        return report
+    from ..web.offline import write_kmz, write_tiles
+
+    figures: dict[str, Any] = {}
+    outputs = report.setdefault('stage_times', {}).setdefault('outputs', {})
+    for name, wanted, write in (('tiles', tiles, lambda: write_tiles(stage, tiles, threads=output_threads(),
+                                                                     report=report, name=stage.parent.resolve().name)),
+                                ('kmz', kmz, lambda: write_kmz(stage))):
+        if not wanted:
+            continue
+        t = time.perf_counter()
+        figures[name] = write()
+        spent = time.perf_counter() - t
+        outputs[f'{name}_s'] = round(spent, 3)
+        outputs['total_s'] = round(outputs.get('total_s', 0.0) + spent, 3)
+    report['map_outputs'] = figures
+    report['wall_s'] = round(time.perf_counter() - t0, 3)
+    write_json(stage / 'report.json', report)
     return report
 
 

@@ -18,7 +18,7 @@ __all__ = ['RUN_OUTPUTS', 'OutputTransaction', 'check_output_dir']
 
 #: What `process` writes into --out (and report.json); an earlier run's copy that this run did not write is removed.
 RUN_OUTPUTS = ('mosaic.png', 'preview.png', 'moving.png', 'mosaic.tif', 'mosaic.kml', 'poses.csv', 'frames.csv', 'mosaic.mp4',
-               'segments', 'sr')
+               'segments', 'sr', 'mosaic.kmz', 'tiles', 'map.html', 'map_config.js', 'map_files')
 
 
 class OutputTransaction:

@@ -7,7 +7,7 @@ URLs (the contract of DESIGN.md, "Maps, viewers, accuracy and docs"):
   (XYZ tiles of EPSG:3857, 256x256 RGBA PNG; 404 where nothing is painted);
 - ``GET /status.json``: ``source.status()``;
 - what the page needs besides: ``GET /map_config.js`` (the page's settings, as the offline page has
-  them in a file beside it), ``GET /static/{name}`` (the vendored Leaflet and the page's own
+  them in a file beside it), ``GET /map_files/{name}`` (the vendored Leaflet and the page's own
   script and style) and ``GET /events``, a stream of server-sent events: one ``version`` event on
   connecting and one whenever ``source.version()`` grows (polled ``EVENT_POLL_S`` apart), the
   page's cue to reload the tiles in view and the status.
@@ -39,7 +39,7 @@ from aiohttp import web
 
 from .source import LAYERS, MAX_ZOOM, MapSource
 
-__all__ = ['EVENT_POLL_S', 'STATIC_FILES', 'RunningServer', 'make_app', 'page_config_js', 'serve', 'start_in_thread']
+__all__ = ['ASSETS', 'EVENT_POLL_S', 'STATIC_FILES', 'RunningServer', 'make_app', 'page_config_js', 'serve', 'start_in_thread']
 
 _LOG = logging.getLogger(__name__)
 
@@ -50,7 +50,9 @@ EVENT_KEEPALIVE_S = 15.0
 #: Threads rendering tiles.
 TILE_THREADS = 4
 
-#: Static files the page loads: URL name under /static/ -> (file under web/static/, content type).
+#: URL folder (and the offline page's folder beside map.html) of the files the page loads.
+ASSETS = 'map_files'
+#: Static files the page loads: URL name under /map_files/ -> (file under web/static/, content type).
 #: The only files the server reads from its package; a name not here is a 404.
 STATIC_FILES: dict[str, tuple[str, str]] = {
     'leaflet.js': ('leaflet/leaflet.js', 'application/javascript'),
@@ -201,7 +203,7 @@ def make_app(source: MapSource, *, page_config: dict[str, Any] | None = None) ->
     app[_CONFIG] = server_page_config(page_config)
     app[_CLOSING] = asyncio.Event()
     routes = [web.get('/', _page), web.get('/map_config.js', _config), web.get('/status.json', _status),
-              web.get('/events', _events), web.get('/static/{name:[A-Za-z0-9_.-]+(/[A-Za-z0-9_.-]+)?}', _static)]
+              web.get('/events', _events), web.get(f'/{ASSETS}/{{name:.+}}', _static)]
     routes += [web.get(LAYER_PREFIX[layer] + _TILE_PATH, _tile_handler(layer)) for layer in LAYERS]
     app.add_routes(routes)
     app.on_shutdown.append(_on_shutdown)

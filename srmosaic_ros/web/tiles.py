@@ -14,11 +14,13 @@ from PROJ through rasterio.
   its transform and CRS), or None where nothing is painted. A dataset is read from the overview
   whose pixel is the finest that is still no finer than the tile's (a COG's overviews, so a
   zoomed-out tile reads few blocks).
+- :func:`render_block`: the same for a block of nx x ny tiles in one warp (the files of ``process --tiles``).
 - :func:`encode_tile`: PNG or WebP bytes of such a tile (alpha kept).
 - :func:`tiles_covering`: the tiles of one zoom that meet a lon/lat box.
 """
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -28,14 +30,28 @@ import numpy as np
 
 from .source import MAX_ZOOM, TILE_SIZE
 
-__all__ = ['WEB_MERCATOR', 'RasterGrid', 'encode_tile', 'render_tile', 'tile_bounds', 'tile_transform',
+__all__ = ['WEB_MERCATOR', 'RasterGrid', 'encode_tile', 'render_block', 'render_tile', 'tile_bounds', 'tile_transform',
            'tiles_covering', 'zoom_range']
 
 #: The CRS of the tiles (Web Mercator).
 WEB_MERCATOR = 'EPSG:3857'
 
 
+@functools.cache
+def _quiet_rasterio() -> None:
+    """rasterio warns that the in-memory datasets it makes of reproject's arrays have no transform, before it
+    sets the one given; said once per process, it is noise in a command's output. Only that message is
+    silenced (a filter, not catch_warnings, which is not safe across the server's threads)."""
+    import warnings
+
+    from rasterio.errors import NotGeoreferencedWarning
+
+    warnings.filterwarnings('ignore', message='Dataset has no geotransform', category=NotGeoreferencedWarning)
+
+
+@functools.cache
 def _tms() -> Any:
+    """The WebMercatorQuad grid (morecantile copies it on each ``get``: kept once)."""
     import morecantile
 
     return morecantile.tms.get('WebMercatorQuad')
@@ -51,11 +67,13 @@ def tile_bounds(z: int, x: int, y: int) -> tuple[float, float, float, float]:
 
 def tile_transform(z: int, x: int, y: int) -> Any:
     """The affine transform (pixel corners, rasterio's ``Affine``) of tile (z, x, y)'s 256x256 pixels in EPSG:3857."""
-    from rasterio.transform import from_bounds
+    from rasterio.transform import Affine
 
-    return from_bounds(*tile_bounds(z, x, y), TILE_SIZE, TILE_SIZE)
+    left, bottom, right, top = tile_bounds(z, x, y)
+    return Affine((right - left) / TILE_SIZE, 0.0, left, 0.0, -(top - bottom) / TILE_SIZE, top)
 
 
+@functools.cache
 def _tile_pixel_3857(z: int) -> float:
     """The side of one tile pixel at zoom z, in EPSG:3857 metres (its true ground size shrinks away from the equator)."""
     return float(_tms().matrix(z).cellSize)
@@ -80,6 +98,7 @@ class RasterGrid:
     width: int
     height: int
 
+    @functools.cached_property
     def bounds_3857(self) -> tuple[float, float, float, float]:
         """(left, bottom, right, top) of the raster in EPSG:3857 (its edges densified)."""
         from rasterio.warp import transform_bounds
@@ -87,6 +106,7 @@ class RasterGrid:
         left, bottom, right, top = self._native_bounds()
         return tuple(transform_bounds(self.crs, WEB_MERCATOR, left, bottom, right, top, densify_pts=21))
 
+    @functools.cached_property
     def bounds_lonlat(self) -> tuple[float, float, float, float]:
         """(west, south, east, north) of the raster in degrees (WGS84)."""
         from rasterio.warp import transform_bounds
@@ -95,7 +115,7 @@ class RasterGrid:
 
     def _native_bounds(self) -> tuple[float, float, float, float]:
         t, w, h = self.transform, self.width, self.height
-        xs, ys = zip(*(t * (c, r) for c, r in ((0, 0), (w, 0), (w, h), (0, h))), strict=True)
+        xs, ys = zip(*(t @ (c, r) for c, r in ((0, 0), (w, 0), (w, h), (0, h))), strict=True)
         return (min(xs), min(ys), max(xs), max(ys))
 
     def pixel_size(self) -> float:
@@ -103,11 +123,12 @@ class RasterGrid:
         t = self.transform
         return math.hypot(t.a, t.d)
 
+    @functools.cached_property
     def pixel_size_3857(self) -> float:
         """Side of one raster pixel at its centre, in EPSG:3857 metres (PROJ maps a pixel-sized step there)."""
         from rasterio.warp import transform
 
-        cx, cy = self.transform * (self.width / 2.0, self.height / 2.0)
+        cx, cy = self.transform @ (self.width / 2.0, self.height / 2.0)
         step = self.pixel_size()
         xs, ys = transform(self.crs, WEB_MERCATOR, [cx - step / 2, cx + step / 2], [cy, cy])
         return math.hypot(xs[1] - xs[0], ys[1] - ys[0])
@@ -121,12 +142,25 @@ def zoom_range(grid: RasterGrid, *, max_zoom: int = MAX_ZOOM) -> tuple[int, int]
     which the raster's longer side in EPSG:3857 is at most one tile (so one to four tiles hold it),
     never above maxzoom.
     """
-    px = grid.pixel_size_3857()
+    px = grid.pixel_size_3857
     maxzoom = next((z for z in range(max_zoom + 1) if _tile_pixel_3857(z) <= px), max_zoom)
-    left, bottom, right, top = grid.bounds_3857()
+    left, bottom, right, top = grid.bounds_3857
     side = max(right - left, top - bottom)
     minzoom = max((z for z in range(maxzoom + 1) if TILE_SIZE * _tile_pixel_3857(z) >= side), default=0)
     return min(minzoom, maxzoom), maxzoom
+
+
+def dataset_grid(dataset: Any) -> RasterGrid:
+    """The RasterGrid of an open rasterio dataset (kept per file and grid: its bounds are computed once)."""
+    return _grid(dataset.name, dataset.crs.to_wkt(), tuple(dataset.transform)[:6], dataset.width, dataset.height)
+
+
+@functools.lru_cache(maxsize=64)
+def _grid(name: str, crs_wkt: str, transform: tuple[float, ...], width: int, height: int) -> RasterGrid:
+    from rasterio.crs import CRS
+    from rasterio.transform import Affine
+
+    return RasterGrid(CRS.from_wkt(crs_wkt), Affine(*transform), width, height)
 
 
 def overview_for(dataset: Any, z: int) -> int | None:
@@ -135,11 +169,11 @@ def overview_for(dataset: Any, z: int) -> int | None:
     factors = dataset.overviews(1)
     if not factors:
         return None
-    grid = RasterGrid(dataset.crs, dataset.transform, dataset.width, dataset.height)
+    grid = dataset_grid(dataset)
     tile_px = _tile_pixel_3857(z)
     level = None
     for i, f in enumerate(factors):
-        if grid.pixel_size_3857() * f <= tile_px:
+        if grid.pixel_size_3857 * f <= tile_px:
             level = i
     return level
 
@@ -167,46 +201,90 @@ def render_tile(source: Any, z: int, x: int, y: int, *, transform: Any = None, c
     the raster's own pixels). Pixels the alpha band leaves uncovered never bleed into covered ones:
     GDAL's warper weights the resampling by alpha.
     """
+    block = render_block(source, z, x, y, 1, 1, transform=transform, crs=crs, resampling=resampling)
+    return None if block is None or not block[:, :, 3].any() else block
+
+
+def render_block(source: Any, z: int, x0: int, y0: int, nx: int, ny: int, *, transform: Any = None, crs: Any = None,
+                 resampling: str = 'bilinear') -> np.ndarray | None:
+    """(256 ny, 256 nx, 4) uint8 RGBA of the nx x ny tiles of zoom z from (x0, y0), in one warp; None when
+    the raster does not reach them. Tile (x0 + i, y0 + j) is the block's [256 j:256 (j + 1), 256 i:256 (i + 1)].
+    Arguments as :func:`render_tile` (which is the 1 x 1 block); one warp of many tiles spares the
+    warper's set-up per tile (``process --tiles``).
+
+    The warp is of premultiplied colour (colour x alpha / 255, alpha as a fourth band), then divided
+    by the warped alpha: the alpha-weighted resampling of GDAL's masked warp (uncovered pixels add
+    nothing to covered ones), on GDAL's unmasked path, several times faster. Only the window of
+    the raster that the block needs is read (from a dataset: its blocks, at the overview given).
+    """
     from rasterio.enums import Resampling
     from rasterio.warp import reproject
 
-    dst_transform = tile_transform(z, x, y)
+    _quiet_rasterio()
+    first, last = tile_bounds(z, x0, y0), tile_bounds(z, x0 + nx - 1, y0 + ny - 1)
+    box = (first[0], last[1], last[2], first[3])
     if isinstance(source, np.ndarray):
         bands = source if source.ndim == 3 else source[None]
-        count = bands.shape[0]
-        alpha = count if count in (2, 4) else 0
         grid = RasterGrid(crs, transform, bands.shape[2], bands.shape[1])
-        src_args: dict[str, Any] = {'source': bands, 'src_transform': transform, 'src_crs': crs}
+        interp_alpha = bands.shape[0] in (2, 4)
     else:
-        import rasterio
+        grid = dataset_grid(source)
+        interp_alpha = _alpha_band(source) == source.count
+    if not _meets(grid.bounds_3857, box):
+        return None
+    window = _source_window(grid, box)
+    if window is None:
+        return None
+    c0, r0, c1, r1 = window
+    if isinstance(source, np.ndarray):
+        cut = bands[:, r0:r1, c0:c1]
+    else:
+        from rasterio.windows import Window
 
-        count = source.count
-        alpha = _alpha_band(source)
-        grid = RasterGrid(source.crs, source.transform, source.width, source.height)
-        src_args = {'source': rasterio.band(source, list(range(1, count + 1)))}
-    if not _meets(grid.bounds_3857(), tile_bounds(z, x, y)):
-        return None
-    colour = count - (1 if alpha else 0)
-    out_count = colour + 1
-    dst = np.zeros((out_count, TILE_SIZE, TILE_SIZE), np.uint8)
-    if not alpha:  # an alpha for the warper to write: where the raster reaches
-        src_args['src_nodata'] = None
-    reproject(**src_args, destination=dst if alpha else dst[:colour], dst_transform=dst_transform,
-              dst_crs=WEB_MERCATOR, resampling=Resampling[resampling], src_alpha=alpha, dst_alpha=out_count if alpha else 0,
-              init_dest_nodata=False)
-    if not alpha:
-        reach = np.zeros((1, TILE_SIZE, TILE_SIZE), np.uint8)
-        ones = np.full((1, grid.height, grid.width), 255, np.uint8)
-        reproject(ones, reach, src_transform=grid.transform, src_crs=grid.crs, dst_transform=dst_transform,
-                  dst_crs=WEB_MERCATOR, resampling=Resampling.nearest, src_nodata=0, dst_nodata=0)
-        dst[colour] = reach[0]
-    if not dst[colour].any():
-        return None
-    rgba = np.empty((TILE_SIZE, TILE_SIZE, 4), np.uint8)
-    rgba[:, :, :3] = dst[:colour].transpose(1, 2, 0) if colour == 3 else dst[0][:, :, None]
-    rgba[:, :, 3] = dst[colour]
-    rgba[rgba[:, :, 3] == 0, :3] = 0  # nothing under alpha 0: tiles compress better, viewers agree
+        cut = source.read(window=Window(c0, r0, c1 - c0, r1 - r0))
+    colour = cut.shape[0] - (1 if interp_alpha else 0)
+    src = np.empty((colour + 1, r1 - r0, c1 - c0), np.uint8)
+    if interp_alpha:
+        alpha = cut[colour]
+        # premultiplied colour: C A / 255, rounded (exact where alpha is 0 or 255, as in the mosaics)
+        src[:colour] = ((cut[:colour].astype(np.uint16) * alpha + 127) // 255).astype(np.uint8)
+        src[colour] = alpha
+    else:
+        src[:colour] = cut
+        src[colour] = 255
+    height, width = TILE_SIZE * ny, TILE_SIZE * nx
+    dst = np.zeros((colour + 1, height, width), np.uint8)  # pixels the raster does not reach stay alpha 0
+    t = grid.transform
+    from rasterio.transform import Affine
+
+    src_transform = t @ Affine.translation(c0, r0)
+    reproject(src, dst, src_transform=src_transform, src_crs=grid.crs, src_nodata=None, dst_transform=tile_transform(z, x0, y0),
+              dst_crs=WEB_MERCATOR, dst_nodata=None, resampling=Resampling[resampling], init_dest_nodata=False)
+    a = dst[colour]
+    rgba = np.zeros((height, width, 4), np.uint8)
+    covered = a > 0
+    scale = np.zeros(a.shape, np.float32)
+    scale[covered] = 255.0 / a[covered]
+    for i in range(3):
+        c = dst[min(i, colour - 1)].astype(np.float32) * scale
+        rgba[:, :, i] = np.minimum(c + 0.5, 255.0).astype(np.uint8)
+    rgba[:, :, 3] = a
     return rgba
+
+
+def _source_window(grid: RasterGrid, box_3857: tuple[float, float, float, float], margin: int = 2) -> tuple[int, int, int, int] | None:
+    """(col0, row0, col1, row1) of the raster's pixels that an EPSG:3857 box needs, with ``margin`` pixels
+    around for the resampling kernel; None when it misses the raster."""
+    from rasterio.warp import transform_bounds
+
+    left, bottom, right, top = transform_bounds(WEB_MERCATOR, grid.crs, *box_3857, densify_pts=21)
+    inv = ~grid.transform
+    cols, rows = zip(*(inv @ (x, y) for x, y in ((left, bottom), (left, top), (right, bottom), (right, top))), strict=True)
+    c0, r0 = max(0, math.floor(min(cols)) - margin), max(0, math.floor(min(rows)) - margin)
+    c1, r1 = min(grid.width, math.ceil(max(cols)) + margin), min(grid.height, math.ceil(max(rows)) + margin)
+    if c1 <= c0 or r1 <= r0:
+        return None
+    return c0, r0, c1, r1
 
 
 def _meets(a: tuple[float, float, float, float], b: tuple[float, float, float, float]) -> bool:

@@ -51,11 +51,13 @@
     started = true;
   }
 
-  function setZooms(layer, minNative, maxNative) {
+  // maxNative: the deepest zoom the server renders (deeper: its tiles scaled up); below minZoom the layer
+  // hides (the SR layer adds nothing where the mosaic's own pixels are smaller than the screen's).
+  function setZooms(layer, minZoom, maxNative) {
     if (maxNative === null || maxNative === undefined) return false;
-    var changed = layer.options.maxNativeZoom !== maxNative || layer.options.minNativeZoom !== minNative;
+    var changed = layer.options.maxNativeZoom !== maxNative || layer.options.minZoom !== minZoom;
     layer.options.maxNativeZoom = maxNative;
-    layer.options.minNativeZoom = minNative;
+    layer.options.minZoom = minZoom;
     return changed;
   }
 
@@ -79,11 +81,23 @@
   function applyStatus(status) {
     state.status = status;
     state.statusLoads += 1;
-    if (!started) start(status);
-    var zooms = setZooms(mosaic, status.minzoom || 0, status.maxzoom);
-    zooms = setZooms(sr, status.sr_minzoom || 0, status.sr_maxzoom === null || status.sr_maxzoom === undefined ?
-                     null : status.sr_maxzoom) || zooms;
-    if (zooms && started) { mosaic.redraw(); sr.redraw(); }
+    if (status.bounds) {
+      var b = status.bounds;  // [west, south, east, north]
+      var box = L.latLngBounds([[b[1], b[0]], [b[3], b[2]]]);
+      if (!state.fitted) {
+        map.fitBounds(box, {padding: [20, 20], animate: false});
+        state.fitted = true;
+      }
+      // tiles are asked for only inside the mosaic's box; a live mosaic's box grows: ask for the new ones
+      var grew = !mosaic.options.bounds || !mosaic.options.bounds.equals(box);
+      mosaic.options.bounds = box;
+      sr.options.bounds = box;
+      if (grew && started) { mosaic._update(); sr._update(); }
+    }
+    var zooms = setZooms(mosaic, 0, status.maxzoom);
+    zooms = setZooms(sr, status.sr_minzoom || 0, status.sr_maxzoom) || zooms;
+    if (!started && status.bounds && status.maxzoom !== null && status.maxzoom !== undefined) start(status);
+    else if (zooms && started) { mosaic.redraw(); sr.redraw(); }
     track.clearLayers();
     if (status.track) track.addData(status.track);
     footprint.clearLayers();
@@ -95,11 +109,6 @@
       var svg = aircraft.getElement() && aircraft.getElement().querySelector('svg');
       var heading = p.heading_deg !== null && p.heading_deg !== undefined ? p.heading_deg : 0;
       if (svg) svg.style.transform = 'rotate(' + heading + 'deg)';
-    }
-    if (!state.fitted && status.bounds) {
-      var b = status.bounds;  // [west, south, east, north]
-      map.fitBounds([[b[1], b[0]], [b[3], b[2]]], {padding: [20, 20]});
-      state.fitted = true;
     }
     showInfo(status);
   }
