@@ -210,7 +210,7 @@ class LiveMapSource:
             zmin, zmax = zoom_range(grid)
             out[f'{prefix}minzoom'], out[f'{prefix}maxzoom'] = zmin, zmax
             if layer == 'mosaic':
-                out['bounds'] = [float(v) for v in grid.bounds_lonlat()]
+                out['bounds'] = [float(v) for v in grid.bounds_lonlat]
         return out
 
     def tile_png(self, layer: str, z: int, x: int, y: int) -> bytes | None:
@@ -300,7 +300,7 @@ def _render_pasted(raster: LiveRaster, meets: list[_PlaneTile], z: int, x: int, 
     side = min(min(t.rgba.shape[:2]) for t in meets)
     xyz_px = (tile_bounds(z, x, y)[2] - tile_bounds(z, x, y)[0]) / TILE_SIZE
     k = 1
-    plane_px = _grid(raster, box, scale).pixel_size_3857()
+    plane_px = _grid(raster, box, scale).pixel_size_3857
     while 2 * k <= side and side % (2 * k) == 0 and 2 * k * plane_px <= xyz_px:
         k *= 2
     step = scale * k  # plane pixels per pasted pixel
