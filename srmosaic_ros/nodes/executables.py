@@ -82,6 +82,21 @@ def run_record_tiles(args: argparse.Namespace) -> int:
     return run_nodes([node], ['tile_recorder', *args.ros_args])
 
 
+#: Niceness the map server's process adds to its own: rendering tiles for a page must not take the CPU
+#: from a mosaic node on the same machine (the SR node's worker runs at 10 for the same reason).
+MAP_SERVER_NICENESS = 10
+
+
+def lower_priority(increment: int) -> None:
+    """Add ``increment`` to this process's niceness (nothing where the system refuses)."""
+    import os
+
+    try:
+        os.nice(increment)
+    except (OSError, AttributeError):  # no os.nice (Windows) or not allowed: run at the priority given
+        pass
+
+
 def map_server_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--port', type=int, default=None,
                         help='TCP port of the web map (default: live.map_port, 8080; 0: any free port)')
@@ -99,6 +114,7 @@ def run_map_server(args: argparse.Namespace) -> int:
     if args.port is not None and not 0 <= args.port <= 65535:
         msg = f'--port must be in 0..65535, got {args.port}.'
         raise SrMosaicError(msg)
+    lower_priority(MAP_SERVER_NICENESS)  # the mosaic node on the same cores comes first (as the SR worker)
     node = functools.partial(MapServerNode, port=args.port, bind=args.bind)
     return run_nodes([node], ['map_server', *args.ros_args])
 

@@ -67,6 +67,7 @@ class LiveMapSource:
         self._footprint_raster: np.ndarray | None = None  # (N, 2) raster pixels
         self._track: list[tuple[float, float]] = []
         self._diagnostics: dict[str, Any] = {}
+        self._boxes: dict[tuple[int, int, int, int], tuple[float, float, float, float]] = {}  # plane box of each XYZ tile
         self._cache: collections.OrderedDict[tuple[str, int, int, int], tuple[Any, bytes | None]] = collections.OrderedDict()
 
     # -- feeding ---------------------------------------------------------------------------------
@@ -225,7 +226,13 @@ class LiveMapSource:
             tiles = list(self._tiles[layer].values())
         if raster is None or not tiles:
             return None
-        box = _plane_box(raster, z, x, y)
+        box = self._boxes.get((raster_serial, z, x, y))
+        if box is None:  # (PROJ per request: a page asks for the tiles in view at every change)
+            box = _plane_box(raster, z, x, y)
+            with self._lock:
+                self._boxes[(raster_serial, z, x, y)] = box
+                while len(self._boxes) > TILE_CACHE:
+                    self._boxes.pop(next(iter(self._boxes)))
         meets = [t for t in tiles if t.box[0] < box[2] and box[0] < t.box[2] and t.box[1] < box[3] and box[1] < t.box[3]]
         if not meets:
             return None
