@@ -412,6 +412,9 @@ def main() -> int:
     ap.add_argument('--map', action='store_true',
                     help='run each layout without and with the live web map (map-server and a page\'s requests); '
                          'print the frame-rate ratio')
+    ap.add_argument('--repeat', type=int, default=1,
+                    help='run the layouts this many times, one after the other (with --map: pairs without and with the '
+                         'map, so that a host whose load drifts is seen in the spread of the ratios)')
     ap.add_argument('--no-fastdds-profile', action='store_true',
                     help='leave Fast DDS at its defaults (512 KiB shared-memory segments: raw frames go over '
                          'fragmented UDP and about half are lost at 25 fps) instead of params/fastdds_large_images.xml')
@@ -426,7 +429,8 @@ def main() -> int:
         ap.error(f'--params-file {args.params_file}: no such file')
     flight = flight_from_arguments(args)
     results = []
-    runs = [(layout, with_map) for layout in (args.graph or LAYOUTS) for with_map in ((False, True) if args.map else (False,))]
+    runs = [(layout, with_map) for _ in range(args.repeat) for layout in (args.graph or LAYOUTS)
+            for with_map in ((False, True) if args.map else (False,))]
     for i, (layout, with_map) in enumerate(runs):
         print(f"{layout}{' with the map' if with_map else ''}: publishing {args.fps} frames/s for {args.seconds} s ...",
               flush=True)
@@ -463,12 +467,9 @@ def main() -> int:
               f"{r['tiles']:>5} {r.get('processing_ms_median', 'n/a'):>11}")
     if args.map:
         print('\nwith the live map / without (same run): frames per second, mosaic node processing median per frame')
-        by_name = {r['layout']: r for r in results}
-        for layout in args.graph or LAYOUTS:
-            a, b = by_name[layout], by_name[layout + '+map']
-            proc = (float(b.get('processing_ms_median', 'nan')) / float(a.get('processing_ms_median', 'nan'))
-                    if a.get('processing_ms_median') not in (None, 'nan') else float('nan'))
-            print(f"{layout:<10} fps {b['fps']:.2f} / {a['fps']:.2f} = {b['fps'] / a['fps']:.3f}; "
+        for a, b in zip(results[::2], results[1::2], strict=True):  # each pair: without, then with the map
+            proc = float(b.get('processing_ms_median', 'nan')) / float(a.get('processing_ms_median', 'nan'))
+            print(f"{a['layout']:<10} fps {b['fps']:.2f} / {a['fps']:.2f} = {b['fps'] / a['fps']:.3f}; "
                   f"processing {proc:.3f}")
     return 0
 

@@ -79,6 +79,7 @@ class MapServerNode(Node):
         self._client = self.create_client(Trigger, SERVICES['get_map'])
         self.create_timer(1.0, self._ask_if_missing)
         self._missing = True  # at start: whatever was sent before this node joined
+        self._lacking: dict[str, float] = {}  # tiles listed but not held: since when
         from ..web.server import start_in_thread
 
         try:
@@ -110,6 +111,8 @@ class MapServerNode(Node):
             self.warn('sr tile', f'SR tile skipped: {exc}')
 
     def _on_summary(self, msg: String) -> None:
+        """A tile the summary lists is missing when it is still not held ASK_EVERY_S later (the summary
+        may come before the tile itself: they travel on two topics); then the whole map is asked for."""
         import json
 
         try:
@@ -117,7 +120,10 @@ class MapServerNode(Node):
         except (ValueError, KeyError, TypeError, IndexError) as exc:
             self.warn('map summary', f'/srmosaic/map_tiles skipped: {exc}')
             return
-        if not self.source.holds('mosaic', listed):
+        now = time.monotonic()
+        lacking = set(self.source.lacking('mosaic', listed))
+        self._lacking = {f: self._lacking.get(f, now) for f in lacking}
+        if any(now - since >= ASK_EVERY_S for since in self._lacking.values()):
             self._missing = True
 
     def _ask_if_missing(self) -> None:
@@ -137,6 +143,7 @@ class MapServerNode(Node):
             self.warn('whole map', f'srmosaic/get_map answer skipped: {exc}')
             return
         self._missing = False
+        self._lacking = {}
         for frame_id, stamp_ns, data in tiles:
             try:
                 self.source.add_png('mosaic', frame_id, data, stamp_ns=stamp_ns)  # a newer one from the topic stays

@@ -114,14 +114,14 @@ class LiveMapSource:
         """:meth:`add_tile` of a tile's PNG (as /srmosaic/map_tile carries it)."""
         self.add_tile(layer, frame_id, decode_tile(bytes(data)), stamp_ns=stamp_ns)
 
-    def holds(self, layer: str, frame_ids: list[str]) -> bool:
-        """Whether every tile named (placement texts) is held."""
-        keys = set()
+    def lacking(self, layer: str, frame_ids: list[str]) -> list[str]:
+        """The tiles named (placement texts) that are not held."""
+        keys = {}
         for frame_id in frame_ids:
             p = ImagePlacement.parse(frame_id)
-            keys.add((p.segment, p.x0, p.y0, p.width, p.height))
+            keys[(p.segment, p.x0, p.y0, p.width, p.height)] = frame_id
         with self._lock:
-            return keys <= self._tiles[layer].keys()
+            return [f for k, f in keys.items() if k not in self._tiles[layer]]
 
     def set_frames(self, frames: int) -> None:
         with self._lock:

@@ -229,3 +229,16 @@ def test_a_map_server_started_after_the_flight_gets_the_whole_map(flight: Flight
     finally:
         out = stop_process(late)
     assert late.returncode == 0, out
+
+
+def test_map_true_in_the_launch_file_adds_the_map_server_in_a_process_of_its_own(tmp_path) -> None:
+    from srmosaic_ros.nodes.launch_xml import read_launch_xml
+    from srmosaic_ros.nodes.launcher import xml_node_command
+
+    launch = REPO / 'launch' / 'srmosaic.launch.xml'
+    assert 'map_server' not in [n.executable for n in read_launch_xml(launch)]
+    nodes = read_launch_xml(launch, {'map': 'true', 'namespace': 'uav1'})
+    server = next(n for n in nodes if n.executable == 'map_server')
+    assert server.namespace == '/uav1' and server.name == 'srmosaic_map_server'
+    command = xml_node_command(server, [], ['--ros-args', '-p', 'live.map_port:=9000'], tmp_path)
+    assert command[3] == 'map_server' and 'live.map_port:=9000' in ' '.join(command)
