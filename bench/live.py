@@ -23,7 +23,7 @@ Layouts (`--graph`, repeatable; default all three):
     .venv/bin/python bench/live.py [--fps 25] [--seconds 20] [--graph split] [--compressed] [--width 1280 --height 720]
         [--params-file params/live_hd.yaml] [--flight-cache /tmp/flight.pkl] [--plot latency.png]
 
-`--map`: each layout runs twice in the same invocation, without and with the live web map: a
+`--map` (BENCH_MAP_CLIENT=0: without the client): each layout runs twice in the same invocation, without and with the live web map: a
 `srmosaic map-server` process beside the graph (the mosaic node then sends its changed tiles on
 /srmosaic/map_tile) and a client in this process that reads /status.json and the XYZ tiles under the
 aircraft every half second, as an open page does; prints the ratio of the mosaic node's frame rate
@@ -148,10 +148,13 @@ def run_layout(layout: str, args: argparse.Namespace, flight, domain: int, *, wi
     served = {'status': 0, 'tiles': 0, 'tile_bytes': 0, 'empty': 0, 'errors': 0}
     if with_map:  # the live web map beside the graph, in its own process, and a page's requests
         port = _free_port()
-        map_server = subprocess.Popen([sys.executable, '-m', 'srmosaic_ros.cli', 'map-server', '--port', str(port)],
+        # BENCH_MAP_SERVER=0: no map server, only this process's subscription to the tiles (their cost in the node)
+        command = [sys.executable, '-m', 'srmosaic_ros.cli', 'map-server', '--port', str(port)]
+        map_server = None if os.environ.get('BENCH_MAP_SERVER', '1') == '0' else subprocess.Popen(command,
                                       env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        browser = threading.Thread(target=_browse, args=(f'http://127.0.0.1:{port}/', browse_stop, served), daemon=True)
-        browser.start()
+        if os.environ.get('BENCH_MAP_CLIENT', '1') != '0':  # 0: the map server alone, no page asking it
+            browser = threading.Thread(target=_browse, args=(f'http://127.0.0.1:{port}/', browse_stop, served), daemon=True)
+            browser.start()
     os.environ.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
     context = rclpy.Context()
     rclpy.init(context=context)
@@ -430,7 +433,7 @@ def main() -> int:
     flight = flight_from_arguments(args)
     results = []
     runs = [(layout, with_map) for _ in range(args.repeat) for layout in (args.graph or LAYOUTS)
-            for with_map in ((False, True) if args.map else (False,))]
+            for with_map in (((True, False) if os.environ.get('BENCH_MAP_FIRST') == '1' else (False, True)) if args.map else (False,))]
     for i, (layout, with_map) in enumerate(runs):
         print(f"{layout}{' with the map' if with_map else ''}: publishing {args.fps} frames/s for {args.seconds} s ...",
               flush=True)
@@ -467,7 +470,8 @@ def main() -> int:
               f"{r['tiles']:>5} {r.get('processing_ms_median', 'n/a'):>11}")
     if args.map:
         print('\nwith the live map / without (same run): frames per second, mosaic node processing median per frame')
-        for a, b in zip(results[::2], results[1::2], strict=True):  # each pair: without, then with the map
+        pairs = zip(results[::2], results[1::2], strict=True)  # each pair: without, then with the map (BENCH_MAP_FIRST=1: swapped)
+        for a, b in ((b, a) if a['layout'].endswith('+map') else (a, b) for a, b in pairs):
             proc = float(b.get('processing_ms_median', 'nan')) / float(a.get('processing_ms_median', 'nan'))
             print(f"{a['layout']:<10} fps {b['fps']:.2f} / {a['fps']:.2f} = {b['fps'] / a['fps']:.3f}; "
                   f"processing {proc:.3f}")
