@@ -16,7 +16,8 @@ Security: nothing here writes or runs anything; every route is a GET (another me
 URL is 405, an unknown URL 404). Tile paths are matched by a strict pattern of decimal integers and
 checked against the zoom's grid (``0 <= x, y < 2**z``, ``z <= MAX_ZOOM``) before the source is
 asked; a static file is looked up by its exact name in a fixed table (``STATIC_FILES``), never by
-joining a URL path to a folder. ``serve`` binds 127.0.0.1 unless given another address.
+joining a URL path to a folder. ``serve`` binds 127.0.0.1 unless given another address. Every
+response carries a Content-Security-Policy that lets the page reach this server only.
 
 Why aiohttp (not FastAPI with uvicorn): one maintained package is the server, its router and the
 streaming response the events need, with no ASGI server and no request-model layer beside it; the
@@ -180,6 +181,21 @@ async def _events(request: web.Request) -> web.StreamResponse:
     return response
 
 
+#: Headers of every response: the page may load, fetch and stream from this server only (no host on the
+#: internet, no plug-in, no framing by another site), and no response is sniffed as another type.
+SECURITY_HEADERS = {
+    'Content-Security-Policy': "default-src 'self'; img-src 'self' data:; style-src 'self' 'unsafe-inline'; "
+                               "script-src 'self'; connect-src 'self'; object-src 'none'; base-uri 'none'; "
+                               "frame-ancestors 'none'",
+    'X-Content-Type-Options': 'nosniff',
+    'Referrer-Policy': 'no-referrer',
+}
+
+
+async def _security_headers(request: web.Request, response: web.StreamResponse) -> None:
+    response.headers.update(SECURITY_HEADERS)
+
+
 async def _on_shutdown(app: web.Application) -> None:
     app[_CLOSING].set()
 
@@ -206,6 +222,7 @@ def make_app(source: MapSource, *, page_config: dict[str, Any] | None = None) ->
               web.get('/events', _events), web.get(f'/{ASSETS}/{{name:.+}}', _static)]
     routes += [web.get(LAYER_PREFIX[layer] + _TILE_PATH, _tile_handler(layer)) for layer in LAYERS]
     app.add_routes(routes)
+    app.on_response_prepare.append(_security_headers)
     app.on_shutdown.append(_on_shutdown)
     app.on_cleanup.append(_on_cleanup)
     return app

@@ -36,6 +36,12 @@ class MapSource(Protocol):
         Polygon in lon/lat or None), ``track`` (GeoJSON LineString or None), ``bounds``
         ([west, south, east, north] degrees or None), ``minzoom``, ``maxzoom`` (int),
         ``diagnostics`` (dict), ``version`` (as :meth:`version`), ``live`` (bool).
+
+        The page also reads, where given: ``pose.heading_deg`` (clockwise from north, the arrow's
+        direction; ``yaw_deg`` is ENU yaw as poses.csv, counter-clockwise from east, so heading =
+        (90 - yaw) mod 360), and ``sr_minzoom``, ``sr_maxzoom`` (the SR layer's zooms; None: no SR
+        layer). The page waits for ``bounds`` and ``maxzoom`` before it asks for tiles, and fits the
+        map to the first bounds it gets.
         """
         ...
 

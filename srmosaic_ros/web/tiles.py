@@ -37,16 +37,21 @@ __all__ = ['WEB_MERCATOR', 'RasterGrid', 'encode_tile', 'render_block', 'render_
 WEB_MERCATOR = 'EPSG:3857'
 
 
-@functools.cache
+#: The start of the one rasterio warning that :func:`_quiet_rasterio` silences.
+_NO_TRANSFORM = 'Dataset has no geotransform'
+
+
 def _quiet_rasterio() -> None:
     """rasterio warns that the in-memory datasets it makes of reproject's arrays have no transform, before it
     sets the one given; said once per process, it is noise in a command's output. Only that message is
-    silenced (a filter, not catch_warnings, which is not safe across the server's threads)."""
+    silenced, by a filter (catch_warnings is not safe across the server's threads), added again if
+    something (a test harness) reset the filters."""
     import warnings
 
     from rasterio.errors import NotGeoreferencedWarning
 
-    warnings.filterwarnings('ignore', message='Dataset has no geotransform', category=NotGeoreferencedWarning)
+    if not any(f[0] == 'ignore' and f[1] is not None and f[1].pattern == _NO_TRANSFORM for f in warnings.filters):
+        warnings.filterwarnings('ignore', message=_NO_TRANSFORM, category=NotGeoreferencedWarning)
 
 
 @functools.cache

@@ -7,6 +7,7 @@ import socket
 import subprocess
 import sys
 import time
+import urllib.error
 import urllib.request
 import xml.etree.ElementTree as ET
 import zipfile
@@ -74,6 +75,17 @@ def test_run_source_status_of_the_demo(demo_run):
     assert min(lons) < status['pose']['lon'] < max(lons) and min(lats) < status['pose']['lat'] < max(lats)
 
 
+def _served_tile(url: str) -> np.ndarray | None:
+    """RGBA of a tile fetched over HTTP, None for a 404."""
+    try:
+        with urllib.request.urlopen(url, timeout=30) as resp:
+            bgra = cv2.imdecode(np.frombuffer(resp.read(), np.uint8), cv2.IMREAD_UNCHANGED)
+    except urllib.error.HTTPError as exc:
+        assert exc.code == 404
+        return None
+    return bgra[:, :, [2, 1, 0, 3]]
+
+
 def test_tiles_agree_with_mosaic_tif(demo_run):
     """At covered pixels of mosaic.tif, the served tile's pixel at the same lon/lat has the mosaic's colour
     (within the range of the pixel's 3x3 neighbourhood: the tile is resampled on another grid)."""
@@ -81,6 +93,11 @@ def test_tiles_agree_with_mosaic_tif(demo_run):
 
     source = RunSource(demo_run)
     z = source.status()['maxzoom']
+    with start_in_thread(source) as srv:
+        _compare_tiles(demo_run, z, lambda x, y: _served_tile(f'{srv.url}tiles/{z}/{x}/{y}.png'), _tms)
+
+
+def _compare_tiles(demo_run, z, tile_at, _tms):
     with rasterio.open(demo_run / 'mosaic.tif') as ds:
         img = ds.read()
         crs, t = ds.crs, ds.transform
@@ -94,8 +111,8 @@ def test_tiles_agree_with_mosaic_tif(demo_run):
         b = _tms().xy_bounds(tile)
         mx, my = (v[0] for v in warp_transform('EPSG:4326', 'EPSG:3857', [lon], [lat]))
         col, row = int((mx - b.left) / (b.right - b.left) * 256), int((b.top - my) / (b.top - b.bottom) * 256)
-        rgba = source.tile_rgba('mosaic', z, tile.x, tile.y)
-        if rgba[row, col, 3] < 255:
+        rgba = tile_at(tile.x, tile.y)
+        if rgba is None or rgba[row, col, 3] < 255:
             continue
         near = img[:3, r - 1:r + 2, c - 1:c + 2].reshape(3, -1).astype(int)
         value = rgba[row, col, :3].astype(int)

@@ -123,6 +123,7 @@ def test_page_config_and_files(server):
     html = body.decode()
     assert 'map_config.js' in html and 'map_files/leaflet.js' in html
     assert 'http://' not in html and 'https://' not in html  # nothing from the internet
+    assert "default-src 'self'" in headers['content-security-policy'] and headers['x-content-type-options'] == 'nosniff'
     code, _, body = get(server, '/map_config.js')
     assert code == 200 and body.startswith(b'window.SRMOSAIC_CONFIG = ')
     config = json.loads(body.decode().split('=', 1)[1].strip().rstrip(';'))
@@ -249,3 +250,25 @@ def test_page_starts_empty_and_shows_the_map_when_it_comes(run, chromium):
         assert page.evaluate("document.querySelector('.srm-aircraft') !== null")
         assert 'live' in page.inner_text('#info')
         page.close()
+
+
+def test_the_page_files_are_package_data():
+    """Every file the server reads from its package is matched by setup.py's package_data (a wheel or a
+    colcon install carries it), and exists."""
+    import ast
+    import fnmatch
+    from pathlib import Path
+
+    import srmosaic_ros.web as web_package
+    from srmosaic_ros.web.server import PAGE_FILE
+
+    setup = Path(__file__).resolve().parents[2] / 'setup.py'
+    call = next(node for node in ast.walk(ast.parse(setup.read_text()))
+                if isinstance(node, ast.Call) and getattr(node.func, 'id', '') == 'setup')
+    package_data = next(kw.value for kw in call.keywords if kw.arg == 'package_data')
+    globs = [elt.value for value in package_data.values for elt in value.elts]
+    here = Path(web_package.__file__).parent
+    for path in [PAGE_FILE] + [p for p, _ in STATIC_FILES.values()]:
+        name = f'static/{path}'
+        assert (here / name).is_file(), name
+        assert any(fnmatch.fnmatch(name, g) and name.count('/') == g.count('/') for g in globs), name
