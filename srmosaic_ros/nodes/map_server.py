@@ -79,7 +79,7 @@ class MapServerNode(Node):
         self._client = self.create_client(Trigger, SERVICES['get_map'])
         self.create_timer(1.0, self._ask_if_missing)
         self._missing = True  # at start: whatever was sent before this node joined
-        self._lacking: dict[str, float] = {}  # tiles listed but not held: since when
+        self._newest_tile_ns: int | None = None  # stamp of the newest tile the topic brought
         from ..web.server import start_in_thread
 
         try:
@@ -98,9 +98,10 @@ class MapServerNode(Node):
 
     # -- tiles ----------------------------------------------------------------------------------
     def _on_map_tile(self, msg: CompressedImage) -> None:
+        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        self._newest_tile_ns = max(stamp_ns, self._newest_tile_ns or stamp_ns)
         try:
-            self.source.add_png('mosaic', msg.header.frame_id, bytes(msg.data),
-                                stamp_ns=msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
+            self.source.add_png('mosaic', msg.header.frame_id, bytes(msg.data), stamp_ns=stamp_ns)
         except SrMosaicError as exc:
             self.warn('map tile', f'map tile skipped: {exc}')
 
@@ -111,19 +112,18 @@ class MapServerNode(Node):
             self.warn('sr tile', f'SR tile skipped: {exc}')
 
     def _on_summary(self, msg: String) -> None:
-        """A tile the summary lists is missing when it is still not held ASK_EVERY_S later (the summary
-        may come before the tile itself: they travel on two topics); then the whole map is asked for."""
+        """The whole map is asked for when the summary lists a tile version older than one the topic
+        already brought, which is not held: it was lost on the way (tiles come in order on one topic;
+        a tile merely still on its way, or the summary outrunning it, is no reason)."""
         import json
 
         try:
-            listed = [str(t[0]) for t in json.loads(msg.data)['tiles']]
+            listed = [(str(t[0]), int(t[1])) for t in json.loads(msg.data)['tiles']]
         except (ValueError, KeyError, TypeError, IndexError) as exc:
             self.warn('map summary', f'/srmosaic/map_tiles skipped: {exc}')
             return
-        now = time.monotonic()
-        lacking = set(self.source.lacking('mosaic', listed))
-        self._lacking = {f: self._lacking.get(f, now) for f in lacking}
-        if any(now - since >= ASK_EVERY_S for since in self._lacking.values()):
+        arrived = self._newest_tile_ns
+        if arrived is not None and self.source.lacking('mosaic', [(f, s) for f, s in listed if s < arrived]):
             self._missing = True
 
     def _ask_if_missing(self) -> None:
@@ -143,7 +143,6 @@ class MapServerNode(Node):
             self.warn('whole map', f'srmosaic/get_map answer skipped: {exc}')
             return
         self._missing = False
-        self._lacking = {}
         for frame_id, stamp_ns, data in tiles:
             try:
                 self.source.add_png('mosaic', frame_id, data, stamp_ns=stamp_ns)  # a newer one from the topic stays

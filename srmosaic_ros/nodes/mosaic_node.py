@@ -413,9 +413,10 @@ class MosaicNode(ManagedNode):
     def _publish_map_tiles(self, batch: list) -> None:
         """Encode and publish the round's changed tiles within the budget, then the summary when it
         changed (its bytes count against the budget too). Outside the pipeline lock."""
-        for frame_id, data in self._map.encode(batch, self.get_clock().now().nanoseconds):
+        stamp_ns = self.get_clock().now().nanoseconds  # the tiles' stamp, as the summary lists it
+        for frame_id, data in self._map.encode(batch, stamp_ns):
             msg = CompressedImage(format=MAP_TILE_FORMAT, data=data)
-            msg.header.stamp = self.get_clock().now().to_msg()
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
             msg.header.frame_id = frame_id
             self.pub_map_tile.publish(msg)
         summary = self._map.summary()

@@ -114,14 +114,17 @@ class LiveMapSource:
         """:meth:`add_tile` of a tile's PNG (as /srmosaic/map_tile carries it)."""
         self.add_tile(layer, frame_id, decode_tile(bytes(data)), stamp_ns=stamp_ns)
 
-    def lacking(self, layer: str, frame_ids: list[str]) -> list[str]:
-        """The tiles named (placement texts) that are not held."""
-        keys = {}
-        for frame_id in frame_ids:
-            p = ImagePlacement.parse(frame_id)
-            keys[(p.segment, p.x0, p.y0, p.width, p.height)] = frame_id
+    def lacking(self, layer: str, tiles: list[tuple[str, int]]) -> list[str]:
+        """Of the tiles named (placement text, stamp), those not held at that stamp or a newer one."""
+        out = []
         with self._lock:
-            return [f for k, f in keys.items() if k not in self._tiles[layer]]
+            held = self._tiles[layer]
+            for frame_id, stamp_ns in tiles:
+                p = ImagePlacement.parse(frame_id)
+                tile = held.get((p.segment, p.x0, p.y0, p.width, p.height))
+                if tile is None or (tile.stamp_ns is not None and tile.stamp_ns < stamp_ns):
+                    out.append(frame_id)
+        return out
 
     def set_frames(self, frames: int) -> None:
         with self._lock:
