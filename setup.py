@@ -74,6 +74,7 @@ setup(
             'georef_node = srmosaic_ros.nodes.georef_node:main',
             'sr_node = srmosaic_ros.nodes.sr_node:main',
             'tile_recorder = srmosaic_ros.nodes.executables:tile_recorder_main',
+            'map_server = srmosaic_ros.nodes.executables:map_server_main',
             'player = srmosaic_ros.nodes.executables:player_main',
         ],
     },

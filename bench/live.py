@@ -23,6 +23,13 @@ Layouts (`--graph`, repeatable; default all three):
     .venv/bin/python bench/live.py [--fps 25] [--seconds 20] [--graph split] [--compressed] [--width 1280 --height 720]
         [--params-file params/live_hd.yaml] [--flight-cache /tmp/flight.pkl] [--plot latency.png]
 
+`--map` (BENCH_MAP_CLIENT=0: without the client): each layout runs twice in the same invocation, without and with the live web map: a
+`srmosaic map-server` process beside the graph (the mosaic node then sends its changed tiles on
+/srmosaic/map_tile) and a client in this process that reads /status.json and the XYZ tiles under the
+aircraft every half second, as an open page does; prints the ratio of the mosaic node's frame rate
+and processing time with the map to without (the goal: within 5 %). Offer more frames than the node
+processes (--fps) so that the frame rate is the node's own.
+
 The mosaic node's own diagnostics are printed too: frames it received (the rest were lost by
 best-effort DDS before reaching it), frames its bounded queue dropped, and its median processing
 time per frame. BENCH_PREVIEW_PERIOD_S (default 1.0) sets live.preview_period_s; BENCH_ROS_PARAMS adds
@@ -81,7 +88,45 @@ def graph_command(layout: str, workdir: Path, params_file: Path | None = None) -
     return [*base, 'launch', str(description), *ros, '-p', 'live.georef_standalone:=true']
 
 
-def run_layout(layout: str, args: argparse.Namespace, flight, domain: int) -> dict:
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(('127.0.0.1', 0))
+        return s.getsockname()[1]
+
+
+def _browse(url: str, stop: threading.Event, served: dict[str, int]) -> None:
+    """What an open page asks of the map server: the status and the tiles under the aircraft, twice a second."""
+    import json
+    import urllib.error
+    import urllib.request
+
+    import morecantile
+
+    tms = morecantile.tms.get('WebMercatorQuad')
+    while not stop.wait(0.5):
+        try:
+            with urllib.request.urlopen(url + 'status.json', timeout=5) as r:
+                status = json.loads(r.read())
+            served['status'] += 1
+            pose = status.get('pose')
+            if not pose or not status.get('maxzoom'):
+                continue
+            centre = tms.tile(pose['lon'], pose['lat'], status['maxzoom'])
+            for dx in (-1, 0, 1):
+                for dy in (-1, 0, 1):
+                    try:
+                        with urllib.request.urlopen(url + f'tiles/{centre.z}/{centre.x + dx}/{centre.y + dy}.png', timeout=5) as r:
+                            served['tile_bytes'] += len(r.read())
+                            served['tiles'] += 1
+                    except urllib.error.HTTPError:
+                        served['empty'] += 1
+        except (urllib.error.URLError, OSError, ValueError):
+            served['errors'] += 1
+
+
+def run_layout(layout: str, args: argparse.Namespace, flight, domain: int, *, with_map: bool = False) -> dict:
     import rclpy
     from geometry_msgs.msg import PoseWithCovarianceStamped
     from rclpy.executors import SingleThreadedExecutor
@@ -98,6 +143,18 @@ def run_layout(layout: str, args: argparse.Namespace, flight, domain: int) -> di
     workdir = Path(tempfile.mkdtemp(prefix='srmosaic_bench_live_'))
     graph = subprocess.Popen(graph_command(layout, workdir, args.params_file), env=env, stdout=subprocess.DEVNULL,
                              stderr=subprocess.DEVNULL)
+    map_server = browser = None
+    browse_stop = threading.Event()
+    served = {'status': 0, 'tiles': 0, 'tile_bytes': 0, 'empty': 0, 'errors': 0}
+    if with_map:  # the live web map beside the graph, in its own process, and a page's requests
+        port = _free_port()
+        # BENCH_MAP_SERVER=0: no map server, only this process's subscription to the tiles (their cost in the node)
+        command = [sys.executable, '-m', 'srmosaic_ros.cli', 'map-server', '--port', str(port)]
+        map_server = None if os.environ.get('BENCH_MAP_SERVER', '1') == '0' else subprocess.Popen(command,
+                                      env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        if os.environ.get('BENCH_MAP_CLIENT', '1') != '0':  # 0: the map server alone, no page asking it
+            browser = threading.Thread(target=_browse, args=(f'http://127.0.0.1:{port}/', browse_stop, served), daemon=True)
+            browser.start()
     os.environ.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
     context = rclpy.Context()
     rclpy.init(context=context)
@@ -152,7 +209,8 @@ def run_layout(layout: str, args: argparse.Namespace, flight, domain: int) -> di
     link: dict[str, list[int]] = {}
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-    for mtype_out, name in OUTPUTS:
+    outputs = OUTPUTS + ((('sensor_msgs/CompressedImage', '/srmosaic/map_tile'),) if with_map else ())
+    for mtype_out, name in outputs:  # (the tiles only with the map: a subscriber makes the node send them)
         link[name] = [0, 0]
         qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
         node.create_subscription(_message_type(mtype_out), name,
@@ -219,6 +277,15 @@ def run_layout(layout: str, args: argparse.Namespace, flight, domain: int) -> di
     time.sleep(IDLE_PAINT_S + 3.0)
     stop = True
     spinner.join()
+    browse_stop.set()
+    if browser is not None:
+        browser.join(timeout=10)
+    if map_server is not None:
+        map_server.send_signal(signal.SIGINT)
+        try:
+            map_server.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            map_server.kill()
     graph.send_signal(signal.SIGINT)
     try:
         graph.wait(timeout=60)
@@ -233,7 +300,7 @@ def run_layout(layout: str, args: argparse.Namespace, flight, domain: int) -> di
     span = (rate_at[-1] - rate_at[0]) if len(rate_at) > 1 else float('nan')
     lat = np.array(latencies) if latencies else np.array([np.nan])
     pose_lat = np.array(list(pose_latencies.values())) if pose_latencies else np.array([np.nan])
-    return {'layout': layout, 'offered': offered, 'processed': processed, 't0_ns': t0_ns,
+    return {'layout': layout + ('+map' if with_map else ''), 'offered': offered, 'served': served, 'processed': processed, 't0_ns': t0_ns,
             'pose_latencies': pose_latencies, 'published_stamps': published_ns,
             'pose_lat_median_ms': float(np.median(pose_lat)), 'pose_lat_p95_ms': float(np.percentile(pose_lat, 95)),
             'fps': (len(rate_at) - 1) / span if len(rate_at) > 1 else float('nan'),
@@ -345,6 +412,12 @@ def main() -> int:
     ap.add_argument('--plot', type=Path, default=None,
                     help='PNG: per layout, each frame\'s latency from publish to its pose against the time it was '
                          'published, frames never posed marked below (where in the flight the node fell behind)')
+    ap.add_argument('--map', action='store_true',
+                    help='run each layout without and with the live web map (map-server and a page\'s requests); '
+                         'print the frame-rate ratio')
+    ap.add_argument('--repeat', type=int, default=1,
+                    help='run the layouts this many times, one after the other (with --map: pairs without and with the '
+                         'map, so that a host whose load drifts is seen in the spread of the ratios)')
     ap.add_argument('--no-fastdds-profile', action='store_true',
                     help='leave Fast DDS at its defaults (512 KiB shared-memory segments: raw frames go over '
                          'fragmented UDP and about half are lost at 25 fps) instead of params/fastdds_large_images.xml')
@@ -359,10 +432,17 @@ def main() -> int:
         ap.error(f'--params-file {args.params_file}: no such file')
     flight = flight_from_arguments(args)
     results = []
-    for i, layout in enumerate(args.graph or LAYOUTS):
-        print(f'{layout}: publishing {args.fps} frames/s for {args.seconds} s ...', flush=True)
-        r = run_layout(layout, args, flight, 200 + (os.getpid() + i) % 30)
+    runs = [(layout, with_map) for _ in range(args.repeat) for layout in (args.graph or LAYOUTS)
+            for with_map in (((True, False) if os.environ.get('BENCH_MAP_FIRST') == '1' else (False, True)) if args.map else (False,))]
+    for i, (layout, with_map) in enumerate(runs):
+        print(f"{layout}{' with the map' if with_map else ''}: publishing {args.fps} frames/s for {args.seconds} s ...",
+              flush=True)
+        r = run_layout(layout, args, flight, 200 + (os.getpid() + i) % 30, with_map=with_map)
         results.append(r)
+        if with_map:
+            sv = r['served']
+            print(f"  map server: {sv['status']} status.json, {sv['tiles']} tiles ({sv['tile_bytes'] / 1e3:.0f} kB), "
+                  f"{sv['empty']} empty (404), {sv['errors']} failed requests", flush=True)
         print(f"{layout}: offered {r['offered']}, processed {r['processed']}, not processed {r['offered'] - r['processed']} "
               f"({100.0 * (r['offered'] - r['processed']) / max(r['offered'], 1):.1f}%); "
               f"{r['fps']:.2f} frames/s; latency publish -> registration median {r['lat_median_ms']:.0f} ms, "
@@ -388,6 +468,13 @@ def main() -> int:
         print(f"{r['layout']:<10} {r['offered']:>7} {r['processed']:>9} {r['fps']:>5.2f} {r['pose_lat_median_ms']:>11.0f} "
               f"{r['pose_lat_p95_ms']:>11.0f} {r['lat_median_ms']:>10.0f} {r['lat_p95_ms']:>10.0f} {r['poses']:>5} "
               f"{r['tiles']:>5} {r.get('processing_ms_median', 'n/a'):>11}")
+    if args.map:
+        print('\nwith the live map / without (same run): frames per second, mosaic node processing median per frame')
+        pairs = zip(results[::2], results[1::2], strict=True)  # each pair: without, then with the map (BENCH_MAP_FIRST=1: swapped)
+        for a, b in ((b, a) if a['layout'].endswith('+map') else (a, b) for a, b in pairs):
+            proc = float(b.get('processing_ms_median', 'nan')) / float(a.get('processing_ms_median', 'nan'))
+            print(f"{a['layout']:<10} fps {b['fps']:.2f} / {a['fps']:.2f} = {b['fps'] / a['fps']:.3f}; "
+                  f"processing {proc:.3f}")
     return 0
 
 

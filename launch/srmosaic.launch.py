@@ -1,5 +1,5 @@
 """`ros2 launch srmosaic_ros srmosaic.launch.py namespace:=uav1`: the graph of srmosaic.launch.xml
-(its arguments: namespace, params_file, georef_standalone, sr), for setups that launch Python files."""
+(its arguments: namespace, params_file, georef_standalone, sr, map), for setups that launch Python files."""
 import os
 
 from ament_index_python.packages import get_package_share_directory

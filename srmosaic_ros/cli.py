@@ -1,5 +1,5 @@
-"""`srmosaic` command line: process, evaluate, halve, inspect, simulate, launch, play, node, record-tiles, psf,
-serve.
+"""`srmosaic` command line: process, evaluate, halve, inspect, simulate, launch, play, node, record-tiles,
+map-server, psf, serve.
 
 Every SrMosaicError ends the command with a one-line message on stderr and exit status 2;
 nothing half-written is left under a final file name.
@@ -287,6 +287,15 @@ def _add_record_tiles(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run_record_tiles)
 
 
+def _add_map_server(sub: argparse._SubParsersAction) -> None:
+    from .nodes.executables import map_server_arguments, run_map_server
+
+    p = sub.add_parser('map-server', help='serve the live map (mosaic, SR tiles, aircraft, footprint) as a web page '
+                       '(a ground station; then --ros-args ...)')
+    map_server_arguments(p)
+    p.set_defaults(func=run_map_server)
+
+
 def _add_play(sub: argparse._SubParsersAction) -> None:
     from .nodes.executables import play_arguments, run_play
 
@@ -379,6 +388,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_psf(sub)
     _add_record_tiles(sub)
     _add_serve(sub)
+    _add_map_server(sub)
     return parser
 
 

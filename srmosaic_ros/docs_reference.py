@@ -59,6 +59,13 @@ TOPIC_DOCS = {
     '/srmosaic/odom': 'the same pose as nav_msgs/Odometry (twist not estimated: covariance[0] = -1)',
     '/srmosaic/sr_tile': 'a super-resolved tile; its placement in `header.frame_id` '
                          '(`srmosaic_segment_<k>;x0=..;y0=..;width=..;height=..;factor=..`)',
+    '/srmosaic/map_tile': 'the canvas tiles painted since the last round (while something subscribes), each an RGBA PNG '
+                          'of a tile reduced by 2^`live.map_level`, transparent where nothing is painted; its plane '
+                          'region in `header.frame_id` (as the preview); within `live.map_bytes_per_s`, oldest change first',
+    '/srmosaic/map_tiles': 'the map tiles sent so far and how many still wait (JSON with `version`); latched, for late '
+                           'joiners (the whole map: the `srmosaic/get_map` service)',
+    '/srmosaic/footprint': 'the ground the newest fused frame sees by its pose: corners in pixels of the '
+                           '/srmosaic/raster grid (frame_id `srmosaic_raster`)',
     '/srmosaic/diagnostics': 'one status per node: frames received, processed, dropped; registration quality; '
                              'timings; tiles; rejected inputs by kind',
     '/diagnostics': 'the same statuses where diagnostic_aggregator and rqt_robot_monitor look, named '
@@ -212,6 +219,7 @@ def node_interfaces() -> list[NodeInterface]:
     from rclpy.parameter import Parameter
 
     from .nodes.georef_node import GeorefNode
+    from .nodes.map_server import MapServerNode
     from .nodes.mosaic_node import MosaicNode
     from .nodes.sr_node import SRNode
     from .nodes.tile_recorder import TileRecorderNode
@@ -226,6 +234,7 @@ def node_interfaces() -> list[NodeInterface]:
                       {'default': {}}, overrides={'live.sr_worker': 'thread'}),  # no worker process to start here
         NodeInterface('tile_recorder', 'srmosaic_tile_recorder', TileRecorderNode, 'srmosaic record-tiles DIR',
                       {'default': {}, '--preview': {'previews': True}}),
+        NodeInterface('map_server', 'srmosaic_map_server', MapServerNode, 'srmosaic map-server', {'default': {}}),
     ]
     context = rclpy.Context()
     saved = os.environ.get('ROS_AUTOMATIC_DISCOVERY_RANGE')
@@ -245,6 +254,8 @@ def node_interfaces() -> list[NodeInterface]:
                     params = {**info.overrides, **{k: v for k, v in config.items() if '.' in k}}
                     if info.cls is TileRecorderNode:
                         kwargs = {'out_dir': tmp, 'previews': bool(config.get('previews'))}
+                    if info.cls is MapServerNode:
+                        kwargs = {'port': 0}  # any free port: building the page must not need 8080
                     node = info.cls(context=context, parameter_overrides=[Parameter(k, value=v) for k, v in params.items()],
                                     **kwargs)
                     try:

@@ -39,6 +39,11 @@ class LiveConfig:
     sr_frames_kept: int = setting(48, lo=1, hi=1000)
     sr_images_pending: int = setting(100, lo=1, hi=1000)
     sr_worker: str = setting('process', choices=SR_WORKERS)
+    map_tiles: bool = True
+    map_level: int = setting(1, lo=0, hi=12)
+    map_bytes_per_s: int = setting(1_000_000, lo=0, hi=10_000_000_000, unit='B/s')
+    map_port: int = setting(8080, lo=1, hi=65535)
+    map_bind: str = '127.0.0.1'
 
     def __post_init__(self) -> None:
         check_settings(self, 'live')

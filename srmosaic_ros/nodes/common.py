@@ -20,7 +20,7 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from ..errors import SrMosaicError
 
-__all__ = ['TOPICS', 'DIAGNOSTICS_TOPICS', 'REGISTRATION_LAYOUT', 'DiagnosticsPublisher', 'diagnostic_array', 'RegistrationMsg',
+__all__ = ['TOPICS', 'SERVICES', 'DIAGNOSTICS_TOPICS', 'REGISTRATION_LAYOUT', 'DiagnosticsPublisher', 'diagnostic_array', 'RegistrationMsg',
            'decode_registration', 'encode_registration', 'pose_messages', 'PosePublisher', 'frame_ids', 'WarnOnce', 'camera_image',
            'subscribe_input', 'input_qos', 'IMAGE_QOS_DEPTH', 'TELEMETRY_QOS_DEPTH', 'check_range']
 
@@ -44,7 +44,12 @@ TOPICS = {
     'fused_fix': 'srmosaic/fix',
     'odom': 'srmosaic/odom',
     'sr_tile': 'srmosaic/sr_tile',
+    'map_tile': 'srmosaic/map_tile',
+    'map_tiles': 'srmosaic/map_tiles',
+    'footprint': 'srmosaic/footprint',
 }
+#: Services, relative as TOPICS: the whole live map so far (std_srvs/Trigger; live/map_tiles.py).
+SERVICES = {'get_map': 'srmosaic/get_map'}
 #: Diagnostics go to /diagnostics, where diagnostic_aggregator and rqt_robot_monitor listen (absolute,
 #: as diagnostic_updater publishes), and to srmosaic/diagnostics under the namespace (the contract's
 #: /srmosaic/diagnostics in the root namespace).

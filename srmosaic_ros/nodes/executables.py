@@ -16,7 +16,8 @@ from pathlib import Path
 from ..errors import SrMosaicError
 
 __all__ = ['EXECUTABLES', 'split_ros_args', 'run_executable', 'node_main', 'record_tiles_arguments', 'run_record_tiles',
-           'play_arguments', 'run_play', 'player_main', 'tile_recorder_main', 'main']
+           'play_arguments', 'run_play', 'player_main', 'tile_recorder_main', 'map_server_arguments', 'run_map_server',
+           'map_server_main', 'main']
 
 #: name -> 'module:function'; setup.py's console_scripts list the same (a test compares them).
 EXECUTABLES = {
@@ -25,6 +26,7 @@ EXECUTABLES = {
     'sr_node': 'srmosaic_ros.nodes.sr_node:main',
     'tile_recorder': 'srmosaic_ros.nodes.executables:tile_recorder_main',
     'player': 'srmosaic_ros.nodes.executables:player_main',
+    'map_server': 'srmosaic_ros.nodes.executables:map_server_main',
 }
 
 
@@ -80,6 +82,43 @@ def run_record_tiles(args: argparse.Namespace) -> int:
     return run_nodes([node], ['tile_recorder', *args.ros_args])
 
 
+#: Niceness the map server's process adds to its own: rendering tiles for a page must not take the CPU
+#: from a mosaic node on the same machine (the SR node's worker runs at 10 for the same reason).
+MAP_SERVER_NICENESS = 10
+
+
+def lower_priority(increment: int) -> None:
+    """Add ``increment`` to this process's niceness (nothing where the system refuses)."""
+    import os
+
+    try:
+        os.nice(increment)
+    except (OSError, AttributeError):  # no os.nice (Windows) or not allowed: run at the priority given
+        pass
+
+
+def map_server_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('--port', type=int, default=None,
+                        help='TCP port of the web map (default: live.map_port, 8080; 0: any free port)')
+    parser.add_argument('--bind', default=None,
+                        help='address to listen on (default: live.map_bind, 127.0.0.1: this machine only; '
+                             '0.0.0.0: every interface, the network too)')
+
+
+def run_map_server(args: argparse.Namespace) -> int:
+    import functools
+
+    from .map_server import MapServerNode
+    from .runner import run_nodes
+
+    if args.port is not None and not 0 <= args.port <= 65535:
+        msg = f'--port must be in 0..65535, got {args.port}.'
+        raise SrMosaicError(msg)
+    lower_priority(MAP_SERVER_NICENESS)  # the mosaic node on the same cores comes first (as the SR worker)
+    node = functools.partial(MapServerNode, port=args.port, bind=args.bind)
+    return run_nodes([node], ['map_server', *args.ros_args])
+
+
 def positive_float(text: str) -> float:
     """argparse type: a finite number > 0 (nan, inf, 0 and negatives refused)."""
     import math
@@ -129,6 +168,12 @@ def tile_recorder_main(argv: list[str] | None = None) -> int:
     """`ros2 run srmosaic_ros tile_recorder DIR [--preview] [--ros-args ...]`."""
     return run_executable('tile_recorder', record_tiles_arguments, run_record_tiles, argv,
                           description='write the live SR tiles (and the preview) into a folder as GeoTIFFs')
+
+
+def map_server_main(argv: list[str] | None = None) -> int:
+    """`ros2 run srmosaic_ros map_server [--port N] [--bind ADDR] [--ros-args ...]`."""
+    return run_executable('map_server', map_server_arguments, run_map_server, argv,
+                          description='serve the live map (mosaic, SR tiles, aircraft, footprint) as a web page')
 
 
 def player_main(argv: list[str] | None = None) -> int:

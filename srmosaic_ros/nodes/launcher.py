@@ -6,8 +6,10 @@ each of its nodes as a child process, as `ros2 launch srmosaic_ros srmosaic.laun
 
 Nodes: mosaic (registration and mosaic; by default also the georeferencing filter), georef (the
 filter in its own process; active when live.georef_standalone is true, idle otherwise), sr (SR
-tiles on /srmosaic/sr_tile). With no description, every node runs in this process with
-params/default.yaml on the default topics. A description is a YAML file:
+tiles on /srmosaic/sr_tile), and with the launch file's `map:=true` the map server (the live web
+map, nodes/map_server.py). With no description, every node runs in this process with
+params/default.yaml on the default topics; with launch arguments and no description
+(`srmosaic launch map:=true`), the installed launch/srmosaic.launch.xml runs. A description is a YAML file:
 
     processes:
       - name: onboard                       # a label for logs
@@ -181,6 +183,13 @@ def launch(description: Path | None, extra_params: list[str], extra_ros_args: li
 
     for f in extra_params:  # rcl would end on a bad file with a traceback of its own
         load_params(f)
+    if description is not None and ':=' in str(description) and not Path(description).exists():
+        launch_arguments = [str(description), *(launch_arguments or [])]  # `srmosaic launch map:=true`
+        description = None
+    if description is None and launch_arguments:  # the graph's launch file takes the arguments
+        from .launch_xml import package_share
+
+        description = package_share() / 'launch' / 'srmosaic.launch.xml'
     is_xml = description is not None and Path(description).name.endswith('.xml')
     if launch_arguments and not is_xml:
         msg = f'launch arguments {launch_arguments} need a launch file (FILE.launch.xml).'

@@ -24,7 +24,8 @@ __all__ = ['ManagedNode', 'autostart', 'configure_with', 'release']
 def _entities(node: Any) -> list[tuple[Callable[[Any], Any], Any]]:
     return ([(node.destroy_publisher, e) for e in node.publishers]
             + [(node.destroy_subscription, e) for e in node.subscriptions]
-            + [(node.destroy_timer, e) for e in node.timers])
+            + [(node.destroy_timer, e) for e in node.timers]
+            + [(node.destroy_service, e) for e in node.services])
 
 
 def configure_with(node: Any, build: Callable[[], None]) -> TransitionCallbackReturn:
@@ -44,7 +45,7 @@ def configure_with(node: Any, build: Callable[[], None]) -> TransitionCallbackRe
 
 
 def release(items: list[tuple[Callable[[Any], Any], Any]]) -> None:
-    """Destroy the publishers, subscriptions and timers that configure made."""
+    """Destroy the publishers, subscriptions, timers and services that configure made."""
     for destroy, entity in items:
         destroy(entity)
 

@@ -8,7 +8,16 @@ Subscribes (sensor-data QoS) to /camera/image_raw (sensor_msgs/Image) and
 in the local ENU plane tangent at the first fix, frame_id live.map_frame; covariance of
 (east, north, up, roll, pitch, yaw)), /srmosaic/fix (NavSatFix of the same pose, covariance ENU),
 /srmosaic/odom (nav_msgs/Odometry of the same pose, child_frame_id live.body_frame)
-and /srmosaic/diagnostics (diagnostic_msgs/DiagnosticArray, also on /diagnostics). These are the
+and /srmosaic/diagnostics (diagnostic_msgs/DiagnosticArray, also on /diagnostics). With
+`live.map_tiles` (default) and while something subscribes to it, /srmosaic/map_tile
+(sensor_msgs/CompressedImage, format png, reliable) carries the canvas tiles painted since the last
+round (the preview's period), reduced by 2^`live.map_level`, RGBA (transparent where nothing is
+painted), header.frame_id their region of the live plane (live.raster.ImagePlacement), within
+`live.map_bytes_per_s` (oldest change first; the rest wait, none is lost); /srmosaic/map_tiles
+(std_msgs/String JSON, transient local) lists the tiles sent, and the service /srmosaic/get_map
+(std_srvs/Trigger) answers the whole map sent so far, PNGs in base64 (live/map_tiles.py);
+/srmosaic/footprint (geometry_msgs/PolygonStamped) is the ground the newest fused frame sees by its
+pose, in pixels of the /srmosaic/raster grid (frame_id srmosaic_raster). These are the
 names in the root namespace: the node uses relative names (nodes.common.TOPICS), so under
 `-r __ns:=/uav1` they are /uav1/camera/image_raw, /uav1/srmosaic/..., and all are remappable.
 The georeferencing filter runs inside this node (each frame is placed on the georeferenced raster
@@ -40,9 +49,12 @@ from typing import Any
 import numpy as np
 import torch
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from geometry_msgs.msg import Point32, PolygonStamped
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, NavSatFix
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
 
 from msg_adapters import (
     camera_info_to_intrinsics,
@@ -54,13 +66,14 @@ from msg_adapters import (
 )
 
 from ..errors import SrMosaicError
+from ..live.map_tiles import FOOTPRINT_FRAME, MAP_TILE_FORMAT, MapTileStream
 from ..live.raster import ImagePlacement, LiveRaster
 from ..core.types import Frame
 from ..io.mosaic_files import write_json
 from ..io.outputs import peak_rss_mb, preview_image
 from ..app.process import write_outputs
 from ..pipeline import FrameRecord, Pipeline
-from .common import (IMAGE_QOS_DEPTH, REGISTRATION_LAYOUT, TELEMETRY_QOS_DEPTH, TOPICS, DiagnosticsPublisher,
+from .common import (IMAGE_QOS_DEPTH, REGISTRATION_LAYOUT, SERVICES, TELEMETRY_QOS_DEPTH, TOPICS, DiagnosticsPublisher,
                      PosePublisher, StreamOrder, WarnOnce, camera_image, frame_ids, input_qos,
                      subscribe_input)
 from .messages import Messages, message_kind
@@ -95,9 +108,11 @@ class MosaicNode(ManagedNode):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('srmosaic_mosaic', **kwargs)
-        self._defaults = declare_pipeline_parameters(self, MOSAIC_PARAMETERS, changeable=('live.preview_period_s',))
+        self._defaults = declare_pipeline_parameters(self, MOSAIC_PARAMETERS,
+                                                     changeable=('live.preview_period_s', 'live.map_bytes_per_s'))
         self.warn = WarnOnce(self)  # the counters of the diagnostics; rejected inputs logged once per kind
-        on_parameter_change(self, {'live.preview_period_s': self._set_period})
+        on_parameter_change(self, {'live.preview_period_s': self._set_period,
+                                   'live.map_bytes_per_s': self._set_map_budget})
         autostart(self)
 
     def _configure(self) -> None:
@@ -172,6 +187,18 @@ class MosaicNode(ManagedNode):
                              history=HistoryPolicy.KEEP_LAST)
         self.pub_raster = self.create_publisher(self.messages.raster_type, TOPICS['raster'], latched)
         self._raster_sent: LiveRaster | None = None
+        self._map: MapTileStream | None = None  # live.map_tiles: the changed tiles on /srmosaic/map_tile
+        if self.get_parameter('live.map_tiles').value:
+            self._map = MapTileStream(int(self.get_parameter('live.map_level').value),
+                                      float(self.get_parameter('live.map_bytes_per_s').value))
+            # reliable and deep enough for a round's tiles: a tile sent is not lost on the way
+            tiles_qos = QoSProfile(depth=256, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
+            self.pub_map_tile = self.create_publisher(CompressedImage, TOPICS['map_tile'], tiles_qos)
+            self.pub_map_summary = self.create_publisher(String, TOPICS['map_tiles'], latched)
+            self.pub_footprint = self.create_publisher(PolygonStamped, TOPICS['footprint'], 10)
+            self._map_summary_sent = ''
+            self.create_service(Trigger, SERVICES['get_map'], self._get_map,
+                                callback_group=MutuallyExclusiveCallbackGroup())
         if not self.georef_standalone:  # else the georef node publishes them (one publisher per graph)
             self.pub_poses = PosePublisher(self)
         self._preview_thread: threading.Thread | None = None
@@ -289,6 +316,9 @@ class MosaicNode(ManagedNode):
                     self.get_logger().error(traceback.format_exc())
                     continue
                 fused = self.pipeline.take_fused()
+                footprint = self._footprint(fused[-1]) if fused and self._map is not None else None
+            if footprint is not None:
+                self._publish_footprint(*footprint)
             if records:
                 self._latency_ms.append((time.perf_counter() - t0) * 1e3)
             self.warn.count('frames_processed', len(records))
@@ -323,6 +353,7 @@ class MosaicNode(ManagedNode):
 
     def _render_and_publish(self) -> None:
         image = coverage = raster = None
+        tiles: list = []
         region = 'srmosaic_mosaic'
         if self._lock.acquire(timeout=2.0):  # the worker holds it per frame; skip a round when busy
             try:
@@ -337,6 +368,9 @@ class MosaicNode(ManagedNode):
                     # grow with the mosaic (a full render of a long flight takes seconds).
                     image, coverage = seg.canvas.render_preview(self.config.mosaic.preview_max_side_px)
                     region = ImagePlacement(seg.index, *seg.canvas.last_preview_region).frame_id()
+                if self._map is not None:  # the changed tiles: marked always, read only for a subscriber
+                    send = self.pub_map_tile.get_subscription_count() > 0
+                    tiles = self._map.collect(self.pipeline.segments, time.monotonic(), send=send)
             finally:
                 self._lock.release()
         if raster is not None:
@@ -349,7 +383,56 @@ class MosaicNode(ManagedNode):
             # header.frame_id: the plane region the preview shows (live.raster.ImagePlacement)
             self.pub_preview.publish(numpy_to_image(u8, encoding, stamp_ns=stamp, frame_id=region))
             self.pub_preview_c.publish(numpy_to_compressed(u8, stamp_ns=stamp, frame_id=region))
+        if self._map is not None:
+            self._publish_map_tiles(tiles)
         self.pub_diag.publish(self._diagnostics())
+
+    def _footprint(self, record: FrameRecord) -> tuple[int, np.ndarray] | None:
+        """(stamp, (4, 2) raster pixels) of the ground a fused frame sees, by its pose (the filter's
+        best estimate now, whether or not the frame is painted yet); None without one. Under the lock."""
+        georef = self.pipeline.georef
+        if georef is None or georef.raster is None or record.pose is None or not record.pose.valid:
+            return None
+        w, h = record.size
+        corners = np.array([[-0.5, w - 0.5, w - 0.5, -0.5], [-0.5, -0.5, h - 0.5, h - 0.5], [1.0, 1.0, 1.0, 1.0]])
+        try:
+            p = georef.raster_H_frame(record.pose, record.camera) @ corners
+        except (SrMosaicError, ValueError, np.linalg.LinAlgError):
+            return None
+        if not np.all(np.isfinite(p)) or np.any(p[2] <= 0):  # a corner above the horizon
+            return None
+        return record.stamp_ns, (p[:2] / p[2]).T
+
+    def _publish_footprint(self, stamp_ns: int, corners: np.ndarray) -> None:
+        msg = PolygonStamped()
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(stamp_ns), 1_000_000_000)
+        msg.header.frame_id = FOOTPRINT_FRAME
+        msg.polygon.points = [Point32(x=float(x), y=float(y), z=0.0) for x, y in corners]
+        self.pub_footprint.publish(msg)
+
+    def _publish_map_tiles(self, batch: list) -> None:
+        """Encode and publish the round's changed tiles within the budget, then the summary when it
+        changed (its bytes count against the budget too). Outside the pipeline lock."""
+        stamp_ns = self.get_clock().now().nanoseconds  # the tiles' stamp, as the summary lists it
+        for frame_id, data in self._map.encode(batch, stamp_ns):
+            msg = CompressedImage(format=MAP_TILE_FORMAT, data=data)
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
+            msg.header.frame_id = frame_id
+            self.pub_map_tile.publish(msg)
+        summary = self._map.summary()
+        if summary != self._map_summary_sent:
+            self.pub_map_summary.publish(String(data=summary))
+            self._map.spend(len(summary))
+            self._map_summary_sent = summary
+
+    def _get_map(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        """srmosaic/get_map: every map tile sent so far (live/map_tiles.whole_map_text)."""
+        response.success, response.message = True, self._map.whole_map()
+        return response
+
+    def _set_map_budget(self, value: float) -> None:
+        if self._map is not None:
+            self._map.set_budget(float(value))
 
     def _live_raster(self) -> LiveRaster | None:
         """The raster to publish on /srmosaic/raster: when it is new, or drift control's canvas

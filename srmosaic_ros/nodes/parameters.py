@@ -27,17 +27,20 @@ from ..core.settings import Bounds, bounds_of
 from ..live.live_config import LiveConfig, live_config
 from ..param_files import advanced_params_path, default_params, default_params_path
 
-__all__ = ['MOSAIC_PARAMETERS', 'GEOREF_PARAMETERS', 'SR_PARAMETERS', 'declare_pipeline_parameters', 'read_pipeline_config', 'on_parameter_change']
+__all__ = ['MOSAIC_PARAMETERS', 'GEOREF_PARAMETERS', 'SR_PARAMETERS', 'MAP_SERVER_PARAMETERS', 'declare_pipeline_parameters',
+           'read_pipeline_config', 'on_parameter_change']
 
 #: The keys each node declares: names, or section prefixes for all the keys of a section.
 _POSE_OUTPUT = ('live.map_frame', 'live.body_frame', 'live.georef_standalone', 'live.reliable_inputs', 'live.preview_period_s',
                 'live.message_types')
 MOSAIC_PARAMETERS = ('device', 'undistort', 'stamp_tolerance_s', 'registration', 'mosaic', 'georef', *_POSE_OUTPUT,
-                     'live.queue_size', 'live.max_rate_hz', 'live.torch_threads', 'live.output_dir', 'live.autostart')
+                     'live.queue_size', 'live.max_rate_hz', 'live.torch_threads', 'live.output_dir', 'live.autostart',
+                     'live.map_tiles', 'live.map_level', 'live.map_bytes_per_s')
 GEOREF_PARAMETERS = ('undistort', 'stamp_tolerance_s', 'georef', *_POSE_OUTPUT, 'live.autostart')
 SR_PARAMETERS = ('device', 'undistort', 'stamp_tolerance_s', 'sr', 'sr_tiles', 'live.reliable_inputs', 'live.torch_threads',
                  'live.sr_period_s', 'live.sr_tiles_per_round', 'live.sr_refresh_growth', 'live.sr_frames_kept',
                  'live.sr_images_pending', 'live.sr_worker', 'live.message_types')
+MAP_SERVER_PARAMETERS = ('live.map_port', 'live.map_bind', 'live.message_types')
 
 def parameter_bounds() -> dict[str, Bounds]:
     """Dotted key -> Bounds of every parameter that declares its range once (config dataclasses, LiveConfig)."""

@@ -854,3 +854,7 @@ class TiledCanvas:
                       threads: int = 1) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
         """``render(region)`` in strips of ``block_rows`` rows, top to bottom (:meth:`CanvasReader.render_blocks`)."""
         return self._reader.render_blocks(block_rows, region, threads=threads)
+
+    def tile_blocks(self, key: TileKey, f: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """One tile reduced by ``f`` as the preview reduces it, or None (:meth:`CanvasReader.tile_blocks`)."""
+        return self._reader.tile_blocks(key, f)

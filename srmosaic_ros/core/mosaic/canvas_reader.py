@@ -313,3 +313,22 @@ class CanvasReader:
         crop = (slice(y0 - ey0, y1 - ey0), slice(x0 - ex0, x1 - ex0))
         return out[crop], covered[crop]
 
+    def tile_blocks(self, key: TileKey, f: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """One tile reduced by ``f`` (a divisor of the tile size) as the preview reduces it: the
+        feather blend of each f x f block (best view: the block mean of the winners' pixels).
+
+        Returns ``(image, covered)``: image float32 (T/f, T/f, C) with ``background`` where nothing is
+        painted, covered bool (T/f, T/f); image pixel (i, j) covers mosaic pixels
+        [tx T + f j, tx T + f (j + 1)) x [ty T + f i, ...). None when the tile does not exist.
+        For the live map's changed tiles (with :meth:`pop_touched`); reads the tile only.
+        """
+        self.canvas._check_open()
+        if int(f) < 1 or self.canvas._tile_size % int(f):
+            msg = f'the reduction must divide the tile size {self.canvas._tile_size}, got {f!r}.'
+            raise CanvasError(msg)
+        tile = self.canvas._store.peek(key)
+        if tile is None:
+            return None
+        acc, wsum = block_sums(tile, int(f), self.canvas._tile_size, self.canvas._channels)
+        out = np.full(acc.shape, self.canvas._background, np.float32)
+        return out, feather_divide(acc, wsum, out)

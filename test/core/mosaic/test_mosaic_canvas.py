@@ -544,3 +544,34 @@ def test_a_paint_in_part_is_the_whole_paint_on_the_boxes_asked_for(blend: str) -
     assert res.bbox == (region[0] + xs.min(), region[1] + ys.min(), region[0] + xs.max() + 1, region[1] + ys.max() + 1)
     if blend != 'feather':
         np.testing.assert_array_equal(part.labels(region)[p_cov], whole.labels(region)[p_cov])
+
+
+@pytest.mark.parametrize('f', [1, 4])
+def test_tile_blocks_are_the_preview_blocks_of_one_tile_and_pop_touched_names_the_changed(f: int) -> None:
+    """tile_blocks(key, f) is the block mean of that tile alone (render_preview's blocks); the tiles
+    pop_touched names are those painted since it last ran (what the live map sends)."""
+    c = TiledCanvas(3, tile_size=64)
+    img = texture(60, 80, 3, seed=5)
+    c.paint(img, translation(10.0, 20.0))
+    first = c.pop_touched()
+    assert first == frozenset(c.tile_keys()) and c.pop_touched() == frozenset()
+    c.paint(img, translation(100.0, 20.0))
+    second = c.pop_touched()
+    assert second and second != first and all(key[0] >= 1 for key in second)
+    x0, y0, x1, y1 = c.bounds()
+    ref, ref_cov = _block_means(c, f)
+    for key in c.tile_keys():
+        image, covered = c.tile_blocks(key, f)
+        n = 64 // f
+        assert image.shape == (n, n, 3) and covered.shape == (n, n)
+        # the tile's blocks in the reference grid (which starts at bounds // f * f)
+        oy, ox = (key[1] * 64 - y0 // f * f) // f, (key[0] * 64 - x0 // f * f) // f
+        ys, xs = slice(max(oy, 0), oy + n), slice(max(ox, 0), ox + n)
+        sub, sub_cov = ref[ys, xs], ref_cov[ys, xs]
+        mine, mine_cov = image[max(-oy, 0):, max(-ox, 0):][:sub.shape[0], :sub.shape[1]], \
+            covered[max(-oy, 0):, max(-ox, 0):][:sub.shape[0], :sub.shape[1]]
+        np.testing.assert_array_equal(mine_cov, sub_cov)
+        np.testing.assert_allclose(mine[mine_cov], sub[sub_cov], atol=2e-5)
+    assert c.tile_blocks((99, 99), f) is None
+    with pytest.raises(CanvasError, match='divide the tile size'):
+        c.tile_blocks(c.tile_keys()[0], 3)
