@@ -84,7 +84,7 @@ def test_each_range_is_declared_once_and_agrees_everywhere():
 
 
 def test_users_see_their_parameters_and_the_internals_apart():
-    """default.yaml holds what a user sets (about 50 keys), advanced.yaml the solver internals; they
+    """default.yaml holds what a user sets (about 55 keys), advanced.yaml the solver internals; they
     share no key, their values are the config dataclasses' defaults, and an internal set in a user's
     file (same dotted name) takes effect, a misspelt one is refused."""
     import dataclasses
@@ -94,7 +94,8 @@ def test_users_see_their_parameters_and_the_internals_apart():
     from srmosaic_ros.errors import ConfigError
 
     users, internals = load_params(default_params_path()), load_params(advanced_params_path())
-    assert 40 <= len(users) <= 55 and len(internals) >= 60, (len(users), len(internals))
+    # about 55 a user sets, with the live web map's five (live.map_*)
+    assert 40 <= len(users) <= 60 and len(internals) >= 60, (len(users), len(internals))
     assert not set(users) & set(internals)
     defaults = PipelineConfig()
     for key, value in {**users, **internals}.items():
