@@ -119,13 +119,28 @@ def test_checkpoint_holds_the_pipeline_state_by_name(tmp_path):
         first.feed(item)
     state = first.state()
     assert state['version'] == STATE_VERSION and 'segments' in state and 'registrar' not in state
-    # every attribute of a pipeline is either saved or rebuilt from the config: a new one must be added to
-    # pipeline._STATE (or here, when the config rebuilds it), or a resumed run would silently lose it
+    # every attribute of the pipeline and of each collaborator is either saved (its STATE) or rebuilt from
+    # the config or handed over by the conductor: a new one must be added to its STATE (or here, when it is
+    # rebuilt), or a resumed run would silently lose it
     from srmosaic_ros.pipeline import _STATE
 
-    # (_footprints: a cache of the segments' placements, filled again from them on demand)
-    rebuilt = {'config', 'registrar', 'undistorter', '_painter', '_heap', '_footprints'}
-    assert set(vars(first)) == set(_STATE) | rebuilt, set(vars(first)) ^ (set(_STATE) | rebuilt)
+    # (footprints: a cache of the segments' placements, filled again from them on demand)
+    rebuilt = {first: {'config', 'undistorter', '_heap', 'telemetry', 'book', 'painter', 'revisits', 'settler', 'placer'},
+               first.telemetry: {'config', 'clock'}, first.book: {'config'},
+               first.placer: {'config', 'clock', 'registrar', 'telemetry', 'book', 'settler', 'revisits', 'painter'},
+               first.settler: {'config', 'telemetry', 'book', 'painter'},
+               first.revisits: {'config', 'clock', 'painter', 'footprints'},
+               first.painter: {'config', 'clock', 'worker', 'input'}, first.painter.input: {'config'}}
+    saved = {first: {'records', 'clock'}} | {part: {attr for _, attr in part.STATE} for part in rebuilt if part is not first}
+    for part, names in rebuilt.items():
+        assert set(vars(part)) == saved[part] | names, (type(part).__name__, set(vars(part)) ^ (saved[part] | names))
+    assert sorted(_STATE) == sorted(['records', 'clock', *(key for part in saved if part is not first for key, _ in part.STATE)])
+    # the checkpoint's keys are those written before the pipeline was split into collaborators: old ones load
+    before_split = {'records', 'segments', 'fixes', 'imus', 'attitudes', 'georef', 'camera', 'clock', '_geo_canvas', '_active',
+                    '_last_good', '_orphan', '_channels', '_waiting', '_first_fix_wait_over', '_latest_telemetry_ns',
+                    '_settling', '_settling_seg', '_settled', '_fused', 'pose_check', '_settling_nis', '_unpainted', '_anchor',
+                    '_tracker', '_thin', 'attitude_check'}
+    assert set(state) == {'version', 'config'} | before_split and len(_STATE) == len(before_split)
     resumed = Pipeline.from_state(pickle.loads(pickle.dumps(state)))
     for item in items[cut:]:
         resumed.feed(item)
