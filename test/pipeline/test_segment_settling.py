@@ -1,4 +1,4 @@
-"""Settling of a georeferenced segment's first frames (mosaic.settle_s, pipeline.py): on the bundled
+"""Settling of a georeferenced segment's first frames (mosaic.settle_s, pipeline/settler.py): on the bundled
 demo flight the first frames are placed back from the settled one through their registrations, so
 they no longer sit up to 1.5 px from the later ones; records come late, each exactly once."""
 from __future__ import annotations
@@ -122,9 +122,9 @@ def test_a_base_frame_refused_after_the_fact_starts_a_new_segment(flight: list) 
     refused = None
     for item in items:
         pipe.feed(item)
-        if pipe._last_good is not None and pipe._last_good.record.index >= 5:
-            refused = pipe._last_good.record
-            refused.segment, refused.seg_H_frame = -1, None  # what a refused paint leaves (Pipeline._paint_later)
+        if pipe.placer.last_good is not None and pipe.placer.last_good.record.index >= 5:
+            refused = pipe.placer.last_good.record
+            refused.segment, refused.seg_H_frame = -1, None  # what a refused paint leaves (Painter._paint_now)
             break
     fed = 0
     for item in items:

@@ -242,14 +242,14 @@ def test_uint8_frames_convert_for_the_canvas_as_to_float01():
     pipe = Pipeline(pipeline_config({}))
     levels = np.arange(256, dtype=np.uint8).reshape(16, 16)
     rgb = np.stack([levels, levels[::-1], levels.T], axis=-1)
-    out = pipe._as_canvas_image(rgb)
+    out = pipe.painter.input.as_canvas_image(rgb)
     assert out.dtype == np.float32 and out.shape == (16, 16, 3) and out.flags.c_contiguous
     np.testing.assert_array_equal(out, to_float01(rgb))
     big = np.random.default_rng(0).integers(0, 256, (90, 120, 3), dtype=np.uint8)
-    np.testing.assert_array_equal(pipe._as_canvas_image(big), to_float01(big))
-    np.testing.assert_array_equal(pipe._as_canvas_image(levels), np.repeat(to_float01(levels)[..., None], 3, axis=2))
+    np.testing.assert_array_equal(pipe.painter.input.as_canvas_image(big), to_float01(big))
+    np.testing.assert_array_equal(pipe.painter.input.as_canvas_image(levels), np.repeat(to_float01(levels)[..., None], 3, axis=2))
     floats = to_float01(big)
-    np.testing.assert_array_equal(pipe._as_canvas_image(floats), floats)
+    np.testing.assert_array_equal(pipe.painter.input.as_canvas_image(floats), floats)
 
 
 def test_canvas_float_conversion_is_the_same_with_or_without_gains():

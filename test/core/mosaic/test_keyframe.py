@@ -181,7 +181,7 @@ def test_frames_waiting_to_be_painted_are_kept_at_the_mosaics_sampling():
         for f in frames:
             pipe.feed_frame(f)
         if spread:
-            shapes = [held.raw.shape[:2] for _, held, _ in pipe._unpainted]
+            shapes = [held.raw.shape[:2] for _, held, _ in pipe.painter.unpainted]
             assert len(shapes) == 3 and all(h <= H // 3 and w <= W // 3 for h, w in shapes), shapes
             assert pipe.flush(paint_held=False) == [] and pipe.held_back == 3  # a live pause keeps them
         result = pipe.finish()
