@@ -1,6 +1,6 @@
 """Settling of a georeferenced segment's first frames (mosaic.settle_s, pipeline/settler.py): on the bundled
 demo flight the first frames are placed back from the settled one through their registrations, so
-they no longer sit up to 1.5 px from the later ones; records come late, each exactly once."""
+they line up with the later ones (the figures: docs/results.md); records come late, each exactly once."""
 from __future__ import annotations
 
 from dataclasses import replace
@@ -57,7 +57,7 @@ def test_settled_start_has_no_seam_and_records_come_once_and_late(flight):
     at_once, decided0 = _run(flight, settle_s=0.0)
     err, err0 = _errors(settled), _errors(at_once)
     assert len(err) == len(err0) == 60
-    # before: the first frame 1.47 px off the others (the anchor's pose error left in it)
+    # without settling: the first frame off the others by the anchor's pose error left in it
     assert err0.max() > 1.0 and err0[0] > 1.0
     assert err.max() < 0.15 and err[:12].max() < 0.1, np.round(err[:14], 3)
     assert err.mean() < 0.6 * err0.mean()

@@ -274,7 +274,7 @@ def test_thinned_painting_keeps_the_records_and_the_mosaic(tmp_path, one_torch_t
     within paint_shift_px 64 of the last painted (the demo's frames move 10 to 20 px: with the
     default 16 few are held back): the same frames.csv; two frames in three held back (with the
     demo's gusts most then painted where they reach beyond their neighbours); the same coverage but for
-    slivers at the swath's very edge (measured: 187 of 966040 pixels, 177 of them its outermost),
+    slivers at the swath's very edge (the count: docs/lab-notes.md, paint thinning),
     and nearly the same pixels (a best view from a frame or two away)."""
     import cv2
 
