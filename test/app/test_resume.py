@@ -141,6 +141,11 @@ def test_checkpoint_holds_the_pipeline_state_by_name(tmp_path):
                     '_settling', '_settling_seg', '_settled', '_fused', 'pose_check', '_settling_nis', '_unpainted', '_anchor',
                     '_tracker', '_thin', 'attitude_check'}
     assert set(state) == {'version', 'config'} | before_split and len(_STATE) == len(before_split)
+    # ... and the classes they pickled by their names then (srmosaic_ros.pipeline._Held, .FrameRecord) still resolve
+    import srmosaic_ros.pipeline as package
+    from srmosaic_ros.pipeline.records import FrameRecord, Held
+
+    assert package._Held is Held and package.FrameRecord is FrameRecord
     resumed = Pipeline.from_state(pickle.loads(pickle.dumps(state)))
     for item in items[cut:]:
         resumed.feed(item)
