@@ -37,14 +37,10 @@ __all__ = ['THUMB_MAX_SIDE_PX', 'TILES_PER_FOOTPRINT', 'TILE_MEMORY_BUDGET_BYTES
 
 #: Longest side of the thumbnails whose overlaps give the exposure gains (pixels).
 THUMB_MAX_SIDE_PX = 256
-
-
 #: The canvas keeps this many stills' footprints of tiles in memory (at least mosaic.max_tiles_in_memory).
 TILES_PER_FOOTPRINT = 2.0
-
-
-#: ... but no more tile bytes than this (stills of 20 MP and more at their own sampling would pass
-#: the 3 GB goal of a whole run: the rest of a run takes about 1 GB); beyond it tiles spill.
+#: ... but no more tile bytes than this, so that tiles and the rest of a run stay within the run's
+#: memory goal whatever the stills' size (docs/results.md, the survey's peak memory); beyond it tiles spill.
 TILE_MEMORY_BUDGET_BYTES = 3 << 29  # 1.5 GiB
 
 
@@ -57,8 +53,8 @@ def footprint_px(corners_local: np.ndarray, raster_H_local: np.ndarray) -> float
 
 def tiles_in_memory(configured: int, tile_size: int, footprints_px: list[float], tile_bytes: int = 0) -> int:
     """The canvas's bound on tiles in memory: mosaic.max_tiles_in_memory, raised to TILES_PER_FOOTPRINT
-    times the tiles of the median still's footprint (a 12 MP still at its own GSD covers ~190 tiles
-    of 256 px: with 256 in memory the tiles of the still before last are spilled and read back as
+    times the tiles of the median still's footprint (a still at its own GSD covers its pixel count over
+    T^2 tiles: with fewer in memory the tiles of the still before last are spilled and read back as
     the next line overlaps them); 0 stays 0 (no bound). The bound does not grow with the number of
     stills, only with their size, and is raised no further than TILE_MEMORY_BUDGET_BYTES of tiles of
     ``tile_bytes`` each (0: no budget)."""

@@ -25,8 +25,6 @@ __all__ = ['full_from_reduced', 'metadata_scale', 'NOMINAL_FOCAL_PER_SIDE', 'rea
 
 _REDUCED = {1: cv2.IMREAD_COLOR, 2: cv2.IMREAD_REDUCED_COLOR_2, 4: cv2.IMREAD_REDUCED_COLOR_4,
             8: cv2.IMREAD_REDUCED_COLOR_8}
-
-
 #: Unknown focal length: the normalised coordinates use this many pixels per unit of the longer
 #: side (about a 55 deg field of view); the scale the solve finds is then not a height.
 NOMINAL_FOCAL_PER_SIDE = 1.0

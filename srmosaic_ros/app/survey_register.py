@@ -72,8 +72,8 @@ class _FeatureCache:
 
 def _compact(features: Any, max_features: int) -> Any:
     """Torch features described up to max_features at once, without the scale-space gradients kept
-    for describing more later (7.5 of 12 MB for a 1000x750 still): a cached still costs its
-    pyramid, templates and descriptors only (about 5 MB)."""
+    for describing more later (the larger part of a described still's memory): a cached still
+    costs its pyramid, templates and descriptors only."""
     import dataclasses
 
     primary = getattr(features, 'primary', features)

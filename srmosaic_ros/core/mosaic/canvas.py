@@ -153,7 +153,7 @@ class TiledCanvas:
             ``4 T^2 (3 C + 5)`` (best view): 1 MiB, 2.25 MiB and 3.5 MiB for T = 256, C = 3.
         interpolation: how the colour is sampled at the mosaic pixels' preimages
             (:mod:`.resample`): ``'cubic'`` (clamped bicubic, the default), ``'lanczos'`` (clamped
-            Lanczos-4: a little sharper, about five times the cost) or ``'linear'`` (bilinear: the
+            Lanczos-4: a little sharper, and the costliest) or ``'linear'`` (bilinear: the
             fastest, and a low-pass filter at every sub-pixel offset).
         threads: tiles a paint writes on this many threads at once (1: on the caller's), each
             tile's colour warped on its own. For a caller with a core to spare (a survey's stills,
@@ -364,7 +364,7 @@ class TiledCanvas:
         Args:
             image: float32 (H, W, C) or, for C == 1, (H, W); values nominally in [0, 1].
                 Non-finite pixels are treated as invalid. Or uint8 (values / 255): warped as
-                integers (OpenCV's fixed-point bilinear, about twice as fast as on floats) and
+                integers (OpenCV's fixed-point bilinear, faster than on floats) and
                 converted on the mosaic, so no float copy of the frame is made; the warped values
                 are rounded to integers before the conversion (at most 0.5 / 255 apart from a float
                 warp's).
