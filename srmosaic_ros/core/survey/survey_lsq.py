@@ -7,17 +7,99 @@ loss minimised on the reweighted sparse normal equations.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
 
 from .survey_model import apply_h8, GroundControl, h8, h8_scale, h8_scale_jacobian, PairConstraint, point_jacobian, SHAPE_POINTS, SurveyPriors
 
-__all__ = ['huber_cost', 'levenberg_marquardt', 'SurveyProblem']
+__all__ = ['ControlTerms', 'PairTerms', 'ShapeTerms', 'SurveyProblem', 'huber_cost', 'levenberg_marquardt']
+
+
+@dataclass(frozen=True)
+class PairTerms:
+    """The pairs' transfer residuals, per pair point: the columns of frames i and j (``ci``, ``cj``),
+    the point p of frame j (``pj``, (P, 2)), its transfer i_H_j p (``qi``, (P, 2)), its weight 1 / sd
+    (``w``) and its pair's index in ``pairs`` (``of_point``)."""
+
+    pairs: list[PairConstraint]
+    of_point: np.ndarray
+    ci: np.ndarray
+    cj: np.ndarray
+    pj: np.ndarray
+    qi: np.ndarray
+    w: np.ndarray
+
+    @classmethod
+    def of(cls, col: dict[int, int], pairs: list[PairConstraint], use: np.ndarray) -> PairTerms:
+        """The used pairs of ``pairs`` between frames of columns ``col`` (frame -> column)."""
+        sel = [p for p, u in zip(pairs, use) if u and p.i in col and p.j in col]
+        of_point = np.concatenate([np.full(len(p.points_j), k) for k, p in enumerate(sel)]) if sel else np.zeros(0, int)
+        if not sel:
+            return cls(sel, of_point, np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0))
+        ci = np.concatenate([np.full(len(p.points_j), col[p.i]) for p in sel])
+        cj = np.concatenate([np.full(len(p.points_j), col[p.j]) for p in sel])
+        pj = np.concatenate([p.points_j for p in sel])
+        qi = np.concatenate([(p.i_H_j @ np.c_[p.points_j, np.ones(len(p.points_j))].T).T for p in sel])
+        return cls(sel, of_point, ci, cj, pj, qi[:, :2] / qi[:, 2:3], 1.0 / np.concatenate([p.sigma for p in sel]))
+
+
+@dataclass(frozen=True)
+class ControlTerms:
+    """The ground control's residuals G_k(x) - X: the observations' indices in the GroundControl
+    (``index``), their frames' columns (``col``), points x (``pts``, (C, 2)), targets X (``ground``,
+    (C, 2) metres) and weights 1 / sd (``w``)."""
+
+    index: np.ndarray
+    col: np.ndarray
+    pts: np.ndarray
+    ground: np.ndarray
+    w: np.ndarray
+
+    @classmethod
+    def of(cls, col: dict[int, int], scale: float, control: GroundControl | None, control_use: np.ndarray | None) -> ControlTerms:
+        """The used observations of ``control`` in frames of columns ``col``; sd sqrt((s0 sd_pick)^2 + sd_survey^2)."""
+        ctl = [] if control is None or control_use is None else \
+            [m for m in range(len(control.frame)) if control_use[m] and int(control.frame[m]) in col]
+        if not ctl:
+            return cls(np.array(ctl, dtype=int), np.zeros(0, int), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0))
+        assert control is not None
+        return cls(np.array(ctl, dtype=int), np.array([col[int(control.frame[m])] for m in ctl]), control.point_n[ctl],
+                   control.ground_m[ctl], 1.0 / np.hypot(scale * control.sigma_n[ctl], control.sigma_ground_m))
+
+
+@dataclass(frozen=True)
+class ShapeTerms:
+    """The attitude's shape priors: per point of SHAPE_POINTS of each frame whose attitude is known,
+    its column (``col``), the point (``pts``), its offset from the frame's centre on the ground that
+    the attitude predicts (``target``, metres) and its weight 1 / sd (``w``)."""
+
+    col: np.ndarray
+    pts: np.ndarray
+    target: np.ndarray
+    w: np.ndarray
+
+    @classmethod
+    def of(cls, col: dict[int, int], pri: SurveyPriors) -> ShapeTerms:
+        shp = [(col[k], G, sd) for k, (G, sd) in pri.shape.items() if k in col]
+        if not shp:
+            return cls(np.zeros(0, int), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0))
+        m = len(SHAPE_POINTS)
+        tgt = []
+        for _, G, _ in shp:
+            hp = np.tile(h8(G), (m, 1))
+            e, nn, _ = apply_h8(hp, SHAPE_POINTS)
+            e0, n0, _ = apply_h8(hp[:1], np.zeros((1, 2)))
+            tgt.append(np.stack([e - e0, nn - n0], axis=1))
+        return cls(np.repeat([c for c, _, _ in shp], m), np.tile(SHAPE_POINTS, (len(shp), 1)), np.concatenate(tgt),
+                   np.repeat([1.0 / sd for _, _, sd in shp], m))
 
 
 class SurveyProblem:
-    """Residuals and their sparse Jacobian over the free frames (module docstring)."""
+    """Residuals and their sparse Jacobian over the free frames (:mod:`.global_align`'s docstring):
+    the pairs' (:class:`PairTerms`), the positions', the shape priors' (:class:`ShapeTerms`), the
+    ground control's (:class:`ControlTerms`) and the anchors' that hold a gauge."""
 
     def __init__(self, free: list[int], pairs: list[PairConstraint], use: np.ndarray, pri: SurveyPriors,
                  scale: float, anchor: dict[int, np.ndarray], control: GroundControl | None = None,
@@ -25,68 +107,38 @@ class SurveyProblem:
         self.col = {k: c for c, k in enumerate(free)}
         self.n = len(free)
         self.sel_pairs, self.sel_use = pairs, use
-        sel = [p for p, u in zip(pairs, use) if u and p.i in self.col and p.j in self.col]
-        self.pair_of_point = np.concatenate([np.full(len(p.points_j), k) for k, p in enumerate(sel)]) \
-            if sel else np.zeros(0, int)
-        self.sel = sel
-        if sel:
-            self.ci = np.concatenate([np.full(len(p.points_j), self.col[p.i]) for p in sel])
-            self.cj = np.concatenate([np.full(len(p.points_j), self.col[p.j]) for p in sel])
-            pj = np.concatenate([p.points_j for p in sel])
-            qi = np.concatenate([(p.i_H_j @ np.c_[p.points_j, np.ones(len(p.points_j))].T).T for p in sel])
-            self.pj, self.qi = pj, qi[:, :2] / qi[:, 2:3]
-            self.w = 1.0 / np.concatenate([p.sigma for p in sel])
-        else:
-            self.ci = self.cj = np.zeros(0, int)
-            self.pj = self.qi = np.zeros((0, 2))
-            self.w = np.zeros(0)
+        self.pt = PairTerms.of(self.col, pairs, use)
         pos = np.asarray(pri.position_m, dtype=np.float64)
         self.gps = [(self.col[k], pos[k], 1.0 / float(pri.position_sigma_m[k])) for k in free
                     if np.isfinite(pos[k]).all() and math.isfinite(float(pri.position_sigma_m[k]))]
         self.scale = scale
         self.pri = pri
         self.anchor = [(self.col[k], h8(H)) for k, H in anchor.items() if k in self.col]
-        ctl = [] if control is None or control_use is None else \
-            [m for m in range(len(control.frame)) if control_use[m] and int(control.frame[m]) in self.col]
-        self.ctl_index = np.array(ctl, dtype=int)
-        if ctl:
-            self.ctl_col = np.array([self.col[int(control.frame[m])] for m in ctl])
-            self.ctl_pts = control.point_n[ctl]
-            self.ctl_ground = control.ground_m[ctl]
-            self.ctl_w = 1.0 / np.hypot(scale * control.sigma_n[ctl], control.sigma_ground_m)
-        shp = [(self.col[k], G, sd) for k, (G, sd) in pri.shape.items() if k in self.col]
-        if shp:
-            m = len(SHAPE_POINTS)
-            self.shape_col = np.repeat([c for c, _, _ in shp], m)
-            self.shape_pts = np.tile(SHAPE_POINTS, (len(shp), 1))
-            tgt = []
-            for _, G, _ in shp:
-                hp = np.tile(h8(G), (m, 1))
-                e, nn, _ = apply_h8(hp, SHAPE_POINTS)
-                e0, n0, _ = apply_h8(hp[:1], np.zeros((1, 2)))
-                tgt.append(np.stack([e - e0, nn - n0], axis=1))
-            self.shape_target = np.concatenate(tgt)
-            self.shape_w = np.repeat([1.0 / sd for _, _, sd in shp], m)
-        else:
-            self.shape_col = np.zeros(0, int)
+        self.ctl = ControlTerms.of(self.col, scale, control, control_use)
+        self.shp = ShapeTerms.of(self.col, pri)
+
+    @property
+    def ctl_index(self) -> np.ndarray:
+        """(C,) int: the control observations in the solve (indices in the GroundControl)."""
+        return self.ctl.index
 
     def _transfer(self, h: np.ndarray, *, jacobian: bool = False) -> tuple:
         """Transfer error of every pair point in frame i's normalised coordinates: the ground point
         of frame j's point p, G_j p, taken back through G_i^-1, minus i_H_j p. Returns ((ry, rx),
         d r / d h_i (P, 2, 8), d r / d h_j (P, 2, 8)); rows of r are (x, y)."""
         Gi = np.concatenate([h, np.ones((self.n, 1))], axis=1).reshape(self.n, 3, 3)
-        Mi = np.linalg.inv(Gi)[self.ci]  # (P, 3, 3)
-        e, n, _ = apply_h8(h[self.cj], self.pj)
+        Mi = np.linalg.inv(Gi)[self.pt.ci]  # (P, 3, 3)
+        e, n, _ = apply_h8(h[self.pt.cj], self.pt.pj)
         X = np.stack([e, n, np.ones_like(e)], axis=1)
         y = np.einsum('pab,pb->pa', Mi, X)
-        rx, ry = y[:, 0] / y[:, 2] - self.qi[:, 0], y[:, 1] / y[:, 2] - self.qi[:, 1]
+        rx, ry = y[:, 0] / y[:, 2] - self.pt.qi[:, 0], y[:, 1] / y[:, 2] - self.pt.qi[:, 1]
         if not jacobian:
             return (ry, rx), None, None
         z = y[:, 2]
         dr_dy = np.zeros((len(z), 2, 3))
         dr_dy[:, 0, 0] = dr_dy[:, 1, 1] = 1.0 / z
         dr_dy[:, 0, 2], dr_dy[:, 1, 2] = -y[:, 0] / z**2, -y[:, 1] / z**2
-        je, jn = point_jacobian(h[self.cj], self.pj)
+        je, jn = point_jacobian(h[self.pt.cj], self.pt.pj)
         dX = np.stack([je, jn], axis=1)  # (P, 2, 8)
         dr_dhj = np.einsum('pay,pyx,pxk->pak', dr_dy, Mi[:, :, :2], dX)
         # d(G^-1) = -G^-1 dG G^-1: entry k of G (row a, column b) moves y by -M[:, a] y[b]
@@ -100,9 +152,9 @@ class SurveyProblem:
     def residuals(self, x: np.ndarray) -> np.ndarray:
         h = x.reshape(self.n, 8)
         out = []
-        if len(self.w):
+        if len(self.pt.w):
             ry, rx = self._transfer(h)[0]
-            out += [rx * self.w, ry * self.w]
+            out += [rx * self.pt.w, ry * self.pt.w]
         if self.gps:
             c = np.array([g[0] for g in self.gps])
             target = np.array([g[1] for g in self.gps])
@@ -112,36 +164,36 @@ class SurveyProblem:
         out += [(h[:, 0] + h[:, 4]) / (s0 * pri.shape_sigma), (h[:, 1] - h[:, 3]) / (s0 * pri.shape_sigma),
                 h[:, 6] / pri.perspective_sigma, h[:, 7] / pri.perspective_sigma,
                 (h8_scale(h) - s0) / (s0 * pri.scale_rel_sigma)]
-        if len(self.shape_col):
-            hs = h[self.shape_col]
-            e, nn, _ = apply_h8(hs, self.shape_pts)
-            e0, n0, _ = apply_h8(hs, np.zeros_like(self.shape_pts))
-            out += [(e - e0 - self.shape_target[:, 0]) * self.shape_w, (nn - n0 - self.shape_target[:, 1]) * self.shape_w]
-        if len(self.ctl_index):
-            e, nn, _ = apply_h8(h[self.ctl_col], self.ctl_pts)
-            out += [(e - self.ctl_ground[:, 0]) * self.ctl_w, (nn - self.ctl_ground[:, 1]) * self.ctl_w]
+        if len(self.shp.col):
+            hs = h[self.shp.col]
+            e, nn, _ = apply_h8(hs, self.shp.pts)
+            e0, n0, _ = apply_h8(hs, np.zeros_like(self.shp.pts))
+            out += [(e - e0 - self.shp.target[:, 0]) * self.shp.w, (nn - n0 - self.shp.target[:, 1]) * self.shp.w]
+        if len(self.ctl.index):
+            e, nn, _ = apply_h8(h[self.ctl.col], self.ctl.pts)
+            out += [(e - self.ctl.ground[:, 0]) * self.ctl.w, (nn - self.ctl.ground[:, 1]) * self.ctl.w]
         for c, target in self.anchor:  # no positions anywhere: the root holds the gauge
             out.append((h[c] - target) * 1e3)
         return np.concatenate(out)
 
     def control_rows(self) -> slice:
         """The rows of the control residuals in residuals()."""
-        start = 2 * len(self.w) + 2 * len(self.gps) + 5 * self.n + 2 * len(self.shape_col)
-        return slice(start, start + 2 * len(self.ctl_index))
+        start = 2 * len(self.pt.w) + 2 * len(self.gps) + 5 * self.n + 2 * len(self.shp.col)
+        return slice(start, start + 2 * len(self.ctl.index))
 
     def control_sigmas(self, x: np.ndarray) -> np.ndarray:
         """(C,) RMS over east and north of each control observation's residual, in its sd."""
-        if not len(self.ctl_index):
+        if not len(self.ctl.index):
             return np.zeros(0)
-        e, nn, _ = apply_h8(x.reshape(self.n, 8)[self.ctl_col], self.ctl_pts)
-        r = np.stack([e - self.ctl_ground[:, 0], nn - self.ctl_ground[:, 1]], axis=1) * self.ctl_w[:, None]
+        e, nn, _ = apply_h8(x.reshape(self.n, 8)[self.ctl.col], self.ctl.pts)
+        r = np.stack([e - self.ctl.ground[:, 0], nn - self.ctl.ground[:, 1]], axis=1) * self.ctl.w[:, None]
         return np.sqrt(np.mean(r**2, axis=1))
 
     def jacobian(self, x: np.ndarray) -> sp.csr_matrix:
         h = x.reshape(self.n, 8)
         rows, cols, vals = [], [], []
         r0 = 0
-        m = len(self.w)
+        m = len(self.pt.w)
         if m:
             (ry, rx), dr_dhi, dr_dhj = self._transfer(h, jacobian=True)
             idx = np.arange(m)
@@ -149,8 +201,8 @@ class SurveyProblem:
                 r = r0 + block * m + idx
                 for k in range(8):
                     rows += [r, r]
-                    cols += [self.ci * 8 + k, self.cj * 8 + k]
-                    vals += [dr_dhi[:, block, k] * self.w, dr_dhj[:, block, k] * self.w]
+                    cols += [self.pt.ci * 8 + k, self.pt.cj * 8 + k]
+                    vals += [dr_dhi[:, block, k] * self.pt.w, dr_dhj[:, block, k] * self.pt.w]
             r0 += 2 * m
         if self.gps:
             c = np.array([g[0] for g in self.gps])
@@ -180,25 +232,25 @@ class SurveyProblem:
             cols.append(f * 8 + k)
             vals.append(ds[:, k])
         r0 += n
-        if len(self.shape_col):
-            hs = h[self.shape_col]
-            je, jn = point_jacobian(hs, self.shape_pts)
-            je0, jn0 = point_jacobian(hs, np.zeros_like(self.shape_pts))
-            q = len(self.shape_col)
+        if len(self.shp.col):
+            hs = h[self.shp.col]
+            je, jn = point_jacobian(hs, self.shp.pts)
+            je0, jn0 = point_jacobian(hs, np.zeros_like(self.shp.pts))
+            q = len(self.shp.col)
             for block, (j1, j0) in enumerate(((je, je0), (jn, jn0))):
                 for k in range(8):
                     rows.append(r0 + block * q + np.arange(q))
-                    cols.append(self.shape_col * 8 + k)
-                    vals.append((j1[:, k] - j0[:, k]) * self.shape_w)
+                    cols.append(self.shp.col * 8 + k)
+                    vals.append((j1[:, k] - j0[:, k]) * self.shp.w)
             r0 += 2 * q
-        if len(self.ctl_index):
-            je, jn = point_jacobian(h[self.ctl_col], self.ctl_pts)
-            q = len(self.ctl_index)
+        if len(self.ctl.index):
+            je, jn = point_jacobian(h[self.ctl.col], self.ctl.pts)
+            q = len(self.ctl.index)
             for block, jac in enumerate((je, jn)):
                 for k in range(8):
                     rows.append(r0 + block * q + np.arange(q))
-                    cols.append(self.ctl_col * 8 + k)
-                    vals.append(jac[:, k] * self.ctl_w)
+                    cols.append(self.ctl.col * 8 + k)
+                    vals.append(jac[:, k] * self.ctl.w)
             r0 += 2 * q
         for c, _ in self.anchor:
             rows.append(r0 + np.arange(8))
@@ -209,12 +261,12 @@ class SurveyProblem:
 
     def pair_rms(self, x: np.ndarray) -> np.ndarray:
         """RMS normalised residual of each selected pair."""
-        m = len(self.w)
+        m = len(self.pt.w)
         if not m:
             return np.zeros(0)
         r = self.residuals(x)[:2 * m].reshape(2, m)  # (x, y) rows
-        sq = np.bincount(self.pair_of_point, weights=(r**2).sum(axis=0), minlength=len(self.sel))
-        cnt = np.bincount(self.pair_of_point, minlength=len(self.sel)) * 2
+        sq = np.bincount(self.pt.of_point, weights=(r**2).sum(axis=0), minlength=len(self.pt.pairs))
+        cnt = np.bincount(self.pt.of_point, minlength=len(self.pt.pairs)) * 2
         return np.sqrt(sq / np.maximum(cnt, 1))
 
 
@@ -234,8 +286,8 @@ def levenberg_marquardt(prob: SurveyProblem, x0: np.ndarray, huber: float, *, ma
     system (SuperLU). Returns (x, iterations, converged).
 
     Not scipy.optimize.least_squares: with LSMR its 'trf' converges far more slowly on this problem
-    (a 40-frame lawnmower: not within 200 evaluations, where this needs about ten), and its dense
-    'exact' solver costs time and memory that grow with the square of the frames."""
+    (the evaluations each needs: docs/results.md), and its dense 'exact' solver costs time and memory
+    that grow with the square of the frames."""
     from scipy.sparse.linalg import spsolve
 
     x = x0.copy()
