@@ -4,7 +4,7 @@ Each group is a small frozen dataclass whose fields declare the canvas's default
 (:func:`..settings.setting`; ``TiledCanvas``'s keyword defaults are read from them):
 :class:`PlacementSettings` (which frames the canvas accepts, :mod:`.placement`),
 :class:`FeatherSettings` (every blend's feather weight), :class:`MultibandSettings` and
-:class:`BestViewSettings` (their compositors, :mod:`.compositors`) and :class:`RenderSettings`
+:class:`BestViewSettings` (:mod:`.multiband_compositor`, :mod:`.best_view_compositor`) and :class:`RenderSettings`
 (:mod:`.canvas_reader`).
 
 The canvas is also built without a :class:`.config.MosaicConfig` (tests, tools), so it checks its
@@ -50,14 +50,14 @@ class FeatherSettings:
 
 @dataclass(frozen=True)
 class MultibandSettings:
-    """The max-weight composite of eq. 4.7 (:class:`.compositors.MultibandCompositor`)."""
+    """The max-weight composite of eq. 4.7 (:class:`.multiband_compositor.MultibandCompositor`)."""
 
     seams: str = setting('score', doc="'score' (where the weights cross) or 'cut' (a graph cut, :mod:`.seam_cut`)")
 
 
 @dataclass(frozen=True)
 class BestViewSettings:
-    """The best-view composite (:mod:`.best_view`, :class:`.compositors.BestViewCompositor`)."""
+    """The best-view composite (:mod:`.best_view`, :class:`.best_view_compositor.BestViewCompositor`)."""
 
     recency_frames: int = setting(90, doc='a frame this many frames newer wins over an e-fold better view (0: no preference)')
     agree: float = setting(0.0, doc="frames within this of the winner (intensity, every channel) are averaged into it (0: none)")
