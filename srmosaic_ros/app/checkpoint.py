@@ -29,7 +29,7 @@ from ..io.mosaic_files import atomic_path
 
 __all__ = ['Checkpoint', 'checkpoint_path', 'fingerprint', 'load_checkpoint', 'read_header', 'save_checkpoint']
 
-FORMAT = 3  # the payload holds the pipeline's state() (other formats are refused)
+FORMAT = 4  # the payload holds the pipeline's state() (other formats are refused); 4: canvases hold a compositor
 MAGIC = b'SRMOSAIC-CHECKPOINT '
 
 

@@ -256,7 +256,7 @@ def test_canvas_float_conversion_is_the_same_with_or_without_gains():
     """The canvas's uint8 -> float32 conversion (numpy's scalar product without gains, OpenCV's
     per-channel one with them) gives to_float01's values for every grey level, gains of 1 included."""
     from srmosaic_ros.core.image_ops import to_float01
-    from srmosaic_ros.core.mosaic.canvas import _to_float
+    from srmosaic_ros.core.mosaic.paint_ops import to_float as _to_float
 
     levels = np.arange(256, dtype=np.uint8).reshape(16, 16)
     rgb = np.stack([levels, levels[::-1], levels.T], axis=-1)

@@ -27,8 +27,15 @@ its weight fades to zero.
 Rendering (``render``) divides ``acc`` by ``wsum`` (feather blending) or, in multiband mode,
 blends the max-weight composite over the feather composite band by band (see :mod:`.blend`).
 ``render_blocks`` yields the same pixels in strips of rows, for writers of mosaics too large to
-hold whole. The per-pixel arithmetic of painting and rendering the composites is in :mod:`.blend`,
-the downscaling of ``render_preview`` in :mod:`.preview`, the argument checks in :mod:`.canvas_settings`.
+hold whole.
+
+This module keeps the storage and geometry: the tiles (:mod:`.tile_store`), where a frame lands
+(:mod:`.placement`) and the tiles a paint writes (:mod:`.paint_jobs`). What a tile keeps of a frame
+is the blend mode's compositor's: :mod:`.feather_compositor`, :mod:`.multiband_compositor`,
+:mod:`.best_view_compositor` (the seams' cut of the last two in :mod:`.frame_cut`); the threads a
+paint writes on are :mod:`.paint_pool`'s. Reading (render, previews, labels) is
+:mod:`.canvas_reader`'s; the per-pixel arithmetic is in :mod:`.paint_ops` and :mod:`.blend`, the
+argument checks in :mod:`.paint_args` and :mod:`.canvas_settings`.
 
 Bounded memory: with ``max_tiles_in_memory`` > 0 the tiles live in a :class:`.tile_store.TileStore`
 that keeps at most that many in memory and spills the least recently painted ones to disk
@@ -43,32 +50,36 @@ removes them too.
 """
 from __future__ import annotations
 
-import math
 import os
 from collections.abc import Collection, Iterator, Mapping
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
 import cv2
 import numpy as np
 
-
 from ..homography import project_points
-from .best_view import (clip_depth, clipped_polygon, depth_map, magnified_somewhere, resolution_factor, update_best)
-from .minify import minify_level, reduce_frame
+from .best_view import clip_depth, depth_map
+from .best_view_compositor import BestViewCompositor
 from .blend import MULTIBAND_MARGIN as MULTIBAND_MARGIN  # importable from here as before it moved
-from .blend import feather_weight, update_max_weight
 from .canvas_reader import RENDER_BLOCK_PX as RENDER_BLOCK_PX  # importable from here as before
 from .canvas_reader import CanvasReader
-from .canvas_settings import CanvasError, settings_problem
+from .canvas_settings import (BestViewSettings, CanvasError, FeatherSettings, MultibandSettings, PlacementSettings, RenderSettings,
+                              settings_problem)
+from .feather_compositor import FeatherCompositor
+from .frame_cut import PaintJob
+from .minify import minify_level, reduce_frame
+from .multiband_compositor import MultibandCompositor
+from .paint_args import as_image, as_mask, as_rects, as_scale, as_tiles
+from .paint_jobs import box_jobs, rect_weights, warp_colour
+from .paint_ops import fill_invalid, scaled, to_float
+from .paint_pool import PaintPool
+from .placement import checked_homography, placement_box
 from .resample import DEFAULT_INTERPOLATION, FILL_RINGS, FrameSampler
 from .scratch import scratch
-from .seam_cut import block_means, block_size, cut_nodes, expand
-from .tile_store import TileKey, TileLayout, TileStore, TileStoreError
+from .tile_store import TileKey, TileStore, TileStoreError
 
 __all__ = ['CanvasError', 'PaintResult', 'TileKey', 'TileStoreError', 'TiledCanvas']
-
 
 
 @dataclass(frozen=True, eq=False)
@@ -89,82 +100,13 @@ class PaintResult:
     bbox: tuple[int, int, int, int]
 
 
-def _fill_invalid(img: np.ndarray, valid: np.ndarray, rings: int = 1) -> np.ndarray:
-    """Replace invalid pixels by the mean of their valid 8-neighbours, ``rings`` times over (each
-    ring filled from the last; 0 beyond).
-
-    Where the warped weight is non-zero, bilinear interpolation reads invalid pixels one pixel from
-    a valid one, bicubic two, Lanczos-4 four (:data:`.resample.FILL_RINGS`), so this is all the fill
-    that the colour needs (garbage or NaN never leaks in).
-    """
-    clean = np.where(valid[..., None], img, np.float32(0.0)).astype(np.float32, copy=False)
-    known = valid
-    for _ in range(rings):
-        m = known.astype(np.float32)
-        num = cv2.boxFilter(clean, -1, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT).reshape(img.shape)
-        den = cv2.boxFilter(m, -1, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT)
-        fill = num / np.maximum(den, np.float32(1.0))[..., None]
-        clean = np.where(known[..., None], clean, fill).astype(np.float32, copy=False)
-        known = den > 0
-    return clean
-
-
-def _to_float(image: np.ndarray, gains: np.ndarray | None, out: np.ndarray | None = None) -> np.ndarray:
-    """float32 (h, w, C) of uint8 (h, w, C): values / 255, times ``gains`` (C,) per channel and
-    clipped to 1 where a gain exceeds 1 (None: no gains); into ``out`` when given."""
-    h, w, c = image.shape
-    if out is None:
-        out = np.empty(image.shape, np.float32)
-    if gains is None:  # one factor: numpy's scalar product, about twice OpenCV's (same values, all 256 checked)
-        return np.multiply(image, np.float32(1.0 / 255.0), out=out, dtype=np.float32)
-    factor = gains / np.float32(255.0)
-    saturates = float(gains.max()) > 1.0  # only a gain above 1 can saturate
-    if c <= 4:  # OpenCV's per-channel scalar product, about three times numpy's broadcast (same values)
-        shape = (h, w, c) if c > 1 else (h, w)  # OpenCV takes (h, w, 1) as (h, w)
-        scalar = tuple(float(f) for f in factor) + (0.0,) * (4 - c)
-        res = cv2.multiply(image.reshape(shape), scalar, dst=out.reshape(shape), dtype=cv2.CV_32F)
-        if saturates:
-            res = cv2.min(res, (1.0, 1.0, 1.0, 1.0), dst=res)  # a 4-tuple: every channel (a bare 1.0 is channel 0's)
-        if not np.shares_memory(res, out):  # a layout OpenCV could not write in place
-            out[...] = res.reshape(out.shape)
-        return out
-    np.multiply(image, factor, out=out, dtype=np.float32)  # one rounding: as astype, then the product
-    if saturates:
-        np.minimum(out, np.float32(1.0), out=out)
-    return out
-
-
-def _scaled(image: np.ndarray, gains: np.ndarray) -> np.ndarray:
-    """float32 (H, W, C) image times ``gains`` (C,), clipped to 1 where a gain exceeds 1 (a new array)."""
-    out = np.multiply(image, gains, dtype=np.float32)
-    if float(gains.max()) > 1.0:
-        np.minimum(out, np.float32(1.0), out=out)
-    return out
-
-
-def _times_weight(colour: np.ndarray, weight: np.ndarray) -> np.ndarray:
-    """float32 (h, w, C) ``colour * weight[..., None]`` of colour (h, w, C) and weight (h, w), in this
-    thread's scratch array 'weighted' (:mod:`.scratch`).
-
-    The same products (one float32 rounding each) as numpy's broadcast, which runs element by element
-    over the channel axis; OpenCV multiplies whole rows of a weight expanded to C channels instead.
-    """
-    h, w, c = colour.shape
-    if c == 1:
-        return np.multiply(colour[:, :, 0], weight, out=scratch('weighted', (h, w)))[:, :, None]
-    expanded = scratch('expanded', colour.shape)
-    if c == 3:
-        expanded = cv2.cvtColor(weight, cv2.COLOR_GRAY2RGB, dst=expanded)
-    else:
-        expanded = cv2.merge([weight] * c, dst=expanded)
-    return cv2.multiply(colour, expanded, dst=scratch('weighted', colour.shape)).reshape(colour.shape)
-
-
-def _add_into(dst: np.ndarray, src: np.ndarray) -> None:
-    """dst += src in place (float32 views of one shape); OpenCV's add runs about twice as fast as
-    numpy's on these tile views, with the same sums."""
-    if cv2.add(dst, src, dst=dst) is not dst:  # a layout OpenCV could not write in place: numpy's way
-        np.add(dst, src, out=dst)
+def _compositor(blend: str, feather: FeatherSettings, seams: str, best_view: BestViewSettings) -> FeatherCompositor:
+    """The compositor of blend mode ``blend`` (feather, multiband or bestview)."""
+    if blend == 'multiband':
+        return MultibandCompositor(feather, MultibandSettings(seams))
+    if blend == 'bestview':
+        return BestViewCompositor(feather, best_view)
+    return FeatherCompositor(feather)
 
 
 class TiledCanvas:
@@ -211,7 +153,7 @@ class TiledCanvas:
             ``4 T^2 (3 C + 5)`` (best view): 1 MiB, 2.25 MiB and 3.5 MiB for T = 256, C = 3.
         interpolation: how the colour is sampled at the mosaic pixels' preimages
             (:mod:`.resample`): ``'cubic'`` (clamped bicubic, the default), ``'lanczos'`` (clamped
-            Lanczos-4: a little sharper, about five times the cost) or ``'linear'`` (bilinear: the
+            Lanczos-4: a little sharper, and the costliest) or ``'linear'`` (bilinear: the
             fastest, and a low-pass filter at every sub-pixel offset).
         threads: tiles a paint writes on this many threads at once (1: on the caller's), each
             tile's colour warped on its own. For a caller with a core to spare (a survey's stills,
@@ -224,35 +166,26 @@ class TiledCanvas:
     Not thread-safe: paint and render from one thread (or hold a lock around both).
     """
 
-    _threads = 1  # canvases pickled before the setting existed
-    _pool = None
-
-    def __getstate__(self) -> dict[str, Any]:
-        """Pickled without its painting threads (started again by the next paint)."""
-        state = dict(self.__dict__)
-        state['_pool'] = None
-        return state
-
     def __init__(
         self,
         channels: int,
         tile_size: int = 256,
         *,
         blend: str = 'feather',
-        feather_profile: str = 'separable',
-        feather_power: float = 1.0,
-        max_canvas_side_px: int = 100000,
-        max_area_ratio: float = 50.0,
-        bands: int = 0,
-        background: float = 0.0,
+        feather_profile: str = FeatherSettings.profile,
+        feather_power: float = FeatherSettings.power,
+        max_canvas_side_px: int = PlacementSettings.max_canvas_side_px,
+        max_area_ratio: float = PlacementSettings.max_area_ratio,
+        bands: int = RenderSettings.bands,
+        background: float = RenderSettings.background,
         max_tiles_in_memory: int = 0,
         spill_dir: str | os.PathLike[str] = '',
-        max_stretch: float = 0.0,
-        recency_frames: int = 90,
-        agree: float = 0.0,
-        moving: float = 0.0,
-        moving_history: int = 5,
-        seams: str = 'score',
+        max_stretch: float = PlacementSettings.max_stretch,
+        recency_frames: int = BestViewSettings.recency_frames,
+        agree: float = BestViewSettings.agree,
+        moving: float = BestViewSettings.moving,
+        moving_history: int = BestViewSettings.moving_history,
+        seams: str = BestViewSettings.seams,
         interpolation: str = DEFAULT_INTERPOLATION,
         threads: int = 1,
     ) -> None:
@@ -266,29 +199,19 @@ class TiledCanvas:
         if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
             msg = f'threads must be an integer >= 1, got {threads!r}.'
             raise CanvasError(msg)
-        self._threads = threads
-        self._pool: ThreadPoolExecutor | None = None  # the painting threads, started by the first paint that uses them
-        self._max_stretch = float(max_stretch)
-        self._interpolation = interpolation
-        self._recency_frames = int(recency_frames)
-        self._agree = float(agree)
-        self._moving = float(moving)
-        self._seam_cut = blend in ('bestview', 'multiband') and seams == 'cut'
         self._channels = int(channels)
         self._tile_size = int(tile_size)
-        self._blend = blend
-        self._profile = feather_profile
-        self._power = float(feather_power)
-        self._max_side = int(max_canvas_side_px)
-        self._max_area_ratio = float(max_area_ratio)
-        self._bands = int(bands)
-        self._background = np.float32(background)
-        history = int(moving_history) if (blend == 'bestview' and self._moving > 0) else 0
-        self._store = TileStore(TileLayout(self._tile_size, self._channels, blend == 'multiband', blend == 'bestview', history),
+        self._interpolation = interpolation
+        self._limits = PlacementSettings(int(max_canvas_side_px), float(max_area_ratio), float(max_stretch))
+        self._compositor = _compositor(blend, FeatherSettings(feather_profile, float(feather_power)), seams,
+                                       BestViewSettings(int(recency_frames), float(agree), float(moving), int(moving_history), seams))
+        self._pool = PaintPool(threads)  # the painting threads, started by the first paint that uses them
+        self._store = TileStore(self._compositor.layout(self._tile_size, self._channels),
                                 max_in_memory=int(max_tiles_in_memory), spill_dir=spill_dir)
         self._tile_frames: dict[TileKey, int] = {}  # every tile: how many frames wrote into it
         self._touched: set[TileKey] = set()
-        self._reader = CanvasReader(self)  # render, previews, labels: the reading half
+        # render, previews, labels: the reading half
+        self._reader = CanvasReader(self, RenderSettings(int(bands), np.float32(background)))
         self._frames = 0
         self._bounds: tuple[int, int, int, int] | None = None
 
@@ -303,12 +226,17 @@ class TiledCanvas:
 
     @property
     def blend(self) -> str:
-        return self._blend
+        return self._compositor.blend
 
     @property
     def interpolation(self) -> str:
         """How the colour of a frame is sampled (:mod:`.resample`)."""
-        return getattr(self, '_interpolation', 'linear')  # canvases pickled before the setting: bilinear
+        return self._interpolation
+
+    @property
+    def max_canvas_side_px(self) -> int:
+        """The side beyond which the canvas refuses to grow (and to render a region)."""
+        return self._limits.max_canvas_side_px
 
     @property
     def frames_painted(self) -> int:
@@ -393,9 +321,7 @@ class TiledCanvas:
 
     def close(self) -> None:
         """Release every tile and remove the spill files. The canvas cannot be used afterwards."""
-        if self._pool is not None:
-            self._pool.shutdown()
-            self._pool = None
+        self._pool.close()
         self._store.close()
 
     def __enter__(self) -> TiledCanvas:
@@ -417,147 +343,11 @@ class TiledCanvas:
         return self._bounds if self._bounds is not None else (0, 0, 0, 0)
 
     # ------------------------------------------------------------------ paint
-    def _as_image(self, image: np.ndarray) -> np.ndarray:
-        """(H, W, C) C-contiguous float32, or uint8 as given."""
-        if not isinstance(image, np.ndarray):
-            msg = f'image must be a numpy array, got {type(image).__name__}.'
-            raise CanvasError(msg)
-        if not (np.issubdtype(image.dtype, np.floating) or image.dtype == np.uint8):
-            msg = (f'image dtype {image.dtype} is neither floating point nor uint8; convert it to float32 in [0, 1] '
-                   '(e.g. core.image_ops.to_float01).')
-            raise CanvasError(msg)
-        if image.ndim == 2 and self._channels == 1:
-            image = image[:, :, None]
-        if image.ndim != 3 or image.shape[2] != self._channels:
-            msg = (f'image shape {image.shape} does not match the canvas: expected (H, W, {self._channels})'
-                   + (' or (H, W)' if self._channels == 1 else '') + '.')
-            raise CanvasError(msg)
-        if image.shape[0] < 1 or image.shape[1] < 1:
-            msg = f'image shape {image.shape} is empty.'
-            raise CanvasError(msg)
-        return np.ascontiguousarray(image, dtype=np.uint8 if image.dtype == np.uint8 else np.float32)
-
-    def _as_scale(self, scale: np.ndarray | None) -> np.ndarray | None:
-        """(C,) float32 positive finite multipliers, or None."""
-        if scale is None:
-            return None
-        g = np.asarray(scale, dtype=np.float64).reshape(-1)
-        if g.shape != (self._channels,) or not np.all(np.isfinite(g)) or not np.all(g > 0):
-            msg = f'scale must be {self._channels} positive finite multipliers (one per channel), got {scale!r}.'
-            raise CanvasError(msg)
-        return g.astype(np.float32)
-
-    def _as_mask(self, mask: np.ndarray | None, img: np.ndarray, finite: bool = False) -> np.ndarray | None:
-        """Valid-pixel mask (bool (H, W)) or None when every pixel is valid and finite (``finite``: the
-        caller knows it is, the image is not read)."""
-        valid = None
-        if mask is not None:
-            mask = np.asarray(mask)
-            if mask.shape != img.shape[:2]:
-                msg = f'mask shape {mask.shape} differs from the image shape {img.shape[:2]}.'
-                raise CanvasError(msg)
-            valid = mask.astype(bool)
-        # fast path: the extremes (NaN propagates through both), the full check only if needed
-        if not finite and not (np.isfinite(img.max()) and np.isfinite(img.min())):
-            finite = np.isfinite(img).all(axis=2)
-            if not finite.all():
-                valid = finite if valid is None else valid & finite
-        return valid
-
-    @staticmethod
-    def _as_tiles(tiles: Collection[TileKey]) -> tuple[frozenset[TileKey], tuple[int, int, int, int] | None]:
-        """(``tiles`` as a frozenset, their (min tx, min ty, max tx, max ty) or None when empty);
-        CanvasError when a key is not a pair of integers."""
-        try:
-            keys = frozenset((int(tx), int(ty)) for tx, ty in tiles)
-        except (TypeError, ValueError) as exc:
-            msg = f'tiles must be (tx, ty) pairs of integers: {exc}'
-            raise CanvasError(msg) from exc
-        if not keys:
-            return keys, None
-        a = np.array(list(keys), np.int64)
-        lo, hi = a.min(axis=0), a.max(axis=0)
-        return keys, (int(lo[0]), int(lo[1]), int(hi[0]), int(hi[1]))
-
-    @staticmethod
-    def _as_rects(tiles: Mapping[TileKey, tuple[int, int, int, int]]) -> dict[TileKey, tuple[int, int, int, int]]:
-        """{(tx, ty): (x0, y0, x1, y1)} as integers; CanvasError when a rectangle is not 4 integers."""
-        try:
-            out = {(int(k[0]), int(k[1])): tuple(int(v) for v in r) for k, r in tiles.items()}
-            if any(len(r) != 4 for r in out.values()):
-                raise ValueError('a rectangle of other than 4 numbers')
-            return out  # type: ignore[return-value]
-        except (TypeError, ValueError) as exc:
-            msg = f'tiles must map (tx, ty) to (x0, y0, x1, y1) integers: {exc}'
-            raise CanvasError(msg) from exc
-
-    def _as_homography(self, mosaic_h_frame: np.ndarray, w: int, h: int) -> np.ndarray:
-        """Checked float64 homography with positive projective depth over the frame."""
-        m = np.asarray(mosaic_h_frame, dtype=np.float64)
-        if m.shape != (3, 3):
-            msg = f'mosaic_H_frame must be a 3x3 matrix, got shape {m.shape}.'
-            raise CanvasError(msg)
-        if not np.isfinite(m).all():
-            msg = f'mosaic_H_frame has non-finite entries:\n{m}\nthe registration or chain diverged; skip this frame.'
-            raise CanvasError(msg)
-        if not np.abs(m).max() > 0:
-            msg = 'mosaic_H_frame is the zero matrix; skip this frame.'
-            raise CanvasError(msg)
-        corners = np.array([[-1.0, -1.0], [w, -1.0], [w, h], [-1.0, h]])
-        _, depth = project_points(m, corners)
-        if (depth <= 0).all():
-            m = -m
-            depth = -depth
-        tol = 1e-9 * np.abs(depth).max()
-        if not (depth > tol).all() and not self._max_stretch > 0:
-            msg = ('mosaic_H_frame maps part of the frame beyond the horizon (the projective depth '
-                   f'changes sign over the frame: {depth.tolist()}); the homography is absurd, skip this frame '
-                   '(or set mosaic.max_stretch to paint the part of the frame below the horizon).')
-            raise CanvasError(msg)
-        corners = clipped_polygon(m, corners, clip_depth(m, w, h, self._max_stretch))
-        if len(corners) < 3:
-            msg = 'mosaic_H_frame maps the whole frame beyond the horizon; the homography is absurd, skip this frame.'
-            raise CanvasError(msg)
-        pts, _ = project_points(m, corners)
-        x, y = pts[:, 0], pts[:, 1]
-        area = 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
-        if not area > 1e-6 * (w + 1) * (h + 1):
-            msg = f'mosaic_H_frame is (nearly) singular, it collapses the frame to area {area:.3g} px^2:\n{m}\nskip this frame.'
-            raise CanvasError(msg)
-        return m
-
     def check_placement(self, mosaic_H_frame: np.ndarray, width: int, height: int) -> None:
         """Raise CanvasError where :meth:`paint` would refuse a width x height frame at mosaic_H_frame
         (an absurd homography, or a canvas beyond max_canvas_side_px), without painting it."""
-        self._placement(self._as_homography(mosaic_H_frame, width, height), width, height)
-
-    def _placement(self, m: np.ndarray, w: int, h: int) -> tuple[int, int, int, int]:
-        """Bounding box (x0, y0, x1, y1) of the mosaic pixels a w x h frame at m touches; CanvasError
-        when it is absurd or would make the canvas exceed max_canvas_side_px."""
-        # Bilinear sampling gives non-zero weight to mosaic pixels mapping inside (-1, W) x (-1, H)
-        # (one pixel beyond the cut of max_stretch: the depth changes by |m20| + |m21| per pixel).
-        d_min = clip_depth(m, w, h, self._max_stretch)
-        if d_min is not None:
-            d_min = max(d_min - abs(m[2, 0]) - abs(m[2, 1]), 0.5 * d_min)
-        support, _ = project_points(m, clipped_polygon(m, np.array([[-1.0, -1.0], [w, -1.0], [w, h], [-1.0, h]]), d_min))
-        lo = support.min(axis=0)
-        hi = support.max(axis=0)
-        bw_f, bh_f = hi[0] - lo[0], hi[1] - lo[1]
-        if bw_f * bh_f > self._max_area_ratio * max(w * h, 64):
-            msg = (f'the footprint of a {w}x{h} frame spans {bw_f:.0f}x{bh_f:.0f} mosaic pixels, more than '
-                   f'{self._max_area_ratio:g} times the frame area; mosaic_H_frame is absurd:\n{m}\n'
-                   'skip this frame (or raise max_area_ratio if such a zoom is intended).')
-            raise CanvasError(msg)
-        x0, y0 = math.floor(lo[0]), math.floor(lo[1])
-        x1, y1 = math.floor(hi[0]) + 1, math.floor(hi[1]) + 1
-        ux0, uy0, ux1, uy1 = (x0, y0, x1, y1) if self._bounds is None else (
-            min(x0, self._bounds[0]), min(y0, self._bounds[1]), max(x1, self._bounds[2]), max(y1, self._bounds[3]))
-        if max(ux1 - ux0, uy1 - uy0) > self._max_side:
-            msg = (f'painting this frame would make the canvas {ux1 - ux0}x{uy1 - uy0} px, beyond '
-                   f'max_canvas_side_px={self._max_side} (footprint bbox x [{x0}, {x1}), y [{y0}, {y1})); '
-                   'the chain has drifted or the homography is absurd: skip the frame or start a new segment.')
-            raise CanvasError(msg)
-        return x0, y0, x1, y1
+        m = checked_homography(mosaic_H_frame, width, height, self._limits.max_stretch)
+        placement_box(m, width, height, self._limits, self._bounds)
 
     def paint(
         self,
@@ -574,7 +364,7 @@ class TiledCanvas:
         Args:
             image: float32 (H, W, C) or, for C == 1, (H, W); values nominally in [0, 1].
                 Non-finite pixels are treated as invalid. Or uint8 (values / 255): warped as
-                integers (OpenCV's fixed-point bilinear, about twice as fast as on floats) and
+                integers (OpenCV's fixed-point bilinear, faster than on floats) and
                 converted on the mosaic, so no float copy of the frame is made; the warped values
                 are rounded to integers before the conversion (at most 0.5 / 255 apart from a float
                 warp's).
@@ -599,74 +389,37 @@ class TiledCanvas:
             the frame or making the canvas exceed ``max_canvas_side_px``).
         """
         self._check_open()
-        gains = self._as_scale(scale)
-        img = self._as_image(image)
+        gains = as_scale(scale, self._channels)
+        img = as_image(image, self._channels)
         h, w = img.shape[:2]
-        m = self._as_homography(mosaic_H_frame, w, h)
+        m = checked_homography(mosaic_H_frame, w, h, self._limits.max_stretch)
         if img.dtype != np.uint8 and gains is not None:
-            img = _scaled(img, gains)
-        valid = self._as_mask(mask, img, finite or img.dtype == np.uint8)
+            img = scaled(img, gains)
+        valid = as_mask(mask, img, finite or img.dtype == np.uint8)
         footprint, _ = project_points(m, np.array([[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5], [-0.5, h - 0.5]]))
-        x0, y0, x1, y1 = self._placement(m, w, h)
-        t = self._tile_size
+        placement = placement_box(m, w, h, self._limits, self._bounds)
         rects: dict[TileKey, tuple[int, int, int, int]] | None = None
+        keys: frozenset[TileKey] | None = None
         if tiles is not None:
-            rects = self._as_rects(tiles) if isinstance(tiles, Mapping) else None
-            tiles, keys = self._as_tiles(tiles)
-            if keys is not None:  # the box shrinks to those tiles: no weight warped where none is painted
-                x0, y0 = max(x0, keys[0] * t), max(y0, keys[1] * t)
-                x1, y1 = min(x1, (keys[2] + 1) * t), min(y1, (keys[3] + 1) * t)
-            if rects:  # ... and to the pixels asked for in them
-                r = np.array(list(rects.values()))
-                x0, y0 = max(x0, int(r[:, 0].min())), max(y0, int(r[:, 1].min()))
-                x1, y1 = min(x1, int(r[:, 2].max())), min(y1, int(r[:, 3].max()))
-            if keys is None or x1 <= x0 or y1 <= y0:
-                self._frames += 1
-                return PaintResult(self._frames - 1, (), footprint, (0, 0, 0, 0))
-        level = minify_level(m, w, h, clip_depth(m, w, h, self._max_stretch))
-        if level:  # a frame shrinking on the mosaic is reduced first, not point-sampled (minify.py)
-            if img.dtype == np.uint8:  # reduced as floats
-                img = _to_float(img, gains)
-            if valid is not None:
-                img = _fill_invalid(img, valid)
-            img, valid, m = reduce_frame(img, valid, m, level)
-            h, w = img.shape[:2]
-        best_view = self._blend == 'bestview'
-        d_min = clip_depth(m, w, h, self._max_stretch)
-        # view quality's resolution factor: 1 everywhere (not computed) unless a frame pixel lands
-        # larger than a mosaic pixel somewhere
-        coarse = best_view and magnified_somewhere(m, w, h)
-        depth = depth_map(m, h, w) if (coarse or d_min is not None) else None
-        if d_min is not None and depth is not None:  # the far field and sky of an oblique view stay out
-            kept = depth >= np.float32(d_min)
-            valid = kept if valid is None else valid & kept
-
-        weight = feather_weight(h, w, profile=self._profile, power=self._power, mask=valid)
-        if coarse and depth is not None:  # view quality: closeness to the centre x resolution
-            r = resolution_factor(m, depth)
-            weight = cv2.multiply(weight, r, dst=r)
-        if valid is not None:
-            if img.dtype == np.uint8:  # filled as floats
-                img = _to_float(img, gains)
-            img = _fill_invalid(img, valid, FILL_RINGS[self.interpolation])
+            rects = as_rects(tiles) if isinstance(tiles, Mapping) else None
+            keys, placement = self._clip_to_tiles(placement, tiles, rects)
+        index = self._frames
+        if placement is None:
+            return self._nothing_painted(footprint)
+        img, valid, m, weight = self._prepare(img, valid, m, gains)
+        x0, y0, x1, y1 = placement
         bw, bh = x1 - x0, y1 - y0
         box_h_frame = np.array([[1.0, 0.0, -x0], [0.0, 1.0, -y0], [0.0, 0.0, 1.0]]) @ m
         src = FrameSampler(img[:, :, 0] if self._channels == 1 else img, self.interpolation)
-        index = self._frames
-        multiband = self._blend == 'multiband'
-        jobs: list[tuple[TileKey, tuple[slice, slice], tuple[slice, slice]]] = []
-        if rects is not None and not self._seam_cut:
-            # Painted in part (a frame held back, where it reaches beyond its neighbours): the
-            # boxes asked for are slivers at the footprint's edges, often at opposite corners, so
-            # the weight is warped over each box alone, not over the box around them all.
-            w_w, parts = None, self._rect_weights(weight, box_h_frame, rects, (x0, y0, x1, y1))
+        seam_cut = self._compositor.seam_cut
+        if rects is not None and not seam_cut:  # painted in part: the weight over each asked-for box alone
+            w_w, parts = None, rect_weights(weight, box_h_frame, rects, placement, self._tile_size)
             if not parts:
-                self._frames += 1
-                return PaintResult(index, (), footprint, (0, 0, 0, 0))
+                return self._nothing_painted(footprint)
             jobs = [(key, box, loc) for key, box, loc, _, _ in parts]
             part_w = {key: sub for key, _, _, _, sub in parts}
             nz = np.array([b for _, _, _, b, _ in parts])
-            gx0, gy0, gx1, gy1 = int(nz[:, 0].min()), int(nz[:, 1].min()), int(nz[:, 2].max()), int(nz[:, 3].max())
+            tight = int(nz[:, 0].min()), int(nz[:, 1].min()), int(nz[:, 2].max()), int(nz[:, 3].max())
         else:
             # into this thread's scratch arrays: they live until paint returns (the tiles keep copies)
             w_w = cv2.warpPerspective(weight, box_h_frame, (bw, bh), dst=scratch('weight', (bh, bw)),
@@ -674,143 +427,98 @@ class TiledCanvas:
             # Tight box of non-zero weight, in box coordinates (one C pass over a mask, not two reductions).
             c0, r0, nc, nr = cv2.boundingRect((w_w != 0).view(np.uint8))
             if nc == 0:
-                self._frames += 1
-                return PaintResult(index, (), footprint, (0, 0, 0, 0))
-            c1, r1 = c0 + nc, r0 + nr
-            gx0, gy0, gx1, gy1 = x0 + c0, y0 + r0, x0 + c1, y0 + r1
+                return self._nothing_painted(footprint)
             part_w = None
-            for ty in range(gy0 // t, (gy1 - 1) // t + 1):
-                ys, ye = max(gy0, ty * t), min(gy1, (ty + 1) * t)
-                for tx in range(gx0 // t, (gx1 - 1) // t + 1):
-                    if tiles is not None and (tx, ty) not in tiles:
-                        continue
-                    xs, xe = max(gx0, tx * t), min(gx1, (tx + 1) * t)
-                    rs, re_ = ys, ye
-                    if rects is not None:
-                        rx0, ry0, rx1, ry1 = rects[(tx, ty)]
-                        xs, xe, rs, re_ = max(xs, rx0), min(xe, rx1), max(rs, ry0), min(re_, ry1)
-                        if xs >= xe or rs >= re_:
-                            continue
-                    box = (slice(rs - y0, re_ - y0), slice(xs - x0, xe - x0))
-                    if not w_w[box].any():
-                        continue
-                    loc = (slice(rs - ty * t, re_ - ty * t), slice(xs - tx * t, xe - tx * t))
-                    jobs.append(((tx, ty), box, loc))
+            tight = x0 + c0, y0 + r0, x0 + c0 + nc, y0 + r0 + nr
+            jobs = box_jobs(w_w, (x0, y0), tight, self._tile_size, keys, rects)
         # Every tile first (loading spilled ones may fail: then nothing is written), then write.
-        tiles = [self._store.get(key, create=True) for key, _, _ in jobs]
+        tile_list = [self._store.get(key, create=True) for key, _, _ in jobs]
         self._frames += 1
         # The colour over the whole box at once (what the seams' cut compares), or, painting on
         # threads, warped tile by tile: each in cache through its updates, no box-sized array
         img_w = None
-        if (self._seam_cut or self._threads == 1) and w_w is not None:
-            img_w = self._warp_colour(src, box_h_frame, (slice(0, bh), slice(0, bw)), gains, 'colour')
-        cut = self._cut(jobs, tiles, img_w, w_w, index) if self._seam_cut and img_w is not None and w_w is not None \
-            else None
+        if (seam_cut or self._pool.threads == 1) and w_w is not None:
+            img_w = warp_colour(src, box_h_frame, (slice(0, bh), slice(0, bw)), gains, 'colour', self._channels)
+        cut = self._compositor.cut(jobs, tile_list, img_w, w_w, index, self._channels) \
+            if seam_cut and img_w is not None and w_w is not None else None
 
-        def offer(job: tuple[TileKey, tuple[slice, slice], tuple[slice, slice]], tile: Any) -> None:
+        def offer(job: PaintJob, tile: Any) -> None:
             key, box, loc = job
             sub_w = w_w[box] if w_w is not None else part_w[key]  # type: ignore[index]
             # a tile's colour warped on its own stays in cache through the updates below
-            colour = img_w[box] if img_w is not None else self._warp_colour(src, box_h_frame, box, gains, 'tile_colour')
-            tile_cut = None if cut is None else (cut[0][box], cut[1][box])
-            _add_into(tile.acc[loc], _times_weight(colour, sub_w))  # per tile: the product stays in cache
-            _add_into(tile.wsum[loc], sub_w)
-            if best_view:
-                update_best(tile, loc, colour, sub_w, index, self._recency_frames, self._agree, self._moving,
-                            cut=tile_cut)
-            if multiband:
-                update_max_weight(tile, loc, colour, sub_w, index, cut=tile_cut)
+            colour = img_w[box] if img_w is not None else warp_colour(src, box_h_frame, box, gains, 'tile_colour', self._channels)
+            self._compositor.offer(tile, loc, colour, sub_w, index, None if cut is None else (cut[0][box], cut[1][box]))
 
-        workers = min(self._threads, len(jobs))
-        if workers > 1:  # tiles are independent; OpenCV and numpy release the GIL on their arrays
-            if self._pool is None:  # the same threads (and their scratch arrays) from paint to paint
-                self._pool = ThreadPoolExecutor(self._threads, thread_name_prefix='paint')
-            for _ in self._pool.map(offer, jobs, tiles):
-                pass
-        else:
-            for job, tile in zip(jobs, tiles):
-                offer(job, tile)
-        touched: list[TileKey] = [key for key, _, _ in jobs]
+        self._pool.run(offer, jobs, tile_list)
+        del tile_list
+        return PaintResult(index, self._record([key for key, _, _ in jobs], tight), footprint, tight)
+
+    def _clip_to_tiles(self, placement: tuple[int, int, int, int], tiles: Collection[TileKey] | Mapping[TileKey, Any],
+                       rects: dict[TileKey, tuple[int, int, int, int]] | None,
+                       ) -> tuple[frozenset[TileKey], tuple[int, int, int, int] | None]:
+        """(the keys of ``tiles``, the paint's box ``placement`` (x0, y0, x1, y1) shrunk to those tiles and
+        to the rectangles ``rects`` asked for in them, None where nothing is left): no weight is warped
+        where none is painted."""
+        keys, span = as_tiles(tiles)
+        if span is None:
+            return keys, None
+        t = self._tile_size
+        x0, y0, x1, y1 = placement
+        x0, y0 = max(x0, span[0] * t), max(y0, span[1] * t)
+        x1, y1 = min(x1, (span[2] + 1) * t), min(y1, (span[3] + 1) * t)
+        if rects:
+            r = np.array(list(rects.values()))
+            x0, y0 = max(x0, int(r[:, 0].min())), max(y0, int(r[:, 1].min()))
+            x1, y1 = min(x1, int(r[:, 2].max())), min(y1, int(r[:, 3].max()))
+        return keys, ((x0, y0, x1, y1) if x1 > x0 and y1 > y0 else None)
+
+    def _nothing_painted(self, footprint: np.ndarray) -> PaintResult:
+        """A paint that writes no tile: counted all the same (its index labels no pixel)."""
+        self._frames += 1
+        return PaintResult(self._frames - 1, (), footprint, (0, 0, 0, 0))
+
+    def _prepare(self, img: np.ndarray, valid: np.ndarray | None, m: np.ndarray, gains: np.ndarray | None,
+                 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, np.ndarray]:
+        """(image, valid mask, mosaic_H_frame, weight) of the frame as painted: reduced first where it
+        shrinks on the mosaic (:mod:`.minify`, not point-sampled), cut where its view is too oblique
+        (``max_stretch``, :func:`.best_view.clip_depth`), weighted by the compositor (float32 (h, w))
+        and with its invalid pixels filled as far as the interpolation reads them."""
+        h, w = img.shape[:2]
+        max_stretch = self._limits.max_stretch
+        level = minify_level(m, w, h, clip_depth(m, w, h, max_stretch))
+        if level:  # a frame shrinking on the mosaic is reduced first, not point-sampled (minify.py)
+            if img.dtype == np.uint8:  # reduced as floats
+                img = to_float(img, gains)
+            if valid is not None:
+                img = fill_invalid(img, valid)
+            img, valid, m = reduce_frame(img, valid, m, level)
+            h, w = img.shape[:2]
+        d_min = clip_depth(m, w, h, max_stretch)
+        coarse = self._compositor.rates_resolution(m, w, h)
+        depth = depth_map(m, h, w) if (coarse or d_min is not None) else None
+        if d_min is not None and depth is not None:  # the far field and sky of an oblique view stay out
+            kept = depth >= np.float32(d_min)
+            valid = kept if valid is None else valid & kept
+        weight = self._compositor.weight(h, w, valid, m, depth if coarse else None)
+        if valid is not None:
+            if img.dtype == np.uint8:  # filled as floats
+                img = to_float(img, gains)
+            img = fill_invalid(img, valid, FILL_RINGS[self.interpolation])
+        return img, valid, m, weight
+
+    def _record(self, touched: list[TileKey], bbox: tuple[int, int, int, int]) -> tuple[TileKey, ...]:
+        """Count a paint that wrote the tiles ``touched`` over the mosaic box ``bbox``, grow the bounds,
+        trim the store back to its bound; the tiles, sorted by (ty, tx)."""
         for key in touched:
             self._tile_frames[key] = self._tile_frames.get(key, 0) + 1
-        del tiles
         self._touched.update(touched)
         self._reader.mark_painted(touched)
-        bbox = (gx0, gy0, gx1, gy1)
+        gx0, gy0, gx1, gy1 = bbox
         self._bounds = bbox if self._bounds is None else (
             min(gx0, self._bounds[0]), min(gy0, self._bounds[1]),
             max(gx1, self._bounds[2]), max(gy1, self._bounds[3]))
         self._store.trim()  # back to the bound; may raise TileStoreError (the frame is painted)
-        return PaintResult(index, tuple(sorted(touched, key=lambda k: (k[1], k[0]))), footprint, bbox)
-
-    def _rect_weights(self, weight: np.ndarray, box_h_frame: np.ndarray,
-                      rects: dict[TileKey, tuple[int, int, int, int]], placement: tuple[int, int, int, int],
-                      ) -> list[tuple[TileKey, tuple[slice, slice], tuple[slice, slice], tuple[int, int, int, int],
-                                      np.ndarray]]:
-        """Jobs of a paint in part: (tile, box slices, tile slices, tight mosaic box (x0, y0, x1, y1) of
-        non-zero weight, the warped weight over the box): the weight (frame-sized float32, warped
-        through ``box_h_frame``, whose box starts at ``placement``'s corner) over each tile's
-        asked-for box of ``rects`` within ``placement``, where it is non-zero somewhere."""
-        x0, y0, x1, y1 = placement
-        t = self._tile_size
-        out = []
-        for (tx, ty), (rx0, ry0, rx1, ry1) in sorted(rects.items(), key=lambda kv: (kv[0][1], kv[0][0])):
-            xs, xe = max(x0, rx0, tx * t), min(x1, rx1, (tx + 1) * t)
-            rs, re_ = max(y0, ry0, ty * t), min(y1, ry1, (ty + 1) * t)
-            if xs >= xe or rs >= re_:
-                continue
-            m = np.array([[1.0, 0.0, x0 - xs], [0.0, 1.0, y0 - rs], [0.0, 0.0, 1.0]]) @ box_h_frame
-            sub = cv2.warpPerspective(weight, m, (xe - xs, re_ - rs), flags=cv2.INTER_LINEAR,
-                                      borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
-            c0, r0, nc, nr = cv2.boundingRect((sub != 0).view(np.uint8))
-            if nc == 0:
-                continue
-            box = (slice(rs - y0, re_ - y0), slice(xs - x0, xe - x0))
-            loc = (slice(rs - ty * t, re_ - ty * t), slice(xs - tx * t, xe - tx * t))
-            out.append(((tx, ty), box, loc, (xs + c0, rs + r0, xs + c0 + nc, rs + r0 + nr), sub))
-        return out
-
-    def _warp_colour(self, src: FrameSampler, box_h_frame: np.ndarray, box: tuple[slice, slice],
-                     gains: np.ndarray | None, name: str) -> np.ndarray:
-        """float32 (h, w, C) colour of the frame ``src`` (float32, or uint8: warped as integers, then
-        converted with ``gains``) over ``box`` (slices of the paint's box, whose homography from the
-        frame is ``box_h_frame``), in this thread's scratch array ``name``."""
-        ys, xs = box
-        h, w, c = ys.stop - ys.start, xs.stop - xs.start, self._channels
-        m = np.array([[1.0, 0.0, -xs.start], [0.0, 1.0, -ys.start], [0.0, 0.0, 1.0]]) @ box_h_frame
-        if src.src.dtype == np.uint8:  # gains (if any) applied after the warp
-            return _to_float(src.warp(m, (w, h)), gains, scratch(name, (h, w, c)))
-        return src.warp(m, (w, h), dst=scratch(name, (h, w, *src.src.shape[2:])))
-
-    def _cut(self, jobs: list[tuple[TileKey, tuple[slice, slice], tuple[slice, slice]]], tiles: list[Any],
-             img_w: np.ndarray, w_w: np.ndarray, index: int) -> tuple[np.ndarray, np.ndarray] | None:
-        """The seams' graph cut (:mod:`.seam_cut`) between the warped frame (img_w, its quality w_w,
-        over the paint's box) and the winners of the tiles under it (``jobs``, ``tiles``), on blocks:
-        (free, take) bool over the box, where the cut decides and where the frame leads there; None
-        where the scores decide everywhere."""
-        bh, bw = w_w.shape
-        s = block_size(bh, bw)
-        best = np.zeros((bh, bw, self._channels), np.float32)
-        best_view = self._blend == 'bestview'  # best_w: log scores (-inf: none); multiband: weights (0: none)
-        best_w = np.full((bh, bw), -1e30 if best_view else 0.0, np.float32)
-        for (_, box, loc), tile in zip(jobs, tiles):
-            best[box] = tile.best[loc]
-            if best_view:
-                np.maximum(tile.best_w[loc], np.float32(-1e30), out=best_w[box])  # no winner: never free
-            else:
-                best_w[box] = tile.best_w[loc]
-        score = np.log(np.maximum(block_means(w_w, s), np.float32(1e-30)))
-        if best_view:
-            score += np.float32(index / self._recency_frames if self._recency_frames > 0 else 0.0)
-            winners = block_means(best_w, s)
-        else:  # the log of the mean weight, as the frame's; a block with a pixel no frame won is never free
-            winners = np.log(np.maximum(block_means(best_w, s), np.float32(1e-30)))
-            winners[block_means(best_w <= 0, s) > 0] = -1e30
-        diff = block_means(img_w, s) - block_means(best, s)
-        free, take = cut_nodes(score, winners, diff.reshape(*score.shape, -1), s)
-        if not free.any():
-            return None
-        return expand(free, s, (bh, bw)), expand(take, s, (bh, bw))
+        return tuple(sorted(touched, key=lambda k: (k[1], k[0])))
 
     # ------------------------------------------------------------------ render
 

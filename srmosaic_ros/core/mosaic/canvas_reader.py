@@ -16,7 +16,7 @@ import numpy as np
 
 from .best_view import transition_image
 from .blend import auto_bands, feather_divide, multiband_blend, pyramid_region
-from .canvas_settings import CanvasError
+from .canvas_settings import CanvasError, RenderSettings
 from .preview import assemble, block_sums, preview_factor
 
 if TYPE_CHECKING:
@@ -25,8 +25,8 @@ if TYPE_CHECKING:
 __all__ = ['RENDER_BLOCK_PX', 'CanvasReader']
 
 #: Largest side (px) rendered in one piece in multiband mode; larger regions go in blocks. Each block
-#: holds a dozen float arrays over itself and its pyramid margin: 1024 keeps two render threads' blocks
-#: near 0.4 GB (2048: 1.2 GB, the peak of a survey's whole run) at no cost in time.
+#: holds a dozen float arrays over itself and its pyramid margin, so this side bounds a render's memory
+#: (the memory of each choice: docs/results.md).
 RENDER_BLOCK_PX = 1024
 
 
@@ -34,8 +34,9 @@ class CanvasReader:
     """Reads ``canvas``'s tiles (its store, tile counts and bounds) into images; keeps the incremental
     preview's block sums (recomputed only for the tiles painted since the last preview)."""
 
-    def __init__(self, canvas: Any) -> None:  # the TiledCanvas it reads (canvas.py imports this module)
+    def __init__(self, canvas: Any, settings: RenderSettings) -> None:  # the TiledCanvas it reads (canvas.py imports this module)
         self.canvas = canvas
+        self.settings = settings
         self._preview_dirty: set[TileKey] = set()
         self._preview_sums: dict[TileKey, tuple[np.ndarray, np.ndarray]] = {}
         self._preview_factor = 0
@@ -55,8 +56,8 @@ class CanvasReader:
         if x1 < x0 or y1 < y0:
             msg = f'region {region!r} is inverted: need x0 <= x1 and y0 <= y1 (inclusive-exclusive).'
             raise CanvasError(msg)
-        if max(x1 - x0, y1 - y0) > self.canvas._max_side:
-            msg = f'region {region!r} is larger than max_canvas_side_px={self.canvas._max_side}; render it in pieces.'
+        if max(x1 - x0, y1 - y0) > self.canvas.max_canvas_side_px:
+            msg = f'region {region!r} is larger than max_canvas_side_px={self.canvas.max_canvas_side_px}; render it in pieces.'
             raise CanvasError(msg)
         return x0, y0, x1, y1
 
@@ -89,7 +90,7 @@ class CanvasReader:
         shapes = {'acc': (h, w, c), 'best': (h, w, c), 'second': (h, w, c),
                   'wsum': (h, w), 'best_w': (h, w), 'best_id': (h, w), 'second_w': (h, w), 'moved': (h, w)}
         dtypes = {'best_id': np.int32, 'moved': np.uint8}
-        fill = {'best_id': -1, 'best_w': -np.inf, 'second_w': -np.inf} if self.canvas._blend == 'bestview' else {'best_id': -1}
+        fill = {'best_id': -1, 'best_w': -np.inf, 'second_w': -np.inf} if self.canvas.blend == 'bestview' else {'best_id': -1}
         outs = [np.full(shapes[n], fill[n], dtypes.get(n, np.float32)) if n in fill
                 else np.zeros(shapes[n], dtypes.get(n, np.float32)) for n in names]
         for key in self._keys_in(x0, y0, x1, y1):
@@ -117,7 +118,7 @@ class CanvasReader:
         moving objects the consensus, frame), -1 where none; around seams multiband also blends in
         its neighbours. CanvasError for a feather canvas (every frame is averaged: no such frame)."""
         self.canvas._check_open()
-        if self.canvas._blend == 'feather':
+        if self.canvas.blend == 'feather':
             msg = 'a feather canvas averages every frame over a pixel: it has no labels (blend bestview or multiband).'
             raise CanvasError(msg)
         return self._gather(self._region(region), ('best_id',))[0]
@@ -143,12 +144,12 @@ class CanvasReader:
         self.canvas._check_open()
         x0, y0, x1, y1 = self._region(region)
         h, w = y1 - y0, x1 - x0
-        if self.canvas._blend == 'feather' or h == 0 or w == 0:
+        if self.canvas.blend == 'feather' or h == 0 or w == 0:
             out, covered = self._render_feather((x0, y0, x1, y1))
         else:
             out = np.empty((h, w, self.canvas._channels), np.float32)
             covered = np.empty((h, w), bool)
-            for _ in self._multiband_rows((x0, y0, x1, y1), self.canvas._bands or auto_bands(h, w), out, covered):
+            for _ in self._multiband_rows((x0, y0, x1, y1), self.settings.bands or auto_bands(h, w), out, covered):
                 pass
         if self.canvas._channels == 1:
             out = out[:, :, 0]
@@ -198,7 +199,7 @@ class CanvasReader:
             self._preview_sums[key] = block_sums(tile, f, self.canvas._tile_size, c)
         self._preview_dirty = set()
         out, covered, self.last_preview_region = assemble(self._preview_sums, self.canvas._bounds, f, self.canvas._tile_size, c,
-                                                          self.canvas._background)
+                                                          self.settings.background)
         return (out[:, :, 0] if c == 1 else out), covered
 
     def render_blocks(self, block_rows: int = 256, region: tuple[int, int, int, int] | None = None, *,
@@ -223,14 +224,14 @@ class CanvasReader:
         x0, y0, x1, y1 = self._region(region)
         h, w = y1 - y0, x1 - x0
         squeeze = self.canvas._channels == 1
-        if self.canvas._blend == 'feather' or w == 0:
+        if self.canvas.blend == 'feather' or w == 0:
             for r in range(0, h, block_rows):
                 o, c = self._render_feather((x0, y0 + r, x1, min(y0 + r + block_rows, y1)))
                 yield r, (o[:, :, 0] if squeeze else o), c
             return
         pending: list[tuple[np.ndarray, np.ndarray]] = []
         have = start = 0
-        for _, o, c in self._multiband_rows((x0, y0, x1, y1), self.canvas._bands or auto_bands(h, w), threads=threads):
+        for _, o, c in self._multiband_rows((x0, y0, x1, y1), self.settings.bands or auto_bands(h, w), threads=threads):
             pos = 0
             while pos < o.shape[0]:
                 take = min(block_rows - have, o.shape[0] - pos)
@@ -250,7 +251,7 @@ class CanvasReader:
         """Feather render (h, w, C), covered (h, w) of ``region``, tile by tile (no full-size sums)."""
         x0, y0, x1, y1 = region
         h, w = y1 - y0, x1 - x0
-        out = np.full((h, w, self.canvas._channels), self.canvas._background, np.float32)
+        out = np.full((h, w, self.canvas._channels), self.settings.background, np.float32)
         covered = np.zeros((h, w), bool)
         for key in self._keys_in(x0, y0, x1, y1):
             tile = self.canvas._store.peek(key)
@@ -293,7 +294,7 @@ class CanvasReader:
 
                 for _ in (pool.map(put, columns) if pool is not None else map(put, columns)):
                     pass
-                out[~covered] = self.canvas._background
+                out[~covered] = self.settings.background
                 yield by - y0, out, covered
 
     def _render_multiband(self, region: tuple[int, int, int, int], bands: int) -> tuple[np.ndarray, np.ndarray]:
@@ -301,7 +302,7 @@ class CanvasReader:
         :func:`.blend.pyramid_region` (the same grid whatever the region)."""
         x0, y0, x1, y1 = region
         ex0, ey0, ex1, ey1 = pyramid_region(region, bands)
-        if self.canvas._blend == 'bestview':
+        if self.canvas.blend == 'bestview':
             best, best_id, second, second_w = self._gather((ex0, ey0, ex1, ey1), ('best', 'best_id', 'second', 'second_w'))
             covered = best_id >= 0
             out = multiband_blend(transition_image(best, second, second_w), best, best_id, bands, coarsest_by_seams=True)
@@ -330,5 +331,5 @@ class CanvasReader:
         if tile is None:
             return None
         acc, wsum = block_sums(tile, int(f), self.canvas._tile_size, self.canvas._channels)
-        out = np.full(acc.shape, self.canvas._background, np.float32)
+        out = np.full(acc.shape, self.settings.background, np.float32)
         return out, feather_divide(acc, wsum, out)

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from srmosaic_ros.core.mosaic import TiledCanvas
-from srmosaic_ros.core.mosaic.canvas import _add_into, _times_weight
+from srmosaic_ros.core.mosaic.paint_ops import add_into as _add_into, times_weight as _times_weight
 from srmosaic_ros.core.mosaic.scratch import release, scratch
 
 BLENDS = ('feather', 'multiband', 'bestview')
