@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import logging
 import math
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -18,7 +19,7 @@ if TYPE_CHECKING:
 
 _LOG = logging.getLogger(__name__)
 
-__all__ = ['anchored_raster', 'geotag_fit_of_main', 'ground_offsets']
+__all__ = ['MainPlacement', 'anchored_raster', 'georeference_main', 'geotag_fit_of_main', 'ground_offsets']
 
 #: Offline re-anchoring fits frame corners unless the height above ground is known worse than this
 #: (relative standard deviation, median over the frames): then the frame centres only.
@@ -27,6 +28,40 @@ ANCHOR_CORNERS_MAX_REL_AGL_SD = 0.02
 #: ... and fits only the offset when the similarity's rotation is known worse than the poses' heading,
 #: and than this (deg).
 ANCHOR_MIN_ROTATION_SD_DEG = 0.5
+
+
+@dataclass(frozen=True)
+class MainPlacement:
+    """Where the main mosaic lies on the ground, decided before anything is written.
+
+    raster: the GeoRaster of mosaic.png's pixel grid (None: not georeferenced); report: report.json's
+    'georeferenced' entry ({} when not); poses: the smoothed poses for poses.csv where the filter
+    placed the mosaic (None where its geotags did, or nothing)."""
+
+    raster: GeoRaster | None
+    report: dict[str, Any]
+    poses: list[Any] | None = None
+
+
+def georeference_main(result: PipelineResult, config: PipelineConfig) -> MainPlacement:
+    """The main mosaic's placement: re-anchored on the filter's smoothed poses where the filter placed
+    it (anchored_raster), else fitted to its frames' geotags (geotag_fit_of_main), else none."""
+    main = result.main_segment
+    if main is None:
+        return MainPlacement(None, {})
+    x0, y0, _, _ = main.canvas.bounds()
+    georef = result.georef
+    if not (main.georeferenced and georef is not None and georef.raster is not None):
+        fit = geotag_fit_of_main(result, (x0, y0), config) if config.georef_enabled else None
+        if fit is None:
+            return MainPlacement(None, {})
+        return MainPlacement(fit.raster, {'epsg': fit.raster.epsg, 'gsd_m_per_px': fit.raster.gsd_m_per_px,
+                                          'geotransform': list(fit.raster.geotransform), **fit.figures()})
+    poses = georef.smoothed_poses()
+    raster, anchoring = anchored_raster(result, poses, (x0, y0))
+    return MainPlacement(raster, {'method': 'filter', 'epsg': raster.epsg, 'gsd_m_per_px': raster.gsd_m_per_px,
+                                  'geotransform': list(raster.geotransform), **anchoring, 'poses': len(poses),
+                                  'skipped_telemetry': dict(georef.skipped)}, poses)
 
 
 def anchored_raster(result: PipelineResult, poses: list[Any], origin: tuple[int, int]) -> tuple[GeoRaster, dict[str, Any]]:

@@ -9,40 +9,34 @@ import re
 import shutil
 import time
 from pathlib import Path
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
 from tqdm import tqdm
 
 from ..core.homography import translation as _translation
-from .georeference import anchored_raster, geotag_fit_of_main
+from .georeference import MainPlacement, georeference_main
 from ..io.output_dir import OutputTransaction, check_output_dir
 from .checkpoint import Checkpoint, checkpoint_path, fingerprint, load_checkpoint, save_checkpoint
 from ..config import PipelineConfig
-from ..io.bags import TopicConfig, read_flight
-from ..io.metadata import merge_by_time
-from ..io.prefetch import prefetched
+from ..io.bags import TopicConfig
 from ..io.mosaic_files import write_counts_png, write_frames_csv, write_json, write_png
 from ..io.outputs import MOSAIC_TIF_ZLEVEL, StripPreview, output_threads, peak_rss_mb, write_canvas
 from ..core.sr_factors import SR_FACTORS
-from ..errors import FULL_DISK_ERRNOS, ConfigError, InputError, OutputError, SrMosaicError
-from ..io.mosaic_video import MosaicVideoRecorder
+from ..errors import FULL_DISK_ERRNOS, ConfigError, InputError, OutputError
 from ..pipeline import Pipeline, PipelineResult
 from ..core.device import cores_left_for_torch
 from ..core.georef.georeferencer import MIN_AXIS_DEPRESSION_DEG
-from ..core.image_ops import to_float01
 from ..core.registration import Registration
-from ..core.stage_clock import StageClock
-from ..core.types import Frame
+from .input_pass import InputPass, feed_input, second_pass_mount, with_mount
+from .input_source import open_source  # re-exported: app/psf.py, app/evaluate_real.py and the tests open inputs here
 
 _LOG = logging.getLogger(__name__)
 
 __all__ = ['open_source', 'process_input', 'write_outputs']
 
 
-#: Input items read ahead by a background thread while the pipeline works (io/prefetch.py).
-READ_AHEAD = 8
 
 def registration_report(regs: list[Registration]) -> dict[str, Any]:
     """report.json's `registration`: medians over the pairs registered by features (inliers, RMS in
@@ -59,11 +53,13 @@ def registration_report(regs: list[Registration]) -> dict[str, Any]:
 
 
 def write_outputs(result: PipelineResult, out: Path, config: PipelineConfig, extra: dict[str, Any], *,
-                  meta_centres: dict[int, tuple[float, float]] | None = None) -> dict[str, Any]:
+                  meta_centres: dict[int, tuple[float, float]] | None = None,
+                  placement: MainPlacement | None = None) -> dict[str, Any]:
     """Write mosaic.png (main canvas), preview.png, segments/, frames.csv, and with georeferencing
     mosaic.tif, mosaic.kml and poses.csv. Returns the report (the caller adds timings and writes it).
     ``meta_centres``: stamp_ns -> (lat, lon) where the input's metadata puts each frame's centre
-    (frames.csv's meta_latitude, meta_longitude).
+    (frames.csv's meta_latitude, meta_longitude). ``placement``: where the main mosaic lies, as
+    georeference_main decided it (None: decided here).
 
     The mosaics are rendered and written strip by strip (see _write_canvas): memory does not grow
     with the mosaic's area.
@@ -81,7 +77,9 @@ def write_outputs(result: PipelineResult, out: Path, config: PipelineConfig, ext
         if id(seg.canvas) not in written:
             if seg.canvas is main_canvas:
                 mosaic_H_seg = _translation(-x0, -y0)
-                geo = _write_main_mosaic(out, result, config, (x0, y0, x1, y1))
+                placement = placement or georeference_main(result, config)
+                _write_main_mosaic(out, seg.canvas, config, (x0, y0, x1, y1), placement)
+                geo = placement.report
                 written[id(seg.canvas)] = 'mosaic.png'
                 moving = _write_moving(out, seg.canvas, (x0, y0, x1, y1))
             elif len(seg.frames) >= 2:
@@ -131,96 +129,6 @@ def write_outputs(result: PipelineResult, out: Path, config: PipelineConfig, ext
     return report
 
 
-def open_source(path: Path, *, topics: TopicConfig | None = None, select: str = 'all',
-                camera_yaml: Path | None = None, hfov_deg: float | None = None,
-                telemetry_csv: Path | None = None, stamp_tolerance_s: float = 10.0,
-                deinterlace: str = 'auto') -> tuple[Iterable[Any], Any, str]:
-    """(items in time order, the reader (frame_count, skipped, summary), 'bag', 'video' or 'images')
-    for a bag, a video file or a folder of stills.
-
-    The metadata the input carries is read and merged (io/metadata.py): a folder's EXIF/XMP; a
-    video's MISB KLV stream, a DJI .SRT beside it or a GoPro GPMF track, in that order, unless
-    ``telemetry_csv`` is given (it overrides them). ``reader.summary`` says what was found. A bag's
-    messages stamped more than ``stamp_tolerance_s`` off their topic's clock are skipped and counted.
-    ``deinterlace``: a video's interlaced frames (io/video.py: auto, on, off).
-    """
-    from ..io.image_folder import ImageFolderReader, is_image_folder
-    from ..io.metadata import MetadataSummary
-    from ..io.video import VideoReader, is_video, load_camera_yaml, parse_selection
-
-    if is_image_folder(path):
-        if select != 'all' or camera_yaml or hfov_deg or telemetry_csv or deinterlace != 'auto':
-            msg = ('--select, --camera, --hfov, --telemetry and --deinterlace apply to video input; a folder of stills takes its '
-                   'stamps, geotags and camera from each image\'s EXIF/XMP (or a telemetry_from_exif.csv beside the '
-                   'images).')
-            raise InputError(msg)
-        reader = ImageFolderReader(path)
-        return reader, reader, 'images'
-    if is_video(path):
-        camera = load_camera_yaml(camera_yaml) if camera_yaml else None
-        reader = VideoReader(path, selection=parse_selection(select), camera=camera, hfov_deg=hfov_deg,
-                             deinterlace=deinterlace)
-        items: Iterable[Any] = reader
-        if telemetry_csv is not None:
-            from ..io.telemetry_csv import read_telemetry_csv
-
-            counts: dict[str, int] = {}
-            items = merge_by_time(reader, read_telemetry_csv(telemetry_csv, counts))
-            reader.summary = MetadataSummary(source='telemetry CSV', fields=['gps position', 'attitude'])
-            reader.summary.problems.update({k: n for k, n in counts.items() if n})
-            return items, reader, 'video'
-        return _video_with_metadata(path, reader)
-    if select != 'all' or camera_yaml or hfov_deg or telemetry_csv or deinterlace != 'auto':
-        msg = ('--select, --camera, --hfov, --telemetry and --deinterlace apply to video input; a bag carries its own camera '
-               'info and telemetry topics.')
-        raise InputError(msg)
-    reader = read_flight(path, topics=topics or TopicConfig(), stamp_tolerance_s=stamp_tolerance_s)
-    reader.summary = MetadataSummary(source='bag topics')
-    return reader, reader, 'bag'
-
-
-def _video_with_metadata(path: Path, reader: Any) -> tuple[Iterable[Any], Any, str]:
-    """A video's own metadata, found in order: MISB KLV stream, DJI SRT beside it, GoPro GPMF track."""
-    from ..io.dji_srt import find_srt, read_srt, time_mismatch
-    from ..io.gpmf import read_gpmf
-    from ..io.klv import read_klv
-    from ..io.metadata import KlvVideoSource, MetadataSummary, gpmf_items, srt_items
-    from ..errors import MetadataError
-
-    track = read_klv(path)
-    if track.records:
-        source = KlvVideoSource(reader, track)
-        return source, source, 'video'
-    summary = MetadataSummary(frames=reader.frame_count or 0)
-    srt = find_srt(path)
-    if srt is not None:
-        try:
-            srt_track = read_srt(srt)
-        except MetadataError as exc:
-            _LOG.warning('%s; the video is processed without its telemetry.', exc)
-            summary.problems['srt_unusable'] += 1
-        else:
-            useless, said = time_mismatch(srt_track, reader.duration_s)
-            if said:
-                _LOG.warning('%s', said)
-                summary.note(said)
-            if useless:
-                summary.problems['srt_outside_video'] += 1
-            else:
-                items = srt_items(srt_track, summary)
-                reader.summary = summary
-                return merge_by_time(reader, items), reader, 'video'
-    gpmf = read_gpmf(path)
-    if gpmf.gps:
-        items = gpmf_items(gpmf, summary)
-        reader.summary = summary
-        return merge_by_time(reader, items), reader, 'video'
-    if track.packets:
-        summary.note(f'{track.packets} KLV packets, none usable')
-    reader.summary = summary
-    return reader, reader, 'video'
-
-
 def _write_moving(out: Path, canvas: Any, bounds: tuple[int, int, int, int]) -> dict[str, Any] | None:
     """moving.png beside mosaic.png (same pixel grid) when the canvas votes on moving objects
     (mosaic.moving > 0): 8-bit grey, at each mosaic pixel the number of frames whose pixel there
@@ -235,40 +143,25 @@ def _write_moving(out: Path, canvas: Any, bounds: tuple[int, int, int, int]) -> 
             'fraction_of_mosaic': round(float(np.count_nonzero(counts)) / covered, 5)}
 
 
-def _write_main_mosaic(out: Path, result: PipelineResult, config: PipelineConfig,
-                       bounds: tuple[int, int, int, int]) -> dict[str, Any]:
-    """mosaic.png and preview.png of the main segment's canvas, and with georeferencing mosaic.tif
-    (same pixel grid as mosaic.png), mosaic.kml and poses.csv. Returns the report's 'georeferenced'
-    entry ({} without georeferencing)."""
-    main = result.main_segment
-    canvas = main.canvas
+def _write_main_mosaic(out: Path, canvas: Any, config: PipelineConfig, bounds: tuple[int, int, int, int],
+                       placement: MainPlacement) -> None:
+    """mosaic.png and preview.png of the main segment's canvas, and where ``placement`` has a raster
+    mosaic.tif (same pixel grid as mosaic.png) and mosaic.kml, with poses.csv where the filter placed it."""
     x0, y0, x1, y1 = bounds
     preview = StripPreview(y1 - y0, x1 - x0, canvas.channels, config.mosaic.preview_max_side_px)
-    georef = result.georef
+    raster = placement.raster
+    write_canvas(canvas, out / 'mosaic.tif' if raster is not None else None, out / 'mosaic.png', raster, preview,
+                 threads=output_threads(), zlevel=MOSAIC_TIF_ZLEVEL)
+    write_png(out / 'preview.png', preview.image())
+    if raster is None:
+        return
     from ..io.kml import write_kml_for_raster
 
-    if not (main.georeferenced and georef is not None and georef.raster is not None):
-        fit = geotag_fit_of_main(result, (x0, y0), config) if config.georef_enabled else None
-        write_canvas(canvas, out / 'mosaic.tif' if fit else None, out / 'mosaic.png', fit.raster if fit else None,
-                     preview, threads=output_threads(), zlevel=MOSAIC_TIF_ZLEVEL)
-        write_png(out / 'preview.png', preview.image())
-        if fit is None:
-            return {}
-        write_kml_for_raster(out / 'mosaic.kml', 'mosaic.png', fit.raster, x1 - x0, y1 - y0)
-        return {'epsg': fit.raster.epsg, 'gsd_m_per_px': fit.raster.gsd_m_per_px,
-                'geotransform': list(fit.raster.geotransform), **fit.figures()}
-    from ..io.poses_csv import write_poses_csv
-
-    poses = georef.smoothed_poses()
-    raster, anchoring = anchored_raster(result, poses, (x0, y0))
-    write_canvas(canvas, out / 'mosaic.tif', out / 'mosaic.png', raster, preview, threads=output_threads(),
-                 zlevel=MOSAIC_TIF_ZLEVEL)
-    write_png(out / 'preview.png', preview.image())
     write_kml_for_raster(out / 'mosaic.kml', 'mosaic.png', raster, x1 - x0, y1 - y0)
-    write_poses_csv(out / 'poses.csv', poses)
-    return {'method': 'filter', 'epsg': raster.epsg, 'gsd_m_per_px': raster.gsd_m_per_px,
-            'geotransform': list(raster.geotransform), **anchoring, 'poses': len(poses),
-            'skipped_telemetry': dict(georef.skipped)}
+    if placement.poses is not None:
+        from ..io.poses_csv import write_poses_csv
+
+        write_poses_csv(out / 'poses.csv', placement.poses)
 
 
 def keyframe_report(records: list[Any]) -> dict[str, Any]:
@@ -412,88 +305,35 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
     settings = {'select': select, 'topics': repr(topics), 'config': repr(config), 'mosaic_video': mosaic_video,
                 'camera': str(camera_yaml), 'hfov': hfov_deg, 'telemetry': str(telemetry_csv)}
     run_id = fingerprint(path, settings)
-    pipeline = Pipeline(config, paint_thread=overlap)
-    recorder = MosaicVideoRecorder() if mosaic_video else None
-    recent: dict[int, np.ndarray] = {}
-    skip_items = frames_done = 0
-    restart: dict[str, Any] | None = None
+    run, restart = InputPass.fresh(config, overlap=overlap, mosaic_video=mosaic_video), None
     if resume:
-        state = load_checkpoint(out, run_id)
-        try:
-            pipeline = Pipeline.from_state(state.pipeline, paint_thread=overlap)
-        except ValueError as exc:
-            msg = f'--resume: the checkpoint in {out} holds a {exc} Run without --resume.'
-            raise InputError(msg) from None
-        recorder = state.recorder
-        recent = state.recent or {}
-        skip_items, frames_done = state.items_consumed, state.frames_consumed
-        restart = state.mount_restart
-        config = pipeline.config  # the mount the run started again with, when it did
-    bar = tqdm(total=reader.frame_count, initial=frames_done, unit='frame', desc='process', disable=not progress)
-    error: SrMosaicError | None = None
-    consumed = 0
+        run, restart = _resumed(out, run_id, overlap=overlap)
+        config = run.pipeline.config  # the mount the run started again with, when it did
+    bar = tqdm(total=reader.frame_count, initial=run.frames_done, unit='frame', desc='process', disable=not progress)
+
+    def save(done: InputPass) -> None:
+        save_checkpoint(out, Checkpoint(run_id, done.consumed, done.frames_done, done.pipeline.state(), done.recorder,
+                                        done.recent, mount_restart=restart))
+
+    def on_frame(done: InputPass) -> None:
+        bar.update(1)
+        bar.set_postfix(segments=len(done.pipeline.segments), refresh=False)
+
+    passes = {'overlap': overlap, 'checkpoint_every': checkpoint_every, 'save': save, 'on_frame': on_frame}
     with bar, cores_left_for_torch(1 if overlap else 0):  # one core is the painter's (Pipeline paint_thread)
-        while True:
-            clock = pipeline.clock
-            stream = _timed(prefetched(items, READ_AHEAD if overlap else 0), clock)
-            try:
-                for item in stream:
-                    consumed += 1
-                    if consumed <= skip_items:  # already in the checkpointed state
-                        continue
-                    records = pipeline.feed(item)
-                    if restart is None and config.georef.mount_from_frames and pipeline.pose_check is not None \
-                            and pipeline.pose_check.mount_to_try is not None:
-                        raise _MountRestart
-                    if isinstance(item, Frame):
-                        clock.end_frame()
-                        frames_done += 1
-                        bar.update(1)
-                        bar.set_postfix(segments=len(pipeline.segments), refresh=False)
-                        if recorder is not None:
-                            recent[item.stamp_ns] = item.image
-                            while len(recent) > pipeline.max_decision_lag_frames:  # frames are decided at most this late
-                                recent.pop(next(iter(recent)))
-                    if recorder is not None:
-                        for rec in records:
-                            if rec.painted and rec.stamp_ns in recent:
-                                recorder.add(rec.segment, to_float01(recent[rec.stamp_ns]), rec.seg_H_frame)
-                    if checkpoint_every and isinstance(item, Frame) and frames_done % checkpoint_every == 0:
-                        with clock.stage('outputs'):
-                            save_checkpoint(out, Checkpoint(run_id, consumed, frames_done, pipeline.state(), recorder,
-                                                            recent, mount_restart=restart))
-            except SrMosaicError as exc:
-                error = exc
-            except _MountRestart:
-                # The frames show how the camera looks (pose_check.py): the run starts again with that
-                # mount, from the first item, so that the filter places them (the first frames only
-                # were processed; run_id stays the user's settings', the checkpoints hold the new ones).
-                stream.close()  # the reader thread stops
-                check = pipeline.pose_check
-                pipeline.close()
-                azimuth, elevation = check.mount_to_try
-                restart = {'azimuth_deg': azimuth, 'elevation_deg': elevation, 'after_frames': frames_done,
-                           'first_check': check.as_dict()}
-                _LOG.warning('no camera attitude was measured and the frames show the camera looking %g deg below the '
-                             'horizon, %g deg from the direction of travel, not as the mount says (%s); starting '
-                             'again with that mount (georef.gimbal_elevation_deg: %g, georef.gimbal_azimuth_deg: %g; '
-                             'georef.mount_from_frames: false keeps the configured one).', -elevation, azimuth,
-                             check.reason, elevation, azimuth)
-                config = dataclasses.replace(config, georef=dataclasses.replace(
-                    config.georef, gimbal_azimuth_deg=azimuth, gimbal_elevation_deg=elevation))
-                pipeline = Pipeline(config, paint_thread=overlap)
-                recorder = MosaicVideoRecorder() if mosaic_video else None
-                recent, consumed, frames_done, skip_items = {}, 0, 0, 0  # a fresh pipeline: every item again
-                items, reader, _ = open_source(path, topics=topics, select=select, camera_yaml=camera_yaml,
-                                               hfov_deg=hfov_deg, telemetry_csv=telemetry_csv,
-                                               stamp_tolerance_s=config.stamp_tolerance_s, deinterlace=deinterlace)
-                bar.reset()
-                continue
-            break
-    if recorder is not None and error is None:
-        for rec in pipeline.flush():  # the last frames, held for telemetry that never came
-            if rec.painted and rec.stamp_ns in recent:
-                recorder.add(rec.segment, to_float01(recent[rec.stamp_ns]), rec.seg_H_frame)
+        feed_input(items, run, try_mount=restart is None and config.georef.mount_from_frames, **passes)
+        if run.mount_to_try is not None:  # the second pass, with the mount the frames show (input_pass.py)
+            restart = second_pass_mount(run)
+            config = with_mount(config, restart)
+            run = InputPass.fresh(config, overlap=overlap, mosaic_video=mosaic_video)
+            items, reader, _ = open_source(path, topics=topics, select=select, camera_yaml=camera_yaml,
+                                           hfov_deg=hfov_deg, telemetry_csv=telemetry_csv,
+                                           stamp_tolerance_s=config.stamp_tolerance_s, deinterlace=deinterlace)
+            bar.reset()
+            feed_input(items, run, try_mount=False, **passes)
+    pipeline, error, clock = run.pipeline, run.error, run.pipeline.clock
+    if run.recorder is not None and error is None:
+        run.record(pipeline.flush())  # the last frames, held for telemetry that never came
     result = pipeline.finish()
     kinds = skipped_kinds(dict(getattr(reader, 'skipped', {})))
     for what, count in kinds.items():
@@ -503,24 +343,8 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
         msg = (f'no usable image in {path} ({said}); nothing was written. Check the image topic or files '
                '(srmosaic inspect INPUT says what the input holds).')
         raise InputError(msg)
-    report_extra: dict[str, Any] = {'input': str(path), 'input_kind': kind,
-                                    'skipped_messages': dict(getattr(reader, 'skipped', {}))}
-    if kind == 'images':
-        report_extra['images_left_out'] = dict(reader.left_out)
-    if getattr(reader, 'warned', None):  # images used although their decoder warned (io/bags.py)
-        report_extra['image_decoder_warnings'] = dict(reader.warned)
-    if getattr(reader, 'adjusted', None):  # CameraInfo scaled to images of another size (io/bags.py)
-        report_extra['adjusted_messages'] = dict(reader.adjusted)
-    if summary is not None:
-        report_extra['metadata'] = _metadata_report(summary, result)
-    if kind == 'video':
-        report_extra['video'] = {'codec': reader.codec, 'fps': reader.fps, 'frames_decoded': reader.decoded,
-                                 'frames_selected': reader.selected, 'select': select,
-                                 'deinterlace': reader.deinterlace, 'frames_deinterlaced': reader.deinterlaced,
-                                 'camera': str(Path(camera_yaml).resolve()) if camera_yaml else None,
-                                 'hfov_deg': hfov_deg}
-        if getattr(reader, 'ended_early', ''):
-            report_extra['video']['ended_early'] = reader.ended_early
+    report_extra = _input_report(path, kind, reader, summary, result, select=select, camera_yaml=camera_yaml,
+                                 hfov_deg=hfov_deg)
     if error is not None:
         report_extra['error'] = str(error)
     if restart is not None:
@@ -528,23 +352,24 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
     from .run_report import start_warm_up
 
     warm = start_warm_up()  # report.html's imports while GDAL and the PNG writer compress the mosaic
-    with clock.stage('outputs'):
-        report = write_outputs(result, stage, config, report_extra,
+    with clock.stage('outputs'):  # decided, then written
+        placement = georeference_main(result, config)
+        report = write_outputs(result, stage, config, report_extra, placement=placement,
                                meta_centres=summary.centres if summary is not None else None)
     if report.get('georeferenced') is None:
         report['not_georeferenced_reason'] = not_georeferenced_reason(result, config,
                                                                       dict(getattr(reader, 'skipped', {})))
         _LOG.warning('the mosaic is not georeferenced: %s', report['not_georeferenced_reason'])
-    if recorder is not None and result.main_segment is not None:
+    if run.recorder is not None and result.main_segment is not None:
         main = result.main_segment
-        report['mosaic_video_frames'] = recorder.write(stage / 'mosaic.mp4', main.index, main.canvas.bounds())
+        report['mosaic_video_frames'] = run.recorder.write(stage / 'mosaic.mp4', main.index, main.canvas.bounds())
     wall = time.perf_counter() - t0
     report['wall_s'] = round(wall, 3)
     report['frames_per_s'] = round(len(result.records) / wall, 2) if wall > 0 else None
     report['stage_times'] = clock.summary()
     report['peak_rss_mb'] = round(peak_rss_mb(), 1)
     if resume:
-        report['resumed_after_frames'] = skip_frames_note(skip_items, frames_done)
+        report['resumed_after_frames'] = skip_frames_note(run.skip_items, run.frames_done)
     if sr_factor is not None and error is None and result.main_segment is not None:
         from .sr_process import super_resolve_mosaic
 
@@ -565,22 +390,41 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
     return report
 
 
-class _MountRestart(Exception):
-    """Raised inside _process's loop to start the run again with the mount the frames show."""
+def _input_report(path: Path, kind: str, reader: Any, summary: Any, result: PipelineResult, *, select: str,
+                  camera_yaml: Path | None, hfov_deg: float | None) -> dict[str, Any]:
+    """report.json's entries on the input: what it was, what was left out or adjusted, its metadata and video."""
+    report_extra: dict[str, Any] = {'input': str(path), 'input_kind': kind,
+                                    'skipped_messages': dict(getattr(reader, 'skipped', {}))}
+    if kind == 'images':
+        report_extra['images_left_out'] = dict(reader.left_out)
+    if getattr(reader, 'warned', None):  # images used although their decoder warned (io/bags.py)
+        report_extra['image_decoder_warnings'] = dict(reader.warned)
+    if getattr(reader, 'adjusted', None):  # CameraInfo scaled to images of another size (io/bags.py)
+        report_extra['adjusted_messages'] = dict(reader.adjusted)
+    if summary is not None:
+        report_extra['metadata'] = _metadata_report(summary, result)
+    if kind == 'video':
+        report_extra['video'] = {'codec': reader.codec, 'fps': reader.fps, 'frames_decoded': reader.decoded,
+                                 'frames_selected': reader.selected, 'select': select,
+                                 'deinterlace': reader.deinterlace, 'frames_deinterlaced': reader.deinterlaced,
+                                 'camera': str(Path(camera_yaml).resolve()) if camera_yaml else None,
+                                 'hfov_deg': hfov_deg}
+        if getattr(reader, 'ended_early', ''):
+            report_extra['video']['ended_early'] = reader.ended_early
+    return report_extra
 
 
-def _timed(items: Iterable[Any], clock: StageClock) -> Iterator[Any]:
-    """The items, the time spent reading and decoding each counted to the clock's 'decode' stage."""
-    it = iter(items)
-    while True:
-        t0 = time.perf_counter()
-        try:
-            item = next(it)
-        except StopIteration:
-            return
-        finally:
-            clock.add('decode', time.perf_counter() - t0)
-        yield item
+def _resumed(out: Path, run_id: str, *, overlap: bool) -> tuple[InputPass, dict[str, Any] | None]:
+    """The pass a checkpoint in ``out`` holds, and the mount its run switched to (None: it did not)."""
+    state = load_checkpoint(out, run_id)
+    try:
+        pipeline = Pipeline.from_state(state.pipeline, paint_thread=overlap)
+    except ValueError as exc:
+        msg = f'--resume: the checkpoint in {out} holds a {exc} Run without --resume.'
+        raise InputError(msg) from None
+    run = InputPass(pipeline, state.recorder, state.recent or {}, skip_items=state.items_consumed,
+                    frames_done=state.frames_consumed)
+    return run, state.mount_restart
 
 
 def _ground_control_file(path: Path, kind: str, gcp_file: Path | None, check_points: str | None) -> Path | None:
@@ -674,7 +518,6 @@ def _write_reports(out: Path, report: dict[str, Any], t0: float, *, frame_sizes:
 def _with_ground_hint(config: PipelineConfig, summary: Any) -> PipelineConfig:
     """The ground height the metadata implies (KLV frame centre elevation, a DJI take-off altitude)
     as the filter's prior, unless georef.ground_altitude_m is set."""
-    import dataclasses
 
     if summary is None or not math.isfinite(summary.ground_altitude_m) or math.isfinite(config.georef.ground_altitude_m):
         return config
