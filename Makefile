@@ -7,7 +7,7 @@ VENV   := .venv
 STAMP  := $(VENV)/.installed
 # pytest-xdist workers of make test: three on the 2-core machines it is sized for, because the live
 # tests wait on DDS much of their time; each test file runs whole on one worker, so a module's
-# shared fixtures are built once
+# shared fixtures are built once; the files start longest first (test/suite_order.py), not xdist's most-tests-first
 TEST_WORKERS ?= 3
 # OpenMP (torch) threads per test process: the workers already fill the cores, and more threads than
 # cores spin-wait for each other
@@ -30,7 +30,7 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(VENV)/bin/ruff check .
 	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict --quiet --site-dir site
-	OMP_NUM_THREADS=$(TEST_THREADS) $(VENV)/bin/python -m pytest -q -ra --durations=20 -n $(TEST_WORKERS) --dist loadfile
+	OMP_NUM_THREADS=$(TEST_THREADS) $(VENV)/bin/python -m pytest -q -ra --durations=20 -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder
 
 # The documentation site (mkdocs.yml, docs/) into site/; --strict: a broken link or a missing page fails it.
 docs: $(STAMP)

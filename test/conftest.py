@@ -8,6 +8,9 @@ import pytest
 import torch
 from browser import chromium  # noqa: F401  (the headless-browser fixture, test/browser.py)
 
+# the longest test files start first (test/suite_order.py)
+pytest_plugins = ['suite_order']
+
 
 @pytest.fixture(autouse=True)
 def _seed_global_rngs():

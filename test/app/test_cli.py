@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 import pytest
 
+from cli_runner import run_cli
 from repo_paths import REPO
 
 from srmosaic_ros.io.mosaic_files import FRAMES_CSV_HEADER, FRAMES_CSV_META, FRAMES_CSV_PLACED_BY, read_frames_csv
@@ -20,15 +21,19 @@ ROOT = REPO
 DEMO = ROOT / 'bags' / 'demo'
 
 
-def srmosaic(*args: str) -> subprocess.CompletedProcess:
+def srmosaic_process(*args: str) -> subprocess.CompletedProcess:
+    """A real `srmosaic` process, as a user runs it."""
     return subprocess.run([sys.executable, '-m', 'srmosaic_ros.cli', *args], capture_output=True, text=True,
                           timeout=600)
+
+
+srmosaic = run_cli  # what a command refuses, and evaluate's figures: in this process (test/cli_runner.py)
 
 
 @pytest.fixture(scope='module')
 def demo_out(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp('demo_out')
-    run = srmosaic('process', str(DEMO), '--out', str(out), '--no-progress')
+    run = srmosaic_process('process', str(DEMO), '--out', str(out), '--no-progress')
     assert run.returncode == 0, run.stderr
     return out
 
@@ -83,7 +88,7 @@ def test_evaluate_reports_corner_error_under_2px(demo_out):
 
 
 def test_missing_bag_is_a_clear_error(tmp_path):
-    run = srmosaic('process', str(tmp_path / 'nope'), '--out', str(tmp_path / 'out'))
+    run = srmosaic_process('process', str(tmp_path / 'nope'), '--out', str(tmp_path / 'out'))
     assert run.returncode == 2
     assert 'error' in run.stderr and 'Traceback' not in run.stderr
     assert not (tmp_path / 'out' / 'mosaic.png').exists()
@@ -168,7 +173,8 @@ def test_bad_files_are_refused_in_one_line(tmp_path: Path, demo_out: Path, case:
         'record_tiles_file': (['record-tiles', str(a_file)], 'is a file, not a directory'),
         'evaluate_cut_frames_csv': (['evaluate', str(cut)], 'is cut short or damaged'),
     }[case]
-    run = srmosaic(*args)
+    # launch parses ROS arguments with rcl: a process of its own, as it would be
+    run = srmosaic_process(*args) if args[0] == 'launch' else srmosaic(*args)
     assert run.returncode == 2, run.stderr
     assert 'Traceback' not in run.stderr, run.stderr
     # rcl logs its own "[ERROR] ... Failed to parse global arguments" before ours

@@ -17,6 +17,7 @@ from srmosaic_ros.core.georef.geodetic import LocalTangentPlane
 from srmosaic_ros.errors import InputError
 from srmosaic_ros.sim import SimConfig, save_truth, simulate
 from srmosaic_ros.sim.record import write_stills_folder
+from cli_runner import run_cli
 
 
 @pytest.fixture(scope='module')
@@ -66,14 +67,9 @@ def _write_gcp(path: Path, root: Path, targets, *, moved: dict[str, tuple[float,
 def test_control_alone_puts_stills_without_gps_on_the_ground_and_check_points_measure_it(survey, tmp_path: Path) -> None:
     root, targets = survey
     assert len(targets) >= 7 and all(len(seen) >= 2 for _, _, seen in targets)
-    import subprocess
-    import sys
-
     _write_gcp(root / 'survey' / 'gcp_list.txt', root, targets)  # found in the folder
     try:
-        run = subprocess.run([sys.executable, '-m', 'srmosaic_ros.cli', 'process', str(root / 'survey'), '--out',
-                              str(tmp_path / 'out'), '--check-points', '2', '--no-progress'],
-                             capture_output=True, text=True, timeout=600)
+        run = run_cli('process', str(root / 'survey'), '--out', str(tmp_path / 'out'), '--check-points', '2', '--no-progress')
     finally:
         (root / 'survey' / 'gcp_list.txt').unlink()
     assert run.returncode == 0, run.stderr
@@ -151,15 +147,11 @@ def test_check_points_by_count_are_inside_the_control_and_spread() -> None:
 
 
 def test_the_command_line_refuses_ground_control_for_a_bag_in_one_line(tmp_path: Path) -> None:
-    import subprocess
-    import sys
-
     from repo_paths import REPO
 
     (tmp_path / 'gcp_list.txt').write_text('EPSG:32611\n')
-    run = subprocess.run([sys.executable, '-m', 'srmosaic_ros.cli', 'process', str(REPO / 'bags' / 'demo'), '--out',
-                          str(tmp_path / 'out'), '--gcp', str(tmp_path / 'gcp_list.txt'), '--no-progress'],
-                         capture_output=True, text=True, timeout=300)
+    run = run_cli('process', str(REPO / 'bags' / 'demo'), '--out', str(tmp_path / 'out'), '--gcp', str(tmp_path / 'gcp_list.txt'),
+                  '--no-progress')
     assert run.returncode != 0
     lines = [line for line in run.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and 'ground control for a video or a bag is not supported yet' in lines[0], run.stderr

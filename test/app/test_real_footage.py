@@ -3,8 +3,6 @@ truth-free figures of `evaluate` (test/data/real: copies of ../shared/data/real 
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -14,6 +12,7 @@ from srmosaic_ros.app.evaluate_real import evaluate_real
 from srmosaic_ros.app.inspect_tool import format_inspection, inspect_input
 from srmosaic_ros.app.process import process_input
 from repo_paths import REPO, TEST_DATA
+from cli_runner import run_cli
 
 REAL = TEST_DATA / 'real'
 APHILL = REAL / 'klv' / 'aphill_short.ts'
@@ -74,15 +73,13 @@ def test_a_video_without_metadata_says_why_it_is_not_georeferenced(tmp_path: Pat
 
 
 def test_cli_inspect_and_truth_free_evaluate(aphill_out: Path) -> None:
-    exe = [sys.executable, '-m', 'srmosaic_ros.cli']
-    run = subprocess.run([*exe, 'inspect', str(APHILL)], capture_output=True, text=True, timeout=120)
+    run = run_cli('inspect', str(APHILL))
     assert run.returncode == 0, run.stderr
     assert 'MISB KLV' in run.stdout and 'process will:' in run.stdout
-    run = subprocess.run([*exe, 'evaluate', str(aphill_out), '--no-progress'], capture_output=True, text=True,
-                         timeout=300)
+    run = run_cli('evaluate', str(aphill_out), '--no-progress')
     assert run.returncode == 0, run.stderr
     assert 'frames in main mosaic: 48/48' in run.stdout and 'position vs metadata' in run.stdout
-    run = subprocess.run([*exe, 'inspect', str(REAL / 'nothing_here.ts')], capture_output=True, text=True, timeout=60)
+    run = run_cli('inspect', str(REAL / 'nothing_here.ts'))
     assert run.returncode == 2 and 'does not exist' in run.stderr and run.stderr.count('\n') == 1
 
 

@@ -3,21 +3,19 @@ from __future__ import annotations
 
 import json
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
 from repo_paths import REPO
+from cli_runner import run_cli
 
 DEMO = REPO / 'bags' / 'demo'
 
 
 def test_process_sr_writes_tiles_contract(tmp_path):
     out = tmp_path / 'out'
-    run = subprocess.run([sys.executable, '-m', 'srmosaic_ros.cli', 'process', str(DEMO), '--out', str(out), '--sr',
-                          '--no-progress', '--checkpoint-every', '0'], capture_output=True, text=True, timeout=900)
+    run = run_cli('process', str(DEMO), '--out', str(out), '--sr', '--no-progress', '--checkpoint-every', '0')
     assert run.returncode == 0, run.stderr
     tiles = json.loads((out / 'sr' / 'tiles.json').read_text())
     assert len(tiles) >= 5

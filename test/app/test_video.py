@@ -17,6 +17,7 @@ from srmosaic_ros.io.video import VideoReader, parse_selection, write_video
 from srmosaic_ros.sim import SimConfig, simulate
 from srmosaic_ros.sim.cli import _write_video_and_sidecar
 from srmosaic_ros.sim.truth import save_truth
+from cli_runner import run_cli
 from repo_paths import REPO
 
 GOP = 12
@@ -36,9 +37,13 @@ def flight_video(tmp_path_factory):
 ROOT = REPO
 
 
-def srmosaic(*args: str) -> subprocess.CompletedProcess:
+def srmosaic_process(*args: str) -> subprocess.CompletedProcess:
+    """A real `srmosaic` process, as a user runs it."""
     return subprocess.run([sys.executable, '-m', 'srmosaic_ros.cli', *args], capture_output=True, text=True,
                           timeout=600)
+
+
+srmosaic = run_cli  # the same command in this process (test/cli_runner.py)
 
 
 @pytest.mark.parametrize(('select', 'expected'), [('all', N), ('every:3', N // 3), ('iframes', N // GOP)])
@@ -275,8 +280,8 @@ def test_a_second_writer_of_the_same_out_is_refused(tmp_path):
 
     out = tmp_path / 'out'
     (out / '.staging-99999999').mkdir(parents=True)  # what a run killed with kill -9 leaves
-    with OutputTransaction(out):
-        run = srmosaic('process', str(ROOT / 'bags' / 'demo'), '--out', str(out), '--no-progress')
+    with OutputTransaction(out):  # held by this process: the run must be another
+        run = srmosaic_process('process', str(ROOT / 'bags' / 'demo'), '--out', str(out), '--no-progress')
     assert run.returncode == 2, run.stderr
     assert f'another srmosaic process (pid {os.getpid()}) is writing' in run.stderr
     assert sorted(p.name for p in out.iterdir()) == []

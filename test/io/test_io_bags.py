@@ -12,6 +12,7 @@ from msg_adapters.image import _ENCODINGS
 from srmosaic_ros.core.types import CameraIntrinsics, Frame, GeoFix, ImuSample
 from srmosaic_ros.errors import BagError
 from srmosaic_ros.io.bags import BagWriter, TopicConfig, inspect_bag, read_flight
+from cli_runner import run_cli
 
 STORAGES = ['sqlite3', 'mcap']
 T0 = 1_700_000_000_000_000_000
@@ -442,8 +443,6 @@ def test_bad_messages_are_counted_per_kind_not_per_message(tmp_path: Path) -> No
 def test_a_bag_of_unusable_images_is_refused_with_the_reason(tmp_path: Path) -> None:
     """Every image in an unsupported encoding: exit 2 and the reason with its count (it was
     '0/0 frames in mosaic.png', exit 0, nothing said); no output written."""
-    import subprocess
-    import sys
 
     bag = tmp_path / 'flight'
     with BagWriter(bag, storage='mcap') as writer:
@@ -453,8 +452,7 @@ def test_a_bag_of_unusable_images_is_refused_with_the_reason(tmp_path: Path) -> 
             image.encoding = 'yuv422'
             writer.write('/camera/image_raw', image, t)
     out = tmp_path / 'out'
-    run = subprocess.run([sys.executable, '-m', 'srmosaic_ros.cli', 'process', str(bag), '--out', str(out),
-                          '--no-progress'], capture_output=True, text=True, timeout=300)
+    run = run_cli('process', str(bag), '--out', str(out), '--no-progress')
     assert run.returncode == 2, (run.stdout, run.stderr)
     last = run.stderr.strip().splitlines()[-1]
     assert last.startswith('srmosaic process: error: no usable image in ') and "4 x /camera/image_raw: " in last

@@ -23,6 +23,7 @@ from rasterio.warp import transform as warp_transform
 from srmosaic_ros.io.poses_csv import read_poses_csv
 from srmosaic_ros.web.run_source import RunSource
 from srmosaic_ros.web.server import start_in_thread
+from cli_runner import run_cli
 
 ROOT = Path(__file__).resolve().parents[2]
 DEMO = ROOT / 'bags' / 'demo'
@@ -35,8 +36,7 @@ BACKGROUND = (0x2b, 0x2d, 0x31)  # map.css: the map's background where no tile i
 def demo_run(tmp_path_factory):
     """The demo flight processed as a user would, with the web tiles and the KMZ (one run for the module)."""
     out = tmp_path_factory.mktemp('demo') / 'out'
-    run = subprocess.run([sys.executable, '-m', 'srmosaic_ros.cli', 'process', str(DEMO), '--out', str(out),
-                          '--tiles', '--kmz', '--no-progress'], capture_output=True, text=True, timeout=600)
+    run = run_cli('process', str(DEMO), '--out', str(out), '--tiles', '--kmz', '--no-progress')
     assert run.returncode == 0, run.stderr[-2000:]
     assert 'web map:' in run.stdout and 'KMZ:' in run.stdout
     return out

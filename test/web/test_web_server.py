@@ -3,8 +3,6 @@ from __future__ import annotations
 
 import http.client
 import json
-import subprocess
-import sys
 import time
 
 import cv2
@@ -17,6 +15,7 @@ from srmosaic_ros.web import run_source
 from srmosaic_ros.web.run_source import RunSource
 from srmosaic_ros.web.server import STATIC_FILES, make_app, start_in_thread
 from srmosaic_ros.web.tiles import tiles_covering
+from cli_runner import run_cli
 
 
 class Bumped:
@@ -204,8 +203,7 @@ def test_not_georeferenced_folder_is_a_clear_error(tmp_path):
         RunSource(tmp_path)
     with pytest.raises(InputError, match='no such folder'):
         RunSource(tmp_path / 'missing')
-    cli = subprocess.run([sys.executable, '-m', 'srmosaic_ros.cli', 'serve', str(tmp_path)], capture_output=True,
-                         text=True, timeout=60)
+    cli = run_cli('serve', str(tmp_path))
     assert cli.returncode == 2
     assert cli.stderr.count('\n') == 1 and 'not georeferenced' in cli.stderr
 
