@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import logging
 import subprocess
 
 from srmosaic_ros.cli import main
@@ -18,9 +19,16 @@ from srmosaic_ros.cli import main
 def run_cli(*args: str) -> subprocess.CompletedProcess:
     """``srmosaic *args`` in this process: its exit status, stdout and stderr, as subprocess.run gives them."""
     out, err = io.StringIO(), io.StringIO()
+    # In a process of its own the command configures no logging, so its warnings reach stderr through
+    # logging.lastResort: WARNING and above, the message alone. Here pytest's handlers would take them.
+    said = logging.StreamHandler(err)
+    said.setLevel(logging.WARNING)
+    logging.getLogger().addHandler(said)
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
         try:
             code = main(list(args))
         except SystemExit as exc:  # argparse's usage errors and --help
             code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
+        finally:
+            logging.getLogger().removeHandler(said)
     return subprocess.CompletedProcess(['srmosaic', *args], code, out.getvalue(), err.getvalue())
