@@ -9,22 +9,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 import torch
 
+from .torch_feature_options import FeatureOptions
 from .torch_scale_space import _gaussian_stack, _gradients_into, _on_cpu32, cached_constant, gaussian_blur, half_size
-
-if TYPE_CHECKING:
-    from .torch_features import FeatureOptions
 
 __all__ = ['ScaleSpaceCandidates', 'detect']
 
 _SIGMA_IN = 0.5          # blur assumed in the detection-level image (pixel integration)
-
-
 _RECT3 = np.ones((3, 3), np.uint8)
 
 
