@@ -53,7 +53,7 @@ class GeorefConfig:
     ut_beta: float = setting(2.0)
     ut_kappa: float = setting(0.0, gt=-13.0)
     ut_iterations: int = setting(5, lo=1, hi=50)                   # passes of the homography and gyro updates (posterior
-    #                                          linearisation, see ukf._batch_update); 1: plain UKF update
+    #                                          linearisation, see ukf_updates._batch_update); 1: plain UKF update
     gsd_m_per_px: float = setting(float('nan'), gt=0.0, nan=True)       # raster ground sampling; NaN: the first frame's GSD
     drift_chain_sigma_px: float = setting(0.3, lo=0.0)        # drift control: random walk of chained corners per frame
     drift_pose_time_constant_s: float = setting(float('nan'), lo=0.0, nan=True)  # drift control: pose-error correlation time (s, >= 0; 0:

@@ -41,8 +41,8 @@ one is exactly equal to for a linear hx, computed directly, see PoseUkf._update)
   ``log(R_prev^T R_cur)``; R from the per-sample gyro noise and a bias allowance. The homography
   of a narrow nadir view hardly separates a small rotation from a translation (pitch by dtheta
   moves the image like a displacement of d dtheta), so without a precise relative attitude the
-  absolute attitude noise of the IMU (0.5 deg per sample) leaks into the position as frame-to-
-  frame jitter of 0.3 m; the gyro removes it.
+  absolute attitude noise of the IMU leaks into the position as frame-to-frame jitter
+  (docs/results.md, "Georeferencing"); the gyro removes it.
 - Homography prev_H_cur of a registration (Table 6, 4.30 to 4.39): predicted by the flat-ground
   model (4.28, 4.29) of the two camera poses in the state, :func:`frame2_H_frame1` with frame 1 the
   current camera and frame 2 the previous one. The 8 free entries of H are expressed as the
@@ -68,8 +68,7 @@ fused.
 Sigma points: ``MerweScaledSigmaPoints`` with alpha = 1, beta = 2, kappa = 0 by default (2L + 1 =
 27 points at +-sqrt(L) sigma; weights Wm_0 = 0, Wc_0 = 2, the others 1 / 2L, none negative). The reference's L + kappa = 3
 (4.32) is available (kappa = 3 - L) but is not the default: with L = 13 it gives a central weight
-of -3.3, which biases the height on simulated flights (normalised estimation error squared 5 to 8
-instead of about 1).
+of -3.3, which biases the height on simulated flights (docs/results.md, "Georeferencing").
 
 Offline, :func:`rts_smooth` runs the Rauch-Tung-Striebel recursion over the stored moments of a
 run (the predict is linear, so it is exact for this filter's Gaussian approximation).
@@ -81,21 +80,32 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
-from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter, unscented_transform
+from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 from scipy.spatial.transform import Rotation
 from scipy.special import chdtri
 
-from .frames import (
-    NADIR_ELEVATION_RAD,
-    CameraPose,
-    R_body_from_cam,
-    R_enu_from_body,
-    camera_pose,
-    rotvec_from_matrix,
-    rpy_from_R_enu_from_body,
+from .frames import R_enu_from_body, rotvec_from_matrix
+from .ground_homography import apply_H
+from .rts_smoother import rts_smooth
+from .ukf_models import (
+    _EPS_VAR,
+    GROUND,
+    POSE_DIM,
+    SLOT_CUR,
+    SLOT_PREV,
+    STATE_DIM,
+    CameraMount,
+    _interpolation_matrix,
+    _R_enu_from_body_batch,
+    _sym,
+    corner_jacobian,
+    homography_model,
+    homography_model_batch,
+    nearest_positive_definite,
+    transition_matrix,
+    wrap_angle,
 )
-from .ground_homography import apply_H, frame2_H_frame1
+from .ukf_updates import _batch_update, _linear_update
 
 __all__ = [
     'POSE_DIM',
@@ -112,44 +122,6 @@ __all__ = [
     'transition_matrix',
     'wrap_angle',
 ]
-
-POSE_DIM = 6
-STATE_DIM = 13
-GROUND = 12
-SLOT_PREV = slice(0, 6)
-SLOT_CUR = slice(6, 12)
-_EPS_VAR = 1e-10  # keeps P positive definite where a block is exactly singular by construction
-
-
-def wrap_angle(a: np.ndarray | float) -> np.ndarray | float:
-    """Angle(s) in radians wrapped to [-pi, pi)."""
-    wrapped = np.mod(np.asarray(a, dtype=np.float64) + np.pi, 2.0 * np.pi) - np.pi
-    return float(wrapped) if np.ndim(wrapped) == 0 else wrapped
-
-
-@dataclass(frozen=True)
-class CameraMount:
-    """How the camera sits on the body: gimbal angles (rad) and lever arm (body frame, m).
-
-    Defaults: nadir, image top toward the nose, image right toward the right wing (see frames).
-    """
-
-    gimbal_azimuth_rad: float = 0.0
-    gimbal_elevation_rad: float = NADIR_ELEVATION_RAD
-    lever_arm_body_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
-
-    def camera_pose(self, pose6: np.ndarray) -> CameraPose:
-        """Camera optical frame of a body pose (east, north, up, roll, pitch, yaw)."""
-        return camera_pose(pose6[:3], pose6[3], pose6[4], pose6[5], gimbal_azimuth_rad=self.gimbal_azimuth_rad,
-                           gimbal_elevation_rad=self.gimbal_elevation_rad, lever_arm_body_m=self.lever_arm_body_m)
-
-    def body_pose(self, camera: CameraPose) -> np.ndarray:
-        """(6,) body pose (east, north, up, roll, pitch, yaw) of a camera pose: the inverse of camera_pose."""
-        R_enu_from_body = camera.R_enu_from_cam @ R_body_from_cam(self.gimbal_azimuth_rad,
-                                                                  self.gimbal_elevation_rad).T
-        position = np.asarray(camera.center_enu_m, dtype=np.float64) - R_enu_from_body @ np.asarray(
-            self.lever_arm_body_m, dtype=np.float64)
-        return np.r_[position, rpy_from_R_enu_from_body(R_enu_from_body)]
 
 
 @dataclass(frozen=True)
@@ -183,24 +155,6 @@ class UpdateResult:
     def accepted(self) -> bool:
         return self.status in ('accepted', 'reacquired')
 
-
-def corner_jacobian(H: np.ndarray, corners: np.ndarray) -> np.ndarray:
-    """(2N, 8) Jacobian of the mapped corners (u1, v1, u2, v2, ...) w.r.t. (h00 .. h21), h22 = 1.
-
-    H (3, 3) normalised to h22 = 1; corners (N, 2). u = (h00 x + h01 y + h02) / w,
-    v = (h10 x + h11 y + h12) / w, w = h20 x + h21 y + 1.
-    """
-    H = np.asarray(H, dtype=np.float64) / H[2, 2]
-    out = np.zeros((2 * len(corners), 8))
-    for i, (x, y) in enumerate(np.asarray(corners, dtype=np.float64)):
-        w = H[2, 0] * x + H[2, 1] * y + 1.0
-        u = (H[0, 0] * x + H[0, 1] * y + H[0, 2]) / w
-        v = (H[1, 0] * x + H[1, 1] * y + H[1, 2]) / w
-        out[2 * i, 0:3] = (x / w, y / w, 1.0 / w)
-        out[2 * i, 6:8] = (-u * x / w, -u * y / w)
-        out[2 * i + 1, 3:6] = (x / w, y / w, 1.0 / w)
-        out[2 * i + 1, 6:8] = (-v * x / w, -v * y / w)
-    return out
 
 
 class PoseUkf:
@@ -391,49 +345,14 @@ class PoseUkf:
 
     def homography_model(self, K: np.ndarray, mount: CameraMount,
                          corners: np.ndarray, K_prev: np.ndarray | None = None) -> Callable[[np.ndarray], np.ndarray]:
-        """hx(x) -> (2N,): the current frame's ``corners`` (N, 2) mapped into the previous frame by
-        the flat-ground homography of the two camera poses of state x (4.28, 4.29), ground at x[12].
-        K: the current frame's intrinsics; K_prev: the previous frame's (a zoom), None: the same."""
-        K = np.asarray(K, dtype=np.float64)
-        corners = np.asarray(corners, dtype=np.float64)
-
-        def hx(x: np.ndarray) -> np.ndarray:
-            prev = mount.camera_pose(x[SLOT_PREV])
-            cur = mount.camera_pose(x[SLOT_CUR])
-            prev_H_cur = frame2_H_frame1(K, cur.R_enu_from_cam, cur.center_enu_m, prev.R_enu_from_cam,
-                                         prev.center_enu_m, K2=K_prev, ground_z_m=x[GROUND])
-            return apply_H(prev_H_cur, corners).ravel()
-
-        return hx
+        """hx(x) -> (2N,) of a registration: :func:`ukf_models.homography_model`."""
+        return homography_model(K, mount, corners, K_prev)
 
     def homography_model_batch(self, K: np.ndarray, mount: CameraMount,
                                corners: np.ndarray, K_prev: np.ndarray | None = None) -> Callable[[np.ndarray], np.ndarray]:
-        """:meth:`homography_model` for every row of xs (N, STATE_DIM) at once -> (N, 2 corners).
+        """hx of every row of xs (N, STATE_DIM) at once: :func:`ukf_models.homography_model_batch`."""
+        return homography_model_batch(K, mount, corners, K_prev)
 
-        The same 4.28: prev_H_cur = K R_prev^T (I - (C_cur - C_prev) n^T / d) R_cur K^-1 with
-        R = R_enu_from_cam, d = C_cur,z - g, n = (0, 0, 1) (scale left out: the corners are
-        dehomogenised)."""
-        K_inv = np.linalg.inv(np.asarray(K, dtype=np.float64))
-        K = np.asarray(K if K_prev is None else K_prev, dtype=np.float64)  # the previous frame's, on the left
-        pts = np.c_[np.asarray(corners, dtype=np.float64), np.ones(len(corners))]          # (M, 3)
-        R_bc = R_body_from_cam(mount.gimbal_azimuth_rad, mount.gimbal_elevation_rad)
-        lever = np.asarray(mount.lever_arm_body_m, dtype=np.float64)
-
-        def hx_batch(xs: np.ndarray) -> np.ndarray:
-            r_eb_prev, r_eb_cur = _R_enu_from_body_batch(xs[:, 3:6]), _R_enu_from_body_batch(xs[:, 9:12])
-            c_prev = xs[:, 0:3] + r_eb_prev @ lever
-            c_cur = xs[:, 6:9] + r_eb_cur @ lever
-            d = c_cur[:, 2] - xs[:, GROUND]
-            if np.any(np.abs(d) < 1e-12):
-                msg = 'camera 1 lies on the ground plane; the plane-induced homography is undefined.'
-                raise ValueError(msg)
-            plane = np.broadcast_to(np.eye(3), (len(xs), 3, 3)).copy()
-            plane[:, :, 2] -= (c_cur - c_prev) / d[:, None]                # I - (C1 - C2) n^T / d
-            H = K @ np.swapaxes(r_eb_prev @ R_bc, 1, 2) @ plane @ (r_eb_cur @ R_bc) @ K_inv
-            q = pts @ np.swapaxes(H, 1, 2)                                  # (N, M, 3)
-            return (q[:, :, :2] / q[:, :, 2:3]).reshape(len(xs), -1)
-
-        return hx_batch
 
     def update_homography(self, prev_H_cur: np.ndarray, R_corners: np.ndarray, K: np.ndarray,
                           mount: CameraMount, corners: np.ndarray, K_prev: np.ndarray | None = None) -> UpdateResult:
@@ -460,7 +379,7 @@ class PoseUkf:
 
         For a linear hx the unscented transform is exact (the sigma points reproduce x and P, so the
         predicted z is M x, P_zz = M P M^T and P_xz = P M^T), and the update reduces to the Kalman
-        one, computed directly: identical to filterpy's within rounding, and about ten times cheaper
+        one, computed directly: identical to filterpy's within rounding, and cheaper
         (the IMU orientation at 50 to 100 Hz is most of the filter's updates). ``hx_batch``: hx of
         all sigma points at once (N, STATE_DIM) -> (N, m); the unscented update is then filterpy's,
         step for step (its sigma points, weights and unscented_transform), without its per-point
@@ -510,157 +429,10 @@ class PoseUkf:
         return UpdateResult('reacquired' if res.accepted else res.status, res.mahalanobis2)
 
 
-def _sym(P: np.ndarray) -> np.ndarray:
-    return 0.5 * (P + P.T)
-
-
-def _interpolation_matrix(first: int, a: float) -> np.ndarray:
-    """(3, STATE_DIM) M with M x = (1 - a) x[first:first+3] + a x[first+6:first+9] (slot interpolation)."""
-    m = np.zeros((3, STATE_DIM))
-    i = np.arange(3)
-    m[i, first + i] = 1.0 - a
-    m[i, first + POSE_DIM + i] = a
-    return m
-
-
-def _R_enu_from_body_batch(rpy: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) frames.R_enu_from_body of each row (roll, pitch, yaw) of rpy (N, 3): Rz Ry Rx."""
-    cr, cp, cy = np.cos(rpy).T
-    sr, sp, sy = np.sin(rpy).T
-    out = np.empty((len(rpy), 3, 3))
-    out[:, 0, 0] = cy * cp
-    out[:, 0, 1] = cy * sp * sr - sy * cr
-    out[:, 0, 2] = cy * sp * cr + sy * sr
-    out[:, 1, 0] = sy * cp
-    out[:, 1, 1] = sy * sp * sr + cy * cr
-    out[:, 1, 2] = sy * sp * cr - cy * sr
-    out[:, 2, 0] = -sp
-    out[:, 2, 1] = cp * sr
-    out[:, 2, 2] = cp * cr
-    return out
-
-
-def _batch_update(ukf: UnscentedKalmanFilter, z: np.ndarray, R: np.ndarray,
-                  hx_batch: Callable[[np.ndarray], np.ndarray], iterations: int = 1,
-                  tolerance_sigma: float = 1e-3) -> float:
-    """filterpy's UnscentedKalmanFilter.update with the sigma points mapped by hx_batch in one call
-    (and the cross-covariance as one product); writes x, P, sigmas_h, S, SI, K, y, z as it does.
-    Returns the squared Mahalanobis distance of the innovation (of the first pass: the gate tests
-    the measurement against the prediction).
-
-    iterations > 1: iterated posterior linearisation (García-Fernández, Svensson, Morelande and
-    Särkkä, "Posterior linearization filter", IEEE TSP 63(20), 2015). The first pass is the UKF
-    update above. Each further pass draws the sigma points from the latest posterior (x_i, P_i)
-    instead of the prior, fits the statistical linear regression of hx there,
-    z ~ A x + b + N(0, Omega) with A = Psi^T P_i^-1, b = z_bar - A x_i, Omega = Phi - A P_i A^T
-    (Psi, Phi: the sigma points' cross- and output covariances), and updates the *prior* (x0, P0)
-    with that linear model and R + Omega. Why: a homography constrains displacement / height
-    above ground, a ratio; linearised once at a ground prior far off (40 m on a 60 m flight with
-    the default nominal 100 m AGL), every update is fused at the wrong slope: the estimate creeps
-    toward the truth over seconds while P shrinks at once, and the filter is overconfident
-    (normalised estimation error squared about 17, about 3 when re-linearised; test_georef_ukf).
-    Stops when the estimate moves by less than ``tolerance_sigma`` prior standard deviations in
-    every component.
-    """
-    x0, P0 = ukf.x.copy(), ukf.P.copy()
-    ukf.sigmas_h = np.atleast_2d(hx_batch(ukf.sigmas_f))
-    zp, ukf.S = unscented_transform(ukf.sigmas_h, ukf.Wm, ukf.Wc, R, ukf.z_mean, ukf.residual_z)
-    ukf.SI = ukf.inv(ukf.S)
-    # P_xz = sum_i Wc_i (chi_i - x)(Z_i - z)^T (filterpy's cross_variance, default residuals)
-    pxz = (ukf.Wc[:, None] * (ukf.sigmas_f - ukf.x)).T @ (ukf.sigmas_h - zp)
-    ukf.K = pxz @ ukf.SI
-    ukf.y = ukf.residual_z(z, zp)
-    d2 = float(ukf.y @ ukf.SI @ ukf.y)
-    ukf.x = ukf.state_add(ukf.x, ukf.K @ ukf.y)
-    ukf.P = ukf.P - ukf.K @ ukf.S @ ukf.K.T
-    prior_sd = np.sqrt(np.maximum(np.diag(P0), _EPS_VAR))
-    for _ in range(iterations - 1):
-        x_i, P_i = ukf.x, _sym(ukf.P)
-        try:
-            sig = ukf.points_fn.sigma_points(x_i, P_i)
-            zs = np.atleast_2d(hx_batch(sig))
-            z_bar = ukf.Wm @ zs
-            dz = zs - z_bar
-            psi = (ukf.Wc[:, None] * (sig - x_i)).T @ dz                    # (n, m)
-            phi = (ukf.Wc[:, None] * dz).T @ dz                             # (m, m)
-            A = scipy.linalg.solve(P_i, psi, assume_a='pos').T  # (m, n)
-            omega = nearest_positive_definite(phi - A @ P_i @ A.T, floor=0.0)
-            S = A @ P0 @ A.T + omega + R
-            SI = ukf.inv(S)
-            K = P0 @ A.T @ SI
-            y = z - (A @ x0 + (z_bar - A @ x_i))
-            x_new, P_new = x0 + K @ y, P0 - K @ S @ K.T
-        except (np.linalg.LinAlgError, ValueError, scipy.linalg.LinAlgError):
-            break  # keep the last good pass
-        if not np.all(np.isfinite(x_new)) or not np.all(np.isfinite(P_new)):
-            break
-        step = np.max(np.abs(x_new - x_i) / prior_sd)
-        ukf.x, ukf.P, ukf.S, ukf.SI, ukf.K, ukf.y = x_new, P_new, S, SI, K, y
-        if step < tolerance_sigma:
-            break
-    ukf.z = np.array(z, copy=True)
-    ukf.x_post, ukf.P_post = ukf.x.copy(), ukf.P.copy()
-    return d2
-
-
-def _linear_update(ukf: UnscentedKalmanFilter, z: np.ndarray, R: np.ndarray, M: np.ndarray) -> float:
-    """Kalman update of ukf.x, ukf.P by z = M x + N(0, R), written where filterpy's update writes it
-    (x, P, y, S, SI, K, z); returns the squared Mahalanobis distance of the innovation."""
-    y = z - M @ ukf.x
-    PMt = ukf.P @ M.T
-    S = M @ PMt + R
-    SI = np.linalg.inv(S)
-    K = PMt @ SI
-    ukf.x = ukf.x + K @ y
-    ukf.P = ukf.P - K @ S @ K.T
-    ukf.y, ukf.S, ukf.SI, ukf.K, ukf.z = y, S, SI, K, np.array(z, copy=True)
-    ukf.x_post, ukf.P_post = ukf.x.copy(), ukf.P.copy()
-    return float(y @ SI @ y)
-
 
 def _slot_cur_position(x: np.ndarray) -> np.ndarray:
     return x[6:9]
 
-
-def nearest_positive_definite(P: np.ndarray, floor: float = 1e-9) -> np.ndarray:
-    """P symmetrised with its eigenvalues clipped to >= ``floor`` (a numerical repair)."""
-    w, v = np.linalg.eigh(_sym(P))
-    return _sym((v * np.maximum(w, floor)) @ v.T)
-
-
-def transition_matrix(ratio: float) -> np.ndarray:
-    """(13, 13) F of the motion model: [y_prev, y_cur, g] -> [y_cur, (1 + r) y_cur - r y_prev, g]."""
-    F = np.zeros((STATE_DIM, STATE_DIM))
-    F[SLOT_PREV, SLOT_CUR] = np.eye(POSE_DIM)
-    F[SLOT_CUR, SLOT_PREV] = -ratio * np.eye(POSE_DIM)
-    F[SLOT_CUR, SLOT_CUR] = (1.0 + ratio) * np.eye(POSE_DIM)
-    F[GROUND, GROUND] = 1.0
-    return F
-
-
-def rts_smooth(steps: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]]
-               ) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Rauch-Tung-Striebel smoothing of a run of this filter.
-
-    steps[k] = (x_pred, P_pred, x_post, P_post, F) of frame k: the state right after the predict
-    to frame k (F the transition that produced it; None for the first) and right before the
-    predict to frame k + 1. The predict is linear, so the smoother is the exact RTS recursion on
-    these moments: C = P_post F'^T P_pred'^-1, x_s = x_post + C (x_s' - x_pred'),
-    P_s = P_post + C (P_s' - P_pred') C^T. Returns the smoothed (x, P) per frame.
-    """
-    out: list[tuple[np.ndarray, np.ndarray]] = [(np.empty(0), np.empty(0))] * len(steps)
-    if not steps:
-        return out
-    x_s, P_s = steps[-1][2], steps[-1][3]
-    out[-1] = (x_s.copy(), P_s.copy())
-    for k in range(len(steps) - 2, -1, -1):
-        _, _, x_post, P_post, _ = steps[k]
-        x_pred, P_pred, _, _, F = steps[k + 1]
-        C = np.linalg.solve(P_pred, F @ P_post).T  # P_post F^T P_pred^-1 (P symmetric)
-        x_s = x_post + C @ (x_s - x_pred)
-        P_s = _sym(P_post + C @ (P_s - P_pred) @ C.T)
-        out[k] = (x_s.copy(), P_s.copy())
-    return out
 
 
 def _constant_velocity(x: np.ndarray, dt: float, ratio: float = 0.0) -> np.ndarray:
