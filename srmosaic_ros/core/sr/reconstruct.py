@@ -56,11 +56,13 @@ from ..device import resolve_device
 from ..settings import Bounds, check_settings, setting
 from .anchor import anchor_to_frame, neighbour_correlation, reference_on_hr, structure_threshold
 from .consistency import consistent_frames, noise_sigma
+from .dense_flow import FLOW_MODES, dense_flow_to_reference, remap_tile
 from .local_align import ALIGN_MODES, align_to_reference, photometric_to_reference
 from .moving import MIN_FRAMES as MOVING_MIN_FRAMES, moving_mask
 from .observation import FrameStack, build_frame_stack
-from .operators import Warp, gaussian_psf
+from .operators import WARP_MODES, Warp, gaussian_psf
 from .prior import HuberPrior, clique_differences, huber_sum
+from .robust_pixels import ROBUST_NORMS, pixel_weights
 from .ringing import CLAMP_MODES, clamp_to_lr_range
 from .scheduler import frame_centres
 from .solvers import LAMBDA_MODES, SOLVERS, IterationRecord, LambdaRule, Problem, solve
@@ -202,6 +204,13 @@ class SRConfig:
     local_align: str = setting('affine', choices=ALIGN_MODES)
     local_align_max_px: float = setting(1.5, gt=0.0, unit='LR px')
     photometric: bool = True
+    warp: str = setting('bilinear', choices=WARP_MODES)
+    dense_flow: str = setting('off', choices=FLOW_MODES)
+    dense_flow_max_px: float = setting(1.0, gt=0.0, hi=4.0, unit='LR px')
+    dense_flow_smooth: float = setting(1.5, lo=0.0, hi=10.0, unit='LR px')
+    dense_flow_fb_px: float = setting(0.5, gt=0.0, unit='LR px')
+    robust_pixels: str = setting('off', choices=ROBUST_NORMS)
+    robust_pixels_scale: float = setting(2.0, gt=0.0)
     device: str = 'auto'
 
     def __post_init__(self) -> None:
@@ -473,7 +482,7 @@ def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames:
             msg = (f'a PSF for factor {s} is a 2-D kernel whose sides have the parity of {s} (it is centred '
                    f'on an LR pixel centre), got shape {tuple(kernel.shape)}.')
             raise SRError(msg)
-    stack = build_frame_stack(ts, tilem_H_frames, (hm, wm), s, kernel, min_observed=cfg.min_observed)
+    stack = build_frame_stack(ts, tilem_H_frames, (hm, wm), s, kernel, min_observed=cfg.min_observed, interpolation=cfg.warp)
     if stack is None:
         msg = 'no frame observes this tile; pick tiles inside the frames\' footprints.'
         raise SRError(msg)
@@ -494,7 +503,7 @@ def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames:
         if not np.allclose(corr, np.eye(3)):
             for k, i in enumerate(stack.index):
                 tilem_H_frames[i] = corr[k] @ tilem_H_frames[i]
-            stack = build_frame_stack(ts, tilem_H_frames, (hm, wm), s, kernel, min_observed=cfg.min_observed)
+            stack = build_frame_stack(ts, tilem_H_frames, (hm, wm), s, kernel, min_observed=cfg.min_observed, interpolation=cfg.warp)
             if stack is None:
                 msg = 'no frame observes this tile; pick tiles inside the frames\' footprints.'
                 raise SRError(msg)
@@ -503,6 +512,23 @@ def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames:
             # the reference stays the frame the mosaic shows (centres often tie within a pixel)
             ref = stack.index.index(ref_frame) if ref_frame in stack.index else \
                 _nearest_frame(stack.index, tilem_H_frames, ts, (hm, wm))
+    if cfg.dense_flow != 'off' and k_frames >= 2:  # per-pixel residual registration (dense_flow.py)
+        flow, conf = dense_flow_to_reference(luma(warped), covered, ref, preset=cfg.dense_flow,
+                                             max_px=cfg.dense_flow_max_px, smooth=cfg.dense_flow_smooth,
+                                             fb_px=cfg.dense_flow_fb_px)
+        ref_frame = stack.index[ref]
+        flows = {i: flow[k] for k, i in enumerate(stack.index)}
+        confs = {i: conf[k] for k, i in enumerate(stack.index)}
+        refined = build_frame_stack(ts, tilem_H_frames, (hm, wm), s, kernel, min_observed=cfg.min_observed, interpolation=cfg.warp,
+                                    flows=flows, confidence=confs)
+        if refined is not None and ref_frame in refined.index:
+            stack = refined
+            k_frames = len(stack.index)
+            ref = stack.index.index(ref_frame)
+            warped, covered = warp_frames_to_tile(stack, (hm, wm))
+            sel = torch.stack([flows[i] for i in stack.index])
+            both = remap_tile(torch.cat([warped, covered], dim=1), sel)
+            warped, covered = both[:, :-1], (both[:, -1:] > 0.999).to(warped.dtype)
     if cfg.photometric and k_frames >= 2:  # exposure and white balance onto the reference's (local_align.py)
         gain, offset = photometric_to_reference(warped, covered, ref, min_change=PHOTOMETRIC_NOISE * noise)
         stack.crops.copy_((stack.crops * gain + offset).clamp(0, 1) * stack.in_frame)
@@ -599,12 +625,19 @@ def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames:
         full = (base + (x - base_y)) if solve_c != channels else x
         return full[0, :, m * s:(m + h_t) * s, m * s:(m + w_t) * s].clamp(0, 1)
 
-    reweight_at = set(cfg.reweight_at) if robust else set()
+    pixel_robust = cfg.robust_pixels != 'off'
+    reweight_at = set(cfg.reweight_at) if robust or pixel_robust else set()
+    base_mask, y_raw = stack.mask.clone(), y_obs / stack.mask.clamp_min(1e-12) * (stack.mask > 0)
 
     def reweight(n: int, _x: torch.Tensor, r: torch.Tensor) -> torch.Tensor | None:
         if n not in reweight_at:
             return None
-        return gated(problem.frame_rms(r).double()).to(r.dtype)
+        w = gated(problem.frame_rms(r).double()).to(r.dtype) if robust else problem.frame_weights
+        if pixel_robust:  # the robust data term (robust_pixels.py): the operator's mask and y reweighted
+            wp = pixel_weights(r, stack.mask, norm=cfg.robust_pixels, scale=cfg.robust_pixels_scale, noise=noise)
+            stack.mask.copy_(base_mask * torch.sqrt(wp))
+            problem.y.copy_(y_raw * stack.mask)
+        return w
 
     x0_tile = x0_rgb[0, :, m * s:(m + h_t) * s, m * s:(m + w_t) * s].clamp(0, 1)
     cb = None if callback is None else (lambda n, x: callback(n, x0_tile if n == 0 else compose(x)))
@@ -612,6 +645,9 @@ def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames:
     res = solve(problem, x0, method=cfg.solver, iterations=cfg.iterations, tol=cfg.tol, callback=cb,
                 reweight=reweight, **lm_opts)
     x_final, anchor_rms = res.x, math.nan
+    if pixel_robust:  # anchoring and the figures below read the frames as observed
+        stack.mask.copy_(base_mask)
+        problem.y.copy_(y_raw * stack.mask)
     if cfg.anchor:
         if not (keep[ref] and float(problem.frame_weights[ref]) >= 0.5):
             # the frame the mosaic shows here is the odd one out (parallax, a passing car): a tile
