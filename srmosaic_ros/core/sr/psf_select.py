@@ -61,7 +61,8 @@ def held_out_residual(tile: TileFrames, j: int, factor: int, config: SRConfig) -
     device = res.image.device
     s = int(factor)
     stack = build_frame_stack(_frames_to_tensors([tile.frames[j]], device), [tile.tile_H_frames[j]], tile.tile_shape,
-                              s, gaussian_psf(config.psf_sigma * s, s, device=device), min_observed=1)
+                              s, gaussian_psf(config.psf_sigma * s, s, device=device), min_observed=1,
+                              interpolation=config.warp)
     if stack is None or stack.y.shape[1] != res.image.shape[0]:
         return None
     r = stack.operator.apply(res.image[None]) - stack.crops
