@@ -155,6 +155,19 @@ class SRConfig:
         applied (LR pixels at the tile's corners).
     photometric: each frame's exposure and white balance matched to the reference's on the tile
         (gain and offset per channel; core/sr/local_align.py).
+    warp: the interpolation of W_k in the observation model (operators.WARP_MODES): 'bilinear', or
+        'bicubic', whose response falls less towards the HR Nyquist (the model then blurs less than
+        the resampling it stands for); twice the warp's cost.
+    dense_flow: after the ECC alignment, a dense residual flow of each frame to the reference on the
+        tile (core/sr/dense_flow.py; a DIS preset or 'off') moves the warp's sampling points per pixel,
+        and the flows' forward-backward consistency weights the frame's pixels in the data term;
+        dense_flow_max_px clips the flow (LR px), dense_flow_smooth smooths it (Gaussian std, LR px),
+        dense_flow_fb_px is the forward-backward disagreement at which a pixel's weight falls to 1/e.
+    robust_pixels: the robust data term (core/sr/robust_pixels.py): 'huber' or 'lorentzian' per-pixel
+        IRLS weights of the frames' residuals, re-estimated at the ``reweight_at`` iterations (the
+        solve restarts there), so that moving objects, occlusions and misregistered pixels stop
+        pulling the estimate; 'off': least squares. robust_pixels_scale: the norm's threshold in
+        robust stds of the residual (at least the frames' noise std).
     lm_inner: inner CG iterations of LM.
     anchor: after the solve, the reference frame's residual is back-projected onto the estimate
         (core/sr/anchor.py), so the tile shows what the mosaic around it shows (the same moving
