@@ -122,10 +122,12 @@ class SRConfig:
         s^2 rho0 measures the scene's activity at the frames' resolution. With
         ``lambda_reference='current'`` rho0 is the activity of the current iterate, as (5.6) reads,
         and the gamma is ``lambda_gamma / s`` (its own calibration): it collapses on sharp scenes
-        (see :class:`~srmosaic_ros.core.sr.solvers.LambdaRule`). lambda_gamma = 0.1 because the
+        (see :class:`~srmosaic_ros.core.sr.solvers.LambdaRule`). On simulated frames the
         best fixed lambda lies at 0.05 to 0.23 times sigma^2 / (s^2 rho0) over scenes, factors 2
-        and 4 and noise 0 to 5; one value serves all cases (bench/sr.py compares it with the best
-        fixed lambda of each).
+        and 4 and noise 0 to 5 (bench/sr.py compares the rule with the best fixed lambda of each);
+        real video wants more: its frames' compression is spatially correlated, the solve fits it
+        and sigma(n) falls with it, so lambda_gamma = 0.3 (bench/sr_video.py on two real videos;
+        on simulated tiles 0.3 is within a tenth of a dB of 0.1, docs/results.md).
     lambda_noise_cap: in the adaptive modes, the frames' RMS residuals in sigma(n) are capped at
         this many times their noise std (Immerkaer's estimate on the frames, core/sr/consistency.py);
         0: not capped (the default: (5.6) as it reads). Where the model fits the residual is below
@@ -193,7 +195,7 @@ class SRConfig:
     tol: float = setting(1e-4, lo=0.0)
     lambda_mode: str = setting('adaptive', choices=LAMBDA_MODES)
     lam: float = setting(0.01, lo=0.0)
-    lambda_gamma: float = setting(0.1, lo=0.0)
+    lambda_gamma: float = setting(0.3, lo=0.0)
     lambda_reference: str = setting('initial', choices=('initial', 'current'))
     lambda_noise_cap: float = setting(0.0, lo=0.0)
     lambda_noise_floor: float = setting(0.0, lo=0.0)
@@ -201,7 +203,7 @@ class SRConfig:
     color: str = setting('luma', choices=COLOR_MODES)
     margin: int = setting(4, lo=0, hi=256, unit='LR px')
     robust: bool = True
-    reweight_at: tuple[int, ...] = (3,)
+    reweight_at: tuple[int, ...] = (3, 6)
     outlier_threshold: float = 3.0
     outlier_power: float = 2.0
     consistency: float = setting(0.8, lo=0.0, lt=1.0)
@@ -222,8 +224,8 @@ class SRConfig:
     dense_flow_max_px: float = setting(1.0, gt=0.0, hi=4.0, unit='LR px')
     dense_flow_smooth: float = setting(1.5, lo=0.0, hi=10.0, unit='LR px')
     dense_flow_fb_px: float = setting(0.5, gt=0.0, unit='LR px')
-    robust_pixels: str = setting('off', choices=ROBUST_NORMS)
-    robust_pixels_scale: float = setting(2.0, gt=0.0)
+    robust_pixels: str = setting('huber', choices=ROBUST_NORMS)
+    robust_pixels_scale: float = setting(3.0, gt=0.0)
     device: str = 'auto'
 
     def __post_init__(self) -> None:
