@@ -34,6 +34,12 @@ compared with the per-pixel median of all of them (three frames or more); after 
 residuals ``e_k``: ``tau = median(e) + outlier_threshold * max(1.4826 MAD(e), 0.1 median(e))``;
 ``w_k = 1`` when ``e_k <= tau``, else ``(tau / e_k)^outlier_power``.
 
+Within each frame, the robust data term (``robust_pixels``, :mod:`.robust_pixels`) weights every LR
+pixel by its residual at the same iterations (IRLS), so a person walking or a patch misregistered
+does not pull the estimate while the rest of its frame still counts. Optionally (``dense_flow``,
+:mod:`.dense_flow`) a dense residual flow of each frame to the reference moves the warp's sampling
+points per pixel after the ECC alignment.
+
 Those weights are relative: they cannot see a tile where every frame disagrees with every other
 (3-D ground seen from stills far apart). Before them, the consistency test of
 :mod:`.consistency` keeps the largest set of frames that correlate as well as their noise allows
@@ -127,7 +133,7 @@ class SRConfig:
         and 4 and noise 0 to 5 (bench/sr.py compares the rule with the best fixed lambda of each);
         real video wants more: its frames' compression is spatially correlated, the solve fits it
         and sigma(n) falls with it, so lambda_gamma = 0.3 (bench/sr_video.py on two real videos;
-        on simulated tiles 0.3 is within a tenth of a dB of 0.1, docs/results.md).
+        on simulated tiles 0.3 loses at most a tenth of a dB to 0.1, docs/results.md).
     lambda_noise_cap: in the adaptive modes, the frames' RMS residuals in sigma(n) are capped at
         this many times their noise std (Immerkaer's estimate on the frames, core/sr/consistency.py);
         0: not capped (the default: (5.6) as it reads). Where the model fits the residual is below
