@@ -422,6 +422,21 @@ def section_speed(world, device: str, repeats: int = 5) -> None:
         r = reconstruct_tile(st.frames, st.tile_H_frames, st.tile_shape, 2, device=devices[0], iterations=10,
                              tol=0.0, solver=sv)
         print(f'{devices[0]} {sv.upper()} 10 iterations: {r.timings["total"]:.3f} s')
+    # the defaults and the optional steps against the former defaults, measured in this run: interleaved
+    # (the load of a shared machine falls on every variant alike), best of ``repeats`` after a warm-up
+    variants = {'before 2026-12-07 (least squares, lambda_gamma 0.1, reweight_at [3])':
+                {'robust_pixels': 'off', 'reweight_at': (3,), 'lambda_gamma': 0.1},
+                'defaults': {}, 'sr.dense_flow: fast': {'dense_flow': 'fast'}, 'sr.warp: bicubic': {'warp': 'bicubic'}}
+    best = dict.fromkeys(variants, math.inf)
+    for rep in range(repeats + 1):
+        for label, extra in variants.items():
+            r = reconstruct_tile(st.frames, st.tile_H_frames, st.tile_shape, 2, device=devices[0], iterations=10,
+                                 tol=0.0, **{**OVERRIDES, **extra})
+            if rep:
+                best[label] = min(best[label], r.timings['total'])
+    base = next(iter(best.values()))
+    for label, t in best.items():
+        print(f'{devices[0]} {label}: {t:.3f} s, {t / base:.2f} x the former defaults', flush=True)
 
 
 #: SR settings of every run (from the command line).

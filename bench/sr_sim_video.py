@@ -48,6 +48,8 @@ RUNS: dict[str, dict[str, Any]] = {
     'anchor compression': {'sr.anchor_compression': True},
     'anchor off': {'sr.anchor': False},
     'moving 0.05': {'sr.moving': 0.05},
+    'least squares, lambda_gamma 0.1 (before 2026-12-07)': {'sr.robust_pixels': 'off', 'sr.lambda_gamma': 0.1,
+                                                           'sr.reweight_at': [3]},
 }
 
 

@@ -117,7 +117,7 @@ def held_out_against_frame(frames: Sequence[np.ndarray], tile_H_frames: Sequence
         except SRError:
             continue
         stack = build_frame_stack(_frames_to_tensors([frames[j]], device), [np.asarray(tile_H_frames[j])], tile_shape,
-                                  s, psf, min_observed=1)
+                                  s, psf, min_observed=1, interpolation=config.warp)
         if stack is None or stack.crops.shape[1] != res.image.shape[0] or ref_lr.shape[0] != res.image.shape[0]:
             continue
         dtype = stack.crops.dtype

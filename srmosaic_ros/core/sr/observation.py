@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from .dense_flow import sample_field
 from .operators import BlurDecimate, LinearOperator, Warp, hr_H_lr
 
 __all__ = ['FrameStack', 'ObservationOperator', 'build_frame_stack', 'frame_window']
@@ -91,12 +92,18 @@ class FrameStack:
 
 def build_frame_stack(frames: Sequence[torch.Tensor], tile_H_frames: Sequence[np.ndarray],
                       tile_shape: tuple[int, int], factor: int, psf: torch.Tensor, *,
-                      min_observed: int = 16) -> FrameStack | None:
+                      min_observed: int = 16, flows: dict[int, torch.Tensor] | None = None,
+                      confidence: dict[int, torch.Tensor] | None = None,
+                      interpolation: str = 'bilinear') -> FrameStack | None:
     """Crop, pad and batch the frames that observe the tile; None when none does.
 
     ``frames``: tensors (C, h_k, w_k) on one device; ``tile_shape`` (H, W) LR; ``psf`` (k, k) on the
     HR grid with k of the parity of ``factor``. Frames with fewer than ``min_observed`` observed LR
-    pixels are left out.
+    pixels are left out. ``flows``: per frame (its index in ``frames``) a residual flow (2, H, W) in LR
+    tile pixels (core/sr/dense_flow.py: the frame's content seen at tile point p belongs at p - f(p)),
+    which moves the warp's sampling points; ``confidence``: per frame (1, H, W) in [0, 1] on the tile,
+    which weights the frame's LR pixels in the mask (and so in the data term). ``interpolation``: W's
+    (operators.WARP_MODES).
     """
     s = int(factor)
     kh, kw = (int(v) for v in psf.shape)
@@ -125,7 +132,7 @@ def build_frame_stack(frames: Sequence[torch.Tensor], tile_H_frames: Sequence[np
         tile_H_window = tile_H_frame @ frame_H_window
         win_mats.append(tile_H_window)
         mats.append(hr_H_lr(s) @ tile_H_window @ window_H_grid)
-    warp = Warp(np.stack(mats), hr_tile, (hg, wg), device=device, dtype=dtype)
+    warp = _refined_warp(mats, [i for i, _ in cand], hr_tile, (hg, wg), s, flows, device, dtype, interpolation)
     # Observed LR pixels: every HR sample under the PSF reads inside the HR tile. The tile maps to a
     # convex quadrilateral of the HR grid and the PSF support of LR pixel (i, j) is the rectangle of
     # grid samples [s i, s i + kh - 1] x [s j, s j + kw - 1], so its four corner samples decide.
@@ -141,13 +148,16 @@ def build_frame_stack(frames: Sequence[torch.Tensor], tile_H_frames: Sequence[np
         crops[k, :, :h, :w] = frames[i][:, y0:y0 + h, x0:x0 + w]
         in_frame[k, :, :h, :w] = 1.0
     mask = mask * in_frame
+    if confidence:
+        mask = mask * _window_confidence(confidence, cand, win_mats, (hc, wc), mask)
     counts = mask.reshape(len(cand), -1).sum(dim=1).double() * c
     keep = [k for k in range(len(cand)) if counts[k] >= min_observed * c]
     if not keep:
         return None
     if len(keep) < len(cand):
         sel = torch.as_tensor(keep, device=device)
-        warp = Warp(np.stack([mats[k] for k in keep]), hr_tile, (hg, wg), device=device, dtype=dtype)
+        warp = _refined_warp([mats[k] for k in keep], [cand[k][0] for k in keep], hr_tile, (hg, wg), s, flows,
+                             device, dtype, interpolation)
         crops, in_frame, mask, counts = crops[sel], in_frame[sel], mask[sel], counts[sel]
         cand = [cand[k] for k in keep]
         win_mats = [win_mats[k] for k in keep]
@@ -155,3 +165,39 @@ def build_frame_stack(frames: Sequence[torch.Tensor], tile_H_frames: Sequence[np
     return FrameStack(y=crops * mask, crops=crops, in_frame=in_frame, mask=mask,
                       windows=[w for _, w in cand], index=[i for i, _ in cand],
                       tile_H_windows=np.stack(win_mats), operator=op, counts=counts)
+
+
+def _refined_warp(mats: Sequence[np.ndarray], index: Sequence[int], hr_tile: tuple[int, int],
+                  grid_shape: tuple[int, int], s: int, flows: dict[int, torch.Tensor] | None,
+                  device: torch.device, dtype: torch.dtype, interpolation: str = 'bilinear') -> Warp:
+    """The homographies' warp, its points moved by each frame's residual flow (when given): the HR tile
+    point u read for a grid sample becomes u - s f(lr(u)), f sampled bilinearly at u's LR tile point."""
+    warp = Warp(np.stack(mats), hr_tile, grid_shape, device=device, dtype=dtype, interpolation=interpolation)
+    if not flows or not any(i in flows for i in index):
+        return warp
+    px, py = warp.points
+    offset = torch.zeros((*px.shape, 2), dtype=px.dtype, device=px.device)
+    for k, i in enumerate(index):
+        if i not in flows:
+            continue
+        f = flows[i].to(device=px.device, dtype=px.dtype)[None]
+        lx, ly = (px[k:k + 1] + 0.5) / s - 0.5, (py[k:k + 1] + 0.5) / s - 0.5
+        offset[k] = -s * sample_field(f, lx, ly)[0].permute(1, 2, 0)
+    return warp.displace(offset)
+
+
+def _window_confidence(confidence: dict[int, torch.Tensor], cand: Sequence[tuple[int, tuple[int, int, int, int]]],
+                       win_mats: Sequence[np.ndarray], window_shape: tuple[int, int], like: torch.Tensor) -> torch.Tensor:
+    """(K, 1, h, w) each frame's confidence (given on the LR tile) read at its LR window pixels' tile points."""
+    hc, wc = window_shape
+    out = torch.ones_like(like)
+    ys, xs = torch.meshgrid(torch.arange(hc, dtype=torch.float64), torch.arange(wc, dtype=torch.float64), indexing='ij')
+    pts = torch.stack([xs.reshape(-1), ys.reshape(-1), torch.ones(hc * wc, dtype=torch.float64)])
+    for k, (i, _) in enumerate(cand):
+        if i not in confidence:
+            continue
+        q = torch.as_tensor(win_mats[k], dtype=torch.float64) @ pts
+        qx, qy = (q[0] / q[2]).reshape(1, hc, wc), (q[1] / q[2]).reshape(1, hc, wc)
+        c = confidence[i].to(device=like.device, dtype=like.dtype)[None]
+        out[k] = sample_field(c, qx.to(like.device, like.dtype), qy.to(like.device, like.dtype))[0]
+    return out

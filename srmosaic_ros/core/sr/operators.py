@@ -35,6 +35,7 @@ __all__ = [
     'LinearOperator',
     'Compose',
     'Warp',
+    'WARP_MODES',
     'Blur',
     'Decimate',
     'BlurDecimate',
@@ -46,6 +47,11 @@ __all__ = [
     'hr_H_lr',
     'dot',
 ]
+
+
+#: interpolation of W_k (grid_sample's modes 0 and 2): bilinear, or bicubic (Keys, a = -0.75), whose
+#: response falls less towards the HR grid's Nyquist, so the model blurs less than the warp it describes.
+WARP_MODES = ('bilinear', 'bicubic')
 
 
 def dot(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
@@ -118,7 +124,11 @@ class Warp(LinearOperator):
 
     def __init__(self, src_H_dst: np.ndarray, src_shape: tuple[int, int], dst_shape: tuple[int, int],
                  *, device: torch.device | str = 'cpu', dtype: torch.dtype = torch.float32,
-                 shared: bool = True) -> None:
+                 shared: bool = True, interpolation: str = 'bilinear') -> None:
+        if interpolation not in WARP_MODES:
+            msg = f'warp interpolation must be one of {WARP_MODES}, got {interpolation!r}.'
+            raise ValueError(msg)
+        self.interpolation = interpolation
         mats = np.asarray(src_H_dst, dtype=np.float64)
         if mats.ndim == 2:
             mats = mats[None]
@@ -163,14 +173,30 @@ class Warp(LinearOperator):
         return ((g[..., 0] + 1.0) * self._scale[0], (g[..., 1] + 1.0) * self._scale[1])
 
     def inside(self, tol: float = 1e-3) -> torch.Tensor:
-        """(K, 1, h, w) 1 where the point has all four bilinear neighbours inside the source, else 0.
+        """(K, 1, h, w) 1 where the point has all its interpolation neighbours (2 x 2 bilinear, 4 x 4
+        bicubic) inside the source, else 0.
 
         ``tol`` in source pixels.
         """
         g = self.grid
+        if self.interpolation == 'bicubic':
+            tol = tol - 1.0
         tx, ty = tol / self._scale[0], tol / self._scale[1]
         ok = (g[..., 0].abs() <= 1.0 + tx) & (g[..., 1].abs() <= 1.0 + ty)
         return ok[:, None].to(g.dtype)
+
+    def displace(self, offset: torch.Tensor) -> Warp:
+        """Move every sampling point by ``offset`` (K, h, w, 2) source pixels, (x, y) order, in place.
+
+        A per-pixel refinement of the homography (core/sr/dense_flow.py): the operator stays a bilinear
+        sampling at fixed points, so the adjoint (the scatter-add of the same weights) stays exact.
+        """
+        if tuple(offset.shape) != (*self.grid.shape[:3], 2):
+            msg = f'a warp offset is (K, h, w, 2) = {(*self.grid.shape[:3], 2)}, got {tuple(offset.shape)}.'
+            raise ValueError(msg)
+        scale = self.grid.new_tensor([1.0 / self._scale[0], 1.0 / self._scale[1]])
+        self.grid.add_(offset.to(self.grid.dtype) * scale)
+        return self
 
     def _src(self, x: torch.Tensor) -> torch.Tensor:
         if x.shape[0] == 1 and self.n != 1:
@@ -182,7 +208,7 @@ class Warp(LinearOperator):
 
     def apply(self, x: torch.Tensor) -> torch.Tensor:
         grid = self.grid if self.grid.dtype == x.dtype else self.grid.to(x.dtype)
-        return F.grid_sample(self._src(x), grid, mode='bilinear', padding_mode='zeros', align_corners=True)
+        return F.grid_sample(self._src(x), grid, mode=self.interpolation, padding_mode='zeros', align_corners=True)
 
     def adjoint(self, y: torch.Tensor) -> torch.Tensor:
         grid = self.grid if self.grid.dtype == y.dtype else self.grid.to(y.dtype)
@@ -190,7 +216,7 @@ class Warp(LinearOperator):
             self.n, y.shape[1], *self.src_shape)
         # The input gradient of grid_sample is the scatter-add of the bilinear weights: W^T y.
         grad_src, _ = torch.ops.aten.grid_sampler_2d_backward(
-            y.contiguous(), src, grid, 0, 0, True, [True, False])
+            y.contiguous(), src, grid, WARP_MODES.index(self.interpolation) * 2, 0, True, [True, False])
         return grad_src.sum(dim=0, keepdim=True) if self.shared else grad_src
 
 

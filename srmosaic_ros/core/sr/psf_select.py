@@ -8,6 +8,10 @@ had, so an estimate whose detail is wrong (a PSF too wide rings, one too narrow 
 unresolved) predicts it worse. The curve is shallow (the noise is in every prediction), which is
 why several tiles and frames are pooled; a choice one rung too low costs some sharpness, one too
 high rings, so ties go to the lower sigma.
+
+The tiles are solved with the regularisation the ladder was calibrated with (PSF_LAMBDA_GAMMA): a
+stronger prior smooths the estimate and a narrower PSF makes up for it in the predictions, which
+moved the choice a rung below the true blur on simulated tiles.
 """
 from __future__ import annotations
 
@@ -23,7 +27,10 @@ from .operators import gaussian_psf
 from .reconstruct import SRConfig, SRError, _frames_to_tensors, reconstruct_tile
 from .scheduler import frame_centres
 
-__all__ = ['PsfChoice', 'TileFrames', 'choose_psf_sigma', 'held_out_residual']
+__all__ = ['PSF_LAMBDA_GAMMA', 'PsfChoice', 'TileFrames', 'choose_psf_sigma', 'held_out_residual']
+
+#: sr.lambda_gamma of the solves that judge the PSF (at most this; module docstring).
+PSF_LAMBDA_GAMMA = 0.1
 
 
 @dataclass(frozen=True)
@@ -61,7 +68,8 @@ def held_out_residual(tile: TileFrames, j: int, factor: int, config: SRConfig) -
     device = res.image.device
     s = int(factor)
     stack = build_frame_stack(_frames_to_tensors([tile.frames[j]], device), [tile.tile_H_frames[j]], tile.tile_shape,
-                              s, gaussian_psf(config.psf_sigma * s, s, device=device), min_observed=1)
+                              s, gaussian_psf(config.psf_sigma * s, s, device=device), min_observed=1,
+                              interpolation=config.warp)
     if stack is None or stack.y.shape[1] != res.image.shape[0]:
         return None
     r = stack.operator.apply(res.image[None]) - stack.crops
@@ -78,7 +86,8 @@ def choose_psf_sigma(tiles: Sequence[TileFrames], factor: int, config: SRConfig,
     caller keeps ``config.psf_sigma``).
     """
     rungs = tuple(float(v) for v in ladder)
-    cfg = replace(config, device=str(resolve_device(config.device)))
+    cfg = replace(config, device=str(resolve_device(config.device)),
+                  lambda_gamma=min(config.lambda_gamma, PSF_LAMBDA_GAMMA))
     sse = np.zeros(len(rungs))
     count = np.zeros(len(rungs))
     predictions = 0

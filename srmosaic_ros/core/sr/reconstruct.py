@@ -34,6 +34,12 @@ compared with the per-pixel median of all of them (three frames or more); after 
 residuals ``e_k``: ``tau = median(e) + outlier_threshold * max(1.4826 MAD(e), 0.1 median(e))``;
 ``w_k = 1`` when ``e_k <= tau``, else ``(tau / e_k)^outlier_power``.
 
+Within each frame, the robust data term (``robust_pixels``, :mod:`.robust_pixels`) weights every LR
+pixel by its residual at the same iterations (IRLS), so a person walking or a patch misregistered
+does not pull the estimate while the rest of its frame still counts. Optionally (``dense_flow``,
+:mod:`.dense_flow`) a dense residual flow of each frame to the reference moves the warp's sampling
+points per pixel after the ECC alignment.
+
 Those weights are relative: they cannot see a tile where every frame disagrees with every other
 (3-D ground seen from stills far apart). Before them, the consistency test of
 :mod:`.consistency` keeps the largest set of frames that correlate as well as their noise allows
@@ -56,11 +62,13 @@ from ..device import resolve_device
 from ..settings import Bounds, check_settings, setting
 from .anchor import anchor_to_frame, neighbour_correlation, reference_on_hr, structure_threshold
 from .consistency import consistent_frames, noise_sigma
+from .dense_flow import FLOW_MODES, dense_flow_to_reference, remap_tile
 from .local_align import ALIGN_MODES, align_to_reference, photometric_to_reference
 from .moving import MIN_FRAMES as MOVING_MIN_FRAMES, moving_mask
 from .observation import FrameStack, build_frame_stack
-from .operators import Warp, gaussian_psf
+from .operators import WARP_MODES, Warp, gaussian_psf
 from .prior import HuberPrior, clique_differences, huber_sum
+from .robust_pixels import ROBUST_NORMS, pixel_weights
 from .ringing import CLAMP_MODES, clamp_to_lr_range
 from .scheduler import frame_centres
 from .solvers import LAMBDA_MODES, SOLVERS, IterationRecord, LambdaRule, Problem, solve
@@ -120,10 +128,12 @@ class SRConfig:
         s^2 rho0 measures the scene's activity at the frames' resolution. With
         ``lambda_reference='current'`` rho0 is the activity of the current iterate, as (5.6) reads,
         and the gamma is ``lambda_gamma / s`` (its own calibration): it collapses on sharp scenes
-        (see :class:`~srmosaic_ros.core.sr.solvers.LambdaRule`). lambda_gamma = 0.1 because the
+        (see :class:`~srmosaic_ros.core.sr.solvers.LambdaRule`). On simulated frames the
         best fixed lambda lies at 0.05 to 0.23 times sigma^2 / (s^2 rho0) over scenes, factors 2
-        and 4 and noise 0 to 5; one value serves all cases (bench/sr.py compares it with the best
-        fixed lambda of each).
+        and 4 and noise 0 to 5 (bench/sr.py compares the rule with the best fixed lambda of each);
+        real video wants more: its frames' compression is spatially correlated, the solve fits it
+        and sigma(n) falls with it, so lambda_gamma = 0.3 (bench/sr_video.py on two real videos;
+        on simulated tiles 0.3 loses at most a tenth of a dB to 0.1, docs/results.md).
     lambda_noise_cap: in the adaptive modes, the frames' RMS residuals in sigma(n) are capped at
         this many times their noise std (Immerkaer's estimate on the frames, core/sr/consistency.py);
         0: not capped (the default: (5.6) as it reads). Where the model fits the residual is below
@@ -153,6 +163,19 @@ class SRConfig:
         applied (LR pixels at the tile's corners).
     photometric: each frame's exposure and white balance matched to the reference's on the tile
         (gain and offset per channel; core/sr/local_align.py).
+    warp: the interpolation of W_k in the observation model (operators.WARP_MODES): 'bilinear', or
+        'bicubic', whose response falls less towards the HR Nyquist (the model then blurs less than
+        the resampling it stands for); twice the warp's cost.
+    dense_flow: after the ECC alignment, a dense residual flow of each frame to the reference on the
+        tile (core/sr/dense_flow.py; a DIS preset or 'off') moves the warp's sampling points per pixel,
+        and the flows' forward-backward consistency weights the frame's pixels in the data term;
+        dense_flow_max_px clips the flow (LR px), dense_flow_smooth smooths it (Gaussian std, LR px),
+        dense_flow_fb_px is the forward-backward disagreement at which a pixel's weight falls to 1/e.
+    robust_pixels: the robust data term (core/sr/robust_pixels.py): 'huber' or 'lorentzian' per-pixel
+        IRLS weights of the frames' residuals, re-estimated at the ``reweight_at`` iterations (the
+        solve restarts there), so that moving objects, occlusions and misregistered pixels stop
+        pulling the estimate; 'off': least squares. robust_pixels_scale: the norm's threshold in
+        robust stds of the residual (at least the frames' noise std).
     lm_inner: inner CG iterations of LM.
     anchor: after the solve, the reference frame's residual is back-projected onto the estimate
         (core/sr/anchor.py), so the tile shows what the mosaic around it shows (the same moving
@@ -178,7 +201,7 @@ class SRConfig:
     tol: float = setting(1e-4, lo=0.0)
     lambda_mode: str = setting('adaptive', choices=LAMBDA_MODES)
     lam: float = setting(0.01, lo=0.0)
-    lambda_gamma: float = setting(0.1, lo=0.0)
+    lambda_gamma: float = setting(0.3, lo=0.0)
     lambda_reference: str = setting('initial', choices=('initial', 'current'))
     lambda_noise_cap: float = setting(0.0, lo=0.0)
     lambda_noise_floor: float = setting(0.0, lo=0.0)
@@ -186,7 +209,7 @@ class SRConfig:
     color: str = setting('luma', choices=COLOR_MODES)
     margin: int = setting(4, lo=0, hi=256, unit='LR px')
     robust: bool = True
-    reweight_at: tuple[int, ...] = (3,)
+    reweight_at: tuple[int, ...] = (3, 6)
     outlier_threshold: float = 3.0
     outlier_power: float = 2.0
     consistency: float = setting(0.8, lo=0.0, lt=1.0)
@@ -202,6 +225,13 @@ class SRConfig:
     local_align: str = setting('affine', choices=ALIGN_MODES)
     local_align_max_px: float = setting(1.5, gt=0.0, unit='LR px')
     photometric: bool = True
+    warp: str = setting('bilinear', choices=WARP_MODES)
+    dense_flow: str = setting('off', choices=FLOW_MODES)
+    dense_flow_max_px: float = setting(1.0, gt=0.0, hi=4.0, unit='LR px')
+    dense_flow_smooth: float = setting(1.5, lo=0.0, hi=10.0, unit='LR px')
+    dense_flow_fb_px: float = setting(0.5, gt=0.0, unit='LR px')
+    robust_pixels: str = setting('huber', choices=ROBUST_NORMS)
+    robust_pixels_scale: float = setting(3.0, gt=0.0)
     device: str = 'auto'
 
     def __post_init__(self) -> None:
@@ -473,7 +503,7 @@ def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames:
             msg = (f'a PSF for factor {s} is a 2-D kernel whose sides have the parity of {s} (it is centred '
                    f'on an LR pixel centre), got shape {tuple(kernel.shape)}.')
             raise SRError(msg)
-    stack = build_frame_stack(ts, tilem_H_frames, (hm, wm), s, kernel, min_observed=cfg.min_observed)
+    stack = build_frame_stack(ts, tilem_H_frames, (hm, wm), s, kernel, min_observed=cfg.min_observed, interpolation=cfg.warp)
     if stack is None:
         msg = 'no frame observes this tile; pick tiles inside the frames\' footprints.'
         raise SRError(msg)
@@ -494,7 +524,7 @@ def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames:
         if not np.allclose(corr, np.eye(3)):
             for k, i in enumerate(stack.index):
                 tilem_H_frames[i] = corr[k] @ tilem_H_frames[i]
-            stack = build_frame_stack(ts, tilem_H_frames, (hm, wm), s, kernel, min_observed=cfg.min_observed)
+            stack = build_frame_stack(ts, tilem_H_frames, (hm, wm), s, kernel, min_observed=cfg.min_observed, interpolation=cfg.warp)
             if stack is None:
                 msg = 'no frame observes this tile; pick tiles inside the frames\' footprints.'
                 raise SRError(msg)
@@ -503,6 +533,23 @@ def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames:
             # the reference stays the frame the mosaic shows (centres often tie within a pixel)
             ref = stack.index.index(ref_frame) if ref_frame in stack.index else \
                 _nearest_frame(stack.index, tilem_H_frames, ts, (hm, wm))
+    if cfg.dense_flow != 'off' and k_frames >= 2:  # per-pixel residual registration (dense_flow.py)
+        flow, conf = dense_flow_to_reference(luma(warped), covered, ref, preset=cfg.dense_flow,
+                                             max_px=cfg.dense_flow_max_px, smooth=cfg.dense_flow_smooth,
+                                             fb_px=cfg.dense_flow_fb_px)
+        ref_frame = stack.index[ref]
+        flows = {i: flow[k] for k, i in enumerate(stack.index)}
+        confs = {i: conf[k] for k, i in enumerate(stack.index)}
+        refined = build_frame_stack(ts, tilem_H_frames, (hm, wm), s, kernel, min_observed=cfg.min_observed, interpolation=cfg.warp,
+                                    flows=flows, confidence=confs)
+        if refined is not None and ref_frame in refined.index:
+            stack = refined
+            k_frames = len(stack.index)
+            ref = stack.index.index(ref_frame)
+            warped, covered = warp_frames_to_tile(stack, (hm, wm))
+            sel = torch.stack([flows[i] for i in stack.index])
+            both = remap_tile(torch.cat([warped, covered], dim=1), sel)
+            warped, covered = both[:, :-1], (both[:, -1:] > 0.999).to(warped.dtype)
     if cfg.photometric and k_frames >= 2:  # exposure and white balance onto the reference's (local_align.py)
         gain, offset = photometric_to_reference(warped, covered, ref, min_change=PHOTOMETRIC_NOISE * noise)
         stack.crops.copy_((stack.crops * gain + offset).clamp(0, 1) * stack.in_frame)
@@ -599,12 +646,19 @@ def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames:
         full = (base + (x - base_y)) if solve_c != channels else x
         return full[0, :, m * s:(m + h_t) * s, m * s:(m + w_t) * s].clamp(0, 1)
 
-    reweight_at = set(cfg.reweight_at) if robust else set()
+    pixel_robust = cfg.robust_pixels != 'off'
+    reweight_at = set(cfg.reweight_at) if robust or pixel_robust else set()
+    base_mask, y_raw = stack.mask.clone(), y_obs / stack.mask.clamp_min(1e-12) * (stack.mask > 0)
 
     def reweight(n: int, _x: torch.Tensor, r: torch.Tensor) -> torch.Tensor | None:
         if n not in reweight_at:
             return None
-        return gated(problem.frame_rms(r).double()).to(r.dtype)
+        w = gated(problem.frame_rms(r).double()).to(r.dtype) if robust else problem.frame_weights
+        if pixel_robust:  # the robust data term (robust_pixels.py): the operator's mask and y reweighted
+            wp = pixel_weights(r, stack.mask, norm=cfg.robust_pixels, scale=cfg.robust_pixels_scale, noise=noise)
+            stack.mask.copy_(base_mask * torch.sqrt(wp))
+            problem.y.copy_(y_raw * stack.mask)
+        return w
 
     x0_tile = x0_rgb[0, :, m * s:(m + h_t) * s, m * s:(m + w_t) * s].clamp(0, 1)
     cb = None if callback is None else (lambda n, x: callback(n, x0_tile if n == 0 else compose(x)))
@@ -612,6 +666,9 @@ def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames:
     res = solve(problem, x0, method=cfg.solver, iterations=cfg.iterations, tol=cfg.tol, callback=cb,
                 reweight=reweight, **lm_opts)
     x_final, anchor_rms = res.x, math.nan
+    if pixel_robust:  # anchoring and the figures below read the frames as observed
+        stack.mask.copy_(base_mask)
+        problem.y.copy_(y_raw * stack.mask)
     if cfg.anchor:
         if not (keep[ref] and float(problem.frame_weights[ref]) >= 0.5):
             # the frame the mosaic shows here is the odd one out (parallax, a passing car): a tile

@@ -374,6 +374,9 @@ def _gradient_descent_family(problem: Problem, x0: torch.Tensor, *, conjugate: b
             r, gx = _state(problem, x)
             fsq, prior = problem.measure(r, gx)
         restart = _maybe_reweight(problem, reweight, n, x, r)
+        if restart:  # a reweighting may change the observations' weights (robust_pixels.py): residual afresh
+            r, gx = _state(problem, x)
+            fsq, prior = problem.measure(r, gx)
         lam = problem.lam_from(fsq, prior, n_cliques)
         grad = problem.gradient(r, gx, lam)
         if not conjugate or p is None or grad_prev is None or restart or gg_prev <= 0:
@@ -464,6 +467,8 @@ def levenberg_marquardt(problem: Problem, x0: torch.Tensor, *, iterations: int =
     for n in range(iterations):
         if _maybe_reweight(problem, reweight, n, x, r):
             prev_err = math.inf
+            r, gx = _state(problem, x)
+            fsq, prior_sum = problem.measure(r, gx)
             data = problem.data_from(fsq)
         lam = problem.lam_from(fsq, prior_sum, n_cliques)
         f = data + lam * prior_sum
