@@ -15,7 +15,10 @@ DEMO = REPO / 'bags' / 'demo'
 
 def test_process_sr_writes_tiles_contract(tmp_path):
     out = tmp_path / 'out'
-    run = run_cli('process', str(DEMO), '--out', str(out), '--sr', '--no-progress', '--checkpoint-every', '0')
+    params = tmp_path / 'params.yaml'  # the contract holds for any number of tiles: six of the best covered
+    params.write_text('/**:\n  ros__parameters:\n    sr_tiles:\n      max_tiles: 6\n')
+    run = run_cli('process', str(DEMO), '--out', str(out), '--sr', '--no-progress', '--checkpoint-every', '0',
+                  '--params', str(params))
     assert run.returncode == 0, run.stderr
     tiles = json.loads((out / 'sr' / 'tiles.json').read_text())
     assert len(tiles) >= 5
