@@ -83,6 +83,26 @@ def test_each_range_is_declared_once_and_agrees_everywhere():
                     build({key: type(value)(outside)})
 
 
+#: a range in words ("(0 .. 1]", "3..31", "(pixels, >= 0)"): each setting's range is declared once, with
+#: setting(), and reaches the ROS descriptor and the reference page from there, so a YAML comment that
+#: repeats it would be a second copy free to disagree.
+_RANGE_IN_WORDS = re.compile(r'\d\s*\.\.\s*<?\s*-?\d|[(,;]\s*[<>]=?\s*-?\d[\d.]*\s*[);]')
+
+
+@pytest.mark.parametrize('path', PARAMS, ids=[p.name for p in PARAMS])
+def test_yaml_comments_do_not_repeat_ranges(path):
+    stated = [(n, line.strip()) for n, line in enumerate(path.read_text().splitlines(), 1)
+              if '#' in line and _RANGE_IN_WORDS.search(line.split('#', 1)[1])]
+    assert not stated, f'{path.name} states ranges the declarations own (core/settings.py setting()): {stated}'
+
+
+def test_the_range_check_finds_ranges_in_words():
+    for text in ('Lowe ratio (0 .. 1]', 'odd, 3..31; bytes', 'pixels (>= 0)', 'tile side (64 .. 4096)', 'x (pixels, > 0): y'):
+        assert _RANGE_IN_WORDS.search(text), text
+    for text in ('auto (global when >= 3 stills carry GPS)', '1920 -> 960', 'NaN: first fix - nominal_agl_m'):
+        assert not _RANGE_IN_WORDS.search(text), text
+
+
 def test_users_see_their_parameters_and_the_internals_apart():
     """default.yaml holds what a user sets (about 55 keys), advanced.yaml the solver internals; they
     share no key, their values are the config dataclasses' defaults, and an internal set in a user's
