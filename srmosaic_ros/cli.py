@@ -54,10 +54,10 @@ def _add_process(sub: argparse._SubParsersAction) -> None:
     p.add_argument('--sr-factor', type=int, default=None,
                    help=f'SR factor ({", ".join(map(str, SR_FACTORS))}; default sr_tiles.factor, 2); implies --sr')
     p.add_argument('--gcp', type=Path, default=None, metavar='FILE',
-                   help="stills: ground control points in OpenDroneMap's gcp_list.txt format (default: a gcp_list.txt "
-                   'inside or beside the folder)')
+                   help="ground control points in OpenDroneMap's gcp_list.txt format (stills: default a gcp_list.txt "
+                   'inside or beside the folder; a video or a bag: picks name their frames as `srmosaic frames` writes them)')
     p.add_argument('--check-points', default=None, metavar='N|NAMES',
-                   help='stills with ground control: hold out N targets (spread over the survey) or the named ones '
+                   help='with ground control: hold out N targets (spread over the mosaic) or the named ones '
                    '(comma-separated) as check points; their residuals go to report.json gcp')
     p.add_argument('--tiles', nargs='?', const='png', choices=['png', 'webp'], default=None,
                    help='georeferenced runs: also write the web map, XYZ tiles (EPSG:3857, default png) in DIR/tiles/ '
@@ -372,6 +372,28 @@ def _run_serve(args: argparse.Namespace) -> int:
     return 0
 
 
+def _add_frames(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser('frames', help='write the frames of a video or a bag as images named by their stamps, to pick '
+                       'ground control in (then process INPUT --gcp gcp_list.txt)')
+    p.add_argument('input', type=Path, help='video file or bag')
+    p.add_argument('out', type=Path, help='folder to write the frames into (created)')
+    p.add_argument('--select', default='all', help='video frame selection, as process --select (default all)')
+    p.add_argument('--every', type=int, default=1, metavar='N', help='write every N-th selected frame (N >= 1; default 1)')
+    p.add_argument('--format', choices=['png', 'jpg'], default='png', help='image format (default png)')
+    p.add_argument('--image-topic', default='/camera/image_raw', help='bag: sensor_msgs/Image topic')
+    p.set_defaults(func=_run_frames)
+
+
+def _run_frames(args: argparse.Namespace) -> int:
+    from .app.export_frames import export_frames
+    from .io.bags import TopicConfig
+
+    written = export_frames(args.input, args.out, select=args.select, every=args.every,
+                            topics=TopicConfig(image=args.image_topic), suffix=f'.{args.format}')
+    print(f'{len(written)} frames -> {args.out}' + (f' ({written[0].name} ... {written[-1].name})' if written else ''))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog='srmosaic', description=__doc__.splitlines()[0],
                                      epilog='Each command has --help. Documentation: docs/getting-started.md, and every '
@@ -381,6 +403,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_evaluate(sub)
     _add_halve(sub)
     _add_inspect(sub)
+    _add_frames(sub)
     _add_simulate(sub)
     _add_node(sub)
     _add_launch(sub)

@@ -206,9 +206,10 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
     tiles: also write the web map's XYZ tiles in this format ('png' or 'webp') with the offline page
     (web/offline.py); kmz: also write mosaic.kmz. Both need a georeferenced mosaic (mosaic.tif).
 
-    gcp_file: ground control points for a folder of stills (OpenDroneMap's gcp_list.txt; None: the
-    gcp_list.txt inside or beside the folder, if any); check_points: the targets held out of the
-    control, a count or names separated by commas (app/ground_control.py).
+    gcp_file: ground control points (OpenDroneMap's gcp_list.txt; None: for a folder of stills the
+    gcp_list.txt inside or beside it, if any): the survey's solve takes them (app/ground_control.py),
+    a video's or a bag's mosaic is re-anchored on them (app/video_control.py); check_points: the
+    targets held out of the control, a count or names separated by commas.
 
     The run is written into a staging folder inside ``out`` and moved in when it ends
     (OutputTransaction): ``out`` holds one run's outputs, never a mix, and a second process writing
@@ -354,6 +355,11 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
     warm = start_warm_up()  # report.html's imports while GDAL and the PNG writer compress the mosaic
     with clock.stage('outputs'):  # decided, then written
         placement = georeference_main(result, config)
+        if gcp_file is not None:  # the raster re-anchored on the ground control (app/video_control.py)
+            from .video_control import control_main
+
+            placement, report_extra['gcp'] = control_main(gcp_file, result, placement, check_points,
+                                                          getattr(reader, 'camera', None))
         report = write_outputs(result, stage, config, report_extra, placement=placement,
                                meta_centres=summary.centres if summary is not None else None)
     if report.get('georeferenced') is None:
@@ -432,12 +438,14 @@ def _ground_control_file(path: Path, kind: str, gcp_file: Path | None, check_poi
     refuses what cannot be used, before any work."""
     from ..io.gcp import find_gcp_file
 
-    if kind != 'images':
-        if gcp_file is not None or check_points:
-            msg = (f'{path}: --gcp and --check-points apply to a folder of stills (aligned globally); ground control '
-                   'for a video or a bag is not supported yet: drop them.')
+    if kind != 'images':  # a video's or a bag's picks name frames by stamp (app/video_control.py)
+        if check_points and gcp_file is None:
+            msg = f'--check-points {check_points}: a video or a bag has no gcp_list.txt of its own; give it with --gcp FILE.'
             raise InputError(msg)
-        return None
+        if gcp_file is not None and not Path(gcp_file).is_file():
+            msg = f'--gcp {gcp_file}: no such file; give the path of an OpenDroneMap gcp_list.txt.'
+            raise InputError(msg)
+        return Path(gcp_file) if gcp_file is not None else None
     if gcp_file is not None:
         if not Path(gcp_file).is_file():
             msg = f'--gcp {gcp_file}: no such file; give the path of an OpenDroneMap gcp_list.txt.'

@@ -146,7 +146,7 @@ def test_check_points_by_count_are_inside_the_control_and_spread() -> None:
     assert check_point_names(None, names, xy, usable) == [] and check_point_names('0', names, xy, usable) == []
 
 
-def test_the_command_line_refuses_ground_control_for_a_bag_in_one_line(tmp_path: Path) -> None:
+def test_the_command_line_refuses_a_malformed_gcp_file_for_a_bag_in_one_line(tmp_path: Path) -> None:
     from repo_paths import REPO
 
     (tmp_path / 'gcp_list.txt').write_text('EPSG:32611\n')
@@ -154,8 +154,8 @@ def test_the_command_line_refuses_ground_control_for_a_bag_in_one_line(tmp_path:
                   '--no-progress')
     assert run.returncode != 0
     lines = [line for line in run.stderr.splitlines() if line.strip()]
-    assert len(lines) == 1 and 'ground control for a video or a bag is not supported yet' in lines[0], run.stderr
-    assert not (tmp_path / 'out').exists()
+    assert len(lines) == 1 and 'no observations after the coordinate system line' in lines[0], run.stderr
+    assert not (tmp_path / 'out' / 'report.json').exists()
 
 
 def test_the_report_names_the_stills_that_no_control_could_place(tmp_path: Path) -> None:
