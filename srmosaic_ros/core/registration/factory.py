@@ -71,7 +71,7 @@ class FallbackRegistrar:
         """prev_H_cur from two frames described by this registrar (see the class docstring).
 
         second_opinion False: the torch result only (for optional registrations, such as a keyframe
-        to the mosaic, whose failure costs nothing: SIFT on both images takes 50 to 100 ms)."""
+        to the mosaic, whose failure costs nothing, and SIFT on both images costs more than the frame's budget)."""
         t0 = time.perf_counter()
         reg = self.primary.register(prev.primary, cur.primary)
         if reg.ok or not second_opinion:
