@@ -9,11 +9,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields
 from typing import Any
 
-from .core.georef.georeferencer import GeorefConfig
+from .core.georef.georef_config import GeorefConfig
 from .core.mosaic.config import MosaicConfig
-from .core.sr.reconstruct import SRConfig
+from .core.sr.sr_config import SRConfig
 from .core.sr.scheduler import SRTileConfig
-from .core.registration import RegistrationConfig
+from .core.registration.registrar import RegistrationConfig
 from .core.survey.config import SurveyConfig
 from .bounded_yaml import preview
 from .core.settings import Bounds, bounds_of, setting

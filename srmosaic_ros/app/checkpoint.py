@@ -29,7 +29,8 @@ from ..io.mosaic_files import atomic_path
 
 __all__ = ['Checkpoint', 'checkpoint_path', 'fingerprint', 'load_checkpoint', 'read_header', 'save_checkpoint']
 
-FORMAT = 4  # the payload holds the pipeline's state() (other formats are refused); 4: canvases hold a compositor
+# 4: canvases hold a compositor; 5: the Georeferencer exists from the start (pipeline/telemetry_sync.py)
+FORMAT = 5  # the payload holds the pipeline's state() (other formats are refused)
 MAGIC = b'SRMOSAIC-CHECKPOINT '
 
 

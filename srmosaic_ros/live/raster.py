@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..errors import SrMosaicError
-from .sr import ImagePlacement
+from .placement import ImagePlacement
 
 if TYPE_CHECKING:
     from ..core.georef.georeferencer import GeoRaster

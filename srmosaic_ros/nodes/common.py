@@ -325,14 +325,10 @@ def check_range(node: Node, name: str, lo: float, hi: float) -> Any:
 
 def frame_ids(node: Node) -> tuple[str, str]:
     """(map frame, body frame) of the pose messages: parameters live.map_frame and live.body_frame."""
-    out = []
-    for name in ('live.map_frame', 'live.body_frame'):
-        value = node.get_parameter(name).value
-        if not isinstance(value, str) or not value.strip() or value.startswith('/'):
-            msg = f'{name} must be a frame id (a non-empty name without a leading /), got {value!r}.'
-            raise SrMosaicError(msg)
-        out.append(value)
-    return out[0], out[1]
+    from .node_checks import check_frame_id
+
+    return (check_frame_id('live.map_frame', node.get_parameter('live.map_frame').value),
+            check_frame_id('live.body_frame', node.get_parameter('live.body_frame').value))
 
 
 def diagnostic_array(node: Node, name: str, message: str, values: dict[str, Any], *,

@@ -52,6 +52,7 @@ from .common import (TELEMETRY_QOS_DEPTH, DiagnosticsPublisher, PosePublisher, R
                      input_qos, subscribe_input)
 from .messages import Messages, message_kind
 from .lifecycle import ManagedNode, autostart, release
+from .node_checks import check_georef_standalone
 from .parameters import GEOREF_PARAMETERS, declare_pipeline_parameters, on_parameter_change, read_pipeline_config
 
 __all__ = ['GeorefNode', 'main']
@@ -109,9 +110,7 @@ class GeorefNode(ManagedNode):
                                    'run the filter here.')
             self.configured = True
             return
-        if not self.config.georef_enabled:
-            msg = 'live.georef_standalone is true but georef.enabled is false: nothing to do; enable one of them.'
-            raise SrMosaicError(msg)
+        check_georef_standalone(self.standalone, self.config.georef_enabled)
         self.pub_diag = DiagnosticsPublisher(self, 'srmosaic: georeferencing')
         reliable = bool(self.get_parameter('live.reliable_inputs').value)
         qos = input_qos(reliable, TELEMETRY_QOS_DEPTH)

@@ -40,6 +40,7 @@ from ..bounded_yaml import load_bounded
 from ..param_files import default_params_path, load_params, yaml_problem
 from ..errors import ConfigError
 from .launch_xml import LaunchNode, parse_launch_arguments, read_launch_xml
+from .override_check import EXECUTABLE_KINDS, check_overrides, parse_overrides
 
 __all__ = ['NODES', 'load_description', 'node_command', 'xml_node_command', 'launch']
 
@@ -194,12 +195,26 @@ def launch(description: Path | None, extra_params: list[str], extra_ros_args: li
     if launch_arguments and not is_xml:
         msg = f'launch arguments {launch_arguments} need a launch file (FILE.launch.xml).'
         raise ConfigError(msg)
+    overrides = parse_overrides(extra_ros_args)
+    files = [*extra_params, *_params_files(extra_ros_args)]
+    if description is None:
+        check_overrides(overrides, {n: n for n in NODES}, {n: files for n in NODES})
+    elif is_xml:
+        nodes = read_launch_xml(description, parse_launch_arguments(launch_arguments or []))
+        check_overrides(overrides, {node.label: EXECUTABLE_KINDS.get(node.executable, '') for node in nodes},
+                        {node.label: [*node.param_files, *files] for node in nodes},
+                        {node.label: {k: load_bounded(v) if v else '' for k, v in node.parameters.items()} for node in nodes})
+    else:
+        procs = load_description(description)
+        labels = {(i, n): f"{proc.get('name', '+'.join(proc['nodes']))}/{n}" for i, proc in enumerate(procs) for n in proc['nodes']}
+        check_overrides(overrides, {label: n for (_, n), label in labels.items()},
+                        {label: [*files, *(procs[i].get('params') or [])] for (i, _), label in labels.items()},
+                        {label: dict(procs[i].get('parameters') or {}) for (i, _), label in labels.items()})
     with tempfile.TemporaryDirectory(prefix='srmosaic-launch-') as tmp:
         extra_ros_args = overrides_last(extra_ros_args, Path(tmp))
         if description is None:
             return run_named_nodes(list(NODES), ['srmosaic', *ros_args(extra_params), *extra_ros_args])
         if is_xml:
-            nodes = read_launch_xml(description, parse_launch_arguments(launch_arguments or []))
             children = [(node.label, xml_node_command(node, extra_params, extra_ros_args, Path(tmp))) for node in nodes]
             managed = [node.label for node in nodes if node.managed and node.autostart]
             if managed:
@@ -207,12 +222,16 @@ def launch(description: Path | None, extra_params: list[str], extra_ros_args: li
 
                 return _supervise(children, LifecycleDriver(managed, log=_say))
         else:
-            procs = load_description(description)
             children = [(proc.get('name', '+'.join(proc['nodes'])),
                          node_command({**proc, 'params': [*extra_params, *(proc.get('params') or [])]},
                                       extra_ros_args, Path(tmp)))
                         for proc in procs]
         return _supervise(children)
+
+
+def _params_files(ros_arguments: list[str]) -> list[str]:
+    """The ``--params-file FILE`` of a --ros-args list, in order."""
+    return [b for a, b in zip(ros_arguments, ros_arguments[1:]) if a == '--params-file']
 
 
 def _say(text: str) -> None:

@@ -15,31 +15,19 @@ import numpy as np
 from std_msgs.msg import Float64MultiArray, String
 
 from ..errors import SrMosaicError
+from ..live.live_config import MESSAGE_TYPES  # re-exported: the nodes name it here
 from ..live.raster import LiveRaster
 from .common import RegistrationMsg, decode_registration, encode_registration
 
 __all__ = ['MESSAGE_TYPES', 'Messages', 'message_kind']
 
-MESSAGE_TYPES = ('portable', 'typed')
-
 
 def message_kind(node: Any) -> str:
     """live.message_types of ``node``, checked (SrMosaicError: the values, or how to get the typed
     messages when this Python cannot import them)."""
-    kind = node.get_parameter('live.message_types').value
-    if kind not in MESSAGE_TYPES:
-        msg = f'live.message_types must be one of {", ".join(MESSAGE_TYPES)}, got {kind!r}.'
-        raise SrMosaicError(msg)
-    if kind == 'typed':
-        try:
-            import srmosaic_interfaces.msg  # noqa: F401 - the check is the import
-        except ImportError as exc:
-            msg = (f'live.message_types: typed needs the srmosaic_interfaces messages, which this Python cannot '
-                   f'import ({exc}): build interfaces/srmosaic_interfaces with colcon and source its '
-                   'install/setup.bash before starting the node (docs/guide/live.md, "Typed messages"), or set '
-                   'live.message_types: portable for the whole graph.')
-            raise SrMosaicError(msg) from None
-    return kind
+    from .node_checks import check_message_types
+
+    return check_message_types(node.get_parameter('live.message_types').value)
 
 
 class Messages:

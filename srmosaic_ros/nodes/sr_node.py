@@ -80,17 +80,12 @@ from ..live.sr import (
 from .common import (IMAGE_QOS_DEPTH, TOPICS, DiagnosticsPublisher, StreamOrder, WarnOnce, camera_image, check_range,
                      input_qos, subscribe_input)
 from .messages import Messages, message_kind
+from .node_checks import check_sr_frames_kept, refresh_growth_problem
 from .parameters import SR_PARAMETERS, declare_pipeline_parameters, on_parameter_change, read_pipeline_config
 
 #: Parameters `ros2 param set` changes while the node runs (the others are read-only).
 CHANGEABLE = ('live.sr_period_s', 'live.sr_tiles_per_round', 'live.sr_refresh_growth')
 
-
-def _refresh_growth_problem(value: float) -> str | None:
-    if 0.0 < value <= 1.0:
-        return (f'live.sr_refresh_growth = {value} would publish the same tiles again and again; '
-                'use 0 (each tile once) or a factor above 1 (default 2.0).')
-    return None
 
 __all__ = ['SRNode', 'main']
 
@@ -105,14 +100,11 @@ class SRNode(Node):
         self.period_s = float(check_range(self, 'live.sr_period_s', 0.1, 3600.0))
         self.tiles_per_round = int(check_range(self, 'live.sr_tiles_per_round', 1, 100))
         self.refresh_growth = float(check_range(self, 'live.sr_refresh_growth', 0.0, 100.0))
-        if problem := _refresh_growth_problem(self.refresh_growth):
+        if problem := refresh_growth_problem(self.refresh_growth):
             raise SrMosaicError(problem)
         kept = int(check_range(self, 'live.sr_frames_kept', 1, 1000))
         pending = int(check_range(self, 'live.sr_images_pending', 1, 1000))
-        if kept < self.config.sr_tiles.min_frames:
-            msg = (f'live.sr_frames_kept = {kept} is below sr_tiles.min_frames = '
-                   f'{self.config.sr_tiles.min_frames}: no tile could ever be scheduled; raise it.')
-            raise SrMosaicError(msg)
+        check_sr_frames_kept(kept, self.config.sr_tiles.min_frames)
         self.factor = int(self.config.sr_tiles.factor)
         self.messages = Messages(message_kind(self))  # portable or typed registrations
         self.worker_kind = str(self.get_parameter('live.sr_worker').value)
@@ -156,7 +148,7 @@ class SRNode(Node):
             'live.sr_period_s': lambda v: setattr(timer, 'timer_period_ns', int(v * 1e9)),
             'live.sr_tiles_per_round': lambda v: setattr(self, 'tiles_per_round', int(v)),
             'live.sr_refresh_growth': lambda v: setattr(self, 'refresh_growth', float(v)),
-        }, check={'live.sr_refresh_growth': _refresh_growth_problem})
+        }, check={'live.sr_refresh_growth': refresh_growth_problem})
         self._worker = threading.Thread(target=self._work, name='srmosaic-sr-worker', daemon=True)
         self._worker.start()
 

@@ -5,8 +5,10 @@ stamp has been seen (or until SYNC_HOLD_FRAMES more frames arrived with no telem
 filter always has the fixes and IMU samples that precede it. Before the flight's first GNSS fix,
 frames wait for one (at most FIRST_FIX_HOLD_FRAMES of them, spanning at most
 georef.telemetry_buffer_s), so that a flight whose first fixes are late still starts its mosaic on
-the map. The Georeferencer is created at the first fix and given the IMU samples and camera
-attitudes of the telemetry_buffer_s before it (the filter starts from the nearest one).
+the map. The Georeferencer (with georef.enabled) exists from the start and is fed every telemetry
+message as it comes; until a valid fix gives it an origin it keeps the IMU samples and camera
+attitudes of the last telemetry_buffer_s (the filter starts from the nearest one), and frames are
+fused only once the flight's first fix has arrived.
 """
 from __future__ import annotations
 
@@ -45,7 +47,7 @@ class TelemetrySync(Checkpointed):
         self.fixes: list[GeoFix] = []
         self.imus: list[ImuSample] = []
         self.attitudes: list[CameraAttitude] = []
-        self.georef: Georeferencer | None = None  # from the first fix (with georef_enabled)
+        self.georef = Georeferencer(config.georef) if config.georef_enabled else None  # no origin until a valid fix
         self.camera: CameraIntrinsics | None = None  # live: from CameraInfo, for frames that carry none
         self.waiting: list[Frame] = []
         self.first_fix_wait_over = False
@@ -62,8 +64,6 @@ class TelemetrySync(Checkpointed):
             return
         if isinstance(item, GeoFix):
             self.fixes.append(item)
-            if self.georef is None and self.config.georef_enabled:
-                self._start_georef(item)
             self._to_filter(Georeferencer.feed_fix, item)
         elif isinstance(item, ImuSample):
             self.imus.append(item)
@@ -81,16 +81,6 @@ class TelemetrySync(Checkpointed):
             with self.clock.stage('fuse'):
                 update(self.georef, item)
 
-    def _start_georef(self, fix: GeoFix) -> None:
-        """The filter, given the attitudes seen in the telemetry_buffer_s before the first fix."""
-        self.georef = Georeferencer(self.config.georef)
-        since = fix.stamp_ns - int(self.config.georef.telemetry_buffer_s * 1e9)
-        for earlier in sorted((t for t in (*self.imus, *self.attitudes) if t.stamp_ns >= since), key=lambda t: t.stamp_ns):
-            if isinstance(earlier, ImuSample):
-                self.georef.feed_imu(earlier)
-            else:
-                self.georef.feed_camera_attitude(earlier)
-
     def ready(self, *, all_frames: bool = False) -> Iterator[Frame]:
         """The waiting frames whose telemetry has arrived (every one with ``all_frames``), oldest first,
         each taken off the queue as it is yielded."""
@@ -106,8 +96,8 @@ class TelemetrySync(Checkpointed):
         """True while the frames waiting should go on waiting for the flight's first fix."""
         if self.first_fix_wait_over:
             return False
-        if self.georef is not None or not self.config.georef_enabled or not self.waiting:
-            self.first_fix_wait_over = self.georef is not None or not self.config.georef_enabled
+        if self.fixes or not self.config.georef_enabled or not self.waiting:
+            self.first_fix_wait_over = bool(self.fixes) or not self.config.georef_enabled
             return False
         span_ns = self.waiting[-1].stamp_ns - self.waiting[0].stamp_ns
         if len(self.waiting) > FIRST_FIX_HOLD_FRAMES or span_ns > self.config.georef.telemetry_buffer_s * 1e9:
@@ -117,8 +107,9 @@ class TelemetrySync(Checkpointed):
 
     def fuse(self, held: Held, reg: Registration | None, ref: Held | None) -> None:
         """Feed the filter with this frame (and its registration to ``ref`` when it placed it); its
-        fused pose becomes ``held.record.pose`` and is queued for take_fused."""
-        if self.georef is None:
+        fused pose becomes ``held.record.pose`` and is queued for take_fused. Frames before the flight's
+        first fix message are not fed (no pose, as without georeferencing)."""
+        if self.georef is None or not self.fixes:
             return
         use = reg is not None and reg.ok and ref is not None
         self.fused.append(held.record)

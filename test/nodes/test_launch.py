@@ -1,5 +1,5 @@
 """`srmosaic launch`: the graph split over processes, the standalone filter, children killed or interrupted,
-parameters refused at start and command-line overrides."""
+and command-line overrides (the overrides the launcher refuses before starting a node: test_override_check.py)."""
 from __future__ import annotations
 
 import json
@@ -173,22 +173,6 @@ def test_a_second_ctrl_c_kills_the_launch_children_still_running(ros_env, tmp_pa
     while time.monotonic() < deadline and is_running(child):
         time.sleep(0.2)
     assert not is_running(child)
-
-
-@pytest.mark.parametrize(('override', 'name'), [('registration.ratio:=3.0', 'ratio'),
-                                                 ('live.sr_frames_kept:=0', 'sr_frames_kept'),
-                                                 ('live.sr_worker:=fork', 'sr_worker'),
-                                                 ('live.sr_refresh_growth:=0.5', 'sr_refresh_growth'),
-                                                 # an output folder that cannot be written: at start, not at shutdown
-                                                 ('live.output_dir:=/proc/srmosaic-out', 'live.output_dir /proc'),
-                                                 # a params file beat -p: these were silently ignored
-                                                 ('registration.max_features:=lots', "'registration.max_features' to 'lots'"),
-                                                 ('georef.enabled:="false"', "'georef.enabled' to 'false' of type 'STRING'")])
-def test_invalid_parameter_refused_at_start(ros_env, override, name):
-    graph = srmosaic('launch', '--ros-args', '-p', override, env=ros_env)
-    out, _ = graph.communicate(timeout=60)
-    assert graph.returncode == 2, out
-    assert name in out
 
 
 def test_command_line_overrides_beat_the_parameter_files(tmp_path):

@@ -458,7 +458,7 @@ def test_georef_node_lifecycle(ros_env):
 
 
 @pytest.mark.ros
-def test_launcher_brings_the_managed_nodes_up(ros_env):
+def test_launcher_brings_the_managed_nodes_up(ros_env, tmp_path):
     """`srmosaic launch` of the launch file drives the managed nodes' transitions (the nodes do not
     start themselves): every node configured before any is activated; both end active. A node that
     refuses to configure ends the launch with status 2 and says which."""
@@ -484,7 +484,11 @@ def test_launcher_brings_the_managed_nodes_up(ros_env):
     assert lines == ['/up/srmosaic_mosaic: configured', '/up/srmosaic_georef: configured',
                      '/up/srmosaic_mosaic: activated', '/up/srmosaic_georef: activated'], logs['launch']
     assert graph.returncode == 0, logs['launch']
-    refused = subprocess.run([*launch, 'namespace:=bad', '--ros-args', '-p', 'mosaic.blend:=bogus'], env=ros_env,
+    # a bad value in a parameter file reaches the node (a bad -p override is refused before any node starts,
+    # test_override_check.py), which refuses to configure
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text('/**:\n  ros__parameters:\n    mosaic:\n      blend: bogus\n')
+    refused = subprocess.run([*launch, 'namespace:=bad', '--params', str(bad)], env=ros_env,
                              capture_output=True, text=True, timeout=180)
     assert refused.returncode == 2, refused.stderr
     assert '/bad/srmosaic_mosaic refused to configure' in refused.stderr, refused.stderr

@@ -1,5 +1,5 @@
 """TelemetrySync on its own (pipeline/telemetry_sync.py): which frames the conductor may process, and
-what the Georeferencer it creates at the first fix is given of the telemetry seen before it."""
+what the Georeferencer, there from the start, holds of the telemetry before the first fix."""
 from __future__ import annotations
 
 import numpy as np
@@ -53,19 +53,25 @@ class _Recording(Georeferencer):
         super().feed_camera_attitude(attitude)
 
 
-def test_the_filter_starts_at_the_first_fix_with_the_attitudes_of_the_buffer_before_it(monkeypatch):
+def test_the_filter_exists_from_the_start_and_holds_the_buffer_before_the_first_fix(monkeypatch):
     monkeypatch.setattr(telemetry_sync, 'Georeferencer', _Recording)
     sync = TelemetrySync(pipeline_config({'georef.telemetry_buffer_s': 3.0}), StageClock())
+    assert isinstance(sync.georef, _Recording) and not sync.georef.has_origin  # no origin yet
     for t in range(10):  # IMU on the second, camera attitudes half-way, all before any fix
         sync.feed(_imu(t))
         sync.feed(_attitude(t + 0.5))
-    assert sync.georef is None and len(sync.imus) == 10 and len(sync.attitudes) == 10
+    # every message reaches the filter as it comes, in order
+    assert sync.georef.fed == [m for t in range(10) for m in (('imu', t), ('attitude', t + 0.5))]
+    assert len(sync.imus) == 10 and len(sync.attitudes) == 10 and not sync.georef.has_origin
+    held = [p[0] / S for p in sync.georef._pending]  # attitudes waiting for the first frame
+    assert held and min(held) >= 9.5 - 3.0  # only the telemetry_buffer_s before the newest
+    assert [g[0] / S for g in sync.georef._gyro] == [6.0, 7.0, 8.0, 9.0]
     sync.feed(_fix(10.0))
     sync.feed(_imu(10.0))
-    assert isinstance(sync.georef, _Recording)
-    # only the telemetry_buffer_s (3 s) before the fix, IMU and attitudes merged in stamp order, then the fix
-    assert sync.georef.fed == [('imu', 7.0), ('attitude', 7.5), ('imu', 8.0), ('attitude', 8.5), ('imu', 9.0),
-                               ('attitude', 9.5), ('fix', 10.0), ('imu', 10.0)]
+    assert sync.georef.has_origin and sync.georef.fed[-2:] == [('fix', 10.0), ('imu', 10.0)]
+    # at the first fix: the telemetry_buffer_s (3 s) before it, as the filter created there used to be given
+    assert min(p[0] / S for p in sync.georef._pending) >= 7.0
+    assert [g[0] / S for g in sync.georef._gyro] == [7.0, 8.0, 9.0, 10.0]
     assert sync.attitude_measured()  # an Imu orientation (and attitudes that see the ground)
     assert sync.measured_elevations_deg(8 * S, 9 * S) == [pytest.approx(-90.0)]
     with pytest.raises(TypeError, match='not str'):
@@ -96,3 +102,15 @@ def test_without_a_fix_in_time_the_frames_go_on_alone():
     for k in range(SYNC_HOLD_FRAMES + 2):
         off.feed(_frame(0.1 * k))
     assert len(list(off.ready())) == 2  # no first fix to wait for without georeferencing
+
+
+def test_the_georeferencer_has_no_origin_before_a_valid_fix_and_few_attributes():
+    georef = Georeferencer()
+    assert not georef.has_origin and georef.origin is None
+    pose = georef.feed_frame(5 * S)
+    assert not pose.valid and pose.reason == 'no GNSS fix yet'
+    georef.feed_fix(GeoFix(6 * S, float('nan'), 8.0, 500.0))  # an unusable fix sets no origin
+    assert not georef.has_origin
+    georef.feed_fix(_fix(7.0))
+    assert georef.has_origin
+    assert len(vars(georef)) <= 15, sorted(vars(georef))  # one job per collaborator (issue 55: about 15 at most)

@@ -54,3 +54,7 @@ def __getattr__(name: str) -> Any:  # PEP 562 lazy attributes
         return getattr(importlib.import_module(f'.{_LAZY[name]}', __name__), name)
     msg = f'module {__name__!r} has no attribute {name!r}'
     raise AttributeError(msg)
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_LAZY})

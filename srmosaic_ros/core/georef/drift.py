@@ -85,7 +85,7 @@ import numpy as np
 
 from .ground_homography import apply_H, homographies_from_corners, homography_from_corners
 
-__all__ = ['CanvasSimilarity', 'DriftState', 'InformationRate', 'chain_jacobian', 'drift_init', 'drift_step',
+__all__ = ['AbsoluteInformation', 'CanvasSimilarity', 'DriftState', 'InformationRate', 'chain_jacobian', 'drift_init', 'drift_step',
            'pose_error_transition', 'similarity_homography', 'similarity_jacobian']
 
 _CORNERS = 8
@@ -338,3 +338,29 @@ def drift_step(state: DriftState, chained: np.ndarray, corners: np.ndarray, chai
     state.placed, state.stamp_ns, state.pose_cov = out, int(stamp_ns), 0.5 * (P + P.T)
     state.sim, state.pose_error, state.cov = state.sim + dx[_SIM], y + dx[_POSE], 0.5 * (cov + cov.T)
     return out
+
+
+class AbsoluteInformation:
+    """The absolute measurements fused (R^-1 of the fixes: position block; of the IMU attitudes:
+    attitude block), each an :class:`InformationRate` over ``window_s``, for FramePose.info_rate;
+    ``last`` is the (6, 6) rate of the latest frame, the drift controller's fallback."""
+
+    def __init__(self, window_s: float) -> None:
+        self._kinds = {'fix': InformationRate(3, window_s), 'imu': InformationRate(3, window_s)}
+        self.last: np.ndarray | None = None
+
+    def add(self, kind: str, stamp_ns: int, R: np.ndarray) -> None:
+        """Count one measurement of ``kind`` ('fix' or 'imu') with covariance R (3, 3)."""
+        try:
+            info = np.linalg.inv(0.5 * (R + R.T))
+        except np.linalg.LinAlgError:
+            return
+        self._kinds[kind].add(stamp_ns, info)
+
+    def rate(self, stamp_ns: int) -> np.ndarray:
+        """(6, 6) information per second before ``stamp_ns``: fixes in the position block, IMU attitudes
+        in the attitude block (non-decreasing stamps)."""
+        out = np.zeros((6, 6))
+        out[:3, :3] = self._kinds['fix'].rate(stamp_ns)
+        out[3:, 3:] = self._kinds['imu'].rate(stamp_ns)
+        return out

@@ -7,7 +7,7 @@ import math
 from dataclasses import dataclass, fields
 
 from ..settings import Bounds, check_settings, setting
-from .ukf import CameraMount, UkfParams
+from .ukf_models import CameraMount, UkfParams
 
 __all__ = ['GeorefConfig']
 

@@ -8,6 +8,10 @@
     raster_H_frame = georef.raster_H_frame(pose)           # place a frame by its pose (flat ground)
     raster_H_frame = georef.correct(chained_H, pose)       # drift control of a chained homography
 
+Before the first valid fix there is no origin yet (``has_origin`` is false): IMU samples and camera
+attitudes are kept for the ``telemetry_buffer_s`` before the newest, and frames get invalid poses
+('no GNSS fix yet'), so the Georeferencer can exist from the flight's start.
+
 Frames and units: the local ENU plane is tangent at the first valid fix, with its z = 0 at the
 prior ground altitude (``ground_altitude_m``, or the first fix's altitude minus ``nominal_agl_m``);
 the filter then estimates the ground plane's height in that frame (see ukf.py). Body x forward,
@@ -37,7 +41,7 @@ import numpy as np
 from ..types import FIX_STATUS_NO_FIX, CameraAttitude, CameraIntrinsics, GeoFix, ImuSample
 from .frame_pose import FramePose
 from .frames import matrix_from_rotvec, rotvec_from_matrix
-from .drift import InformationRate
+from .drift import AbsoluteInformation
 from .geodetic import LocalTangentPlane
 from .georef_config import GeorefConfig
 from .ground_homography import camera_pose_from_enu_H_image
@@ -46,7 +50,7 @@ from .placement import RasterPlacement, frame_corners
 from .raster import GeoRaster, utm_epsg
 from .skip_log import SkipLog
 from .telemetry import MIN_AXIS_DEPRESSION_DEG, camera_attitude, fix_covariance, imu_attitude, sees_the_ground
-from .ukf import GROUND, SLOT_CUR, SLOT_PREV, PoseUkf, corner_jacobian, rts_smooth, wrap_angle
+from .ukf import GROUND, SLOT_CUR, SLOT_PREV, CameraMount, PoseUkf, corner_jacobian, rts_smooth, wrap_angle
 
 __all__ = [
     'GeorefConfig',
@@ -74,9 +78,9 @@ class Georeferencer:
     def __init__(self, config: GeorefConfig | None = None, camera: CameraIntrinsics | None = None) -> None:
         self.config = config or GeorefConfig()
         self.camera = camera
-        self.mount = self.config.mount
+        self._prev_camera: CameraIntrinsics | None = None  # the previous frame's: what its registration maps into
         self.ukf = PoseUkf(self.config.ukf_params)
-        self.origin: LocalTangentPlane | None = None
+        self.origin: LocalTangentPlane | None = None  # None: no valid fix yet (the filter keeps telemetry meanwhile)
         self.ground_altitude_m: float = float('nan')
         self.placement = RasterPlacement(self.config, self.mount)  # the raster and drift control
         self.log = SkipLog()  # inputs left out, per kind
@@ -87,9 +91,17 @@ class Georeferencer:
         # per filtered frame: [pose index, x_pred, P_pred, x_post, P_post, F] for the smoother
         self._history: list[list] = []
         self._seq = 0
-        self._last_info_rate: np.ndarray | None = None
-        # absolute measurements fused (R^-1 of the fixes, of the IMU attitudes) for FramePose.info_rate
-        self._info = {'fix': InformationRate(3, INFO_RATE_WINDOW_S), 'imu': InformationRate(3, INFO_RATE_WINDOW_S)}
+        self.information = AbsoluteInformation(INFO_RATE_WINDOW_S)  # the fixes and attitudes fused, for FramePose.info_rate
+
+    @property
+    def mount(self) -> CameraMount:
+        """The camera's mount on the body (``georef.`` parameters)."""
+        return self.config.mount
+
+    @property
+    def has_origin(self) -> bool:
+        """Whether a valid fix has set the local ENU plane: before it, poses are invalid ('no GNSS fix yet')."""
+        return self.origin is not None
 
     @property
     def skipped(self) -> Counter[str]:
@@ -284,7 +296,7 @@ class Georeferencer:
                 chain_sigma_px: float | None = None) -> np.ndarray:
         """Drift control of a chained frame -> raster homography (:meth:`RasterPlacement.correct`)."""
         return self.placement.correct(raster_H_frame_chained, pose, camera or self.camera, raster,
-                                      chain_sigma_px=chain_sigma_px, fallback_info_rate=self._last_info_rate)
+                                      chain_sigma_px=chain_sigma_px, fallback_info_rate=self.information.last)
 
     def corner_sigma_px(self, prev_H_cur: np.ndarray, covariance: np.ndarray | None,
                         camera: CameraIntrinsics | None = None) -> float:
@@ -363,21 +375,12 @@ class Georeferencer:
 
     def _add_information(self, kind: str, stamp_ns: int, R: np.ndarray) -> None:
         """Count an absolute measurement fused (a fix: position block; an attitude: attitude block)."""
-        try:
-            info = np.linalg.inv(0.5 * (R + R.T))
-        except np.linalg.LinAlgError:
-            return
-        self._info[kind].add(stamp_ns, info)
+        self.information.add(kind, stamp_ns, R)
 
     def information_rate(self, stamp_ns: int) -> np.ndarray:
-        """(6, 6) information per second of the absolute measurements fused before ``stamp_ns``: fixes
-        in the position block, IMU attitudes in the attitude block, each averaged over the last
-        ``INFO_RATE_WINDOW_S`` (see FramePose.info_rate and drift.InformationRate); call it with
-        non-decreasing stamps."""
-        out = np.zeros((6, 6))
-        out[:3, :3] = self._info['fix'].rate(stamp_ns)
-        out[3:, 3:] = self._info['imu'].rate(stamp_ns)
-        return out
+        """(6, 6) information per second of the absolute measurements fused before ``stamp_ns``
+        (AbsoluteInformation.rate; see FramePose.info_rate and drift.InformationRate)."""
+        return self.information.rate(stamp_ns)
 
     def _apply_pending(self) -> tuple[int, int]:
         ukf = self.ukf
@@ -468,7 +471,7 @@ class Georeferencer:
             rms = rms_px if (rms_px is not None and math.isfinite(rms_px) and rms_px > 0) else 1.0
             R = (cfg.homography_sigma_gain * rms) ** 2 * np.eye(8)
         R = R + cfg.homography_min_sigma_px**2 * np.eye(8)
-        prev_camera = getattr(self, '_prev_camera', None)  # the previous frame's intrinsics (a zoom changes them)
+        prev_camera = self._prev_camera  # the previous frame's intrinsics (a zoom changes them)
         K_prev = prev_camera.K if prev_camera is not None and prev_camera != self.camera else None
         res = self.ukf.update_homography(H, R, self.camera.K, self.mount, corners, K_prev)
         self.updates[f'homography_{res.status}'] += 1
@@ -485,9 +488,9 @@ class Georeferencer:
             x[SLOT_CUR] = x[SLOT_PREV]
             P = self.ukf.P.copy()
             P[SLOT_CUR, SLOT_CUR] = P[SLOT_PREV, SLOT_PREV]
-            return self._pose_from(x, P, stamp_ns, used_h, n_fix, n_imu, self._last_info_rate)
-        self._last_info_rate = self.information_rate(stamp_ns)
-        return self._pose_from(x, self.ukf.P, stamp_ns, used_h, n_fix, n_imu, self._last_info_rate)
+            return self._pose_from(x, P, stamp_ns, used_h, n_fix, n_imu, self.information.last)
+        self.information.last = self.information_rate(stamp_ns)
+        return self._pose_from(x, self.ukf.P, stamp_ns, used_h, n_fix, n_imu, self.information.last)
 
     def _pose_from(self, x: np.ndarray, P: np.ndarray, stamp_ns: int, used_h: bool, n_fix: int,
                    n_imu: int, info_rate: np.ndarray | None = None) -> FramePose:

@@ -88,6 +88,7 @@ from .frames import R_enu_from_body, rotvec_from_matrix
 from .ground_homography import apply_H
 from .rts_smoother import rts_smooth
 from .ukf_models import (
+    UkfParams,
     _EPS_VAR,
     GROUND,
     POSE_DIM,
@@ -122,25 +123,6 @@ __all__ = [
     'transition_matrix',
     'wrap_angle',
 ]
-
-
-@dataclass(frozen=True)
-class UkfParams:
-    """Noise and numerics of :class:`PoseUkf` (SI units, radians)."""
-
-    accel_sigma_h_m_s2: float = 2.0
-    accel_sigma_v_m_s2: float = 1.0
-    angular_accel_sigma_rad_s2: float = math.radians(20.0)
-    initial_speed_sigma_m_s: float = 15.0
-    initial_rate_sigma_rad_s: float = math.radians(30.0)
-    ground_walk_m_per_sqrt_s: float = 0.05
-    gate_probability: float = 0.99999
-    max_gated_in_a_row: int = 5
-    alpha: float = 1.0
-    beta: float = 2.0
-    kappa: float = 0.0
-    iterations: int = 5  # passes of the nonlinear (homography, gyro) updates; 1: the plain UKF update
-    max_attitude_step_sigma_rad: float = math.radians(20.0)  # bound of the attitude process noise per step
 
 
 @dataclass(frozen=True)

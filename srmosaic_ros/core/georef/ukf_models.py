@@ -6,6 +6,7 @@ for the frames, the motion model and the measurement models these functions impl
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -27,6 +28,7 @@ __all__ = [
     'SLOT_PREV',
     'SLOT_CUR',
     'CameraMount',
+    'UkfParams',
     'corner_jacobian',
     'homography_model',
     'homography_model_batch',
@@ -73,6 +75,25 @@ class CameraMount:
             self.lever_arm_body_m, dtype=np.float64)
         return np.r_[position, rpy_from_R_enu_from_body(R_enu_from_body)]
 
+
+
+@dataclass(frozen=True)
+class UkfParams:
+    """Noise and numerics of :class:`PoseUkf` (SI units, radians)."""
+
+    accel_sigma_h_m_s2: float = 2.0
+    accel_sigma_v_m_s2: float = 1.0
+    angular_accel_sigma_rad_s2: float = math.radians(20.0)
+    initial_speed_sigma_m_s: float = 15.0
+    initial_rate_sigma_rad_s: float = math.radians(30.0)
+    ground_walk_m_per_sqrt_s: float = 0.05
+    gate_probability: float = 0.99999
+    max_gated_in_a_row: int = 5
+    alpha: float = 1.0
+    beta: float = 2.0
+    kappa: float = 0.0
+    iterations: int = 5  # passes of the nonlinear (homography, gyro) updates; 1: the plain UKF update
+    max_attitude_step_sigma_rad: float = math.radians(20.0)  # bound of the attitude process noise per step
 
 
 def corner_jacobian(H: np.ndarray, corners: np.ndarray) -> np.ndarray:

@@ -22,9 +22,6 @@ import math
 
 import cv2
 import numpy as np
-import scipy.sparse as sp
-import scipy.sparse.linalg as spla
-from scipy.sparse.csgraph import connected_components
 
 __all__ = ['EXPOSURE_MODES', 'MAX_GAIN', 'THUMB_SIDE_PX', 'exposure_gains']
 
@@ -62,6 +59,9 @@ def exposure_gains(thumbs: list[np.ndarray | None], raster_H_thumb: list[np.ndar
     other keeps gain 1. Gains stay within [1 / MAX_GAIN, MAX_GAIN]. Raises ValueError for an unknown
     mode or mismatched lists.
     """
+    import scipy.sparse as sp  # here, not at the top: the configuration imports EXPOSURE_MODES without scipy
+    from scipy.sparse.csgraph import connected_components
+
     if mode not in EXPOSURE_MODES:
         msg = f'exposure mode {mode!r} is not one of {", ".join(EXPOSURE_MODES)}.'
         raise ValueError(msg)
@@ -166,6 +166,9 @@ def _overlap_log_ratios(warped: dict[int, tuple[int, int, np.ndarray, np.ndarray
 def _solve_log_gains(n: int, pairs: np.ndarray, logs: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """(n, C) x minimising sum_p w_p rho(x_i - x_j - d_p) + PRIOR_WEIGHT mean(w) sum_i x_i^2 (rho:
     Huber at HUBER_LOG), by iteratively reweighted least squares; pairs (P, 2), logs d (P, C), weights (P,)."""
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
+
     rows = np.arange(len(pairs))
     A = sp.csr_matrix((np.r_[np.ones(len(pairs)), -np.ones(len(pairs))], (np.r_[rows, rows], np.r_[pairs[:, 0], pairs[:, 1]])),
                       shape=(len(pairs), n))

@@ -24,10 +24,10 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from .modes import FLOW_MODES
+
 __all__ = ['FLOW_MODES', 'dense_flow_to_reference', 'remap_tile', 'sample_field']
 
-#: 'off' or a DIS preset (speed against accuracy of the coarse search).
-FLOW_MODES = ('off', 'ultrafast', 'fast', 'medium')
 _PRESETS = {'ultrafast': cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST, 'fast': cv2.DISOPTICAL_FLOW_PRESET_FAST,
             'medium': cv2.DISOPTICAL_FLOW_PRESET_MEDIUM}
 

@@ -20,9 +20,10 @@ import cv2
 import numpy as np
 import torch
 
+from .modes import ALIGN_MODES
+
 __all__ = ['ALIGN_MODES', 'align_to_reference', 'photometric_to_reference']
 
-ALIGN_MODES = ('off', 'translation', 'affine')
 _MOTION = {'translation': cv2.MOTION_TRANSLATION, 'affine': cv2.MOTION_AFFINE}
 
 

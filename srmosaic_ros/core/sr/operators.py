@@ -31,6 +31,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from .modes import WARP_MODES
+
 __all__ = [
     'LinearOperator',
     'Compose',
@@ -49,9 +51,6 @@ __all__ = [
 ]
 
 
-#: interpolation of W_k (grid_sample's modes 0 and 2): bilinear, or bicubic (Keys, a = -0.75), whose
-#: response falls less towards the HR grid's Nyquist, so the model blurs less than the warp it describes.
-WARP_MODES = ('bilinear', 'bicubic')
 
 
 def dot(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:

@@ -24,9 +24,10 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
+from .modes import CLAMP_MODES
+
 __all__ = ['CLAMP_MODES', 'clamp_to_lr_range', 'lr_range_on_hr']
 
-CLAMP_MODES = ('cell', 'wide', 'off')
 
 
 def _cell_index(n_hr: int, factor: int, device: torch.device) -> torch.Tensor:

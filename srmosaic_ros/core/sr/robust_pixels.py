@@ -18,9 +18,10 @@ from __future__ import annotations
 
 import torch
 
+from .modes import ROBUST_NORMS
+
 __all__ = ['ROBUST_NORMS', 'pixel_weights']
 
-ROBUST_NORMS = ('off', 'huber', 'lorentzian')
 
 
 def pixel_weights(r: torch.Tensor, mask: torch.Tensor, *, norm: str = 'huber', scale: float = 2.0,

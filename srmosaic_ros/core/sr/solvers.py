@@ -43,6 +43,8 @@ from dataclasses import dataclass, field
 
 import torch
 
+from .modes import LAMBDA_MODES, SOLVERS
+
 from .operators import LinearOperator
 from .prior import (
     HuberPrior,
@@ -70,8 +72,6 @@ __all__ = [
     'line_search_exact',
 ]
 
-LAMBDA_MODES = ('adaptive', 'fixed', 'paper')
-SOLVERS = ('sd', 'cg', 'lm')
 
 
 @dataclass(frozen=True)

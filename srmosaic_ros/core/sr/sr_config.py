@@ -5,12 +5,7 @@ from dataclasses import dataclass
 
 from ...errors import SrMosaicError
 from ..settings import Bounds, check_settings, setting
-from .dense_flow import FLOW_MODES
-from .local_align import ALIGN_MODES
-from .operators import WARP_MODES
-from .ringing import CLAMP_MODES
-from .robust_pixels import ROBUST_NORMS
-from .solvers import LAMBDA_MODES, SOLVERS
+from .modes import ALIGN_MODES, CLAMP_MODES, FLOW_MODES, LAMBDA_MODES, ROBUST_NORMS, SOLVERS, WARP_MODES
 
 __all__ = ['COLOR_MODES', 'SRConfig', 'SRError', 'SRFramesDisagree']
 
