@@ -7,13 +7,14 @@ by its first frame (its pixels, scaled to ``mosaic.max_width``, or the georefere
 this module says by how much to refine it, the *zoom* z (canvas pixels per plane pixel, >= 1):
 
 - ``first``: z = oversample; the first frame maps at ``oversample`` canvas pixels per pixel;
-- ``finest``: the frames' linear scale on the plane, s_k (plane pixels per frame pixel at the frame
-  centre, sqrt(|det J|) = sqrt(|det m| / d**3) for a homography m normalised to m22 = 1 with depth d
-  there), is known for the first frames of the segment; the sharpest of them, the
-  ``FINEST_QUANTILE`` quantile s_q, set the canvas: z = oversample * max(1, s_ref / s_q) with s_ref
-  the first frame's own scale, so that those frames map as the first one would (1:1 below
-  ``mosaic.max_width``). A flight whose frames get finer (descending, zooming in, flying toward an
-  oblique view's near field) gets a finer canvas; one whose frames get coarser keeps the first's.
+- ``finest``: the frames' linear scale on the plane, s_k (plane pixels per frame pixel where the frame is
+  finest, sqrt(|det J|) = sqrt(|det m| / d**3) for a homography m with projective depth d there:
+  :func:`frame_scale`), is known for the first frames of the segment; the sharpest of them, the
+  ``FINEST_QUANTILE`` quantile s_q, set the canvas: z = oversample * s_ref / s_q with s_ref the first
+  frame's own scale, so that those frames map as the first one would (1:1 below ``mosaic.max_width``),
+  when s_ref / s_q reaches ``MIN_REFINEMENT`` (else z = oversample). A flight whose frames get finer
+  (descending, zooming in, flying toward an oblique view's near field) gets a finer canvas; a steady
+  one, or one whose frames get coarser, keeps the first's.
 
 Either way z is capped: at ``MAX_ZOOM``, and with a bound on the tiles in memory
 (``mosaic.max_tiles_in_memory`` > 0) so that one frame's footprint covers at most
@@ -28,13 +29,16 @@ from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ['FINEST_QUANTILE', 'FOOTPRINT_SHARE_OF_BOUND', 'MAX_ZOOM', 'RESOLUTION_MODES', 'canvas_zoom', 'frame_scale',
+__all__ = ['FINEST_QUANTILE', 'FOOTPRINT_SHARE_OF_BOUND', 'MAX_ZOOM', 'MIN_REFINEMENT', 'RESOLUTION_MODES', 'canvas_zoom', 'frame_scale',
            'zoom_homography']
 
 from .config import RESOLUTION_MODES
 #: The quantile of the frames' scales on the plane that sets a ``finest`` canvas: the sharpest tenth
 #: of the frames map 1:1 (the very sharpest single frame would let one outlier set the memory bill).
 FINEST_QUANTILE = 0.1
+#: ``finest`` refines the first frame's sampling only when the sharpest frames are this much finer: a
+#: steady flight, whose frames' scale wanders with its height and attitude, keeps the first's.
+MIN_REFINEMENT = 1.1
 #: A canvas is never refined more than this (linear): 16 times the tiles of the first frame's plane.
 MAX_ZOOM = 4.0
 #: With a bound on the tiles in memory, one frame's footprint may take at most this share of it.
@@ -42,16 +46,21 @@ FOOTPRINT_SHARE_OF_BOUND = 4
 
 
 def frame_scale(plane_H_frame: np.ndarray, w: int, h: int) -> float:
-    """Linear scale (plane pixels per frame pixel) of a w x h frame at its centre through the (3, 3)
-    homography ``plane_H_frame``: sqrt(|det J|) with J the Jacobian of the map there,
-    sqrt(|det m| / d**3) for m scaled to m22 = 1, d the projective depth of the centre. NaN where
-    the centre is beyond the horizon (d <= 0)."""
+    """Linear scale (plane pixels per frame pixel) of a w x h frame where it is finest on the plane,
+    through the (3, 3) homography ``plane_H_frame``: sqrt(|det J|) with J the Jacobian of the map,
+    sqrt(|det m| / d**3) at projective depth d (m's third row, signed positive over the frame), least at
+    the largest depth over the frame (a corner: d is linear in the pixel). The finest part is what the best view shows of an
+    oblique frame in a forward flight (its near field, which its predecessors saw from farther away).
+    NaN for a degenerate m (zero depth over the whole frame)."""
     m = np.asarray(plane_H_frame, dtype=np.float64)
-    m = m / m[2, 2] if m[2, 2] != 0 else m
-    d = float(m[2] @ np.array([(w - 1) / 2.0, (h - 1) / 2.0, 1.0]))
+    corners = np.array([[-0.5, -0.5, 1.0], [w - 0.5, -0.5, 1.0], [w - 0.5, h - 0.5, 1.0], [-0.5, h - 0.5, 1.0]])
+    depth = corners @ m[2]
+    if (depth <= 0).all():  # m and -m are one homography (placement.checked_homography's sign)
+        depth = -depth
+    d = float(depth.max())
     if not d > 0:
         return math.nan
-    return math.sqrt(abs(float(np.linalg.det(m))) / d**3)
+    return math.sqrt(abs(float(np.linalg.det(m))) / d**3)  # invariant to the scale of m
 
 
 def canvas_zoom(mode: str, oversample: float, scales: Sequence[float], *, first_area_px: float, tile_size: int,
@@ -77,7 +86,8 @@ def canvas_zoom(mode: str, oversample: float, scales: Sequence[float], *, first_
     z = float(oversample)
     s = np.asarray([v for v in scales if math.isfinite(v) and v > 0], dtype=np.float64)
     if mode == 'finest' and s.size:
-        z *= max(1.0, float(s[0]) / float(np.quantile(s, FINEST_QUANTILE)))
+        finer = float(s[0]) / float(np.quantile(s, FINEST_QUANTILE))
+        z *= finer if finer >= MIN_REFINEMENT else 1.0
     z = min(z, MAX_ZOOM)
     if max_tiles_in_memory > 0 and first_area_px > 0:
         # the footprint z^2 A covers about z^2 A / T^2 tiles (and a ring of partial ones: the side + 1)
