@@ -1,4 +1,4 @@
-"""A georeferenced segment's first frames held until the poses settle, and the pose checks made then.
+"""A segment's first frames held until the poses settle (and the canvas's sampling is decided), and the pose checks made then.
 
 Settling (mosaic.settle_s, mosaic.settle_max_frames): the first frame of a segment is placed by its
 pose when the filter knows least, and drift control then pulls the next frames toward better poses;
@@ -7,6 +7,11 @@ frames are held, unpainted, until settle_s seconds of them (or settle_max_frames
 placed; then they are placed back from the newest one through their own registrations,
 H_k = H_(k+1) inv(prev_H_cur_(k+1)) (the chain (4.6) run backwards), and painted. Their records are
 decided then; their poses are ready at once (Pipeline.take_fused).
+
+Sampling (mosaic.resolution 'finest', canvas_resolution.py): every segment's first frames are held
+so, georeferenced or not; when they settle, their scales on the segment's plane decide how finely
+its canvas samples it, and their placements are refined by that zoom (with the raster's gsd and
+the drift controller, for the georeferenced canvas) before the first of them is painted.
 
 Pose check (poses without a measured attitude: the filter's camera is only the configured mount,
 nadir by default): when the first georeferenced segment settles, its drift-control innovations say
