@@ -30,9 +30,9 @@ def flight():
     return simulate(CFG)
 
 
-def _chained(flight, resolution: str) -> Pipeline:
+def _chained(flight, resolution: str, oversample: float = 1.0) -> Pipeline:
     """The frames alone (no telemetry, no intrinsics: the canvas is the first frame's plane), every frame painted."""
-    pipe = Pipeline(pipeline_config({'mosaic.resolution': resolution, 'mosaic.paint_stride': 1}))
+    pipe = Pipeline(pipeline_config({'mosaic.resolution': resolution, 'mosaic.oversample': oversample, 'mosaic.paint_stride': 1}))
     for f in flight.frames:
         pipe.feed(Frame(f.stamp_ns, f.image))
     pipe.flush()
@@ -92,6 +92,13 @@ def test_a_zooming_flight_gets_a_canvas_as_fine_as_its_sharpest_frames(flight) -
     x0, y0, x1, y1 = finest.segments[0].canvas.bounds()
     fx0, fy0, fx1, fy1 = first.segments[0].canvas.bounds()
     assert (x1 - x0) == pytest.approx(zoom * (fx1 - fx0), abs=4)
+
+
+def test_oversample_refines_the_first_frames_sampling_from_the_start(flight) -> None:
+    first, over = _chained(flight, 'first'), _chained(flight, 'first', 1.5)
+    for a, b in zip(first.records, over.records, strict=True):  # painted as they came, on a canvas 1.5x finer
+        np.testing.assert_allclose(np.diag([1.5, 1.5, 1.0]) @ a.seg_H_frame / a.seg_H_frame[2, 2],
+                                   b.seg_H_frame / b.seg_H_frame[2, 2], rtol=1e-6, atol=1e-6)
 
 
 def test_the_georeference_follows_a_finer_canvas(flight, tmp_path) -> None:
