@@ -22,7 +22,7 @@ class MosaicConfig:
     interpolation: str = setting('cubic', choices=INTERPOLATION_MODES)
     # the canvas's sampling: 'first' (the first frame's, scaled to max_width) | 'finest' (the sharpest of a
     # segment's first frames, held for settle_s / settle_max_frames, map as the first would; resolution.py)
-    resolution: str = setting('finest', choices=RESOLUTION_MODES)
+    resolution: str = setting('first', choices=RESOLUTION_MODES)
     oversample: float = setting(1.0, lo=1.0, hi=4.0)  # canvas pixels per frame pixel of the frames that set the sampling
     recency_frames: int = setting(90, lo=0)  # bestview: a frame this many frames newer wins over an e-fold better view (0: none)
     # bestview, multiband: 'score' (where view scores cross) | 'cut' (graph cut: where frames agree, seam_cut.py)
