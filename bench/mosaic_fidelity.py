@@ -25,7 +25,13 @@ frame it shows). Also printed: painting time, ms per paint and per input frame (
 frames painted. ``--save DIR`` writes, per video and interpolation, a crop of the mosaic and of
 the frame it shows there, side by side (PNG), for looking at.
 
+Each configuration runs in a fresh process (``mosaic.interpolation`` x ``mosaic.resolution`` x
+``mosaic.oversample``, the canvas's sampling: core/mosaic/resolution.py); printed with it: the
+mosaic's size in pixels and tiles, and the process's peak RSS (and how much of it came after the
+frames were read).
+
     python bench/mosaic_fidelity.py [VIDEO ...] [--frames 48] [--interpolations linear,cubic]
+                                    [--resolutions first,finest] [--oversamples 1,1.5]
                                     [--halve] [--save DIR]
 """
 from __future__ import annotations
@@ -34,6 +40,8 @@ import argparse
 import hashlib
 import logging
 import math
+import multiprocessing
+import resource
 import sys
 import time
 from dataclasses import dataclass, field
@@ -94,8 +102,9 @@ class Run:
     canvas: TiledCanvas | None = None
 
 
-def run_pipeline(frames: list[Frame], interpolation: str) -> Run:
-    """Feed ``frames`` through a Pipeline with mosaic.interpolation, recording every paint."""
+def run_pipeline(frames: list[Frame], interpolation: str, resolution: str = 'first', oversample: float = 1.0) -> Run:
+    """Feed ``frames`` through a Pipeline with mosaic.interpolation, mosaic.resolution and
+    mosaic.oversample, recording every paint."""
     run = Run(frames=len(frames))
     original = TiledCanvas.paint
 
@@ -108,7 +117,8 @@ def run_pipeline(frames: list[Frame], interpolation: str) -> Run:
 
     TiledCanvas.paint = paint  # type: ignore[method-assign]
     try:
-        pipe = Pipeline(pipeline_config({'mosaic.interpolation': interpolation}))
+        pipe = Pipeline(pipeline_config({'mosaic.interpolation': interpolation, 'mosaic.resolution': resolution,
+                                         'mosaic.oversample': oversample}))
         for f in frames:
             pipe.feed(f)
         pipe.flush()
@@ -226,27 +236,51 @@ def main() -> None:
     ap.add_argument('--interpolations', default='linear,cubic', help='mosaic.interpolation values, in turn')
     ap.add_argument('--halve', action='store_true', help='halve the frames and score against the originals')
     ap.add_argument('--save', type=Path, default=None, help='write side-by-side crops here')
+    ap.add_argument('--resolutions', default='first', help='mosaic.resolution values, in turn (first, finest)')
+    ap.add_argument('--oversamples', default='1', help='mosaic.oversample values, in turn')
     args = ap.parse_args()
     logging.basicConfig(level=logging.WARNING)
+    ctx = multiprocessing.get_context('spawn')
     for video in args.videos:
-        frames, originals = read_frames(video, args.frames, args.halve)
-        size = f'{frames[0].image.shape[1]}x{frames[0].image.shape[0]}'
-        print(f'{video.name} ({len(frames)} frames, {size}{", halved" if args.halve else ""})', flush=True)
+        header = None
         for interp in args.interpolations.split(','):
-            run = run_pipeline(frames, interp)
-            if run.canvas is None:
-                print(f'  {interp:8s} no mosaic')
-                continue
-            r = score(run, frames, originals, args.save, f'{video.stem}_{size}_{interp}')
-            line = (f'  {interp:8s} painted {r["painted"]:3d} (scored {r["scored"]:3d}); '
-                    f'mosaic->frame {r["mosaic_to_frame_db"]:6.2f} dB, round trip {r["round_trip_db"]:6.2f} dB; '
-                    f'paint {r["paint_ms_per_paint"]:5.1f} ms per paint, {r["paint_ms_per_frame"]:5.1f} per frame')
-            if args.halve:
-                gap = r['mosaic_bicubic_db'] - r['frame_bicubic_db']
-                line += (f'\n           vs original: mosaic bicubic {r["mosaic_bicubic_db"]:6.2f} dB, '
-                         f'frame bicubic {r["frame_bicubic_db"]:6.2f} dB, gap {gap:+.2f} dB (goal >= -1)')
-            print(line, flush=True)
-            run.canvas.close()
+            for resolution in args.resolutions.split(','):
+                for oversample in (float(v) for v in args.oversamples.split(',')):
+                    # each run in a fresh process: its peak memory is its own
+                    with ctx.Pool(1) as pool:
+                        out = pool.apply(run_one, (video, args.frames, args.halve, interp, resolution, oversample, args.save))
+                    if header is None:
+                        header = out['header']
+                        print(header, flush=True)
+                    print(out['line'], flush=True)
+
+
+def run_one(video: Path, count: int, halve: bool, interp: str, resolution: str, oversample: float,
+            save: Path | None) -> dict[str, str]:
+    """One run over ``video``'s first ``count`` frames, scored: the lines to print (header, figures)."""
+    logging.basicConfig(level=logging.WARNING)
+    frames, originals = read_frames(video, count, halve)
+    size = f'{frames[0].image.shape[1]}x{frames[0].image.shape[0]}'
+    header = f'{video.name} ({len(frames)} frames, {size}{", halved" if halve else ""})'
+    rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    run = run_pipeline(frames, interp, resolution, oversample)
+    rss1 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    name = f'{interp} {resolution} x{oversample:g}'
+    if run.canvas is None:
+        return {'header': header, 'line': f'  {name:20s} no mosaic'}
+    r = score(run, frames, originals, save, f'{video.stem}_{size}_{interp}_{resolution}_x{oversample:g}')
+    x0, y0, x1, y1 = run.canvas.bounds()
+    line = (f'  {name:20s} painted {r["painted"]:3d} (scored {r["scored"]:3d}); '
+            f'mosaic->frame {r["mosaic_to_frame_db"]:6.2f} dB, round trip {r["round_trip_db"]:6.2f} dB; '
+            f'paint {r["paint_ms_per_paint"]:5.1f} ms per paint, {r["paint_ms_per_frame"]:5.1f} per frame'
+            f'\n           mosaic {x1 - x0}x{y1 - y0} px ({len(run.canvas.tile_keys())} tiles); '
+            f'peak RSS of the run {rss1:.0f} MiB ({rss1 - rss0:+.0f} over the frames read)')
+    if halve:
+        gap = r['mosaic_bicubic_db'] - r['frame_bicubic_db']
+        line += (f'\n           vs original: mosaic bicubic {r["mosaic_bicubic_db"]:6.2f} dB, '
+                 f'frame bicubic {r["frame_bicubic_db"]:6.2f} dB, gap {gap:+.2f} dB (goal >= -1)')
+    run.canvas.close()
+    return {'header': header, 'line': line}
 
 
 if __name__ == '__main__':

@@ -13,8 +13,8 @@ collaborators, each with its own module and its own part of the checkpoint state
   queued until their telemetry has arrived (approximate-time synchronisation);
 - SegmentPlacer (placer.py): registration to the last placed frame (or tracking), the chain (4.6),
   drift control, new segments; SegmentBook (segment_book.py) holds the segments;
-- Settler (settler.py): a georeferenced segment's first frames held until the poses settle, and the
-  pose and attitude checks made then;
+- Settler (settler.py): a segment's first frames held until the poses settle and the canvas's
+  sampling is decided (canvas_resolution.py), and the pose and attitude checks made then;
 - RevisitCorrector (revisits.py): keyframes registered to the mosaic on revisits, their corrections
   spread back over the frames not painted yet;
 - Painter (painter.py, paint_input.py): thinning, revisit spreading's delay, the paint thread.

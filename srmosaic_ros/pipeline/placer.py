@@ -19,11 +19,13 @@ import numpy as np
 
 from ..config import PipelineConfig
 from ..core.georef.georeferencer import FramePose
+from ..core.mosaic.resolution import zoom_homography
 from ..core.mosaic.segments import Segment
 from ..core.registration import Features, Registration, make_registrar
 from ..core.registration.pyramid import PyramidRegistrar
 from ..core.registration.tracking import MotionTracker
 from ..core.stage_clock import StageClock
+from .canvas_resolution import decided_at_settle, start_zoom
 from .checkpointed import Checkpointed
 from .painter import Painter
 from .records import FrameRecord, Held
@@ -140,6 +142,8 @@ class SegmentPlacer(Checkpointed):
             return None
         if georef.raster is None:
             georef.make_raster(pose, camera, coarsen=1.0 / plane_scale(self.config.mosaic.max_width, held.record.size[0]))
+            if not decided_at_settle(self.config.mosaic):  # mosaic.resolution 'first': refined now (canvas_resolution.py)
+                georef.refine_raster(start_zoom(self.config.mosaic, georef.raster_H_frame(pose, camera), *held.record.size))
         georef.reset_drift()
         # the first drift-control call of a chain anchors it (returned unchanged) with this frame's pose
         return georef.correct(georef.raster_H_frame(pose, camera), pose, camera)
@@ -151,12 +155,14 @@ class SegmentPlacer(Checkpointed):
         start = self._georeferenced_start(held)
         seg = self.book.open(self.painter.input.channels or 1, georeferenced=start is not None)
         cfg = self.config.mosaic
-        if seg.georeferenced and cfg.settle_s > 0 and cfg.settle_max_frames > 1:
+        if start is None:  # the segment's plane: its first frame's pixels, scaled to mosaic.max_width
+            start = first_frame_plane(cfg.max_width, held.record.size[0])
+            if not decided_at_settle(cfg):  # refined now, else when its first frames settle (canvas_resolution.py)
+                start = zoom_homography(start_zoom(cfg, start, *held.record.size)) @ start
+        if (seg.georeferenced or decided_at_settle(cfg)) and cfg.settle_s > 0 and cfg.settle_max_frames > 1:
             self.settler.begin(seg)
             self.settler.place(seg, held, start)
         else:
-            if start is None:  # the segment's plane: its first frame's pixels, scaled to mosaic.max_width
-                start = first_frame_plane(cfg.max_width, held.record.size[0])
             self.painter.place(seg, held, start)
         return seg
 

@@ -1,4 +1,4 @@
-"""A georeferenced segment's first frames held until the poses settle, and the pose checks made then.
+"""A segment's first frames held until the poses settle (and the canvas's sampling is decided), and the pose checks made then.
 
 Settling (mosaic.settle_s, mosaic.settle_max_frames): the first frame of a segment is placed by its
 pose when the filter knows least, and drift control then pulls the next frames toward better poses;
@@ -7,6 +7,11 @@ frames are held, unpainted, until settle_s seconds of them (or settle_max_frames
 placed; then they are placed back from the newest one through their own registrations,
 H_k = H_(k+1) inv(prev_H_cur_(k+1)) (the chain (4.6) run backwards), and painted. Their records are
 decided then; their poses are ready at once (Pipeline.take_fused).
+
+Sampling (mosaic.resolution 'finest', canvas_resolution.py): every segment's first frames are held
+so, georeferenced or not; when they settle, their scales on the segment's plane decide how finely
+its canvas samples it, and their placements are refined by that zoom (with the raster's gsd and
+the drift controller, for the georeferenced canvas) before the first of them is painted.
 
 Pose check (poses without a measured attitude: the filter's camera is only the configured mount,
 nadir by default): when the first georeferenced segment settles, its drift-control innovations say
@@ -27,7 +32,9 @@ from ..config import PipelineConfig
 from ..core.georef.chain_mount import MountEstimate, horizon_words, mount_from_chain
 from ..core.georef.pose_check import PoseCheck, check_measured_attitude, check_pose_placement
 from ..core.mosaic.canvas import CanvasError
+from ..core.mosaic.resolution import zoom_homography
 from ..core.mosaic.segments import Segment
+from .canvas_resolution import decided_at_settle, settled_zoom, start_zoom
 from .checkpointed import Checkpointed
 from .painter import Painter
 from .records import Held
@@ -97,7 +104,7 @@ class Settler(Checkpointed):
         if not held or seg is None:
             return
         chained = self._chained_from_first(held)  # the frames' mount shows in it; their placement if refused
-        if self._refuse_poses(seg, held, chained):
+        if self._refuse_poses(seg, held, chained) or not seg.georeferenced:
             placed = chained
         else:
             placed = [held[-1].record.seg_H_frame]
@@ -106,11 +113,28 @@ class Settler(Checkpointed):
                 h = placed[-1] @ np.linalg.inv(rel)
                 placed.append(h / h[2, 2])
             placed.reverse()
+        placed = self._refined(seg, held, placed)
         for h_k, frame in zip(placed, held, strict=True):
             if not self.painter.place(seg, frame, h_k):
                 frame.record.seg_H_frame = None
             if not self.painter.holds(frame):  # else decided when painted
                 self.painter.decided.append(frame.record)
+
+    def _refined(self, seg: Segment, held: list[Held], placed: list[np.ndarray]) -> list[np.ndarray]:
+        """The held frames' placements on ``seg``'s canvas sampled as mosaic.resolution 'finest' says
+        (canvas_resolution.py): refined by the zoom their scales decide, with the raster's gsd when the
+        canvas is the georeferenced one; as they are when the canvas is painted already or its sampling was
+        decided with its first frame."""
+        cfg = self.config.mosaic
+        if not decided_at_settle(cfg) or not seg.canvas.is_empty or (seg.georeferenced and seg is not self.book.geo_canvas):
+            return placed
+        zoom = settled_zoom(cfg, placed, [frame.record.size for frame in held])
+        if seg.georeferenced and zoom > 1.0:
+            zoom = self.telemetry.georef.refine_raster(zoom)
+        if not zoom > 1.0:
+            return placed
+        canvas_H_plane = zoom_homography(zoom)
+        return [canvas_H_plane @ h for h in placed]
 
     def _refuse_poses(self, seg: Segment, held: list[Held], chained: list[np.ndarray]) -> bool:
         """Decide pose_check when ``seg``, the first georeferenced segment, settles with ``held`` its
@@ -175,8 +199,13 @@ class Settler(Checkpointed):
 
     def _chained_from_first(self, held: list[Held]) -> list[np.ndarray]:
         """seg_H_frame (3, 3) of each held frame in the first one's pixel plane (scaled to
-        mosaic.max_width), through their registrations (4.6): what a segment without georeferencing gives."""
-        placed = [first_frame_plane(self.config.mosaic.max_width, held[0].record.size[0])]
+        mosaic.max_width and mosaic.oversample), through their registrations (4.6): what a segment without
+        georeferencing gives."""
+        cfg = self.config.mosaic
+        start = first_frame_plane(cfg.max_width, held[0].record.size[0])
+        if not decided_at_settle(cfg):  # refined as a chained segment's first frame is (placer.py); else by _refined
+            start = zoom_homography(start_zoom(cfg, start, *held[0].record.size)) @ start
+        placed = [start]
         for frame in held[1:]:
             placed.append(placed[-1] @ frame.record.registration.prev_H_cur)  # frame k -> frame k-1
         return placed

@@ -86,7 +86,7 @@ import numpy as np
 from .ground_homography import apply_H, homographies_from_corners, homography_from_corners
 
 __all__ = ['AbsoluteInformation', 'CanvasSimilarity', 'DriftState', 'InformationRate', 'chain_jacobian', 'drift_init', 'drift_step',
-           'pose_error_transition', 'similarity_homography', 'similarity_jacobian']
+           'pose_error_transition', 'scaled_drift', 'scaled_similarity', 'similarity_homography', 'similarity_jacobian']
 
 _CORNERS = 8
 _SIM = slice(8, 12)
@@ -131,6 +131,25 @@ class DriftState:
     @property
     def canvas(self) -> CanvasSimilarity:
         return CanvasSimilarity(self.origin.copy(), self.sim.copy(), self.cov[_SIM, _SIM].copy())
+
+
+def scaled_similarity(canvas: CanvasSimilarity, zoom: float) -> CanvasSimilarity:
+    """``canvas`` on a raster sampled ``zoom`` times finer about pixel (0, 0) (new pixel = zoom x old):
+    the origin and the offset (tx, ty) scale by zoom, the angle and scale error do not."""
+    t = np.array([zoom, zoom, 1.0, 1.0])
+    return CanvasSimilarity(canvas.origin * zoom, canvas.sim * t, canvas.cov * np.outer(t, t))
+
+
+def scaled_drift(state: DriftState, zoom: float) -> DriftState:
+    """``state`` on a raster sampled ``zoom`` times finer about pixel (0, 0) (new pixel = zoom x old):
+    x' = T x with T = diag(zoom I_8, zoom, zoom, 1, 1, I_d) (corner errors and the similarity's offset
+    in pixels; its angle and scale, and the pose error, in their own units), Sigma' = T Sigma T^T, the
+    placement and the similarity's origin scaled by zoom."""
+    t = np.ones(state.cov.shape[0])
+    t[:_CORNERS + 2] = zoom
+    placed = np.diag([zoom, zoom, 1.0]) @ state.placed
+    return DriftState(placed, state.stamp_ns, state.pose_cov.copy(), state.origin * zoom, state.sim * t[_SIM],
+                      state.pose_error.copy(), state.cov * np.outer(t, t), state.nis)
 
 
 class InformationRate:

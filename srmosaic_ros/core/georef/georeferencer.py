@@ -278,6 +278,10 @@ class Georeferencer:
         """The north-up UTM raster of this flight, created once (:meth:`RasterPlacement.make_raster`)."""
         return self.placement.make_raster(pose, camera or self.camera, gsd_m_per_px=gsd_m_per_px, coarsen=coarsen)
 
+    def refine_raster(self, zoom: float) -> float:
+        """Sample the raster about ``zoom`` times finer; the exact zoom (:meth:`RasterPlacement.refine_raster`)."""
+        return self.placement.refine_raster(zoom)
+
     def drop_raster(self) -> None:
         """Forget the raster and the drift controller (:meth:`RasterPlacement.drop_raster`)."""
         self.placement.drop_raster()

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .drift import CanvasSimilarity, DriftState, drift_init, drift_step
+from .drift import CanvasSimilarity, DriftState, drift_init, drift_step, scaled_drift, scaled_similarity
 from .ground_homography import apply_H, ground_H_image, normalize_H
 from .raster import GeoRaster, _transformers, utm_epsg
 from .ukf import corner_jacobian
@@ -86,6 +86,29 @@ class RasterPlacement:
         e0, n0 = (round(float(v) / gsd) * gsd for v in centre_en)
         self.raster = GeoRaster(epsg, gsd, e0, n0)
         return self.raster
+
+    def refine_raster(self, zoom: float) -> float:
+        """Sample the raster ``zoom`` (>= 1) times finer about pixel (0, 0), which stays on the same ground
+        point: the gsd becomes gsd / zoom rounded to two significant digits, as :meth:`make_raster`'s; old
+        raster pixel (x, y) is new pixel (z x, z y) with z = old gsd / new gsd, the zoom returned (1 where
+        the rounding leaves the gsd as it was, nothing changed). The drift controller's state follows:
+        its pixel-valued parts (placement, the chain's corner errors, the similarity's offset and origin)
+        scale by z, their covariances by z squared; angles, scale and pose errors are unchanged.
+        Only before anything is painted on the raster (pipeline: a segment's first frames, held)."""
+        raster = self._raster(None)
+        if not (math.isfinite(zoom) and zoom >= 1.0):
+            msg = f'refine_raster needs a zoom >= 1, got {zoom!r}.'
+            raise ValueError(msg)
+        gsd = float(f'{raster.gsd_m_per_px / zoom:.2g}')
+        if not gsd < raster.gsd_m_per_px:
+            return 1.0
+        z = raster.gsd_m_per_px / gsd
+        self.raster = GeoRaster(raster.epsg, gsd, raster.origin_easting_m, raster.origin_northing_m, raster.rotation_rad)
+        if self._drift is not None:
+            self._drift = scaled_drift(self._drift, z)
+        if self._canvas is not None:
+            self._canvas = scaled_similarity(self._canvas, z)
+        return z
 
     def drop_raster(self) -> None:
         """Forget the raster and the drift controller: the mosaic is not placed by the poses after

@@ -5,11 +5,12 @@ from dataclasses import dataclass
 
 from ..settings import check_settings, setting
 
-__all__ = ['MosaicConfig', 'BLEND_MODES', 'INTERPOLATION_MODES', 'SEAM_MODES']
+__all__ = ['MosaicConfig', 'BLEND_MODES', 'INTERPOLATION_MODES', 'RESOLUTION_MODES', 'SEAM_MODES']
 
 BLEND_MODES = ('feather', 'multiband', 'bestview')
 SEAM_MODES = ('cut', 'score')
 INTERPOLATION_MODES = ('cubic', 'lanczos', 'linear')  # resample.INTERPOLATIONS' keys
+RESOLUTION_MODES = ('first', 'finest')  # resolution.RESOLUTION_MODES
 
 
 @dataclass(frozen=True)
@@ -19,6 +20,10 @@ class MosaicConfig:
     max_stretch: float = setting(4.0, gt=1.0, zero=True)  # frame pixels this many times coarser than the frame's finest are not painted (0: all)
     # how frames are resampled onto the mosaic: cubic | lanczos (clamped) | linear (resample.py)
     interpolation: str = setting('cubic', choices=INTERPOLATION_MODES)
+    # the canvas's sampling: 'first' (the first frame's, scaled to max_width) | 'finest' (the sharpest of a
+    # segment's first frames, held for settle_s / settle_max_frames, map as the first would; resolution.py)
+    resolution: str = setting('first', choices=RESOLUTION_MODES)
+    oversample: float = setting(1.0, lo=1.0, hi=4.0)  # canvas pixels per frame pixel of the frames that set the sampling
     recency_frames: int = setting(90, lo=0)  # bestview: a frame this many frames newer wins over an e-fold better view (0: none)
     # bestview, multiband: 'score' (where view scores cross) | 'cut' (graph cut: where frames agree, seam_cut.py)
     seams: str = setting('score', choices=SEAM_MODES)

@@ -209,3 +209,36 @@ def test_homographies_from_corners_map_each_set_of_corners() -> None:
     for H, d in zip(Hs, dst, strict=True):
         assert np.allclose(apply_H(H, CORNERS), d, atol=1e-8)
         assert np.allclose(H, homography_from_corners(CORNERS, d), atol=1e-12)
+
+
+def test_a_refined_raster_carries_the_drift_state_over_exactly() -> None:
+    """refine_raster (mosaic.resolution 'finest'): after the raster is sampled z times finer mid-chain,
+    drift control goes on as it would have on the coarse raster, scaled by z, when its pixel noises
+    scale too: placements B = diag(z, z, 1) A, the canvas similarity conjugated by it."""
+    a = make_georef(drift_chain_sigma_px=0.05, homography_min_sigma_px=0.5)
+    gsd = a.raster.gsd_m_per_px
+    zoom = 1.8
+    b_gsd = float(f'{gsd / zoom:.2g}')
+    z = gsd / b_gsd
+    b = make_georef(drift_chain_sigma_px=0.05 * z, homography_min_sigma_px=0.5 * z)
+    times = np.arange(0.0, 10.0, 0.25)
+    truth = true_placements(a, times)
+    first = dataclasses.replace(pose_at(a, 0.0, (2.0, -1.5), info_rate(5.0)), covariance=np.diag([9.0] * 3 + [P_ATT] * 3))
+    pa, pb = [a.correct(a.raster_H_frame(first), first)], [b.correct(b.raster_H_frame(first), first)]
+    S = np.diag([z, z, 1.0])
+    for k in range(1, len(times)):
+        if k == 6:  # the first frames settled: B's raster becomes z times finer
+            assert b.refine_raster(zoom) == pytest.approx(z)
+            assert b.raster.gsd_m_per_px == b_gsd and b.raster.origin_easting_m == a.raster.origin_easting_m
+            pb = [S @ p for p in pb]
+        step = np.linalg.solve(truth[k - 1], truth[k])
+        pose = pose_at(a, times[k], (0.3 * math.sin(k), 0.0), info=info_rate(5.0))
+        pa.append(a.correct(pa[-1] @ step, pose, chain_sigma_px=0.05))
+        pb.append(b.correct(pb[-1] @ step, pose, chain_sigma_px=0.05 * (z if k >= 6 else 1.0)))
+    # the same to numerical differentiation (chain_jacobian's steps are in pixels), against corrections of pixels
+    assert max(corner_error(pb[k], S @ pa[k]) for k in range(6, len(times))) < 0.01
+    assert max(corner_error(pa[k], truth[k]) for k in range(6, len(times))) > 1.0
+    np.testing.assert_allclose(b.canvas_similarity, S @ a.canvas_similarity @ np.linalg.inv(S), rtol=1e-4, atol=0.01)
+    assert b.refine_raster(1.0) == 1.0  # no finer: nothing changes
+    with pytest.raises(ValueError, match='zoom >= 1'):
+        b.refine_raster(0.5)
