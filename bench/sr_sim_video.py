@@ -48,6 +48,10 @@ RUNS: dict[str, dict[str, Any]] = {
     'anchor compression': {'sr.anchor_compression': True},
     'anchor off': {'sr.anchor': False},
     'moving 0.05': {'sr.moving': 0.05},
+    'clamp off': {'sr.clamp': 'off'},
+    'clamp wide': {'sr.clamp': 'wide'},
+    'frames spread in time': {'sr_tiles.frame_choice': 'spread'},
+    'clamp off, frames spread in time': {'sr.clamp': 'off', 'sr_tiles.frame_choice': 'spread'},
     'least squares, lambda_gamma 0.1 (before 2026-12-07)': {'sr.robust_pixels': 'off', 'sr.lambda_gamma': 0.1,
                                                            'sr.reweight_at': [3]},
 }

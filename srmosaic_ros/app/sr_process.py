@@ -37,6 +37,7 @@ from ..config import PipelineConfig
 from ..core.sr.psf_select import TileFrames, choose_psf_sigma
 from ..core.sr.reconstruct import SRError
 from ..core.sr.fallback import FALLBACK_REASONS, super_resolve_or_fallback
+from ..core.sr.ringing import resolve_clamp
 from ..core.sr.scheduler import plan_tiles
 from ..core.types import CameraIntrinsics, Frame
 from ..core.undistort import Undistorter
@@ -188,19 +189,22 @@ PSF_TILES = 3
 
 def _flight_psf(config: PipelineConfig, tiles: list[TileFrames], factor: int) -> tuple[Any, dict[str, Any]]:
     """The SR settings with the flight's PSF: chosen from ``sr.psf_ladder`` by predicting held-out frames
-    (core/sr/psf_select.py), or ``sr.psf_sigma`` as given; and what the report says about the choice."""
+    (core/sr/psf_select.py), or ``sr.psf_sigma`` as given, and the clamp ``sr.clamp: auto`` resolves to
+    for it (core/sr/ringing.py); and what the report says about the choice."""
     ladder = tuple(config.sr.psf_ladder)
+    given = replace(config.sr, clamp=resolve_clamp(config.sr.clamp, psf_chosen=False))
     if len(ladder) < 2:
-        return config.sr, {'method': 'given'}
+        return given, {'method': 'given'}
     t0 = time.perf_counter()
     try:
         choice = choose_psf_sigma(tiles, factor, config.sr, ladder)
     except SRError as exc:
         _LOG.warning('sr.psf_sigma %.2f kept: %s', config.sr.psf_sigma, exc)
-        return config.sr, {'method': 'given', 'ladder_failed': str(exc)}
+        return given, {'method': 'given', 'ladder_failed': str(exc)}
     _LOG.info('PSF chosen from the frames: sigma %.2f LR px (held-out RMS per sigma: %s)', choice.sigma,
               ', '.join(f'{s:g}: {255 * r:.3f}' for s, r in zip(choice.ladder, choice.rms, strict=True)))
-    return replace(config.sr, psf_sigma=choice.sigma), {
+    # a PSF chosen by predicting held-out frames is not the over-estimated one that rings (ringing.py)
+    return replace(config.sr, psf_sigma=choice.sigma, clamp=resolve_clamp(config.sr.clamp, psf_chosen=True)), {
         'method': 'held_out_frames', 'ladder': list(choice.ladder),
         'held_out_rms': [round(255.0 * r, 4) for r in choice.rms], 'predictions': choice.predictions,
         'time_s': round(time.perf_counter() - t0, 2)}

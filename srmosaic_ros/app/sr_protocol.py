@@ -48,7 +48,7 @@ from ..core.homography import translation
 from ..core.sr.fallback import super_resolve_or_fallback
 from ..core.sr.quality import side_by_side
 from ..core.sr.reconstruct import SRConfig, SRError, reconstruct_tile
-from ..core.sr.scheduler import SRTileConfig, frame_centres, frame_holds_rect
+from ..core.sr.scheduler import SRTileConfig, choose_frames, frame_centres, frame_holds_rect
 from ..errors import InputError
 from ..io.mosaic_files import read_frames_csv, write_png
 from ..io.video import VideoReader, write_video
@@ -275,14 +275,15 @@ def score_sr_run(out: Path, original: Path, *, methods: dict[str, TileMethod] | 
         c = np.array([entry['x0'] + (entry['width'] - 1) / 2, entry['y0'] + (entry['height'] - 1) / 2])
         order = sorted(covering, key=lambda i: float(np.hypot(*(centres[i] - c))))
         truth = order[0]
-        chosen = sorted(order[:tile_config.max_frames])
+        chosen = sorted(choose_frames(order, tile_config.max_frames, tile_config.frame_choice))
         # the nearest other frame in time (k +- 1 where it holds the tile): it never saw frame k's noise or
         # compression; the leave-one-out solve anchors to it, among the frames the scheduler would take
         other = min((i for i in covering if i != truth), key=lambda i: (abs(i - truth), i), default=None)
         if other is None:
             without = []
         else:
-            without = [other] + [i for i in order[1:] if i != other][:tile_config.max_frames - 1]
+            without = choose_frames([other] + [i for i in order[1:] if i != other], tile_config.max_frames,
+                                    tile_config.frame_choice)
         spread = [covering[int(v)] for v in np.unique(np.round(np.linspace(0, len(covering) - 1,
                                                                             min(MEDIAN_FRAMES, len(covering)))))]
         plans.append((entry, truth, chosen, without, spread))

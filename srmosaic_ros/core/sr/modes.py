@@ -9,8 +9,9 @@ __all__ = ['ALIGN_MODES', 'CLAMP_MODES', 'FLOW_MODES', 'LAMBDA_MODES', 'ROBUST_N
 
 #: Local alignment of each frame to the reference (local_align.py).
 ALIGN_MODES = ('off', 'translation', 'affine')
-#: Clamping of the estimate to the LR range around each pixel (ringing.py).
-CLAMP_MODES = ('cell', 'wide', 'off')
+#: Clamping of the estimate to the LR range around each pixel (ringing.py); 'auto': off for a PSF chosen
+#: from the frames, 'cell' for one given (ringing.resolve_clamp).
+CLAMP_MODES = ('auto', 'cell', 'wide', 'off')
 #: 'off' or a DIS preset (speed against accuracy of the coarse search) (dense_flow.py).
 FLOW_MODES = ('off', 'ultrafast', 'fast', 'medium')
 #: The prior weight lambda: adaptive (5.6), fixed, or the dissertation's rule (solvers.py).

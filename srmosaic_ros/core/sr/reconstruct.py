@@ -67,7 +67,7 @@ from .observation import FrameStack, build_frame_stack
 from .operators import Warp, gaussian_psf
 from .prior import HuberPrior, clique_differences, huber_sum
 from .robust_pixels import pixel_weights
-from .ringing import clamp_to_lr_range
+from .ringing import clamp_to_lr_range, resolve_clamp
 from .scheduler import frame_centres
 from .sr_config import SRConfig, SRError, SRFramesDisagree  # re-exported: checkpoints and callers name them here
 from .solvers import IterationRecord, LambdaRule, Problem, solve
@@ -532,7 +532,7 @@ def reconstruct_tile(frames: Sequence[np.ndarray | torch.Tensor], tile_H_frames:
             raise SRFramesDisagree(msg)
         x_final, anchor_rms = anchor_to_frame(res.x, y_obs, stack, ref, s, threshold=cfg.anchor_noise * noise,
                                               noise=noise, compression=cfg.anchor_compression)
-    if cfg.clamp != 'off':  # no ringing beyond the range the frames show (ringing.py)
+    if resolve_clamp(cfg.clamp, psf_chosen=False) != 'off':  # no ringing beyond the range the frames show (ringing.py)
         bounds = [mosaic, torch.where(covered[ref] > 0, warped[ref], mosaic)]
         if solve_c != channels:
             bounds = [luma(b[None])[0] for b in bounds]

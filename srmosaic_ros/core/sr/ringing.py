@@ -16,6 +16,14 @@ frame (the anchored tile follows the reference where it departs from the average
 shows must not be clamped away). Edges stay sharp: a step between two LR pixels is a full-range
 cell; only what lies beyond both sides is cut.
 
+``'auto'`` (the default): ``'cell'`` where the PSF is given (``sr.psf_sigma``, the live node), ``'off'``
+where the flight's PSF was chosen from its own frames by predicting held-out ones (core/sr/psf_select.py,
+`process --sr`): that choice already rules out the PSF too wide whose ringing the clamp is for (a
+ringing estimate predicts a frame it did not see worse, which is how the ladder tells the widths
+apart), and the clamp then only cuts real detail: the peak of a thin line or of a leaf lies beyond
+the LR pixels around it, which average it with its surroundings (bench/sr_video.py,
+bench/sr_oracle.py, docs/results.md).
+
 Convention: tensors (1, C, H, W) on the HR grid, (C, h, w) on the LR grid, H = s h; pixel centres
 at integers (operators.lr_H_hr).
 """
@@ -26,8 +34,15 @@ import torch.nn.functional as F
 
 from .modes import CLAMP_MODES
 
-__all__ = ['CLAMP_MODES', 'clamp_to_lr_range', 'lr_range_on_hr']
+__all__ = ['CLAMP_MODES', 'clamp_to_lr_range', 'lr_range_on_hr', 'resolve_clamp']
 
+
+def resolve_clamp(mode: str, *, psf_chosen: bool) -> str:
+    """The clamp applied: ``mode`` itself, or for 'auto' 'off' when the PSF was chosen from the frames
+    and 'cell' when it is given (module docstring)."""
+    if mode != 'auto':
+        return mode
+    return 'off' if psf_chosen else 'cell'
 
 
 def _cell_index(n_hr: int, factor: int, device: torch.device) -> torch.Tensor:
@@ -66,7 +81,9 @@ def lr_range_on_hr(lo: torch.Tensor, hi: torch.Tensor, factor: int, mode: str = 
 
 def clamp_to_lr_range(x: torch.Tensor, lr_images: list[torch.Tensor], factor: int, mode: str = 'cell') -> torch.Tensor:
     """``x`` (1, C, s h, s w) clamped to the range of the LR images (each (C, h, w)) around each HR
-    pixel (:func:`lr_range_on_hr`); ``x`` itself for mode 'off'."""
+    pixel (:func:`lr_range_on_hr`); ``x`` itself for mode 'off'; 'auto' is 'cell' here (a PSF chosen
+    from the frames is resolved by :func:`resolve_clamp` before)."""
+    mode = resolve_clamp(mode, psf_chosen=False)
     if mode == 'off':
         return x
     stacked = torch.stack([im.to(x.dtype) for im in lr_images])

@@ -2,8 +2,13 @@
 
 The mosaic is cut into square tiles of `tile_size` mosaic pixels on a grid anchored at mosaic
 pixel (0, 0). A tile is scheduled when the mosaic covers it (at least `min_coverage` of its
-pixels) and at least `min_frames` registered frames cover it entirely; it then takes the
-`max_frames` frames whose footprint centres are nearest the tile centre (their best-sampled parts).
+pixels) and at least `min_frames` registered frames cover it entirely; it then takes
+`max_frames` of them (:func:`choose_frames`): the reference (the frame whose footprint centre is
+nearest the tile centre, the one the mosaic shows there) and either the others nearest the tile
+(``frame_choice: nearest``) or others spread evenly in time over every frame that covers it
+(``spread``). Video compression leaves each frame an error that the next frames inherit (motion-
+compensated prediction copies it); frames far apart in time carry errors that are more nearly
+independent, so the same number of frames averages more of it away (bench/sr_oracle.py).
 Tiles are ordered by how many frames see them (the best-constrained first) and capped at
 `max_tiles`.
 """
@@ -17,12 +22,16 @@ from ..metrics import apply_homography
 from ..settings import check_settings, setting
 from ..sr_factors import SR_FACTORS
 
-__all__ = ['SR_FACTORS', 'SRTileConfig', 'TilePlan', 'frame_centres', 'frame_holds_rect', 'plan_tiles']
+__all__ = ['FRAME_CHOICES', 'SR_FACTORS', 'SRTileConfig', 'TilePlan', 'choose_frames', 'frame_centres', 'frame_holds_rect',
+           'plan_tiles']
+
+FRAME_CHOICES = ('nearest', 'spread')
 
 
 @dataclass(frozen=True)
 class SRTileConfig:
-    """Keys under `sr_tiles.` in params/*.yaml (``factor``: one of SR_FACTORS)."""
+    """Keys under `sr_tiles.` in params/*.yaml (``factor``: one of SR_FACTORS; ``frame_choice``: one of
+    FRAME_CHOICES, :func:`choose_frames`)."""
 
     factor: int = setting(2, choices=SR_FACTORS)
     tile_size: int = setting(128, lo=16, hi=2048, unit='mosaic px')
@@ -30,6 +39,7 @@ class SRTileConfig:
     max_frames: int = setting(8, lo=1, hi=1000)
     max_tiles: int = setting(48, lo=1)
     min_coverage: float = setting(0.98, gt=0.0, hi=1.0)
+    frame_choice: str = setting('nearest', choices=FRAME_CHOICES)
 
     def __post_init__(self) -> None:
         check_settings(self, 'sr_tiles')
@@ -59,6 +69,29 @@ def frame_centres(plane_H_frames: list[np.ndarray], frame_sizes: list[tuple[int,
     """
     return np.array([apply_homography(H, np.array([[(w - 1) / 2, (h - 1) / 2]]))[0]
                      for H, (w, h) in zip(plane_H_frames, frame_sizes, strict=True)]).reshape(-1, 2)
+
+
+def choose_frames(nearest_first: list[int], count: int, choice: str = 'nearest') -> list[int]:
+    """``count`` of the frames ``nearest_first`` (frame indices in time order's numbering, the frame
+    nearest the tile first), that first one (the reference) first in the result.
+
+    'nearest': the first ``count``. 'spread': the reference and frames at evenly spaced positions of
+    all of them sorted by index (time), the position nearest the reference's taken by it; the others
+    follow in the order given.
+    """
+    if choice not in FRAME_CHOICES:
+        msg = f'frame choice must be one of {FRAME_CHOICES}, got {choice!r}.'
+        raise ValueError(msg)
+    order = list(nearest_first)
+    if choice == 'nearest' or count >= len(order) or count < 2:
+        return order[:max(count, 0)]
+    ref = order[0]
+    timeline = sorted(order)
+    # more frames than count: the spacing (n - 1) / (count - 1) > 1, so the rounded positions differ
+    picks = [timeline[int(i)] for i in np.round(np.linspace(0, len(timeline) - 1, count))]
+    picks[int(np.argmin([abs(k - ref) for k in picks]))] = ref
+    chosen = set(picks)
+    return [ref] + [k for k in order[1:] if k in chosen]
 
 
 def frame_holds_rect(frame_H_mosaic: np.ndarray, frame_size: tuple[int, int],
@@ -92,7 +125,8 @@ def plan_tiles(mosaic_H_frames: dict[int, np.ndarray], frame_sizes: dict[int, tu
             if len(covering) < config.min_frames:
                 continue
             c = np.array([x0 + (t - 1) / 2, y0 + (t - 1) / 2])
-            chosen = sorted(covering, key=lambda k: float(np.linalg.norm(centres[k] - c)))[:config.max_frames]
+            nearest = sorted(covering, key=lambda k: float(np.linalg.norm(centres[k] - c)))
+            chosen = choose_frames(nearest, config.max_frames, config.frame_choice)
             plans.append(TilePlan(x0, y0, t, t, tuple(sorted(chosen)), len(covering)))
     plans.sort(key=lambda p: (-p.frames_covering, p.y0, p.x0))
     return plans[:config.max_tiles]

@@ -106,7 +106,10 @@ class SRConfig:
         reference frame as recorded, its compression included, instead of the ground.
     clamp: each HR pixel of the result kept within the range of the LR pixels around it (the
         frames' average and the reference; core/sr/ringing.py): 'cell' (the 2 x 2 around its LR
-        point), 'wide' (4 x 4) or 'off'. Against ringing where the PSF is over-estimated.
+        point), 'wide' (4 x 4) or 'off'. Against ringing where the PSF is over-estimated. 'auto' (the
+        default): 'cell' for a PSF given here, 'off' where `process --sr` chose the flight's PSF from
+        its frames (ringing.resolve_clamp: that choice rules the over-estimated PSF out, and the clamp
+        would only cut real detail).
     """
 
     psf_sigma: float = setting(0.5, lo=0.0, hi=10.0, unit='LR px')
@@ -136,7 +139,7 @@ class SRConfig:
     anchor: bool = True
     anchor_noise: float = setting(2.0, lo=0.0)
     anchor_compression: bool = False
-    clamp: str = setting('cell', choices=CLAMP_MODES)
+    clamp: str = setting('auto', choices=CLAMP_MODES)
     local_align: str = setting('affine', choices=ALIGN_MODES)
     local_align_max_px: float = setting(1.5, gt=0.0, unit='LR px')
     photometric: bool = True

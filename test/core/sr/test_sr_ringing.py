@@ -8,7 +8,9 @@ import torch
 
 from srmosaic_ros.core.sr.operators import hr_H_lr, lr_H_hr
 from srmosaic_ros.core.sr.reconstruct import SRConfig, SRError, reconstruct_tile
-from srmosaic_ros.core.sr.ringing import lr_range_on_hr
+from srmosaic_ros.core.sr.fallback import super_resolve_or_fallback
+from srmosaic_ros.core.sr.psf_select import TileFrames, choose_psf_sigma
+from srmosaic_ros.core.sr.ringing import lr_range_on_hr, resolve_clamp
 from srmosaic_ros.core.sr.synthetic import make_synthetic_tile
 
 FACTOR = 2
@@ -75,7 +77,7 @@ def test_an_over_estimated_psf_rings_without_the_clamp_and_not_with_it(sharp_til
     off_default = sr_error(sharp_tile, clamp='off')
     on = sr_error(sharp_tile)  # the default
     bicubic = frame_bicubic_error(sharp_tile)
-    assert SRConfig().clamp == 'cell'
+    assert SRConfig().clamp == 'auto'   # a PSF given, as here: the cell clamp
     assert lr_nyquist_peak(off) > 1.5 and psnr(off) < psnr(bicubic), (lr_nyquist_peak(off), psnr(off), psnr(bicubic))
     assert psnr(off_default) < psnr(bicubic), (psnr(off_default), psnr(bicubic))
     assert lr_nyquist_peak(on) < 1.0, lr_nyquist_peak(on)
@@ -87,6 +89,29 @@ def test_with_the_right_psf_the_clamp_keeps_the_gain() -> None:
     on = sr_error(tile)
     assert lr_nyquist_peak(on) < 1.0, lr_nyquist_peak(on)
     assert psnr(on) > psnr(frame_bicubic_error(tile)) + 2.0
+
+
+def test_with_the_psf_chosen_from_the_frames_the_unclamped_tile_neither_rings_nor_loses_detail() -> None:
+    """`process --sr`'s path: the PSF chosen by predicting held-out frames, then `sr.clamp: auto`, which is
+    off for a chosen PSF, and the fallback's check. The edge and the lane come out without a peak at the
+    LR Nyquist, above the frame's bicubic, and above the same tile clamped to the cell (which cuts the
+    lane's peak, and with it the check's prediction: the clamped tile may even fall back to the frame)."""
+    true_sigma = 0.5   # between two rungs of the ladder
+    tile = make_synthetic_tile(edge_and_lane(), (96, 64), (48, 64), FACTOR, 5, psf_sigma=true_sigma, noise_sigma=1.0,
+                               seed=3)
+    config = SRConfig(device='cpu')
+    sigma = choose_psf_sigma([TileFrames(tile.frames, tile.tile_H_frames, tile.tile_shape)], FACTOR, config,
+                             config.psf_ladder, holdouts=2).sigma
+    assert sigma <= true_sigma                             # not the over-estimated PSF that rings
+    shown = {}
+    for clamp in (resolve_clamp('auto', psf_chosen=True), 'cell'):
+        out = super_resolve_or_fallback(tile.frames, tile.tile_H_frames, tile.tile_shape, FACTOR,
+                                        SRConfig(device='cpu', psf_sigma=sigma, clamp=clamp), reference=0)
+        shown[clamp] = (out.image[..., 0] - tile.truth[..., 0])[BORDER:-BORDER, BORDER:-BORDER]
+    bicubic = frame_bicubic_error(tile)
+    assert lr_nyquist_peak(shown['off']) < 1.0, lr_nyquist_peak(shown['off'])
+    assert psnr(shown['off']) > psnr(bicubic) + 2.0, (psnr(shown['off']), psnr(bicubic))
+    assert psnr(shown['off']) > psnr(shown['cell']) + 0.5, (psnr(shown['off']), psnr(shown['cell']))
 
 
 @pytest.mark.parametrize('mode, reach', [('cell', 0), ('wide', 1)])
