@@ -13,14 +13,16 @@ replaced by the truth:
   convolved with the render's Gaussian (sim/render.py ``effective_sigma_px``), against the
   Gaussian the ladder chose;
 - **data**: the raw frames halved (no compression) against the decoded ones;
-- **frames per tile**: 5, 8 (the default), 9, 17, the nearest to the tile.
+- **frames per tile**: 5, 8 (the default), 9, 17, the nearest to the tile; or 8 spread evenly in time
+  over all the frames that hold the tile (``sr_tiles.frame_choice: spread``);
+- **the prior's weight** (``sr.lambda_gamma``), the anchoring and the former clamp, with the estimates.
 
 Every tile is scored against the true ground (no blur, noise or compression) in the reference frame's
 pixels, against that frame's LR image upsampled (bicubic), as bench/sr_sim_video.py scores it; the
 tiles are the same in every row of a CRF. The product's fallback is not applied (a tile refused by
 the consistency test shows the reference upsampled and is counted).
 
-    python bench/sr_oracle.py [--crf 18,28] [--frames 48] [--only 'estimated;true warps;...'] [--out DIR]
+    python bench/sr_oracle.py [--crf 18,28] [--frames 48] [--only 'true warps;raw frames;...'] [--out DIR]
 """
 from __future__ import annotations
 
@@ -47,6 +49,7 @@ from srmosaic_ros.config import pipeline_config
 from srmosaic_ros.core.homography import translation
 from srmosaic_ros.core.sr.fallback import frame_upsampled
 from srmosaic_ros.core.sr.reconstruct import SRConfig, SRError, reconstruct_tile
+from srmosaic_ros.core.sr.ringing import resolve_clamp
 from srmosaic_ros.core.sr.scheduler import SRTileConfig, frame_centres, plan_tiles
 from srmosaic_ros.io.mosaic_files import read_frames_csv, write_json, write_png
 from srmosaic_ros.io.video import VideoReader, write_video
@@ -73,38 +76,26 @@ class Rung:
     settings: tuple[tuple[str, object], ...] = ()
 
 
+LOCAL_OFF = (('local_align', 'off'),)  # with the true warps: the ECC's corrections left out
 RUNGS: dict[str, Rung] = {
-    'estimated (defaults)': Rung(),
+    'defaults (estimated warps, PSF chosen, 8 nearest frames)': Rung(),
+    'clamp cell (the former default)': Rung(settings=(('clamp', 'cell'),)),
     'true warps': Rung(warps='true'),
-    'true warps, local_align off': Rung(warps='true', settings=(('local_align', 'off'),)),
+    'true warps, local_align off': Rung(warps='true', settings=LOCAL_OFF),
     'true PSF': Rung(psf='true'),
-    'true warps and PSF': Rung(warps='true', psf='true', settings=(('local_align', 'off'),)),
+    'true warps and PSF': Rung(warps='true', psf='true', settings=LOCAL_OFF),
     'raw frames': Rung(data='raw'),
-    'raw frames, true warps and PSF': Rung(warps='true', psf='true', data='raw', settings=(('local_align', 'off'),)),
+    'raw frames, true warps and PSF': Rung(warps='true', psf='true', data='raw', settings=LOCAL_OFF),
+    'raw frames, true warps and PSF, lambda_gamma 0.1': Rung(warps='true', psf='true', data='raw',
+                                                           settings=(*LOCAL_OFF, ('lambda_gamma', 0.1))),
     '5 frames': Rung(frames=5),
     '9 frames': Rung(frames=9),
     '17 frames': Rung(frames=17),
-    '17 frames, true warps and PSF': Rung(warps='true', psf='true', frames=17, settings=(('local_align', 'off'),)),
-    'true warps and PSF, lambda_gamma 0.1': Rung(warps='true', psf='true', settings=(('local_align', 'off'),
-                                                                                      ('lambda_gamma', 0.1))),
-    'true warps and PSF, lambda_gamma 1.0': Rung(warps='true', psf='true', settings=(('local_align', 'off'),
-                                                                                      ('lambda_gamma', 1.0))),
-    'true warps and PSF, anchor off': Rung(warps='true', psf='true', settings=(('local_align', 'off'),
-                                                                                ('anchor', False))),
-    'anchor off': Rung(settings=(('anchor', False),)),
-    'clamp wide': Rung(settings=(('clamp', 'wide'),)),
+    '17 frames, true warps and PSF': Rung(warps='true', psf='true', frames=17, settings=LOCAL_OFF),
     '8 frames spread in time': Rung(choice='spread'),
-    '8 frames spread in time, clamp off': Rung(choice='spread', settings=(('clamp', 'off'),)),
-    '17 frames, clamp off': Rung(frames=17, settings=(('clamp', 'off'),)),
-    'true warps and PSF, clamp off': Rung(warps='true', psf='true', settings=(('local_align', 'off'), ('clamp', 'off'))),
-    'raw frames, clamp off': Rung(data='raw', settings=(('clamp', 'off'),)),
-    'raw frames, true warps and PSF, clamp off': Rung(warps='true', psf='true', data='raw',
-                                                     settings=(('local_align', 'off'), ('clamp', 'off'))),
-    'raw frames, true warps and PSF, clamp off, lambda_gamma 0.1': Rung(
-        warps='true', psf='true', data='raw', settings=(('local_align', 'off'), ('clamp', 'off'), ('lambda_gamma', 0.1))),
-    'clamp off': Rung(settings=(('clamp', 'off'),)),
-    'raw frames, true warps and PSF, anchor off': Rung(warps='true', psf='true', data='raw',
-                                                      settings=(('local_align', 'off'), ('anchor', False))),
+    'lambda_gamma 0.1': Rung(settings=(('lambda_gamma', 0.1),)),
+    'lambda_gamma 1.0': Rung(settings=(('lambda_gamma', 1.0),)),
+    'anchor off': Rung(settings=(('anchor', False),)),
 }
 
 
@@ -184,7 +175,9 @@ def run_rung(rung: Rung, flight: Flight, crf: int, processed: Path, plans, chose
     data = 'raw' if rung.data == 'raw' else f'crf{crf}'
     lr = flight.lr[data]
     size = (lr[0].shape[1], lr[0].shape[0])
-    cfg = replace(SRConfig(psf_sigma=chosen_sigma), **dict(rung.settings))
+    # as `process --sr` resolves sr.clamp for a PSF chosen from the frames (ringing.resolve_clamp), the true
+    # PSF included: one clamp for every rung, unless the rung sets it
+    cfg = replace(SRConfig(psf_sigma=chosen_sigma, clamp=resolve_clamp('auto', psf_chosen=True)), **dict(rung.settings))
     psf = true_psf(flight.psf_sigma_hr) if rung.psf == 'true' else None
     entries, refused, t0 = [], 0, time.perf_counter()
     for plan in plans:

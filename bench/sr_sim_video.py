@@ -48,10 +48,11 @@ RUNS: dict[str, dict[str, Any]] = {
     'anchor compression': {'sr.anchor_compression': True},
     'anchor off': {'sr.anchor': False},
     'moving 0.05': {'sr.moving': 0.05},
-    'clamp off': {'sr.clamp': 'off'},
+    'clamp cell (before 2026-12-08)': {'sr.clamp': 'cell'},
     'clamp wide': {'sr.clamp': 'wide'},
     'frames spread in time': {'sr_tiles.frame_choice': 'spread'},
-    'clamp off, frames spread in time': {'sr.clamp': 'off', 'sr_tiles.frame_choice': 'spread'},
+    'lambda_gamma 0.4': {'sr.lambda_gamma': 0.4},
+    'lambda_gamma 0.5': {'sr.lambda_gamma': 0.5},
     'least squares, lambda_gamma 0.1 (before 2026-12-07)': {'sr.robust_pixels': 'off', 'sr.lambda_gamma': 0.1,
                                                            'sr.reweight_at': [3]},
 }
