@@ -52,6 +52,7 @@ RUNS: dict[str, dict[str, Any]] = {
     'clamp wide': {'sr.clamp': 'wide'},
     'frames spread in time': {'sr_tiles.frame_choice': 'spread'},
     'lambda_gamma 0.4': {'sr.lambda_gamma': 0.4},
+    'PSF 0.35 given, clamp off': {'sr.psf_ladder': [], 'sr.psf_sigma': 0.35, 'sr.clamp': 'off'},
     'lambda_gamma 0.5': {'sr.lambda_gamma': 0.5},
     'least squares, lambda_gamma 0.1 (before 2026-12-07)': {'sr.robust_pixels': 'off', 'sr.lambda_gamma': 0.1,
                                                            'sr.reweight_at': [3]},
