@@ -45,9 +45,11 @@ sys.path.insert(0, str(ROOT))
 
 from srmosaic_ros.app.evaluate_stills import gains_db, pooled_gain_db, sr_errors_against_originals
 from srmosaic_ros.app.process import process_input
+from srmosaic_ros.app.sr_process import PSF_TILES, _flight_psf
 from srmosaic_ros.config import pipeline_config
 from srmosaic_ros.core.homography import translation
 from srmosaic_ros.core.sr.fallback import frame_upsampled
+from srmosaic_ros.core.sr.psf_select import TileFrames
 from srmosaic_ros.core.sr.reconstruct import SRConfig, SRError, reconstruct_tile
 from srmosaic_ros.core.sr.ringing import resolve_clamp
 from srmosaic_ros.core.sr.scheduler import SRTileConfig, frame_centres, plan_tiles
@@ -239,8 +241,6 @@ def main() -> None:
         plans = plan_tiles(ok, dict.fromkeys(ok, size), mosaic[:, :, 3] > 0,
                            SRTileConfig(tile_size=TILE, max_frames=1000, min_frames=MOST_FRAMES))
         # the PSF the product would choose on this CRF (the ladder on its best tiles, as process --sr)
-        from srmosaic_ros.app.sr_process import PSF_TILES, _flight_psf
-        from srmosaic_ros.core.sr.psf_select import TileFrames
         lr = flight.lr[f'crf{crf}']
         near = [(p, sorted(nearest_frames(p, rows, size, 8))) for p in plans[:PSF_TILES]]
         tiles = [TileFrames([lr[k] for k in use], [translation(-p.x0, -p.y0) @ rows[k]['mosaic_H_frame'] for k in use],
