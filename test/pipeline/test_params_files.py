@@ -22,7 +22,7 @@ def test_params_file_is_valid(path):
 
 
 def test_shipped_files():
-    assert {p.name for p in PARAMS} >= {'default.yaml', 'eo_camera.yaml', 'ir_camera.yaml', 'gpu.yaml', 'live_hd.yaml'}
+    assert {p.name for p in PARAMS} >= {'default.yaml', 'eo_camera.yaml', 'ir_camera.yaml', 'gpu.yaml', 'live_hd.yaml', 'detail.yaml'}
     assert default_params_path().name == 'default.yaml'
 
 
