@@ -8,8 +8,9 @@ import pytest
 import torch
 from browser import chromium  # noqa: F401  (the headless-browser fixture, test/browser.py)
 
-# the longest test files start first (test/suite_order.py)
-pytest_plugins = ['suite_order']
+# the longest test files start first (test/suite_order.py); simulated flights and runs shared by the
+# files (test/flights.py)
+pytest_plugins = ['suite_order', 'flights']
 
 
 @pytest.fixture(autouse=True)

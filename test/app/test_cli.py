@@ -31,11 +31,10 @@ srmosaic = run_cli  # what a command refuses, and evaluate's figures: in this pr
 
 
 @pytest.fixture(scope='module')
-def demo_out(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp('demo_out')
-    run = srmosaic_process('process', str(DEMO), '--out', str(out), '--no-progress')
-    assert run.returncode == 0, run.stderr
-    return out
+def demo_out(demo_run) -> Path:
+    """The demo bag processed with the defaults, once for the session (test/flights.py): the tests
+    only read it (or copy it). test_resume.py runs `srmosaic process` on it as a user does."""
+    return demo_run[0]
 
 
 def test_process_writes_the_file_contracts(demo_out):

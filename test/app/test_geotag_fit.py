@@ -27,6 +27,7 @@ from srmosaic_ros.core.georef.ground_homography import apply_H, ground_H_image
 from srmosaic_ros.app.process import process_input
 from srmosaic_ros.sim import SimConfig, simulate
 from srmosaic_ros.sim.record import write_stills_folder
+from flights import processed, simulated
 from repo_paths import REPO
 
 SEQUENCES = REPO / 'data' / 'sequences'
@@ -136,15 +137,15 @@ def test_geotags_at_frame_stamps() -> None:
 
 
 @pytest.mark.parametrize(('mode', 'max_rms', 'max_error'), [('chain', 1.7, 3.5), ('global', 1.7, 3.5)])
-def test_stills_without_intrinsics_are_georeferenced_by_their_geotags(tmp_path: Path, mode: str, max_rms: float,
-                                                                     max_error: float) -> None:
+def test_stills_without_intrinsics_are_georeferenced_by_their_geotags(tmp_path: Path, tmp_path_factory: pytest.TempPathFactory,
+                                                                     mode: str, max_rms: float, max_error: float) -> None:
     """A simulated survey (stills 2 s apart over a lawnmower from a gimbal, 0.3 deg RMS off nadir,
     GNSS sigma 2.5 m, no camera model): mosaic.tif opens with a UTM CRS and puts the frames' centres
     and corners within the GNSS noise averaged over the flight of the truth; chained and fitted to
     the geotags (survey.mode: chain), or aligned globally with the GPS positions as priors."""
-    flight = simulate(SimConfig(width=320, height=240, world_gsd_m=0.3, trajectory='lawnmower', legs=2,
-                                leg_length_m=160.0, leg_spacing_m=50.0, speed_m_s=10.0, rate_hz=0.5,
-                                fix_rate_hz=0.5, gust_deg=0.3, seed=3))
+    flight = simulated(tmp_path_factory, SimConfig(width=320, height=240, world_gsd_m=0.3, trajectory='lawnmower', legs=2,
+                                                   leg_length_m=160.0, leg_spacing_m=50.0, speed_m_s=10.0, rate_hz=0.5,
+                                                   fix_rate_hz=0.5, gust_deg=0.3, seed=3))  # one flight for both modes
     write_stills_folder(flight, tmp_path / 'survey')
     report = process_input(tmp_path / 'survey', tmp_path / 'out', pipeline_config({'survey.mode': mode}),
                            progress=False)
@@ -199,17 +200,19 @@ def test_real_stills_are_georeferenced_by_their_geotags(tmp_path: Path, name: st
 
 
 @pytest.mark.parametrize(('name', 'epsg', 'max_rms'), [('brighton_beach', 32615, 4.0), ('caliterra', 32614, 12.0)])
-def test_real_stills_are_aligned_globally_on_the_map(tmp_path: Path, name: str, epsg: int, max_rms: float) -> None:
+def test_real_stills_are_aligned_globally_on_the_map(tmp_path_factory: pytest.TempPathFactory, name: str, epsg: int,
+                                                     max_rms: float) -> None:
     """The same real surveys aligned globally (the default): every still placed, in the right UTM
     zone, its centre within consumer-GNSS distance of its own position; Brighton's scale from the GPS
-    baselines agrees with its DJI's height above take-off and lens (an independent check)."""
-    report = process_input(SEQUENCES / name, tmp_path / 'out', pipeline_config(), progress=False)
+    baselines agrees with its DJI's height above take-off and lens (an independent check). One run
+    per survey for the session (test/flights.py): test_survey_process.py reads caliterra's too."""
+    out, report = processed(tmp_path_factory, SEQUENCES / name)
     geo, survey = report['georeferenced'], report['survey']
     assert geo['method'] == 'global alignment' and geo['epsg'] == epsg
     assert report['frames_registered'] == report['frames_in']
     # measured: brighton 1.7 m, caliterra 5.5 m (its camera's own GPS wanders: see bench/survey.py)
     assert survey['position_residual_rms_m'] < max_rms, survey
-    with rasterio.open(tmp_path / 'out' / 'mosaic.tif') as ds:
+    with rasterio.open(out / 'mosaic.tif') as ds:
         assert ds.crs.to_epsg() == epsg
     if name == 'brighton_beach':
         rows = list(csv.DictReader(open(SEQUENCES / name / 'telemetry_from_exif.csv')))

@@ -9,9 +9,8 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import pytest
 
-from demo_bags import DEMO, rewrite_demo
+from demo_bags import rewrite_demo
 from srmosaic_ros.app.process import process_input
 from srmosaic_ros.app.run_report import write_run_report
 from srmosaic_ros.config import pipeline_config
@@ -19,12 +18,8 @@ from srmosaic_ros.config import pipeline_config
 #: Sections drawn for the demo bag (georeferenced, chained, no SR), and those that say they have no data.
 DEMO_FIGURES = ('coverage', 'registration', 'map', 'time')
 DEMO_EMPTY = ('pairs', 'sr')
-
-
-@pytest.fixture(scope='module')
-def demo_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
-    out = tmp_path_factory.mktemp('report_demo')
-    return out, process_input(DEMO, out, pipeline_config(), progress=False)
+# demo_run: the demo bag processed with the defaults, once for the session (test/flights.py): (out, the
+# report process_input returned)
 
 
 def _sections(page: str) -> dict[str, int]:

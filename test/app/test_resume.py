@@ -23,11 +23,9 @@ def _checkpointed_frames(out: Path) -> int:
     return int(header['frames_consumed']) if header else 0
 
 
-def test_kill_9_then_resume_gives_the_same_mosaic(tmp_path):
-    full = tmp_path / 'full'
-    run = subprocess.run([*CLI, 'process', str(DEMO), '--out', str(full), '--no-progress'], capture_output=True,
-                         text=True, timeout=600)
-    assert run.returncode == 0, run.stderr
+def test_kill_9_then_resume_gives_the_same_mosaic(tmp_path, demo_run):
+    """Against the uninterrupted run of the demo with the defaults, shared with other files (test/flights.py)."""
+    full = demo_run[0]
     assert not (full / '.checkpoint').exists()  # a completed run leaves no checkpoint
 
     out = tmp_path / 'interrupted'
@@ -46,6 +44,7 @@ def test_kill_9_then_resume_gives_the_same_mosaic(tmp_path):
     assert resumed.returncode == 0, resumed.stderr
     report = json.loads((out / 'report.json').read_text())
     assert report['resumed_after_frames']['input_items_skipped'] > 0
+    assert not (out / '.checkpoint').exists()  # nor does a completed run that wrote some
     assert (out / 'frames.csv').read_bytes() == (full / 'frames.csv').read_bytes()
     assert (out / 'mosaic.png').read_bytes() == (full / 'mosaic.png').read_bytes()
 

@@ -10,29 +10,15 @@ import json
 import shutil
 from pathlib import Path
 
-import pytest
-
 from srmosaic_ros.config import pipeline_config
 from srmosaic_ros.app.evaluate import evaluate_dir
 from srmosaic_ros.app.process import process_input
-from srmosaic_ros.sim import SimConfig, save_truth, simulate
-from srmosaic_ros.sim.record import write_drone_stills
 from repo_paths import TEST_DATA
 
 REAL_EXIF = TEST_DATA / 'real' / 'exif'
 CHAIN = pipeline_config({'survey.mode': 'chain'})
-
-
-@pytest.fixture(scope='module')
-def drone_survey(tmp_path_factory) -> Path:
-    """20 stills 2 s apart over two lawnmower legs, 2 deg gusts, gimbal angles with 0.5 deg noise."""
-    flight = simulate(SimConfig(width=320, height=240, world_gsd_m=0.3, trajectory='lawnmower', legs=2,
-                                leg_length_m=160.0, leg_spacing_m=50.0, speed_m_s=10.0, rate_hz=0.5, gust_deg=2.0,
-                                seed=3))
-    root = tmp_path_factory.mktemp('drone')
-    write_drone_stills(flight, root / 'survey')
-    save_truth(flight.truth, root / 'truth.json')
-    return root
+# drone_survey: 20 stills 2 s apart over two lawnmower legs, 2 deg gusts, gimbal angles with 0.5 deg noise,
+# in survey/ with truth.json beside it; hover_stills: stills whose GPS tags span a few metres (test/flights.py)
 
 
 def test_exif_xmp_stills_are_georeferenced_through_the_filter(drone_survey: Path, tmp_path: Path) -> None:
@@ -103,15 +89,10 @@ def test_gps_tags_are_stamped_at_their_own_fix_time() -> None:
     assert fix_71 == fix_70  # the same fix; the georeferencer drops the second (not after the first)
 
 
-def test_geotags_of_a_hover_cannot_place_the_mosaic(tmp_path: Path) -> None:
+def test_geotags_of_a_hover_cannot_place_the_mosaic(hover_stills: Path, tmp_path: Path) -> None:
     """Stills whose GPS tags span a few metres (a hover, a pan: karma.mp4's 3.3 m) would get the
     mosaic's scale and rotation from GNSS noise: refused, with the reason in the report."""
-    from srmosaic_ros.sim.record import write_stills_folder
-
-    flight = simulate(SimConfig(width=320, height=240, world_gsd_m=0.3, trajectory='line', frames=10, rate_hz=1.0,
-                                speed_m_s=1.0, fix_rate_hz=1.0, seed=4))
-    folder = write_stills_folder(flight, tmp_path / 'hover')
-    report = process_input(folder, tmp_path / 'out', CHAIN, progress=False)
+    report = process_input(hover_stills, tmp_path / 'out', CHAIN, progress=False)
     assert report['frames_registered'] == 10
     assert report['georeferenced'] is None
     assert 'less than 10 m' in report['not_georeferenced_reason'], report['not_georeferenced_reason']

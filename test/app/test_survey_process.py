@@ -19,24 +19,12 @@ from srmosaic_ros.app.evaluate import evaluate_dir
 from srmosaic_ros.app.evaluate_real import evaluate_real
 from srmosaic_ros.io.mosaic_files import read_frames_csv
 from srmosaic_ros.app.process import process_input
-from srmosaic_ros.sim import SimConfig, save_truth, simulate
-from srmosaic_ros.sim.record import write_drone_stills, write_stills_folder
 from srmosaic_ros.app.survey import read_reduced, reduction_for
 from repo_paths import REPO
 
 CALITERRA = REPO / 'data' / 'sequences' / 'caliterra'
-
-
-@pytest.fixture(scope='module')
-def drone_survey(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """20 stills 2 s apart over two lawnmower legs 50 m apart (the legs overlap), 2 deg gusts."""
-    flight = simulate(SimConfig(width=320, height=240, world_gsd_m=0.3, trajectory='lawnmower', legs=2,
-                                leg_length_m=160.0, leg_spacing_m=50.0, speed_m_s=10.0, rate_hz=0.5, gust_deg=2.0,
-                                seed=3))
-    root = tmp_path_factory.mktemp('drone')
-    write_drone_stills(flight, root / 'survey')
-    save_truth(flight.truth, root / 'truth.json')
-    return root
+# drone_survey (20 DJI stills over two overlapping lawnmower legs, survey/ and truth.json), hover_stills
+# and caliterra_run (the caliterra stills processed with the defaults): test/flights.py, once for the session
 
 
 @pytest.fixture(scope='module')
@@ -45,13 +33,6 @@ def default_run(drone_survey: Path, tmp_path_factory: pytest.TempPathFactory) ->
     tests that check it or compare against it; they only read it."""
     out = tmp_path_factory.mktemp('default_run')
     return out, process_input(drone_survey / 'survey', out, pipeline_config(), progress=False)
-
-
-@pytest.fixture(scope='module')
-def caliterra_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
-    """The bundled caliterra stills processed once with the defaults: (output folder, report)."""
-    out = tmp_path_factory.mktemp('caliterra_run')
-    return out, process_input(CALITERRA, out, pipeline_config(), progress=False)
 
 
 def _placed_by(frames_csv: Path) -> list[str]:
@@ -142,12 +123,9 @@ def test_a_gps_tag_that_jumps_does_not_move_the_survey(drone_survey: Path, tmp_p
     assert figures['georef_error_rms_m'] < 3.0, figures
 
 
-def test_a_hover_is_aligned_but_not_georeferenced(tmp_path: Path) -> None:
+def test_a_hover_is_aligned_but_not_georeferenced(hover_stills: Path, tmp_path: Path) -> None:
     """GPS tags spanning a few metres cannot set the scale and rotation: aligned, not on the map."""
-    flight = simulate(SimConfig(width=320, height=240, world_gsd_m=0.3, trajectory='line', frames=10, rate_hz=1.0,
-                                speed_m_s=1.0, fix_rate_hz=1.0, seed=4))
-    folder = write_stills_folder(flight, tmp_path / 'hover')
-    report = process_input(folder, tmp_path / 'out', pipeline_config(), progress=False)
+    report = process_input(hover_stills, tmp_path / 'out', pipeline_config(), progress=False)
     assert report['frames_registered'] == 10
     assert report['georeferenced'] is None and not (tmp_path / 'out' / 'mosaic.tif').exists()
     assert 'less than 10 m' in report['not_georeferenced_reason'], report['not_georeferenced_reason']

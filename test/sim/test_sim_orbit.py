@@ -13,6 +13,7 @@ from srmosaic_ros.app.evaluate import evaluate_dir
 from srmosaic_ros.app.process import process_input
 from srmosaic_ros.sim import SimConfig, simulate, write_flight
 from srmosaic_ros.sim.flight import gimbal_deg
+from flights import simulated
 
 ORBIT = {'trajectory': 'orbit', 'orbit_radius_m': 50.0, 'laps': 1.1, 'altitude_m': 80.0, 'hfov_deg': 40.0,
          'width': 160, 'height': 120, 'speed_m_s': 10.0, 'rate_hz': 1.5, 'seed': 4}
@@ -42,11 +43,12 @@ def test_orbit_longer_than_its_laps_is_refused() -> None:
         simulate(SimConfig(**{**ORBIT, 'frames': 200}))
 
 
-def test_orbit_is_mosaicked_and_georeferenced_with_its_mount(tmp_path) -> None:
+def test_orbit_is_mosaicked_and_georeferenced_with_its_mount(tmp_path, tmp_path_factory) -> None:
     """Every frame of an oblique orbit in one mosaic, the revisited quarter lap included, registered
-    to a fraction of a pixel; with the camera mount given, on the map within a metre."""
+    to a fraction of a pixel; with the camera mount given, on the map within a metre. The orbit is
+    simulated once for the session (test/flights.py): test_sim_unmeasured_attitude.py takes it too."""
     cfg = SimConfig(**ORBIT)
-    bag = write_flight(simulate(cfg), tmp_path / 'bag')
+    bag = write_flight(simulated(tmp_path_factory, cfg), tmp_path / 'bag')
     azimuth, elevation = gimbal_deg(cfg)
     out = tmp_path / 'out'
     process_input(bag, out, pipeline_config({'georef.gimbal_azimuth_deg': azimuth,

@@ -19,7 +19,8 @@ from srmosaic_ros.core.types import CameraAttitude
 from srmosaic_ros.core.georef.pose_check import MIN_INNOVATIONS, check_pose_placement, mount_axis_angle_deg
 from srmosaic_ros.io.metadata import merge_by_time
 from srmosaic_ros.pipeline import Pipeline
-from srmosaic_ros.sim import SimConfig, save_truth, simulate
+from srmosaic_ros.sim import SimConfig, save_truth
+from flights import simulated
 
 # test_sim_orbit.py's orbit: 52 frames of 160 x 120 circling at 80 m, 58 deg below the horizon
 ORBIT = {'trajectory': 'orbit', 'orbit_radius_m': 50.0, 'laps': 1.1, 'altitude_m': 80.0, 'hfov_deg': 40.0,
@@ -28,11 +29,13 @@ NADIR = {'trajectory': 'line', 'frames': 20, 'rate_hz': 4.0, 'altitude_m': 80.0,
          'world': 'data/worlds/caliterra_IMG_9360.jpg', 'seed': 5}
 
 
-def _run(cfg: SimConfig, tmp_path, *, imu: bool = False, horizon_attitudes: bool = False):
+def _run(cfg: SimConfig, tmp_path, factory, *, imu: bool = False, horizon_attitudes: bool = False):
     """(PipelineResult, report, truth figures) of a simulated flight fed with its fixes (and its Imu
     samples when ``imu``; a camera attitude 1 deg below the horizon at every fix when
-    ``horizon_attitudes``), the frames carrying their intrinsics; default configuration (nadir mount)."""
-    flight = simulate(cfg)
+    ``horizon_attitudes``), the frames carrying their intrinsics; default configuration (nadir mount).
+    The flight is simulated once for the session (test/flights.py): three tests here and
+    test_sim_orbit.py take the orbit."""
+    flight = simulated(factory, cfg)
     telemetry = flight.fixes + (flight.imus if imu else [])
     if horizon_attitudes:  # what karma.mp4's Karma gimbal records: measured, but no ground in view
         telemetry += [CameraAttitude(f.stamp_ns, R_enu_from_cam_aviation(0.0, -1.0, 0.0), math.radians(1.0))
@@ -47,11 +50,11 @@ def _run(cfg: SimConfig, tmp_path, *, imu: bool = False, horizon_attitudes: bool
     return result, report, evaluate_dir(tmp_path, tmp_path / 'truth.json')
 
 
-def test_oblique_orbit_without_attitude_is_chained_not_forced_to_nadir(tmp_path, caplog) -> None:
+def test_oblique_orbit_without_attitude_is_chained_not_forced_to_nadir(tmp_path, tmp_path_factory, caplog) -> None:
     """Before the check, drift control pulled every frame toward a nadir footprint: corner error
     4.78 px mean (14.0 max) against the truth; chained, 0.083 px (0.19 max), as without intrinsics."""
     with caplog.at_level(logging.WARNING, logger='srmosaic_ros.pipeline'):
-        result, report, fig = _run(SimConfig(**ORBIT), tmp_path)
+        result, report, fig = _run(SimConfig(**ORBIT), tmp_path, tmp_path_factory)
     assert fig['frames_registered'] == fig['frames_in'] == 52
     assert fig['corner_error_mean_px'] < 0.3, fig  # measured 0.083 px (4.78 px when forced to nadir)
     assert [seg.georeferenced for seg in result.segments] == [False]
@@ -69,18 +72,18 @@ def test_oblique_orbit_without_attitude_is_chained_not_forced_to_nadir(tmp_path,
     assert 'not placed by the filter' in said and 'georef.gimbal_elevation_deg' in said
 
 
-def test_oblique_orbit_with_its_imu_is_not_checked(tmp_path) -> None:
+def test_oblique_orbit_with_its_imu_is_not_checked(tmp_path, tmp_path_factory) -> None:
     """A measured attitude: the filter's camera is not an assumption, and nothing is decided."""
     cfg = SimConfig(**{**ORBIT, 'laps': 0.3})
-    result, report, _ = _run(cfg, tmp_path, imu=True)
+    result, report, _ = _run(cfg, tmp_path, tmp_path_factory, imu=True)
     assert result.pose_check is None and 'pose_placement' not in report
 
 
-def test_nadir_flight_without_attitude_is_placed_by_its_poses_from_the_start(tmp_path) -> None:
+def test_nadir_flight_without_attitude_is_placed_by_its_poses_from_the_start(tmp_path, tmp_path_factory) -> None:
     """GPS only over a nadir camera: the check passes (median NIS 1.8 against the gate 37.3) and the
     frames are on the map from the first one, as before it existed (0.048 px, 0.97 m; with
     consecutive frames tracked photometrically, registration.track_frames, 0.044 px, 1.03 m)."""
-    result, report, fig = _run(SimConfig(**NADIR), tmp_path)
+    result, report, fig = _run(SimConfig(**NADIR), tmp_path, tmp_path_factory)
     assert result.pose_check is not None and result.pose_check.used
     assert result.pose_check.median_nis < 5.0
     shown = result.pose_check.frames_mount  # the chain agrees: measured 1.9 deg off nadir (gusts of 2 deg)
@@ -103,12 +106,12 @@ def test_the_rule_is_the_median_innovation_against_the_filters_gate() -> None:
     assert refused.median_nis == 250.0 and 'elevation -30 deg: oblique' in refused.reason
 
 
-def test_attitudes_at_the_horizon_do_not_count_as_measured(tmp_path) -> None:
+def test_attitudes_at_the_horizon_do_not_count_as_measured(tmp_path, tmp_path_factory) -> None:
     """Camera attitudes the filter cannot use (less than 5 deg below the horizon: a Karma gimbal
     levelled at the horizon) leave the orbit as unmeasured: chained, not forced to nadir, and the
     reason says first that they were left out. Counted as measured, the frames were placed on the
     nadir assumption (karma.mp4 with --hfov 110: 3 segments, consistency 0.566 instead of 0.826)."""
-    result, report, fig = _run(SimConfig(**ORBIT), tmp_path, horizon_attitudes=True)
+    result, report, fig = _run(SimConfig(**ORBIT), tmp_path, tmp_path_factory, horizon_attitudes=True)
     assert result.georef.skipped['camera_attitude_horizon'] == len(result.attitudes) > 0
     assert report['pose_placement']['used'] is False
     assert report['pose_placement']['reason'].startswith(
@@ -121,12 +124,12 @@ def test_attitudes_at_the_horizon_do_not_count_as_measured(tmp_path) -> None:
     assert 'do not look straight down' in reason
 
 
-def test_an_orbit_starts_at_its_course_when_fixes_precede_its_frames() -> None:
+def test_an_orbit_starts_at_its_course_when_fixes_precede_its_frames(tmp_path_factory) -> None:
     """GPS only, the fixes 5.3 s ahead of the frames (the first 8 frames dropped), the orbit's own
     mount set: the filter's first heading comes from the fixes before the first frame. A chord
     through them lagged the turn by 36 deg (half of 5 s at 11.5 deg/s; settling NIS 28.3 against
     the gate 37.3); the track's quadratic reads it at the frame: 1.2 deg, NIS 10.1."""
-    flight = simulate(SimConfig(**ORBIT))
+    flight = simulated(tmp_path_factory, SimConfig(**ORBIT))
     config = PipelineConfig()
     config = dataclasses.replace(config, georef=dataclasses.replace(config.georef, gimbal_azimuth_deg=90.0,
                                                                     gimbal_elevation_deg=-58.0))
