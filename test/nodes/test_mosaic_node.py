@@ -318,7 +318,7 @@ from srmosaic_ros.nodes.mosaic_node import MosaicNode
 rclpy.init(args=['--ros-args', '--params-file', sys.argv[1]])
 node = MosaicNode()
 print(json.dumps({'registration_width': node.config.registration.max_width, 'mosaic_width': node.config.mosaic.max_width,
-                  'track_frames': node.config.registration.track_frames, 'queue': node._queue.maxlen,
+                  'track_frames': node.config.registration.track_frames, 'queue': node.intake.frames.maxlen,
                   'keyframe_interval': node.config.mosaic.keyframe_interval,
                   'paint_stride': node.config.mosaic.paint_stride, 'paint_shift_px': node.config.mosaic.paint_shift_px}))
 node.finish()
