@@ -120,14 +120,14 @@ def flight():
         mp.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
         env = dict(os.environ)
         port = free_port()
+        listener = TileListener()
+        listener.start()
+        probe = map_latency().MapLatencyProbe(f'http://127.0.0.1:{port}/')  # before the processes: none is left behind
         procs = {
             'mosaic': srmosaic('node', 'mosaic', '--ros-args', '-p', 'live.reliable_inputs:=true', '-p', 'live.queue_size:=100',
                                '-p', f'live.map_bytes_per_s:={BUDGET}', env=env),
             'map_server': srmosaic('map-server', '--port', str(port), env=env),
         }
-        listener = TileListener()
-        listener.start()
-        probe = map_latency().MapLatencyProbe(f'http://127.0.0.1:{port}/')
 
         def close() -> None:
             probe.close()

@@ -91,7 +91,7 @@ def sr_flight():
             origin = np.array([300.0, 200.0])
             most_pending = 0
             for k in range(FRAMES):  # hovering, drifting right: tiles side by side
-                shift = np.array([10.0 + 6.0 * k, 10.0]) + [0.37 * k % 2.0, 0.61 * k % 2.0]
+                shift = np.array([10.0 + 12.0 * k, 10.0]) + [0.37 * k % 2.0, 0.61 * k % 2.0]
                 stamp = 1_000_000_000 * (k + 1)
                 images.publish(numpy_to_image(view(translation(*(origin + shift)), 200, 140, noise=2.0, seed=k), 'rgb8',
                                               stamp_ns=stamp, frame_id='camera'))
