@@ -8,8 +8,12 @@ the camera topics (when each frame is published: its first arrival here), /srmos
 server's /tiles/{z}/{x}/{y}.png (z: the status's maxzoom) at the centre of every frame's footprint
 every POLL_S until the pixel there is served painted (alpha > 0). Per frame with a footprint: the
 latency is the first such moment minus its publication. Printed as p50 / p95 / max over all those
-frames, and over the "new ground" frames, whose centre was not yet painted when first polled (the
-others' ground was painted by earlier frames, which their overlap shows at once).
+frames, over the frames published after the first pixel was served (past the start of the graph:
+"steady"), and over the "new ground" frames, whose centre was not yet painted when first polled (the
+others' ground was painted by earlier frames, which their overlap shows at once); the new-ground
+latency is split at the footprint's arrival: publication to footprint (the mosaic node received,
+registered and fused the frame) and footprint to served (painting, the map tile round every
+live.preview_period_s within live.map_bytes_per_s, the map server's reprojection, this probe's poll).
 
 Frames are painted mosaic.revisit_spread_frames frames after they are registered (by design: a
 keyframe's correction is spread over the frames before it), so `--param
@@ -51,6 +55,7 @@ class FrameWatch:
 
     published_s: float
     centre: np.ndarray | None = None  # footprint centre, /srmosaic/raster pixels
+    footprint_s: float | None = None  # when its footprint arrived (the node fused it)
     tile: tuple[int, int, int] | None = None
     pixel: tuple[int, int] | None = None
     served_s: float | None = None
@@ -86,6 +91,10 @@ class MapLatencyProbe:
         from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
         from sensor_msgs.msg import CompressedImage, Image
         from std_msgs.msg import String
+
+        import cv2  # noqa: F401 - imported now, not at the first poll (a cold import is seconds on a loaded host)
+        import morecantile  # noqa: F401
+        import rasterio.warp  # noqa: F401
 
         self.url = url
         self.frames: dict[int, FrameWatch] = {}  # stamp_ns -> watch
@@ -131,6 +140,7 @@ class MapLatencyProbe:
             watch = self.frames.get(self._stamp(msg))
             if watch is not None and watch.centre is None and len(corners) >= 3:
                 watch.centre = corners.mean(axis=0)
+                watch.footprint_s = time.monotonic()
 
     # -- polling the map server -------------------------------------------------------------------
     def _place(self, centre: np.ndarray) -> tuple[tuple[int, int, int], tuple[int, int]]:
@@ -200,15 +210,30 @@ class MapLatencyProbe:
         self._context.try_shutdown()
 
 
+def _stats(values: list[float]) -> dict[str, Any]:
+    v = np.array(values, np.float64)
+    if not v.size:
+        return {'n': 0}
+    return {'n': int(v.size), 'p50_s': round(float(np.percentile(v, 50)), 3), 'p95_s': round(float(np.percentile(v, 95)), 3),
+            'max_s': round(float(v.max()), 3)}
+
+
 def summarise(watched: list[FrameWatch]) -> dict[str, Any]:
-    """p50 / p95 / max latency (s) of all watched frames and of the new-ground ones, and the unserved count."""
-    out: dict[str, Any] = {'frames': len(watched), 'unserved': sum(w.served_s is None for w in watched)}
-    for name, group in (('all', watched), ('new_ground', [w for w in watched if w.new_ground])):
-        lat = np.array([w.latency_s for w in group if w.latency_s is not None])
-        out[name] = ({'n': int(lat.size), 'p50_s': round(float(np.percentile(lat, 50)), 3),
-                      'p95_s': round(float(np.percentile(lat, 95)), 3), 'max_s': round(float(lat.max()), 3)}
-                     if lat.size else {'n': 0})
-    return out
+    """p50 / p95 / max latency (s) of all watched frames and of the new-ground ones, the unserved count,
+    and the two parts of the new-ground latency: publication to footprint (the mosaic node fused the
+    frame) and footprint to served (painting, the tile stream, the map server); per frame in 'frames_s'."""
+    new = [w for w in watched if w.new_ground and w.served_s is not None]
+    t0 = min((w.published_s for w in watched), default=0.0)
+    first_served = min((w.served_s for w in watched if w.served_s is not None), default=np.inf)
+    return {'frames': len(watched), 'unserved': sum(w.served_s is None for w in watched),
+            'all': _stats([w.latency_s for w in watched if w.latency_s is not None]),
+            # the frames published once the map server served its first painted pixel (past the start)
+            'steady': _stats([w.latency_s for w in watched if w.latency_s is not None and w.published_s >= first_served]),
+            'new_ground': _stats([w.latency_s for w in new]),
+            'new_ground_to_footprint': _stats([w.footprint_s - w.published_s for w in new]),
+            'new_ground_footprint_to_served': _stats([w.served_s - w.footprint_s for w in new]),
+            'frames_s': [[round(w.published_s - t0, 3), None if w.latency_s is None else round(w.latency_s, 3),
+                          round(w.footprint_s - w.published_s, 3), bool(w.new_ground)] for w in watched]}
 
 
 def _free_port() -> int:
@@ -258,16 +283,18 @@ def main() -> int:
                     help='also run with mosaic.revisit_spread_frames:=0 (frames painted at once), same invocation')
     ap.add_argument('--no-sr', action='store_true', help='the graph without the SR node')
     ap.add_argument('--wait', type=float, default=30.0, help='seconds after the flight for the last frames to be served')
+    ap.add_argument('--repeat', type=int, default=1, help='run the set this many times, one after the other')
     ap.add_argument('--json', type=Path, help='write the results here')
     args = ap.parse_args()
-    runs = [args.param] + ([[*args.param, 'mosaic.revisit_spread_frames:=0']] if args.compare_spread else [])
+    runs = ([args.param] + ([[*args.param, 'mosaic.revisit_spread_frames:=0']] if args.compare_spread else [])) * args.repeat
     results = []
     for i, params in enumerate(runs):
         r = run(args.bag, args.rate, params, 160 + (os.getpid() + i) % 30, sr=not args.no_sr, wait_s=args.wait)
         results.append(r)
         print(f"{' '.join(params) or 'defaults'}: {r['frames']} frames with a footprint, {r['unserved']} not served; "
               + '; '.join(f"{k}: n {r[k]['n']}" + (f", p50 {r[k]['p50_s']:.2f} s, p95 {r[k]['p95_s']:.2f} s, max {r[k]['max_s']:.2f} s"
-                                                   if r[k]['n'] else '') for k in ('all', 'new_ground')), flush=True)
+                                                   if r[k]['n'] else '') for k in ('all', 'steady', 'new_ground', 'new_ground_to_footprint',
+                                                                                    'new_ground_footprint_to_served')), flush=True)
     if args.json:
         args.json.write_text(json.dumps(results, indent=1))
     return 0
