@@ -144,12 +144,18 @@ def flight():
                 time.sleep(0.5)
             assert player.returncode == 0, player.communicate()[0]
 
+            changed = [0, time.monotonic()]  # summaries received, when that count last changed
+
             def converged() -> bool:  # every frame processed, every changed tile sent and held by the server
                 s, summary = status_of(f.url), listener.summary()
                 if summary is not None:
                     f.most_pending = max(f.most_pending, summary['pending'])
+                if len(listener.summaries) != changed[0]:
+                    changed[:] = [len(listener.summaries), time.monotonic()]
+                # and no new summary for two preview rounds: the frames counted as processed may still be
+                # on the paint thread when a round collects the changed tiles, and go in the next one
                 return bool(s and summary and s['frames'] == FRAMES and summary['pending'] == 0
-                            and s['tiles']['mosaic'] == len(summary['tiles']) > 0)
+                            and s['tiles']['mosaic'] == len(summary['tiles']) > 0 and time.monotonic() - changed[1] > 2.5)
             assert listener.wait_for(converged, 120), (status_of(f.url), listener.summary())
             yield f
 
