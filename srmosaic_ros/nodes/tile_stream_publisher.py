@@ -37,14 +37,14 @@ TILES_QOS = QoSProfile(depth=256, reliability=ReliabilityPolicy.RELIABLE, histor
 class TileStreamPublisher:
     """Publishes a tile stream's tiles and summary and answers its whole-map service (module docstring).
 
-    ``stream`` has ``summary() -> str``, ``whole_map() -> str`` and ``spend(nbytes)``; ``tile``,
+    ``stream`` has ``summary() -> str``, ``whole_map() -> str``, ``spend(nbytes)`` and ``pending``; ``tile``,
     ``summary`` are keys of nodes.common.TOPICS and ``service`` of SERVICES."""
 
     def __init__(self, node: Any, stream: Any, tile: str, summary: str, service: str) -> None:
         self.stream = stream
         self._pub_tile = node.create_publisher(CompressedImage, TOPICS[tile], TILES_QOS)
         self._pub_summary = node.create_publisher(String, TOPICS[summary], LATCHED_QOS)
-        self._summary_sent = ''
+        self._pending_said: int | None = None  # the pending count of the last summary (None: none sent)
         node.create_service(Trigger, SERVICES[service], self._whole_map, callback_group=MutuallyExclusiveCallbackGroup())
 
     def listened(self) -> bool:
@@ -52,18 +52,21 @@ class TileStreamPublisher:
         return self._pub_tile.get_subscription_count() > 0
 
     def publish(self, tiles: list[tuple[str, bytes]], stamp_ns: int) -> None:
-        """Publish (frame_id, PNG) tiles stamped ``stamp_ns``, then the summary when it changed (its
-        bytes count against the stream's budget too)."""
+        """Publish (frame_id, PNG) tiles stamped ``stamp_ns``, then the summary when tiles went out or
+        the count of those waiting changed (its bytes count against the stream's budget too)."""
         for frame_id, data in tiles:
             msg = CompressedImage(format=MAP_TILE_FORMAT, data=data)
             msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(stamp_ns), 1_000_000_000)
             msg.header.frame_id = frame_id
             self._pub_tile.publish(msg)
-        summary = self.stream.summary()
-        if summary != self._summary_sent:
+        # The summary again when tiles went out or the count waiting changed: its bytes_sent counts
+        # the summaries themselves, so comparing the text would send one every round for ever.
+        pending = self.stream.pending
+        if tiles or pending != self._pending_said:
+            summary = self.stream.summary()
             self._pub_summary.publish(String(data=summary))
             self.stream.spend(len(summary))
-            self._summary_sent = summary
+            self._pending_said = pending
 
     def _whole_map(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         """Every tile sent so far (live/map_tiles.whole_map_text)."""
