@@ -97,12 +97,13 @@ class FrameIntake:
             self.camera = camera
             self.telemetry.append(camera)
 
-    def take_telemetry(self) -> list[Any]:
-        """The telemetry queued so far, oldest first (the worker feeds it before its frame)."""
-        out = []
-        while self.telemetry:
-            out.append(self.telemetry.popleft())
-        return out
+    def pop_telemetry(self) -> Any | None:
+        """The oldest telemetry item queued (None: none). The worker feeds them until none is left,
+        those that arrive meanwhile included, before its frame."""
+        try:
+            return self.telemetry.popleft()
+        except IndexError:
+            return None
 
     def next(self, wait_s: float = 0.5) -> tuple[Frame | None, bool] | None:
         """(frame or None, idle): the next frame, or None with idle True when none came within

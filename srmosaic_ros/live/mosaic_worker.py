@@ -104,7 +104,7 @@ class MosaicWorker:
         pipeline = self.pipeline
         with self.lock:
             records = []
-            for item in self._intake.take_telemetry():
+            while (item := self._intake.pop_telemetry()) is not None:  # those that come meanwhile too
                 records += pipeline.feed(item)
             try:
                 if frame is not None:
