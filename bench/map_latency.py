@@ -33,6 +33,7 @@ import os
 import socket
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 import urllib.error
@@ -251,7 +252,8 @@ def run(bag: Path, rate: float, params: list[str], domain: int, *, sr: bool, wai
     ros_params = ['live.reliable_inputs:=true', 'live.queue_size:=100', f'live.map_port:={port}', *params]
     command = [sys.executable, '-m', 'srmosaic_ros.cli', 'launch', str(REPO / 'launch' / 'srmosaic.launch.xml'), 'map:=true',
                f"sr:={'true' if sr else 'false'}", '--ros-args', *[a for p in ros_params for a in ('-p', p)]]
-    graph = subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)
+    log = tempfile.TemporaryFile(mode='w+')
+    graph = subprocess.Popen(command, env=env, stdout=log, stderr=subprocess.STDOUT)
     probe = MapLatencyProbe(url)
     try:
         deadline = time.monotonic() + 120
@@ -262,8 +264,11 @@ def run(bag: Path, rate: float, params: list[str], domain: int, *, sr: bool, wai
         if player.returncode != 0:
             raise RuntimeError(player.stdout + player.stderr)
         end = time.monotonic() + wait_s
-        while not probe.all_served() and time.monotonic() < end:
+        while not probe.all_served() and time.monotonic() < end and graph.poll() is None:
             time.sleep(0.5)
+        if graph.poll() is not None or not probe.watched():
+            log.seek(0)
+            raise RuntimeError(f'the graph ({" ".join(params)}) ended or gave no footprint:\n{log.read()[-3000:]}')
         return {'params': params, 'rate': rate, **summarise(probe.watched())}
     finally:
         probe.close()
