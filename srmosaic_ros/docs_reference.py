@@ -64,6 +64,10 @@ TOPIC_DOCS = {
                           'region in `header.frame_id` (as the preview); within `live.map_bytes_per_s`, oldest change first',
     '/srmosaic/map_tiles': 'the map tiles sent so far and how many still wait (JSON with `version`); latched, for late '
                            'joiners (the whole map: the `srmosaic/get_map` service)',
+    '/srmosaic/sr_map_tile': 'each SR tile as a PNG (the image of /srmosaic/sr_tile, same `header.frame_id`), within '
+                             '`live.sr_map_bytes_per_s`, oldest first, none lost (with `live.map_tiles`)',
+    '/srmosaic/sr_map_tiles': 'the SR tiles sent so far and how many still wait (JSON with `version`, as /srmosaic/map_tiles); '
+                              'latched, for late joiners (all of them: the `srmosaic/get_sr_map` service)',
     '/srmosaic/footprint': 'the ground the newest fused frame sees by its pose: corners in pixels of the '
                            '/srmosaic/raster grid (frame_id `srmosaic_raster`)',
     '/srmosaic/diagnostics': 'one status per node: frames received, processed, dropped; registration quality; '

@@ -42,6 +42,7 @@ class LiveConfig:
     map_tiles: bool = True
     map_level: int = setting(1, lo=0, hi=12)
     map_bytes_per_s: int = setting(1_000_000, lo=0, hi=10_000_000_000, unit='B/s')
+    sr_map_bytes_per_s: int = setting(500_000, lo=0, hi=10_000_000_000, unit='B/s')
     map_port: int = setting(8080, lo=1, hi=65535)
     map_bind: str = '127.0.0.1'
 

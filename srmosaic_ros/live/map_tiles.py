@@ -301,6 +301,12 @@ class MapTileStream:
         with self._lock:
             self.queue.spend(nbytes)
 
+    @property
+    def pending(self) -> int:
+        """Changed tiles waiting (for the budget, or for a subscriber)."""
+        with self._lock:
+            return self.queue.pending
+
     def set_budget(self, bytes_per_s: float) -> None:
         with self._lock:
             self.queue.bytes_per_s = float(bytes_per_s)

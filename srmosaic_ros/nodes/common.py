@@ -47,9 +47,12 @@ TOPICS = {
     'map_tile': 'srmosaic/map_tile',
     'map_tiles': 'srmosaic/map_tiles',
     'footprint': 'srmosaic/footprint',
+    'sr_map_tile': 'srmosaic/sr_map_tile',
+    'sr_map_tiles': 'srmosaic/sr_map_tiles',
 }
-#: Services, relative as TOPICS: the whole live map so far (std_srvs/Trigger; live/map_tiles.py).
-SERVICES = {'get_map': 'srmosaic/get_map'}
+#: Services, relative as TOPICS: the whole live map so far, and all the SR tiles sent so far
+#: (std_srvs/Trigger; live/map_tiles.py, live/sr_tile_stream.py).
+SERVICES = {'get_map': 'srmosaic/get_map', 'get_sr_map': 'srmosaic/get_sr_map'}
 #: Diagnostics go to /diagnostics, where diagnostic_aggregator and rqt_robot_monitor listen (absolute,
 #: as diagnostic_updater publishes), and to srmosaic/diagnostics under the namespace (the contract's
 #: /srmosaic/diagnostics in the root namespace).

@@ -32,10 +32,12 @@ drains behind a slow fix stream, and a frame fused early misses its gyro samples
 SYNC_TIMEOUT_S of the node's own running time (a node stopped by the scheduler does not time out the
 telemetry waiting in its queues), or REGISTRATION_HOLD registrations wait. Bad input (NaN fix, time
 going backwards, malformed registration) is logged once per kind and skipped.
+
+The node owns its subscriptions, timers and lifecycle; live.georef_sync.GeorefSync does the merging
+and fusing.
 """
 from __future__ import annotations
 
-import collections
 import time
 from typing import Any
 
@@ -44,30 +46,16 @@ from sensor_msgs.msg import CameraInfo, Imu, NavSatFix
 
 from msg_adapters import camera_info_to_intrinsics, imu_to_sample, navsat_to_fix
 
-from ..core.georef.georeferencer import Georeferencer
 from ..core.undistort import Undistorter
 from ..errors import SrMosaicError
-from ..core.time_sync import TelemetryStreams
-from .common import (TELEMETRY_QOS_DEPTH, DiagnosticsPublisher, PosePublisher, RegistrationMsg, StreamOrder, WarnOnce,
-                     input_qos, subscribe_input)
-from .messages import Messages, message_kind
+from ..live.georef_sync import REGISTRATION_HOLD, SYNC_TIMEOUT_S, TELEMETRY_HOLD_S, TICK_S, GeorefSync
+from .common import TELEMETRY_QOS_DEPTH, DiagnosticsPublisher, PosePublisher, StreamOrder, WarnOnce, input_qos, subscribe_input
 from .lifecycle import ManagedNode, autostart, release
+from .messages import Messages, message_kind
 from .node_checks import check_georef_standalone
 from .parameters import GEOREF_PARAMETERS, declare_pipeline_parameters, on_parameter_change, read_pipeline_config
 
-__all__ = ['GeorefNode', 'main']
-
-#: Seconds (of the node running) a registration waits for its telemetry before it is fused without.
-SYNC_TIMEOUT_S = 1.0
-#: Registrations that may wait; one more and the oldest is fused without its telemetry (memory bound:
-#: they come in bursts, up to mosaic.revisit_spread_frames at once, so the offline SYNC_HOLD_FRAMES is too few).
-REGISTRATION_HOLD = 200
-#: Seconds of telemetry (by stamp) the node holds for registrations still to come; older telemetry
-#: goes to the filter (which bridges frames that never came). Above revisit_spread_frames frame periods.
-TELEMETRY_HOLD_S = 60.0
-#: Period of the timer that applies the timeout (s); a longer gap between its calls is time the
-#: process did not run.
-TICK_S = 0.2
+__all__ = ['REGISTRATION_HOLD', 'SYNC_TIMEOUT_S', 'TELEMETRY_HOLD_S', 'TICK_S', 'GeorefNode', 'main']
 
 
 class GeorefNode(ManagedNode):
@@ -94,16 +82,8 @@ class GeorefNode(ManagedNode):
         self._undistorter = Undistorter(self.config.undistort)
         self.standalone = bool(self.get_parameter('live.georef_standalone').value)
         self.messages = Messages(message_kind(self))  # portable or typed registrations
-        self.georef: Georeferencer | None = None
-        self._camera = None
-        self._pending: list[tuple[float, RegistrationMsg]] = []  # (arrival on the running clock s, registration)
-        self._streams = TelemetryStreams(quiet_s=SYNC_TIMEOUT_S)
-        self._held: dict[str, collections.deque[Any]] = {}  # kind -> telemetry not fed yet, by stamp
-        self._running_s = 0.0  # seconds this node has been running (stalls of the process left out)
-        self._last_tick = time.monotonic()
         self._order = StreamOrder(self, self.warn, self.config.stamp_tolerance_s)  # stamps off the clock or backwards
-        self._ref_stamp: int | None = None  # the last painted frame fed: what prev_H_cur maps into
-        self._last_pose = None
+        self.sync: GeorefSync | None = None
         if not self.standalone:
             self.get_logger().info('georeferencing runs inside the mosaic node (live.georef_standalone is false); '
                                    'this node stays idle. Set live.georef_standalone:=true for the whole graph to '
@@ -112,6 +92,7 @@ class GeorefNode(ManagedNode):
             return
         check_georef_standalone(self.standalone, self.config.georef_enabled)
         self.pub_diag = DiagnosticsPublisher(self, 'srmosaic: georeferencing')
+        self.sync = GeorefSync(self.config.georef, self.warn, PosePublisher(self).publish, time.monotonic())
         reliable = bool(self.get_parameter('live.reliable_inputs').value)
         qos = input_qos(reliable, TELEMETRY_QOS_DEPTH)
         group = MutuallyExclusiveCallbackGroup()  # one group: the filter sees its inputs one at a time, in order
@@ -119,17 +100,13 @@ class GeorefNode(ManagedNode):
         subscribe_input(self, Imu, 'imu', self._on_imu, qos, group)
         subscribe_input(self, CameraInfo, 'camera_info', self._on_camera_info, qos, group)
         subscribe_input(self, self.messages.registration_type, 'registration', self._on_registration, input_qos(True, 200), group)
-        self.pub_poses = PosePublisher(self)
         period = float(self.get_parameter('live.preview_period_s').value)
-        self.create_timer(TICK_S, self._on_tick, callback_group=group)
+        self.create_timer(TICK_S, lambda: self.sync.tick(time.monotonic()), callback_group=group)
         self._periodic = self.create_timer(period, self._publish_diagnostics,
-                                                    callback_group=MutuallyExclusiveCallbackGroup())
+                                           callback_group=MutuallyExclusiveCallbackGroup())
         self.configured = True
 
     # -- inputs ---------------------------------------------------------------------------------
-    def _in_order(self, stream: str, stamp_ns: int) -> bool:
-        return self._order.accept(stream, stamp_ns)
-
     def _telemetry(self, kind: str, convert: Any, msg: Any) -> None:
         if not self.active:
             self.warn.count('inputs_while_inactive')
@@ -139,27 +116,8 @@ class GeorefNode(ManagedNode):
         except SrMosaicError as exc:
             self.warn(kind, f'{kind} skipped: {exc}')
             return
-        if not self._in_order(kind, item.stamp_ns):
-            return
-        self._held.setdefault(kind, collections.deque()).append(item)
-        self._streams.seen(kind, item.stamp_ns, time.monotonic())
-        self._drain()
-
-    def _feed_telemetry(self, through_ns: int) -> None:
-        """Feed the filter the held telemetry stamped up to ``through_ns``, in stamp order."""
-        items = []
-        for kind, held in self._held.items():
-            while held and held[0].stamp_ns <= through_ns:
-                items.append((kind, held.popleft()))
-        for kind, item in sorted(items, key=lambda ki: ki[1].stamp_ns):
-            georef = self._filter()
-            (georef.feed_fix if kind == 'fix' else georef.feed_imu)(item)
-
-    def _filter(self) -> Georeferencer:
-        """The filter, made at its first input (with the camera known by then)."""
-        if self.georef is None:
-            self.georef = Georeferencer(self.config.georef, self._camera)
-        return self.georef
+        if self._order.accept(kind, item.stamp_ns):
+            self.sync.telemetry(kind, item, time.monotonic())
 
     def _on_fix(self, msg: NavSatFix) -> None:
         self._telemetry('fix', navsat_to_fix, msg)
@@ -170,7 +128,7 @@ class GeorefNode(ManagedNode):
     def _on_camera_info(self, msg: CameraInfo) -> None:
         try:
             # registrations are of undistorted frames: their camera is the pinhole one (core/undistort.py)
-            self._camera = self._undistorter.camera(camera_info_to_intrinsics(msg))
+            self.sync.camera = self._undistorter.camera(camera_info_to_intrinsics(msg))
         except SrMosaicError as exc:
             self.warn('camera_info', f'camera info skipped: {exc}')
 
@@ -183,64 +141,21 @@ class GeorefNode(ManagedNode):
         except SrMosaicError as exc:
             self.warn('registration', f'registration skipped: {exc}')
             return
-        if not self._in_order('registration', reg.stamp_ns):
-            return
-        self._pending.append((self._running_s, reg))
-        self._drain()
-
-    def _on_tick(self) -> None:
-        now = time.monotonic()
-        # A tick much later than due: the process was not scheduled (a loaded machine) and its
-        # queues filled meanwhile; that time is not waiting for telemetry.
-        self._running_s += min(now - self._last_tick, 2 * TICK_S)
-        self._last_tick = now
-        self._drain(timeout=True)
-
-    # -- fusion -----------------------------------------------------------------------------------
-    def _drain(self, *, timeout: bool = False) -> None:
-        """Fuse the waiting registrations whose telemetry has arrived (approximate-time association)."""
-        while self._pending:
-            arrived, reg = self._pending[0]
-            late = timeout and self._running_s - arrived > SYNC_TIMEOUT_S
-            if not (self._streams.covers(reg.stamp_ns) or late or len(self._pending) > REGISTRATION_HOLD):
-                break
-            self._pending.pop(0)
-            self._feed_telemetry(reg.stamp_ns)
-            self._fuse(reg)
-        newest = max((held[-1].stamp_ns for held in self._held.values() if held), default=None)
-        if newest is not None:
-            self._feed_telemetry(newest - int(TELEMETRY_HOLD_S * 1e9))
-
-    def _fuse(self, reg: RegistrationMsg) -> None:
-        georef = self._filter()
-        use = reg.ok and reg.reg_ok and reg.prev_H_cur is not None and self._ref_stamp is not None
-        try:
-            pose = georef.feed_frame(
-                reg.stamp_ns, reg.prev_H_cur if use else None, reg.covariance if use else None,
-                rms_px=reg.rms_px if use else float('nan'), inliers=reg.inliers if use else 0, camera=self._camera,
-                ref_stamp_ns=self._ref_stamp if use else None)
-        except Exception as exc:  # noqa: BLE001 - a bad frame must not stop the filter node
-            self.warn(f'georef: {type(exc).__name__}', f'frame at {reg.stamp_ns} not fused: {exc!r}')
-            return
-        if reg.ok:
-            self._ref_stamp = reg.stamp_ns
-        self.warn.count('frames_fused')
-        if self.pub_poses.publish(reg.stamp_ns, pose):
-            self.warn.count('poses_published')
-            self._last_pose = pose
+        if self._order.accept('registration', reg.stamp_ns):
+            self.sync.registration(reg)
 
     def _publish_diagnostics(self) -> None:
         stats = self.warn.snapshot()
-        pose = self._last_pose
+        pose = self.sync.last_pose
         values = {
             'frames_fused': stats.get('frames_fused', 0),
             'poses_published': stats.get('poses_published', 0),
-            'registrations_waiting': len(self._pending),
+            'registrations_waiting': len(self.sync.pending),
             'last_std_east_m': f'{pose.std_enu_m[0]:.2f}' if pose is not None else 'nan',
             'last_std_north_m': f'{pose.std_enu_m[1]:.2f}' if pose is not None else 'nan',
         }
-        if self.georef is not None:
-            values.update({f'filter skipped: {k}': v for k, v in self.georef.skipped.items()})
+        if self.sync.georef is not None:
+            values.update({f'filter skipped: {k}': v for k, v in self.sync.georef.skipped.items()})
         values.update({k: v for k, v in stats.items() if k.startswith('rejected')})
         message = f"{values['poses_published']} poses"
         if not self.active:
@@ -256,13 +171,10 @@ class GeorefNode(ManagedNode):
             return
         self.active = False
         self.configured = False
-        if self.standalone:
-            while self._pending:
-                reg = self._pending.pop(0)[1]
-                self._feed_telemetry(reg.stamp_ns)
-                self._fuse(reg)
+        if self.sync is not None:
+            self.sync.flush()
         release(self._entities)
-        self._entities, self._periodic, self.georef = [], None, None
+        self._entities, self._periodic, self.sync = [], None, None
 
 
 def main(argv: list[str] | None = None) -> int:

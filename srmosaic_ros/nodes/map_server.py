@@ -9,9 +9,9 @@ srmosaic/diagnostics, feeds what they say to a :class:`LiveMapSource`, and serve
 with the map server of web/server.py at http://live.map_bind:live.map_port/ (the page, /tiles/,
 /sr/, /status.json, /events).
 
-A late joiner gets the whole map: at start, and whenever the summary lists tiles it lacks, it asks
-the mosaic node's srmosaic/get_map service for every tile sent so far; the tiles the mosaic node
-had not sent yet come on the topic (it sends the changed tiles while something subscribes).
+A late joiner gets the whole map: at start, and whenever a summary lists tiles it lacks, it asks
+the mosaic node's srmosaic/get_map service (and the SR node's srmosaic/get_sr_map) for every tile
+sent so far; the tiles not sent yet come on the topics (nodes/map_tile_feed.py).
 
 Its own process: rclpy spins on the main thread, the web server (aiohttp, its own event loop) on
 another, its tiles rendered on a thread pool; the mosaic node never waits for it.
@@ -19,33 +19,27 @@ another, its tiles rendered on a thread pool; the mosaic node never waits for it
 from __future__ import annotations
 
 import math
-import time
 from typing import Any
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PolygonStamped, PoseWithCovarianceStamped
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import CompressedImage, Image, NavSatFix
-from std_msgs.msg import String
-from std_srvs.srv import Trigger
-
-from msg_adapters import image_to_rgb_or_mono
+from sensor_msgs.msg import NavSatFix
 
 from ..errors import ConfigError, SrMosaicError
-from ..live.map_tiles import FOOTPRINT_FRAME, parse_whole_map
+from ..live.map_tiles import FOOTPRINT_FRAME
 from ..web.live_source import LiveMapSource
-from .common import SERVICES, TOPICS, WarnOnce
+from .common import TOPICS, WarnOnce
+from .map_tile_feed import ASK_EVERY_S, TileFeed
 from .messages import Messages, message_kind
 from .parameters import MAP_SERVER_PARAMETERS, declare_pipeline_parameters
+from .tile_stream_publisher import LATCHED_QOS
 
-__all__ = ['MapServerNode', 'MOSAIC_STATUS']
+__all__ = ['ASK_EVERY_S', 'MapServerNode', 'MOSAIC_STATUS']
 
 #: The diagnostic status of the mosaic node (nodes/mosaic_node.py) whose values the status shows.
 MOSAIC_STATUS = 'srmosaic: registration and mosaic'
-#: Seconds between two asks for the whole map (srmosaic/get_map) while tiles are missing.
-ASK_EVERY_S = 5.0
 
 
 class MapServerNode(Node):
@@ -62,24 +56,15 @@ class MapServerNode(Node):
         self.warn = WarnOnce(self)
         self.messages = Messages(message_kind(self))
         self.source = LiveMapSource()
-        self._asked_at = -math.inf
-        self._asking = False
-        self.got_whole_map = 0  # tiles taken from srmosaic/get_map answers
-        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL,
-                             history=HistoryPolicy.KEEP_LAST)
-        tiles_qos = QoSProfile(depth=256, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
-        self.create_subscription(CompressedImage, TOPICS['map_tile'], self._on_map_tile, tiles_qos)
-        self.create_subscription(String, TOPICS['map_tiles'], self._on_summary, latched)
-        self.create_subscription(self.messages.raster_type, TOPICS['raster'], self._on_raster, latched)
-        self.create_subscription(Image, TOPICS['sr_tile'], self._on_sr_tile, 20)
+        self.feeds = {'mosaic': TileFeed(self, self.source, 'mosaic', self.warn, tile='map_tile', summary='map_tiles',
+                                         service='get_map'),
+                      'sr': TileFeed(self, self.source, 'sr', self.warn, tile='sr_map_tile', summary='sr_map_tiles',
+                                     service='get_sr_map')}
+        self.create_subscription(self.messages.raster_type, TOPICS['raster'], self._on_raster, LATCHED_QOS)
         self.create_subscription(NavSatFix, TOPICS['fused_fix'], self._on_fix, 50)
         self.create_subscription(PoseWithCovarianceStamped, TOPICS['pose'], self._on_pose, 50)
         self.create_subscription(PolygonStamped, TOPICS['footprint'], self._on_footprint, 10)
         self.create_subscription(DiagnosticArray, 'srmosaic/diagnostics', self._on_diagnostics, 10)
-        self._client = self.create_client(Trigger, SERVICES['get_map'])
-        self.create_timer(1.0, self._ask_if_missing)
-        self._missing = True  # at start: whatever was sent before this node joined
-        self._newest_tile_ns: int | None = None  # stamp of the newest tile the topic brought
         from ..web.server import start_in_thread
 
         try:
@@ -95,60 +80,6 @@ class MapServerNode(Node):
     @property
     def url(self) -> str:
         return self.server.url
-
-    # -- tiles ----------------------------------------------------------------------------------
-    def _on_map_tile(self, msg: CompressedImage) -> None:
-        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        self._newest_tile_ns = max(stamp_ns, self._newest_tile_ns or stamp_ns)
-        try:
-            self.source.add_png('mosaic', msg.header.frame_id, bytes(msg.data), stamp_ns=stamp_ns)
-        except SrMosaicError as exc:
-            self.warn('map tile', f'map tile skipped: {exc}')
-
-    def _on_sr_tile(self, msg: Image) -> None:
-        try:
-            self.source.add_tile('sr', msg.header.frame_id, image_to_rgb_or_mono(msg))
-        except (SrMosaicError, ValueError) as exc:
-            self.warn('sr tile', f'SR tile skipped: {exc}')
-
-    def _on_summary(self, msg: String) -> None:
-        """The whole map is asked for when the summary lists a tile version older than one the topic
-        already brought, which is not held: it was lost on the way (tiles come in order on one topic;
-        a tile merely still on its way, or the summary outrunning it, is no reason)."""
-        import json
-
-        try:
-            listed = [(str(t[0]), int(t[1])) for t in json.loads(msg.data)['tiles']]
-        except (ValueError, KeyError, TypeError, IndexError) as exc:
-            self.warn('map summary', f'/srmosaic/map_tiles skipped: {exc}')
-            return
-        arrived = self._newest_tile_ns
-        if arrived is not None and self.source.lacking('mosaic', [(f, s) for f, s in listed if s < arrived]):
-            self._missing = True
-
-    def _ask_if_missing(self) -> None:
-        """Timer: ask srmosaic/get_map for the whole map when tiles are missing (at most every ASK_EVERY_S)."""
-        if not self._missing or self._asking or time.monotonic() - self._asked_at < ASK_EVERY_S:
-            return
-        if not self._client.service_is_ready():
-            return
-        self._asking, self._asked_at = True, time.monotonic()
-        self._client.call_async(Trigger.Request()).add_done_callback(self._on_whole_map)
-
-    def _on_whole_map(self, future: Any) -> None:
-        self._asking = False
-        try:
-            tiles = parse_whole_map(future.result().message)
-        except (SrMosaicError, AttributeError) as exc:
-            self.warn('whole map', f'srmosaic/get_map answer skipped: {exc}')
-            return
-        self._missing = False
-        for frame_id, stamp_ns, data in tiles:
-            try:
-                self.source.add_png('mosaic', frame_id, data, stamp_ns=stamp_ns)  # a newer one from the topic stays
-                self.got_whole_map += 1
-            except SrMosaicError as exc:
-                self.warn('map tile', f'map tile skipped: {exc}')
 
     # -- where the map lies, the aircraft, the footprint, the node's state --------------------------
     def _on_raster(self, msg: Any) -> None:

@@ -39,7 +39,7 @@ MOSAIC_PARAMETERS = ('device', 'undistort', 'stamp_tolerance_s', 'registration',
 GEOREF_PARAMETERS = ('undistort', 'stamp_tolerance_s', 'georef', *_POSE_OUTPUT, 'live.autostart')
 SR_PARAMETERS = ('device', 'undistort', 'stamp_tolerance_s', 'sr', 'sr_tiles', 'live.reliable_inputs', 'live.torch_threads',
                  'live.sr_period_s', 'live.sr_tiles_per_round', 'live.sr_refresh_growth', 'live.sr_frames_kept',
-                 'live.sr_images_pending', 'live.sr_worker', 'live.message_types')
+                 'live.sr_images_pending', 'live.sr_worker', 'live.message_types', 'live.map_tiles', 'live.sr_map_bytes_per_s')
 MAP_SERVER_PARAMETERS = ('live.map_port', 'live.map_bind', 'live.message_types')
 
 def parameter_bounds() -> dict[str, Bounds]:

@@ -9,7 +9,12 @@ It needs nothing else, so it runs in the mosaic node's process or in its own (gr
 behind a radio link that carries the frames and the registrations).
 
 Publishes /srmosaic/sr_tile (sensor_msgs/Image, rgb8 or mono8) and /srmosaic/diagnostics (also on
-/diagnostics). Names in the root namespace; the node's are relative (nodes.common.TOPICS).
+/diagnostics). With `live.map_tiles` (default) each tile also goes on /srmosaic/sr_map_tile
+(sensor_msgs/CompressedImage, format png, reliable, the same header.frame_id) within
+`live.sr_map_bytes_per_s` (oldest first; the rest wait, none is lost), with the latched summary
+/srmosaic/sr_map_tiles (std_msgs/String JSON, transient local) and the service /srmosaic/get_sr_map
+(std_srvs/Trigger: every SR tile sent so far, PNGs in base64) for late joiners such as the map server
+(nodes/sr_publisher.py). Names in the root namespace; the node's are relative (nodes.common.TOPICS).
 
 Tile placement, carried in every tile: header.stamp is the stamp of the newest frame used;
 header.frame_id is ``srmosaic_segment_<k>;x0=<int>;y0=<int>;width=<int>;height=<int>;factor=<int>``
@@ -40,17 +45,16 @@ node's process (`srmosaic launch` runs the graph in one process) takes neither t
 lock nor the CPU from registration; `thread` reconstructs in the worker thread itself (no extra
 process; it competes with registration for the interpreter). A worker process that dies (out of
 memory, killed) is counted and replaced at the next tile.
+
+The node owns its subscriptions and timers; named collaborators do the work:
+live.sr_scheduler.SRTileScheduler (the frame store and which tiles each round makes),
+live.sr_rounds.RoundThread (the worker thread), live.sr_reconstructor.SRReconstructor (the worker
+process), nodes.sr_frames.SRFrameDecoder (decoding and undistortion), nodes.sr_publisher.SRPublisher.
 """
 from __future__ import annotations
 
-import collections
-import multiprocessing
-import os
-import threading
 import time
 import traceback
-from concurrent.futures import ProcessPoolExecutor
-from concurrent.futures.process import BrokenProcessPool
 from typing import Any
 
 import numpy as np
@@ -59,32 +63,24 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
-from msg_adapters import (SUPPORTED_ENCODINGS, camera_info_to_intrinsics, header_to_ns_frame,
-                          numpy_to_image)
+from msg_adapters import SUPPORTED_ENCODINGS, camera_info_to_intrinsics, header_to_ns_frame
 
 from ..core.sr.reconstruct import SRFramesDisagree
 from ..core.sr.self_check import SRNotBetterThanMosaic
-from ..core.types import CameraIntrinsics
-from ..core.undistort import Undistorter
 from ..errors import SrMosaicError
-from ..live.sr import (
-    LiveFrame,
-    LiveFrameStore,
-    SRError,
-    init_sr_worker_process,
-    plan_live_tiles,
-    reconstruct_live_tile,
-    reconstruct_live_tile_image,
-    sr_worker_ready,
-)
-from .common import (IMAGE_QOS_DEPTH, TOPICS, DiagnosticsPublisher, StreamOrder, WarnOnce, camera_image, check_range,
-                     input_qos, subscribe_input)
+from ..live.sr import SRError
+from ..live.sr_reconstructor import SRReconstructor
+from ..live.sr_rounds import RoundThread
+from ..live.sr_scheduler import SRJob, SRTileScheduler
+from .common import IMAGE_QOS_DEPTH, DiagnosticsPublisher, StreamOrder, WarnOnce, check_range, input_qos, subscribe_input
 from .messages import Messages, message_kind
 from .node_checks import check_sr_frames_kept, refresh_growth_problem
 from .parameters import SR_PARAMETERS, declare_pipeline_parameters, on_parameter_change, read_pipeline_config
+from .sr_frames import SRFrameDecoder, header_size
+from .sr_publisher import SRPublisher
 
 #: Parameters `ros2 param set` changes while the node runs (the others are read-only).
-CHANGEABLE = ('live.sr_period_s', 'live.sr_tiles_per_round', 'live.sr_refresh_growth')
+CHANGEABLE = ('live.sr_period_s', 'live.sr_tiles_per_round', 'live.sr_refresh_growth', 'live.sr_map_bytes_per_s')
 
 
 __all__ = ['SRNode', 'main']
@@ -97,60 +93,48 @@ class SRNode(Node):
         super().__init__('srmosaic_sr', **kwargs)
         defaults = declare_pipeline_parameters(self, SR_PARAMETERS, changeable=CHANGEABLE)
         self.config = read_pipeline_config(self, defaults)  # ConfigError refuses bad sr / sr_tiles values
-        self.period_s = float(check_range(self, 'live.sr_period_s', 0.1, 3600.0))
+        period_s = float(check_range(self, 'live.sr_period_s', 0.1, 3600.0))
         self.tiles_per_round = int(check_range(self, 'live.sr_tiles_per_round', 1, 100))
-        self.refresh_growth = float(check_range(self, 'live.sr_refresh_growth', 0.0, 100.0))
-        if problem := refresh_growth_problem(self.refresh_growth):
+        refresh_growth = float(check_range(self, 'live.sr_refresh_growth', 0.0, 100.0))
+        if problem := refresh_growth_problem(refresh_growth):
             raise SrMosaicError(problem)
         kept = int(check_range(self, 'live.sr_frames_kept', 1, 1000))
         pending = int(check_range(self, 'live.sr_images_pending', 1, 1000))
         check_sr_frames_kept(kept, self.config.sr_tiles.min_frames)
-        self.factor = int(self.config.sr_tiles.factor)
         self.messages = Messages(message_kind(self))  # portable or typed registrations
-        self.worker_kind = str(self.get_parameter('live.sr_worker').value)
-        if self.worker_kind not in ('process', 'thread'):
-            msg = f"live.sr_worker must be 'process' or 'thread', got {self.worker_kind!r}."
-            raise SrMosaicError(msg)
-        self._torch_threads = int(self.get_parameter('live.torch_threads').value)
-        self._pool: ProcessPoolExecutor | None = None
-        if self.worker_kind == 'process':
-            self._pool = self._start_pool()
         self.warn = WarnOnce(self)
-        self._store = LiveFrameStore(pending=pending, kept=kept)
-        self._store_lock = threading.Lock()
-        self._sizes: dict[int, tuple[int, int]] = {}
-        # (segment, x0, y0) of each published tile -> frames its last publication was made from
-        self._done: dict[tuple[int, int, int], int] = {}
-        self._order = StreamOrder(self, self.warn, self.config.stamp_tolerance_s)  # stamps off the clock or backwards
-        self._planned_at = -1  # store.added at the last round that found nothing to do
-        self._times_s: collections.deque[float] = collections.deque(maxlen=200)
-        self._wake = threading.Condition()
-        self._round_requested = False
-        self._busy = False
-        self._stop = False
+        self.reconstructor = SRReconstructor(str(self.get_parameter('live.sr_worker').value), int(self.config.sr_tiles.factor),
+                                             self.config.sr, int(self.get_parameter('live.torch_threads').value), self.warn)
+        self.scheduler = SRTileScheduler(self.config.sr_tiles, pending=pending, kept=kept, refresh_growth=refresh_growth,
+                                         order=StreamOrder(self, self.warn, self.config.stamp_tolerance_s))
+        # the registrations are of undistorted frames: the images must be undistorted alike
+        self.decode = SRFrameDecoder(self.config.undistort, self.warn)
 
         reliable = bool(self.get_parameter('live.reliable_inputs').value)
         depth = IMAGE_QOS_DEPTH * 5 if reliable else IMAGE_QOS_DEPTH
         images = MutuallyExclusiveCallbackGroup()
         subscribe_input(self, Image, 'image', self._on_image, input_qos(reliable, depth), images)
         subscribe_input(self, CompressedImage, 'image_compressed', self._on_image, input_qos(reliable, depth), images)
-        # the registrations are of undistorted frames: the images must be undistorted alike
-        self._camera: CameraIntrinsics | None = None
-        self._undistorter = Undistorter(self.config.undistort)
         subscribe_input(self, CameraInfo, 'camera_info', self._on_camera_info, input_qos(False, 5), images)
         # Registrations are few and each matters: reliable, deep.
         subscribe_input(self, self.messages.registration_type, 'registration', self._on_registration, input_qos(True, 200),
                         MutuallyExclusiveCallbackGroup())
-        self.pub_tile = self.create_publisher(Image, TOPICS['sr_tile'], 10)
+        budget = float(self.get_parameter('live.sr_map_bytes_per_s').value)
+        self.publisher = SRPublisher(self, budget if self.get_parameter('live.map_tiles').value else None)
         self.pub_diag = DiagnosticsPublisher(self, 'srmosaic: super-resolution')
-        timer = self.create_timer(self.period_s, self._on_timer, callback_group=MutuallyExclusiveCallbackGroup())
+        timer = self.create_timer(period_s, self._on_timer, callback_group=MutuallyExclusiveCallbackGroup())
         on_parameter_change(self, {
             'live.sr_period_s': lambda v: setattr(timer, 'timer_period_ns', int(v * 1e9)),
             'live.sr_tiles_per_round': lambda v: setattr(self, 'tiles_per_round', int(v)),
-            'live.sr_refresh_growth': lambda v: setattr(self, 'refresh_growth', float(v)),
+            'live.sr_refresh_growth': lambda v: setattr(self.scheduler, 'refresh_growth', float(v)),
+            'live.sr_map_bytes_per_s': self.publisher.set_budget,
         }, check={'live.sr_refresh_growth': refresh_growth_problem})
-        self._worker = threading.Thread(target=self._work, name='srmosaic-sr-worker', daemon=True)
-        self._worker.start()
+        self.rounds = RoundThread(self._round, name='srmosaic-sr-worker', niceness=10, on_error=self._round_failed)
+        self.rounds.start()
+
+    @property
+    def factor(self) -> int:
+        return self.reconstructor.factor
 
     # -- inputs: keep the message, never decode here ------------------------------------------
     def _on_image(self, msg: Image | CompressedImage) -> None:
@@ -171,14 +155,11 @@ class SRNode(Node):
         elif len(msg.data) == 0:
             self.warn('image: empty', 'empty compressed image skipped')
             return
-        with self._store_lock:
-            if not self._order.accept('image', stamp_ns):
-                return
-            self._store.add_image(stamp_ns, msg)
+        self.scheduler.add_image(stamp_ns, msg)
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
         try:
-            self._camera = camera_info_to_intrinsics(msg)
+            self.decode.camera = camera_info_to_intrinsics(msg)
         except SrMosaicError as exc:
             self.warn('camera_info', f'camera info skipped: {exc}')
 
@@ -188,164 +169,62 @@ class SRNode(Node):
         except SrMosaicError as exc:
             self.warn('registration', f'registration skipped: {exc}')
             return
-        with self._store_lock:
-            before = self._store.missed_dropped
-            self._store.add_registration(reg.stamp_ns, reg.segment if reg.ok else -1, reg.seg_H_frame)
-            dropped = self._store.missed_dropped > before
-        if dropped:  # counted as a rejection: WARN while it goes on, the way out logged once
+        if self.scheduler.add_registration(reg.stamp_ns, reg.segment if reg.ok else -1, reg.seg_H_frame):
+            # counted as a rejection: WARN while it goes on, the way out logged once
             self.warn('registration after its image was dropped',
                       'a registration came after its image had been dropped from the images waiting for theirs '
                       '(live.sr_images_pending): raise it to the camera frames of (mosaic.revisit_spread_frames + '
                       'live.queue_size) registered frames, times camera rate / live.max_rate_hz when that is set')
 
     def _on_timer(self) -> None:
-        with self._wake:
-            if self._busy:
-                self.warn.count('rounds_skipped_busy')
-            else:
-                self._round_requested = True
-                self._wake.notify()
+        if not self.rounds.request():
+            self.warn.count('rounds_skipped_busy')
         self.pub_diag.publish(self._diagnostics())
 
     # -- worker -----------------------------------------------------------------------------------
-    def _start_pool(self) -> ProcessPoolExecutor:
-        # spawn, not fork: this process runs DDS threads, which a fork would copy half-alive.
-        pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context('spawn'),
-                                   initializer=init_sr_worker_process, initargs=(self._torch_threads, 10, os.getpid()))
-        pool.submit(sr_worker_ready)  # start it now, not at the first tile
-        return pool
-
-    def _reconstruct(self, plan, images, seg_H_frames, segment) -> tuple[np.ndarray, Any, str]:
-        """(tile, placement, stop reason) in the worker process or, with live.sr_worker thread, here."""
-        if self._pool is None:
-            image, placement, res = reconstruct_live_tile(plan, images, seg_H_frames, self.factor, self.config.sr,
-                                                          segment)
-            return image, placement, str(res.stop_reason)
-        try:
-            return self._pool.submit(reconstruct_live_tile_image, plan, images, seg_H_frames, self.factor,
-                                     self.config.sr, segment).result()
-        except BrokenProcessPool:
-            if self._stop:  # finish() ended the worker process
-                raise SRError('the node is stopping: the tile in progress was abandoned') from None
-            self.warn('sr worker died', 'the SR worker process died (out of memory or killed); it is restarted '
-                      'and the tile skipped')
-            self._pool.shutdown(wait=False, cancel_futures=True)
-            self._pool = None if self._stop else self._start_pool()
-            raise SRError('the SR worker process died') from None
-
-    def _image(self, frame: LiveFrame) -> np.ndarray | None:
-        """The frame's pixels (H, W[, 3]) uint8/uint16, decoded on first use and kept decoded."""
-        if isinstance(frame.payload, np.ndarray):
-            return frame.payload
-        decoded = camera_image(frame.payload, self._camera, self.warn)
-        if decoded is None:
-            return None
-        image, camera = decoded
-        try:
-            image = self._undistorter.image(image, camera)
-        except SrMosaicError as exc:
-            self.warn(f'image: {type(exc).__name__}', f'image skipped: {exc}')
-            return None
-        frame.payload = image
-        return image
-
-    def _work(self) -> None:
-        # SR is background work: in the mosaic node's process it must not take the CPU from
-        # registration. Linux applies a niceness to the calling thread only (best effort).
-        try:
-            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 10)
-        except (AttributeError, OSError):
-            pass
-        while True:
-            with self._wake:
-                while not self._round_requested and not self._stop:
-                    self._wake.wait(0.5)
-                if self._stop:
-                    return
-                self._round_requested = False
-                self._busy = True
-            try:
-                self._round()
-            except Exception as exc:  # noqa: BLE001 - the worker must outlive any one tile
-                self.warn(f'sr bug: {type(exc).__name__}', f'SR round failed (please report): {exc!r}')
-                self.get_logger().error(traceback.format_exc())
-            finally:
-                with self._wake:
-                    self._busy = False
+    def _round_failed(self, exc: BaseException) -> None:
+        self.warn(f'sr bug: {type(exc).__name__}', f'SR round failed (please report): {exc!r}')
+        self.get_logger().error(''.join(traceback.format_exception(exc)))
 
     def _round(self) -> None:
         """Plan, reconstruct and publish up to tiles_per_round tiles."""
-        with self._store_lock:
-            if self._store.added == self._planned_at:
-                return  # nothing new since a round found no tile
-            frames = self._store.registered()
-            added = self._store.added
-        # Frame sizes: from the Image header; a compressed stream is decoded once per round (its
-        # newest frame) and its size taken for the others (the frames of one stream share it).
-        stream_size = None
-        for f in reversed(frames):
-            if f.stamp_ns in self._sizes:
-                continue
-            if isinstance(f.payload, Image):
-                self._sizes[f.stamp_ns] = (int(f.payload.width), int(f.payload.height))
-                continue
-            if stream_size is None:
-                image = self._image(f)
-                if image is None:
-                    continue
-                stream_size = (image.shape[1], image.shape[0])
-            self._sizes[f.stamp_ns] = stream_size
-        frames = [f for f in frames if f.stamp_ns in self._sizes]
-        live = {f.stamp_ns for f in frames}
-        self._sizes = {k: v for k, v in self._sizes.items() if k in live}
-        if frames and any(key[0] != frames[-1].segment for key in self._done):
-            # the store keeps the newest segment only: older segments' tiles can never come again
-            self._done = {key: n for key, n in self._done.items() if key[0] == frames[-1].segment}
-        plans = plan_live_tiles(frames, self._sizes, self.config.sr_tiles, self._done,
-                                refresh_growth=self.refresh_growth)
-        if not plans:
-            self._planned_at = added
-            return
-        for plan, used in plans[:self.tiles_per_round]:
-            if self._stop:
+        for job in self.scheduler.plan(self.decode, self.tiles_per_round, header_size=header_size):
+            if self.rounds.stopping:
                 return
-            t0 = time.perf_counter()
-            segment = used[-1].segment
-            refresh = (segment, plan.x0, plan.y0) in self._done
-            self._done[segment, plan.x0, plan.y0] = len(used)
-            decoded = [(self._image(f), f) for f in used]
-            decoded = [(im, f) for im, f in decoded if im is not None]
-            if not decoded:
-                continue
-            try:
-                image, placement, stop_reason = self._reconstruct(
-                    plan, [im for im, _ in decoded], [f.seg_H_frame for _, f in decoded], segment)
-            except SRFramesDisagree as exc:  # 3-D ground or motion: expected, counted apart
-                self.warn('sr tile frames disagree', f'SR tile at ({plan.x0}, {plan.y0}) left to the mosaic: {exc}')
-                continue
-            except SRNotBetterThanMosaic as exc:  # the leave-one-out check: expected, counted apart
-                self.warn('sr tile not better than mosaic', f'SR tile at ({plan.x0}, {plan.y0}) left to the mosaic: {exc}')
-                continue
-            except SRError as exc:
-                self.warn('sr tile', f'SR tile at ({plan.x0}, {plan.y0}) skipped: {exc}')
-                continue
-            stamp = max(f.stamp_ns for f in used)
-            encoding = 'mono8' if image.ndim == 2 else 'rgb8'
-            self.pub_tile.publish(numpy_to_image(image, encoding, stamp_ns=stamp, frame_id=placement.frame_id()))
-            dt = time.perf_counter() - t0
-            self._times_s.append(dt)
-            self.warn.count('tiles_published')
-            if refresh:
-                self.warn.count('tiles_refreshed')
-            self.get_logger().debug(f'SR tile {placement.frame_id()} from {len(used)} frames in {dt:.2f} s '
-                                    f'({stop_reason})')
+            self._make(job)
+
+    def _make(self, job: SRJob) -> None:
+        t0 = time.perf_counter()
+        plan = job.plan
+        decoded = [(self.decode(f), f) for f in job.frames]
+        decoded = [(im, f) for im, f in decoded if im is not None]
+        if not decoded:
+            return
+        try:
+            image, placement, stop_reason = self.reconstructor.reconstruct(
+                plan, [im for im, _ in decoded], [f.seg_H_frame for _, f in decoded], job.segment)
+        except SRFramesDisagree as exc:  # 3-D ground or motion: expected, counted apart
+            self.warn('sr tile frames disagree', f'SR tile at ({plan.x0}, {plan.y0}) left to the mosaic: {exc}')
+            return
+        except SRNotBetterThanMosaic as exc:  # the leave-one-out check: expected, counted apart
+            self.warn('sr tile not better than mosaic', f'SR tile at ({plan.x0}, {plan.y0}) left to the mosaic: {exc}')
+            return
+        except SRError as exc:
+            self.warn('sr tile', f'SR tile at ({plan.x0}, {plan.y0}) skipped: {exc}')
+            return
+        dt = time.perf_counter() - t0
+        self.publisher.publish(image, placement.frame_id(), max(f.stamp_ns for f in job.frames), dt)
+        self.warn.count('tiles_published')
+        if job.refresh:
+            self.warn.count('tiles_refreshed')
+        self.get_logger().debug(f'SR tile {placement.frame_id()} from {len(job.frames)} frames in {dt:.2f} s '
+                                f'({stop_reason})')
 
     # -- diagnostics, shutdown ------------------------------------------------------------------
     def _diagnostics(self) -> DiagnosticArray:
         stats = self.warn.snapshot()
-        times = np.array(self._times_s) if self._times_s else np.array([np.nan])
-        with self._store_lock:
-            kept, pending, missed = len(self._store.registered()), self._store.pending, self._store.missed
+        times = np.array(self.publisher.times_s) if self.publisher.times_s else np.array([np.nan])
+        kept, pending, missed = self.scheduler.counts()
         values = {
             'frames_received': stats.get('frames_received', 0),
             'frames_kept': kept,
@@ -357,8 +236,10 @@ class SRNode(Node):
             'tile_s_median': f'{np.median(times):.2f}',
             'tile_s_p95': f'{np.percentile(times, 95):.2f}',
             'factor': self.factor,
-            'worker': self.worker_kind,
+            'worker': self.reconstructor.worker,
         }
+        if self.publisher.stream is not None:
+            values['sr_map_tiles_waiting'] = self.publisher.stream.pending
         values.update({k: v for k, v in stats.items() if k.startswith(('rejected', 'camera_info_scaled'))})
         level, message = self.warn.status(f"{values['tiles_published']} tiles published")
         return self.pub_diag.array(message, values, level)
@@ -368,18 +249,10 @@ class SRNode(Node):
         ended: a tile takes seconds, a minute on a loaded machine, and once the graph stops it reaches
         nobody; Ctrl-C must not wait for it); with `live.sr_worker: thread` it completes first (up to
         60 s)."""
-        with self._wake:
-            self._stop = True
-            self._wake.notify()
-        if self._pool is not None:
-            # ProcessPoolExecutor has no way to stop a running call before Python 3.14's
-            # terminate_workers(); its worker processes are in _processes (pid -> Process).
-            processes = getattr(self._pool, '_processes', None) or {}
-            for proc in list(processes.values()):
-                proc.terminate()
-        self._worker.join(timeout=60)
-        if self._pool is not None:
-            self._pool.shutdown(wait=not self._worker.is_alive(), cancel_futures=True)
+        self.rounds.stop()
+        self.reconstructor.abandon()
+        self.rounds.join(timeout_s=60)
+        self.reconstructor.close(wait=not self.rounds.is_alive())
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -78,6 +78,17 @@ class TileListener(GraphListener):
         return json.loads(self.summaries[-1].data) if self.summaries else None
 
 
+def map_latency() -> Any:
+    """bench/map_latency.py as a module (its probe times the way of each frame to the map)."""
+    import importlib.util
+
+    if 'map_latency' not in sys.modules:  # (registered before it runs: its dataclasses look themselves up)
+        spec = importlib.util.spec_from_file_location('map_latency', REPO / 'bench' / 'map_latency.py')
+        sys.modules['map_latency'] = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(sys.modules['map_latency'])
+    return sys.modules['map_latency']
+
+
 def page_holds(page: Any, expression: str, timeout_s: float) -> bool:
     """Poll a JavaScript expression on the page until it is true (False after timeout_s, times the
     graph's wait scale). A loop of evaluate calls: Playwright's wait_for_function never saw the
@@ -97,6 +108,7 @@ class Flight:
     url: str
     env: dict[str, str]
     listener: TileListener
+    probe: Any  # bench/map_latency.py's: each frame's footprint centre, polled on /tiles/ until served painted
     statuses: list[dict[str, Any]] = field(default_factory=list)  # polled while the bag played
     most_pending: int = 0  # the most tiles the summary said were waiting for the budget
 
@@ -108,15 +120,20 @@ def flight():
         mp.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
         env = dict(os.environ)
         port = free_port()
+        listener = TileListener()
+        listener.start()
+        probe = map_latency().MapLatencyProbe(f'http://127.0.0.1:{port}/')  # before the processes: none is left behind
         procs = {
             'mosaic': srmosaic('node', 'mosaic', '--ros-args', '-p', 'live.reliable_inputs:=true', '-p', 'live.queue_size:=100',
                                '-p', f'live.map_bytes_per_s:={BUDGET}', env=env),
             'map_server': srmosaic('map-server', '--port', str(port), env=env),
         }
-        listener = TileListener()
-        listener.start()
-        with supervised_processes(procs, listener.close):
-            f = Flight(f'http://127.0.0.1:{port}/', env, listener)
+
+        def close() -> None:
+            probe.close()
+            listener.close()
+        with supervised_processes(procs, close):
+            f = Flight(f'http://127.0.0.1:{port}/', env, listener, probe)
             assert listener.wait_for(lambda: status_of(f.url) is not None, 60), 'the map server never answered'
             player = srmosaic('play', str(DEMO), '--rate', '2.0', '--delay', '20', env=env)
             while player.poll() is None:
@@ -127,12 +144,18 @@ def flight():
                 time.sleep(0.5)
             assert player.returncode == 0, player.communicate()[0]
 
+            changed = [0, time.monotonic()]  # summaries received, when that count last changed
+
             def converged() -> bool:  # every frame processed, every changed tile sent and held by the server
                 s, summary = status_of(f.url), listener.summary()
                 if summary is not None:
                     f.most_pending = max(f.most_pending, summary['pending'])
+                if len(listener.summaries) != changed[0]:
+                    changed[:] = [len(listener.summaries), time.monotonic()]
+                # and no new summary for two preview rounds: the frames counted as processed may still be
+                # on the paint thread when a round collects the changed tiles, and go in the next one
                 return bool(s and summary and s['frames'] == FRAMES and summary['pending'] == 0
-                            and s['tiles']['mosaic'] == len(summary['tiles']) > 0)
+                            and s['tiles']['mosaic'] == len(summary['tiles']) > 0 and time.monotonic() - changed[1] > 2.5)
             assert listener.wait_for(converged, 120), (status_of(f.url), listener.summary())
             yield f
 
@@ -176,6 +199,18 @@ def test_a_tile_under_the_aircraft_is_served_once_painted(flight: Flight) -> Non
     assert get(flight.url + f'tiles/{z}/{far.x}/{far.y}.png')[0] == 404
     for hostile in ('tiles/99/0/0.png', 'tiles/../status.json', 'tiles/1/-1/0.png', 'sr/x/0/0.png'):
         assert get(flight.url + hostile)[0] in (400, 404), hostile
+
+
+def test_the_ground_under_every_frame_is_served_painted_while_it_flies(flight: Flight) -> None:
+    """Polled live (bench/map_latency.py's probe): for every frame with a footprint, the XYZ tile at its
+    centre is served painted there at some moment (how soon is bench/map_latency.py's figure, not a test's)."""
+    probe = flight.probe
+    assert flight.listener.wait_for(probe.all_served, 60), [
+        (w.tile, w.pixel) for w in probe.watched() if w.served_s is None]
+    watched = probe.watched()
+    assert len(watched) >= FRAMES // 2, f'{len(watched)} of {FRAMES} frames had a footprint'
+    assert all(w.served_s >= w.published_s for w in watched)
+    assert any(w.new_ground for w in watched), 'no frame brought new ground: the probe saw the map only at the end'
 
 
 def test_the_page_shows_the_mosaic_the_aircraft_and_the_footprint(flight: Flight, chromium, tmp_path) -> None:

@@ -291,15 +291,14 @@ def test_max_rate_takes_every_other_frame_by_stamp(ros_env):
 def test_max_rate_schedule_is_even_tolerates_jitter_and_restarts_after_a_gap():
     """The rule of live.max_rate_hz on its own: frames due one interval apart on the stamps' clock."""
     import random
-    import types
 
-    from srmosaic_ros.nodes.mosaic_node import MosaicNode
+    from srmosaic_ros.live.frame_intake import RateLimiter
 
     def taken(fps: float, hz: float, stamps_s: list[float] | None = None, jitter_s: float = 0.0) -> list[int]:
         rng = random.Random(0)
-        node = types.SimpleNamespace(_rate_interval_ns=int(1e9 / hz), _next_due_ns=None)
+        rate = RateLimiter(hz)
         stamps_s = stamps_s or [k / fps for k in range(300)]
-        return [k for k, t in enumerate(stamps_s) if MosaicNode._due(node, int((t + rng.uniform(-jitter_s, jitter_s)) * 1e9))]
+        return [k for k, t in enumerate(stamps_s) if rate.due(int((t + rng.uniform(-jitter_s, jitter_s)) * 1e9))]
 
     assert taken(30, 15) == list(range(0, 300, 2))
     assert taken(30, 15, jitter_s=0.008) == list(range(0, 300, 2))   # stamps 8 ms off either way
@@ -318,7 +317,7 @@ from srmosaic_ros.nodes.mosaic_node import MosaicNode
 rclpy.init(args=['--ros-args', '--params-file', sys.argv[1]])
 node = MosaicNode()
 print(json.dumps({'registration_width': node.config.registration.max_width, 'mosaic_width': node.config.mosaic.max_width,
-                  'track_frames': node.config.registration.track_frames, 'queue': node._queue.maxlen,
+                  'track_frames': node.config.registration.track_frames, 'queue': node.intake.frames.maxlen,
                   'keyframe_interval': node.config.mosaic.keyframe_interval,
                   'paint_stride': node.config.mosaic.paint_stride, 'paint_shift_px': node.config.mosaic.paint_shift_px}))
 node.finish()
