@@ -22,7 +22,7 @@ from .checkpoint import Checkpoint, checkpoint_path, fingerprint, load_checkpoin
 from ..config import PipelineConfig
 from ..io.bags import TopicConfig
 from ..io.mosaic_files import write_counts_png, write_frames_csv, write_json, write_png
-from ..io.outputs import MOSAIC_TIF_ZLEVEL, StripPreview, output_threads, peak_rss_mb, write_canvas
+from ..io.outputs import MOSAIC_TIF_ZLEVEL, StripPreview, output_threads, peak_rss_mb, process_age_s, write_canvas
 from ..core.sr_factors import SR_FACTORS
 from ..errors import FULL_DISK_ERRNOS, ConfigError, InputError, OutputError
 from ..pipeline import Pipeline, PipelineResult
@@ -494,14 +494,18 @@ def _process_survey(path: Path, out: Path, config: PipelineConfig, reader: Any, 
 def _write_reports(out: Path, report: dict[str, Any], t0: float, *, frame_sizes: list[tuple[int, int]],
                    gnss_latlon: np.ndarray, warm: Any = None) -> None:
     """report.html (run_report.py), then report.json with the page's time counted in ``wall_s`` and
-    in ``stage_times.outputs`` (where the run keeps stage times) and the page's figures in
-    ``report_html``."""
+    in ``stage_times.outputs`` (where the run keeps stage times), the page's figures in
+    ``report_html`` and ``startup_s``: the seconds from the process's start to ``t0`` (the input
+    opened), which ``wall_s`` leaves out (Python's and the imports' start-up when `srmosaic process`
+    runs as a program; in a longer-lived process, its age then)."""
     from .run_report import write_run_report
 
     page = write_run_report(out, report, frame_sizes=frame_sizes, gnss_latlon=gnss_latlon, warm=warm)
     report['report_html'] = page
     wall = time.perf_counter() - t0
     report['wall_s'] = round(wall, 3)
+    age = process_age_s()  # wall_s leaves out the process's start-up: said beside it
+    report['startup_s'] = round(max(age - wall, 0.0), 3) if age is not None else None
     if report.get('frames_per_s'):  # the frames over the time before SR (as before), the page's added
         report['frames_per_s'] = round(report['frames_in'] / (report['frames_in'] / report['frames_per_s']
                                                               + page['time_s']), 2)

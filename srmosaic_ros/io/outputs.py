@@ -16,7 +16,7 @@ if TYPE_CHECKING:
     from ..core.mosaic import TiledCanvas
 
 __all__ = ['MOSAIC_TIF_ZLEVEL', 'OUTPUT_THREADS_MAX', 'STRIP_ROWS', 'StripPreview', 'output_threads', 'peak_rss_mb',
-           'preview_image', 'write_canvas']
+           'preview_image', 'process_age_s', 'write_canvas']
 
 #: Most threads that write the mosaic files (write_canvas).
 OUTPUT_THREADS_MAX = 4
@@ -35,6 +35,19 @@ def output_threads() -> int:
 
 def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # Linux: kB
+
+
+def process_age_s() -> float | None:
+    """Seconds since this process started (Linux: /proc/self/stat's start time, in clock ticks
+    since boot, against CLOCK_BOOTTIME; to the tick, 10 ms), None where that is not known."""
+    import time
+
+    try:
+        stat = Path('/proc/self/stat').read_text()
+        start_ticks = int(stat[stat.rindex(')') + 2:].split()[19])  # field 22; the name in () may hold spaces
+        return max(0.0, time.clock_gettime(time.CLOCK_BOOTTIME) - start_ticks / os.sysconf('SC_CLK_TCK'))
+    except (OSError, ValueError, IndexError, AttributeError):
+        return None
 
 
 def preview_image(image: np.ndarray, coverage: np.ndarray, max_side: int) -> np.ndarray:
