@@ -349,6 +349,9 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
             bar.reset()
             feed_input(items, run, try_mount=False, **passes)
     pipeline, error, clock = run.pipeline, run.error, run.pipeline.clock
+    from .run_report import start_sections, start_warm_up
+
+    warm = start_warm_up()  # report.html's imports while the last frames are painted (a core waits for the painter)
     if run.recorder is not None and error is None:
         run.record(pipeline.flush())  # the last frames, held for telemetry that never came
     result = pipeline.finish()
@@ -366,14 +369,12 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
         report_extra['error'] = str(error)
     if restart is not None:
         report_extra['mount_from_frames'] = restart
-    from .run_report import start_sections
-
     frame_sizes = [rec.size for rec in result.records]
     gnss_latlon = np.array([(f.latitude_deg, f.longitude_deg) for f in result.fixes]).reshape(-1, 2)
     early: list[Any] = []
 
     def draw_early(tables: dict[str, Any]) -> None:  # report.html's figures of the tables, while the mosaic renders
-        early.append(start_sections(stage, tables, frame_sizes=frame_sizes, gnss_latlon=gnss_latlon))
+        early.append(start_sections(stage, tables, frame_sizes=frame_sizes, gnss_latlon=gnss_latlon, warm=warm))
 
     with clock.stage('outputs'):  # decided, then written
         placement = georeference_main(result, config)

@@ -460,15 +460,19 @@ class EarlySections:
     (start_sections); write_run_report (``early``) waits for them and draws the others."""
 
     def __init__(self, out: Path, report: dict[str, Any], frame_sizes: np.ndarray | None,
-                 gnss_latlon: np.ndarray | None) -> None:
+                 gnss_latlon: np.ndarray | None, warm: threading.Thread | None = None) -> None:
         self.run: _Run | None = None
         self.drawn: dict[str, tuple[ReportSection, str | None]] = {}  # section function's name -> (section, failed title)
         self._args = (out, report, frame_sizes, gnss_latlon)
+        self._warm = warm
         self.thread = threading.Thread(target=self._draw, name='report-sections', daemon=True)
         self.thread.start()
 
     def _draw(self) -> None:
-        _warm_up()
+        if self._warm is not None:
+            self._warm.join()
+        else:
+            _warm_up()
         try:
             self.run = _Run(*self._args)
         except Exception as exc:  # noqa: BLE001 -- write_run_report reads the files again and meets it there
@@ -484,11 +488,12 @@ class EarlySections:
 
 
 def start_sections(out: Path, report: dict[str, Any], *, frame_sizes: Sequence[Sequence[int]] | np.ndarray | None = None,
-                   gnss_latlon: np.ndarray | None = None) -> EarlySections:
+                   gnss_latlon: np.ndarray | None = None, warm: threading.Thread | None = None) -> EarlySections:
     """Start drawing report.html's EARLY_SECTIONS of the run in ``out`` (frames.csv and poses.csv
     written) on a thread; ``report`` is report.json's content so far, the same dict that is later
-    given to write_run_report (``early``), which waits for them. Arguments as write_run_report's."""
-    return EarlySections(out, report, None if frame_sizes is None else np.asarray(frame_sizes), gnss_latlon)
+    given to write_run_report (``early``), which waits for them. Arguments as write_run_report's;
+    ``warm``: start_warm_up()'s thread, started earlier (None: the warm-up is this thread's first work)."""
+    return EarlySections(out, report, None if frame_sizes is None else np.asarray(frame_sizes), gnss_latlon, warm)
 
 
 def _draw_section(build: Callable[[_Run], ReportSection], run: _Run) -> tuple[ReportSection, str | None]:
