@@ -55,14 +55,16 @@ def registration_report(regs: list[Registration]) -> dict[str, Any]:
 def write_outputs(result: PipelineResult, out: Path, config: PipelineConfig, extra: dict[str, Any], *,
                   meta_centres: dict[int, tuple[float, float]] | None = None,
                   placement: MainPlacement | None = None,
-                  on_tables: Callable[[dict[str, Any]], None] | None = None) -> dict[str, Any]:
+                  on_tables: Callable[[dict[str, Any]], None] | None = None,
+                  on_preview: Callable[[], None] | None = None) -> dict[str, Any]:
     """Write mosaic.png (main canvas), preview.png, segments/, frames.csv, and with georeferencing
     mosaic.tif, mosaic.kml and poses.csv. Returns the report (the caller adds timings and writes it).
     ``meta_centres``: stamp_ns -> (lat, lon) where the input's metadata puts each frame's centre
     (frames.csv's meta_latitude, meta_longitude). ``placement``: where the main mosaic lies, as
     georeference_main decided it (None: decided here). ``on_tables``: called with the report once
     frames.csv, poses.csv and mosaic.kml are written, before the mosaic images are rendered (what
-    can be drawn from them is then drawn beside the rendering: process's report.html).
+    can be drawn from them is then drawn beside the rendering: process's report.html); ``on_preview``:
+    called once preview.png is written (the main mosaic rendered; mosaic.tif may still be compressed).
 
     The mosaics are rendered and written strip by strip (see _write_canvas): memory does not grow
     with the mosaic's area.
@@ -132,7 +134,7 @@ def write_outputs(result: PipelineResult, out: Path, config: PipelineConfig, ext
     for name, canvas, bounds in to_write.values():
         if canvas is main_canvas:
             assert placement is not None
-            _write_main_mosaic(out, canvas, config, bounds, placement)
+            _write_main_mosaic(out, canvas, config, bounds, placement, on_preview=on_preview)
             moving = _write_moving(out, canvas, bounds)
             if moving is not None:
                 report['moving'] = moving
@@ -170,15 +172,20 @@ def _write_main_tables(out: Path, placement: MainPlacement, bounds: tuple[int, i
 
 
 def _write_main_mosaic(out: Path, canvas: Any, config: PipelineConfig, bounds: tuple[int, int, int, int],
-                       placement: MainPlacement) -> None:
+                       placement: MainPlacement, *, on_preview: Callable[[], None] | None = None) -> None:
     """mosaic.png and preview.png of the main segment's canvas, and where ``placement`` has a raster
-    mosaic.tif (same pixel grid as mosaic.png)."""
+    mosaic.tif (same pixel grid as mosaic.png); ``on_preview`` called once preview.png is written."""
     x0, y0, x1, y1 = bounds
     preview = StripPreview(y1 - y0, x1 - x0, canvas.channels, config.mosaic.preview_max_side_px)
     raster = placement.raster
+
+    def rendered() -> None:  # every strip in the preview: written while GDAL finishes mosaic.tif
+        write_png(out / 'preview.png', preview.image())
+        if on_preview is not None:
+            on_preview()
+
     write_canvas(canvas, out / 'mosaic.tif' if raster is not None else None, out / 'mosaic.png', raster, preview,
-                 threads=output_threads(), zlevel=MOSAIC_TIF_ZLEVEL)
-    write_png(out / 'preview.png', preview.image())
+                 threads=output_threads(), zlevel=MOSAIC_TIF_ZLEVEL, on_rendered=rendered)
 
 
 def keyframe_report(records: list[Any]) -> dict[str, Any]:
@@ -379,7 +386,8 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
     with clock.stage('outputs'):  # decided, then written
         placement = georeference_main(result, config)
         report = write_outputs(result, stage, config, report_extra, placement=placement,
-                               meta_centres=summary.centres if summary is not None else None, on_tables=draw_early)
+                               meta_centres=summary.centres if summary is not None else None, on_tables=draw_early,
+                               on_preview=lambda: early[0].add_mosaic_sections() if early else None)
     if report.get('georeferenced') is None:
         report['not_georeferenced_reason'] = not_georeferenced_reason(result, config,
                                                                       dict(getattr(reader, 'skipped', {})))

@@ -24,7 +24,7 @@ import numpy as np
 from ..io.report_html import ReportFigure, ReportSection, write_report_html
 from . import report_figures as figs
 
-__all__ = ['EARLY_SECTIONS', 'REPORT_HTML', 'EarlySections', 'RunFrames', 'read_run_frames', 'start_sections',
+__all__ = ['EARLY_SECTIONS', 'MOSAIC_SECTIONS', 'REPORT_HTML', 'EarlySections', 'RunFrames', 'read_run_frames', 'start_sections',
            'start_warm_up', 'write_run_report']
 
 _LOG = logging.getLogger(__name__)
@@ -453,20 +453,33 @@ def _warm_up() -> None:
 #: The sections drawn from frames.csv, poses.csv and the report alone, not from the mosaic's images:
 #: start_sections draws them while the mosaic is rendered.
 EARLY_SECTIONS: tuple[Callable[[_Run], ReportSection], ...] = (_registration, _map)
+#: The sections drawn over preview.png (EarlySections.add_mosaic_sections, once it is written).
+MOSAIC_SECTIONS: tuple[Callable[[_Run], ReportSection], ...] = (_coverage, _pair_graph)
 
 
 class EarlySections:
-    """report_figures.warm_up, then the EARLY_SECTIONS of a run, drawn on a daemon thread
-    (start_sections); write_run_report (``early``) waits for them and draws the others."""
+    """report_figures.warm_up, then the EARLY_SECTIONS of a run, and on add_mosaic_sections() the
+    MOSAIC_SECTIONS, drawn in that order on a daemon thread (start_sections); write_run_report
+    (``early``) waits for them and draws the others."""
 
     def __init__(self, out: Path, report: dict[str, Any], frame_sizes: np.ndarray | None,
                  gnss_latlon: np.ndarray | None, warm: threading.Thread | None = None) -> None:
+        import queue
+
         self.run: _Run | None = None
         self.drawn: dict[str, tuple[ReportSection, str | None]] = {}  # section function's name -> (section, failed title)
         self._args = (out, report, frame_sizes, gnss_latlon)
         self._warm = warm
+        self._todo: queue.SimpleQueue[Callable[[_Run], ReportSection] | None] = queue.SimpleQueue()
+        for build in EARLY_SECTIONS:
+            self._todo.put(build)
         self.thread = threading.Thread(target=self._draw, name='report-sections', daemon=True)
         self.thread.start()
+
+    def add_mosaic_sections(self) -> None:
+        """preview.png is written: draw the MOSAIC_SECTIONS too."""
+        for build in MOSAIC_SECTIONS:
+            self._todo.put(build)
 
     def _draw(self) -> None:
         if self._warm is not None:
@@ -477,12 +490,13 @@ class EarlySections:
             self.run = _Run(*self._args)
         except Exception as exc:  # noqa: BLE001 -- write_run_report reads the files again and meets it there
             _LOG.debug('report.html: the run could not be read ahead: %s', exc)
-            return
-        for build in EARLY_SECTIONS:
-            self.drawn[build.__name__] = _draw_section(build, self.run)
+        while (build := self._todo.get()) is not None:
+            if self.run is not None:
+                self.drawn[build.__name__] = _draw_section(build, self.run)
 
     def wait(self) -> _Run | None:
-        """The run the sections were drawn from (None: it could not be read here)."""
+        """The run the sections were drawn from (None: it could not be read here), once they are drawn."""
+        self._todo.put(None)
         self.thread.join()
         return self.run
 

@@ -13,7 +13,7 @@ import pytest
 
 from demo_bags import DEMO, rewrite_demo
 from srmosaic_ros.app.process import process_input
-from srmosaic_ros.app.run_report import EARLY_SECTIONS, start_sections, write_run_report
+from srmosaic_ros.app.run_report import EARLY_SECTIONS, MOSAIC_SECTIONS, start_sections, write_run_report
 from srmosaic_ros.config import pipeline_config
 
 #: Sections drawn for the demo bag (georeferenced, chained, no SR), and those that say they have no data.
@@ -56,8 +56,9 @@ def test_every_run_writes_a_self_contained_report(demo_run) -> None:
 
 def test_sections_drawn_while_the_mosaic_renders_make_the_same_page(demo_run, tmp_path: Path) -> None:
     """`process` draws the sections of the tables (EARLY_SECTIONS) on a thread while the mosaic renders
-    (start_sections): the page is the one drawn after the run, byte for byte, and a section that cannot
-    be drawn there is reported as one drawn after."""
+    (start_sections), and those over preview.png (MOSAIC_SECTIONS) once it is written: the page is the
+    one drawn after the run, byte for byte, and a section that cannot be drawn there is reported as
+    one drawn after."""
     import shutil
 
     out, report = demo_run
@@ -67,9 +68,11 @@ def test_sections_drawn_while_the_mosaic_renders_make_the_same_page(demo_run, tm
         folder = tmp_path / name
         shutil.copytree(out, folder)
         early = start_sections(folder, report, frame_sizes=frame_sizes) if ahead else None
+        if early is not None:
+            early.add_mosaic_sections()
         figures = write_run_report(folder, report, frame_sizes=frame_sizes, early=early)
         pages[name] = ((folder / 'report.html').read_bytes(), figures['figures'], figures['sections_failed'])
-    assert {b.__name__.strip('_') for b in EARLY_SECTIONS} <= set(DEMO_FIGURES)
+    assert {b.__name__.strip('_') for b in EARLY_SECTIONS + MOSAIC_SECTIONS} - {'pair_graph'} <= set(DEMO_FIGURES)
     assert pages['ahead'] == pages['after'] and pages['after'][1] == len(DEMO_FIGURES)
     broken = tmp_path / 'broken'  # poses.csv damaged: the map fails ahead as it fails after the run, the rest drawn
     shutil.copytree(out, broken)
