@@ -438,13 +438,11 @@ def console_main() -> int:
                                                  if t is not threading.main_thread()):
         return rc
     import atexit
-    import logging
 
     run_exit_handlers = getattr(atexit, '_run_exitfuncs', None)
     if run_exit_handlers is None:  # not CPython: the usual exit
         return rc
-    run_exit_handlers()
-    logging.shutdown()
+    run_exit_handlers()  # logging's among them
     sys.stdout.flush()
     sys.stderr.flush()
     os._exit(rc)
