@@ -68,7 +68,7 @@ setup(
     license='BSD-3-Clause',
     entry_points={
         'console_scripts': [
-            'srmosaic = srmosaic_ros.cli:main',
+            'srmosaic = srmosaic_ros.cli:console_main',  # main(), then a quick exit (cli.QUICK_EXIT_COMMANDS)
             # the node executables (`ros2 run srmosaic_ros <name>`), as nodes/executables.EXECUTABLES
             'mosaic_node = srmosaic_ros.nodes.mosaic_node:main',
             'georef_node = srmosaic_ros.nodes.georef_node:main',

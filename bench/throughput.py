@@ -15,7 +15,10 @@ Printed per run: frames/s end to end (frames over the process's wall time, start
 beside the video's own rate, the mean per-frame time of each stage (report.json's
 stage_times; a baseline without them shows the total only), the mean corner error over the
 registered frames in full-size frame pixels (srmosaic_ros.app.evaluate against the truth), the frames
-in the main mosaic and the peak memory. The figures go to --work/throughput.json.
+in the main mosaic, the peak memory, and where the process's wall time went outside the frames: its
+start-up before the run's clock, the outputs stage, and its exit after report.json (report.json's
+modification time splits the three), with the share of the outputs and the exit in the wall time.
+The figures go to --work/throughput.json.
 
     OMP_NUM_THREADS=2 python bench/throughput.py [--sizes 640x480,1280x720,1920x1080,3840x2160]
                                                  [--frames 150] [--baseline REF] [--work DIR] [--fresh]
@@ -72,11 +75,16 @@ def run_process(code: Path, video: Path, sidecar: Path, out: Path, params: Path 
     if params is not None:
         cmd += ['--params', str(params)]
     env = {**os.environ, 'PYTHONPATH': str(code)}
-    t0 = time.perf_counter()
+    t0, clock0 = time.perf_counter(), time.time()
     subprocess.run(cmd, check=True, cwd=code, env=env, stdout=subprocess.DEVNULL)
     wall = time.perf_counter() - t0
     report = json.loads((out / 'report.json').read_text())
     report['process_wall_s'] = wall
+    # report.json is written last (then moved into --out): its time splits the process's wall time into
+    # the start-up before the run's own clock (wall_s) started, the run, and the exit after report.json
+    written = (out / 'report.json').stat().st_mtime - clock0
+    report['exit_s'] = max(wall - written, 0.0)
+    report['startup_s_outside'] = max(written - report['wall_s'], 0.0)
     return report
 
 
@@ -90,12 +98,17 @@ def row(name: str, size: str, report: dict[str, Any], truth: Path, out: Path) ->
             'stage_p95_ms': {s: stages[s]['p95_ms'] for s in STAGES if s in stages},
             'corner_error_mean_px': ev['corner_error_mean_px'], 'pair_error_mean_px': ev['pair_corner_error_mean_px'],
             'frames_registered': report['frames_registered'], 'segments': len(report['segments']),
-            'peak_rss_mb': report.get('peak_rss_mb')}
+            'peak_rss_mb': report.get('peak_rss_mb'), 'process_wall_s': round(report['process_wall_s'], 3),
+            'wall_s': report['wall_s'], 'startup_s': round(report['startup_s_outside'], 3),
+            'exit_s': round(report['exit_s'], 3), 'outputs_s': stages.get('outputs', {}).get('total_s'),
+            # what the user waits for once the frames are done: the outputs stage and the exit after report.json
+            'outputs_share': round((stages.get('outputs', {}).get('total_s', 0.0) + report['exit_s'])
+                                   / report['process_wall_s'], 4)}
 
 
 def print_table(rows: list[dict[str, Any]]) -> None:
     head = (f"{'size':>10} {'code':<9} {'video':>5} {'fps':>6} {'run fps':>7} " + ' '.join(f'{s[:8]:>8}' for s in STAGES)
-            + f" {'err px':>7} {'pair px':>7} {'in mos':>6} {'MB':>6}")
+            + f" {'err px':>7} {'pair px':>7} {'in mos':>6} {'MB':>6} {'wall':>6} {'start':>5} {'out s':>5} {'exit':>5} {'out %':>5}")
     print(head)
     print('-' * len(head))
     for r in rows:
@@ -103,12 +116,15 @@ def print_table(rows: list[dict[str, Any]]) -> None:
         pair = r['pair_error_mean_px']
         print(f"{r['size']:>10} {r['code']:<9} {r['video_fps']:5.0f} {r['fps']:6.1f} {r['fps_loop'] or 0:7.1f} {stages} "
               f"{r['corner_error_mean_px']:7.3f} {(pair if pair is not None else float('nan')):7.4f} "
-              f"{r['frames_registered']:>3}/{r['frames']:<3}{r['peak_rss_mb'] or 0:7.0f}")
+              f"{r['frames_registered']:>3}/{r['frames']:<3}{r['peak_rss_mb'] or 0:7.0f} {r['process_wall_s']:6.1f} "
+              f"{r['startup_s']:5.1f} {r['outputs_s'] or 0:5.2f} {r['exit_s']:5.2f} {100 * r['outputs_share']:5.1f}")
     print('fps: frames per second end to end (process start-up included); run fps: report.json\'s (from the '
           'input opened to report.json written: start-up of Python and torch left out); stage columns: mean ms per '
           'input frame, on whichever thread (decode: the reader\'s wait; paint: the painter\'s work); '
           'err px: mean corner error of the mosaic placement, pair px: of consecutive frames, in '
-          'full-size frame pixels; in mos: frames in the main mosaic; MB: peak memory')
+          'full-size frame pixels; in mos: frames in the main mosaic; MB: peak memory; wall: the process\'s seconds; '
+          'start: before the run\'s clock (Python, imports); out s: the outputs stage (mosaic files, CSVs, report.html); '
+          'exit: after report.json was written (the interpreter\'s exit); out %: outputs and exit, of the wall')
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -7,9 +7,12 @@ nothing half-written is left under a final file name.
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import math
+import os
 import sys
+import threading
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -76,6 +79,10 @@ def _run_process(args: argparse.Namespace) -> int:
     from .io.bags import TopicConfig
     from .app.process import process_input
 
+    if getattr(args, 'console', False):
+        # The imports' objects (torch, OpenCV, GDAL's bindings) live as long as the process: out of the
+        # collector's reach, each full collection during the run and at exit no longer walks them.
+        gc.freeze()
     if args.blend:
         overrides['mosaic.blend'] = args.blend
     if args.device:
@@ -416,22 +423,53 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    return _main(argv)[0]
+
+
+def _main(argv: list[str] | None, *, console: bool = False) -> tuple[int, str]:
+    """(exit status, the command run); ``console``: run as the `srmosaic` program (console_main)."""
     parser = build_parser()
     from .nodes.executables import split_ros_args
 
     own, ros_args = split_ros_args(list(sys.argv[1:] if argv is None else argv))
     args = parser.parse_args(own)
     args.ros_args = ros_args
+    args.console = console
     try:
         check_ranges(args)  # before any work
-        return int(args.func(args) or 0)
+        return int(args.func(args) or 0), args.command
     except SrMosaicError as exc:
         print(f'srmosaic {args.command}: error: {exc}', file=sys.stderr)
-        return 2
+        return 2, args.command
     except KeyboardInterrupt:
         print(f'srmosaic {args.command}: interrupted', file=sys.stderr)
-        return 130
+        return 130, args.command
+
+
+#: Commands whose program ends as soon as its exit handlers have run (console_main): their outputs are
+#: complete and closed when the command returns.
+QUICK_EXIT_COMMANDS = frozenset({'process'})
+
+
+def console_main() -> int:
+    """The `srmosaic` program: main(), then, after a QUICK_EXIT_COMMANDS command, the exit handlers
+    (atexit: the canvas's spill folders removed, logs flushed) and an immediate exit: the
+    interpreter's teardown (freeing every module's objects, and full collections over them) is
+    work the user waits for and nothing needs. With a thread of its own still running, the usual exit."""
+    rc, command = _main(None, console=True)
+    if command not in QUICK_EXIT_COMMANDS or any(t.is_alive() and not t.daemon for t in threading.enumerate()
+                                                 if t is not threading.main_thread()):
+        return rc
+    import atexit
+
+    run_exit_handlers = getattr(atexit, '_run_exitfuncs', None)
+    if run_exit_handlers is None:  # not CPython: the usual exit
+        return rc
+    run_exit_handlers()  # logging's among them
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(rc)
 
 
 if __name__ == '__main__':
-    sys.exit(main())
+    sys.exit(console_main())

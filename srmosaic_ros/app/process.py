@@ -9,7 +9,7 @@ import re
 import shutil
 import time
 from pathlib import Path
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from typing import Any
 
 import numpy as np
@@ -22,7 +22,7 @@ from .checkpoint import Checkpoint, checkpoint_path, fingerprint, load_checkpoin
 from ..config import PipelineConfig
 from ..io.bags import TopicConfig
 from ..io.mosaic_files import write_counts_png, write_frames_csv, write_json, write_png
-from ..io.outputs import MOSAIC_TIF_ZLEVEL, StripPreview, output_threads, peak_rss_mb, write_canvas
+from ..io.outputs import MOSAIC_TIF_ZLEVEL, StripPreview, output_threads, peak_rss_mb, process_age_s, write_canvas
 from ..core.sr_factors import SR_FACTORS
 from ..errors import FULL_DISK_ERRNOS, ConfigError, InputError, OutputError
 from ..pipeline import Pipeline, PipelineResult
@@ -54,12 +54,17 @@ def registration_report(regs: list[Registration]) -> dict[str, Any]:
 
 def write_outputs(result: PipelineResult, out: Path, config: PipelineConfig, extra: dict[str, Any], *,
                   meta_centres: dict[int, tuple[float, float]] | None = None,
-                  placement: MainPlacement | None = None) -> dict[str, Any]:
+                  placement: MainPlacement | None = None,
+                  on_tables: Callable[[dict[str, Any]], None] | None = None,
+                  on_preview: Callable[[], None] | None = None) -> dict[str, Any]:
     """Write mosaic.png (main canvas), preview.png, segments/, frames.csv, and with georeferencing
     mosaic.tif, mosaic.kml and poses.csv. Returns the report (the caller adds timings and writes it).
     ``meta_centres``: stamp_ns -> (lat, lon) where the input's metadata puts each frame's centre
     (frames.csv's meta_latitude, meta_longitude). ``placement``: where the main mosaic lies, as
-    georeference_main decided it (None: decided here).
+    georeference_main decided it (None: decided here). ``on_tables``: called with the report once
+    frames.csv, poses.csv and mosaic.kml are written, before the mosaic images are rendered (what
+    can be drawn from them is then drawn beside the rendering: process's report.html); ``on_preview``:
+    called once preview.png is written (the main mosaic rendered; mosaic.tif may still be compressed).
 
     The mosaics are rendered and written strip by strip (see _write_canvas): memory does not grow
     with the mosaic's area.
@@ -69,23 +74,20 @@ def write_outputs(result: PipelineResult, out: Path, config: PipelineConfig, ext
     main_canvas = main.canvas if main is not None else None
     mosaic_H_seg = np.eye(3)
     segments_report = []
-    written: dict[int, str] = {}  # id(canvas) -> file
+    to_write: dict[int, tuple[str, Any, tuple[int, int, int, int]]] = {}  # id(canvas) -> (file, canvas, bounds)
     geo: dict[str, Any] = {}
-    moving: dict[str, Any] | None = None
     for seg in result.segments:
         x0, y0, x1, y1 = seg.canvas.bounds()
-        if id(seg.canvas) not in written:
+        if id(seg.canvas) not in to_write:
             if seg.canvas is main_canvas:
                 mosaic_H_seg = _translation(-x0, -y0)
                 placement = placement or georeference_main(result, config)
-                _write_main_mosaic(out, seg.canvas, config, (x0, y0, x1, y1), placement)
                 geo = placement.report
-                written[id(seg.canvas)] = 'mosaic.png'
-                moving = _write_moving(out, seg.canvas, (x0, y0, x1, y1))
+                to_write[id(seg.canvas)] = ('mosaic.png', seg.canvas, (x0, y0, x1, y1))
             elif len(seg.frames) >= 2:
-                written[id(seg.canvas)] = f'segments/segment_{seg.index:03d}.png'
-                write_canvas(seg.canvas, None, out / written[id(seg.canvas)], threads=output_threads())
-        segments_report.append({'index': seg.index, 'frames': len(seg.frames), 'file': written.get(id(seg.canvas), ''),
+                to_write[id(seg.canvas)] = (f'segments/segment_{seg.index:03d}.png', seg.canvas, (x0, y0, x1, y1))
+        segments_report.append({'index': seg.index, 'frames': len(seg.frames),
+                                'file': to_write[id(seg.canvas)][0] if id(seg.canvas) in to_write else '',
                                 'georeferenced': seg.georeferenced,
                                 'size_px': [int(x1 - x0), int(y1 - y0)], 'origin_px': [int(x0), int(y0)]})
     main_segments = {seg.index for seg in result.segments if seg.canvas is main_canvas}
@@ -102,6 +104,8 @@ def write_outputs(result: PipelineResult, out: Path, config: PipelineConfig, ext
             'meta_latlon': (meta_centres or {}).get(rec.stamp_ns),
         })
     write_frames_csv(out / 'frames.csv', rows)
+    if main_canvas is not None and placement is not None:
+        _write_main_tables(out, placement, to_write[id(main_canvas)][2])
     failures = collections.Counter(rec.reason.split(' (')[0] for rec in result.records if not rec.painted)
     regs = [rec.registration for rec in result.records if rec.registration is not None and rec.registration.ok]
     report = {
@@ -121,11 +125,21 @@ def write_outputs(result: PipelineResult, out: Path, config: PipelineConfig, ext
         'georeferenced': geo or None,
         **({'pose_placement': result.pose_check.as_dict()} if result.pose_check is not None else {}),
         **({'attitude_check': result.attitude_check} if getattr(result, 'attitude_check', None) else {}),
-        **({'moving': moving} if moving is not None else {}),
         'config': {'device': config.device, 'registration': vars(config.registration), 'mosaic': vars(config.mosaic),
                    'undistort': config.undistort},
     }
     report.update(extra)
+    if on_tables is not None:
+        on_tables(report)
+    for name, canvas, bounds in to_write.values():
+        if canvas is main_canvas:
+            assert placement is not None
+            _write_main_mosaic(out, canvas, config, bounds, placement, on_preview=on_preview)
+            moving = _write_moving(out, canvas, bounds)
+            if moving is not None:
+                report['moving'] = moving
+        else:
+            write_canvas(canvas, None, out / name, threads=output_threads())
     return report
 
 
@@ -143,25 +157,35 @@ def _write_moving(out: Path, canvas: Any, bounds: tuple[int, int, int, int]) -> 
             'fraction_of_mosaic': round(float(np.count_nonzero(counts)) / covered, 5)}
 
 
-def _write_main_mosaic(out: Path, canvas: Any, config: PipelineConfig, bounds: tuple[int, int, int, int],
-                       placement: MainPlacement) -> None:
-    """mosaic.png and preview.png of the main segment's canvas, and where ``placement`` has a raster
-    mosaic.tif (same pixel grid as mosaic.png) and mosaic.kml, with poses.csv where the filter placed it."""
+def _write_main_tables(out: Path, placement: MainPlacement, bounds: tuple[int, int, int, int]) -> None:
+    """mosaic.kml and poses.csv of the main mosaic, where ``placement`` has a raster (and poses)."""
     x0, y0, x1, y1 = bounds
-    preview = StripPreview(y1 - y0, x1 - x0, canvas.channels, config.mosaic.preview_max_side_px)
-    raster = placement.raster
-    write_canvas(canvas, out / 'mosaic.tif' if raster is not None else None, out / 'mosaic.png', raster, preview,
-                 threads=output_threads(), zlevel=MOSAIC_TIF_ZLEVEL)
-    write_png(out / 'preview.png', preview.image())
-    if raster is None:
+    if placement.raster is None:
         return
     from ..io.kml import write_kml_for_raster
 
-    write_kml_for_raster(out / 'mosaic.kml', 'mosaic.png', raster, x1 - x0, y1 - y0)
+    write_kml_for_raster(out / 'mosaic.kml', 'mosaic.png', placement.raster, x1 - x0, y1 - y0)
     if placement.poses is not None:
         from ..io.poses_csv import write_poses_csv
 
         write_poses_csv(out / 'poses.csv', placement.poses)
+
+
+def _write_main_mosaic(out: Path, canvas: Any, config: PipelineConfig, bounds: tuple[int, int, int, int],
+                       placement: MainPlacement, *, on_preview: Callable[[], None] | None = None) -> None:
+    """mosaic.png and preview.png of the main segment's canvas, and where ``placement`` has a raster
+    mosaic.tif (same pixel grid as mosaic.png); ``on_preview`` called once preview.png is written."""
+    x0, y0, x1, y1 = bounds
+    preview = StripPreview(y1 - y0, x1 - x0, canvas.channels, config.mosaic.preview_max_side_px)
+    raster = placement.raster
+
+    def rendered() -> None:  # every strip in the preview: written while GDAL finishes mosaic.tif
+        write_png(out / 'preview.png', preview.image())
+        if on_preview is not None:
+            on_preview()
+
+    write_canvas(canvas, out / 'mosaic.tif' if raster is not None else None, out / 'mosaic.png', raster, preview,
+                 threads=output_threads(), zlevel=MOSAIC_TIF_ZLEVEL, on_rendered=rendered)
 
 
 def keyframe_report(records: list[Any]) -> dict[str, Any]:
@@ -333,6 +357,9 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
             bar.reset()
             feed_input(items, run, try_mount=False, **passes)
     pipeline, error, clock = run.pipeline, run.error, run.pipeline.clock
+    from .run_report import start_sections, start_warm_up
+
+    warm = start_warm_up()  # report.html's imports while the last frames are painted (a core waits for the painter)
     if run.recorder is not None and error is None:
         run.record(pipeline.flush())  # the last frames, held for telemetry that never came
     result = pipeline.finish()
@@ -350,9 +377,13 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
         report_extra['error'] = str(error)
     if restart is not None:
         report_extra['mount_from_frames'] = restart
-    from .run_report import start_warm_up
+    frame_sizes = [rec.size for rec in result.records]
+    gnss_latlon = np.array([(f.latitude_deg, f.longitude_deg) for f in result.fixes]).reshape(-1, 2)
+    early: list[Any] = []
 
-    warm = start_warm_up()  # report.html's imports while GDAL and the PNG writer compress the mosaic
+    def draw_early(tables: dict[str, Any]) -> None:  # report.html's figures of the tables, while the mosaic renders
+        early.append(start_sections(stage, tables, frame_sizes=frame_sizes, gnss_latlon=gnss_latlon, warm=warm))
+
     with clock.stage('outputs'):  # decided, then written
         placement = georeference_main(result, config)
         if gcp_file is not None:  # the raster re-anchored on the ground control (app/video_control.py)
@@ -361,7 +392,8 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
             placement, report_extra['gcp'] = control_main(gcp_file, result, placement, check_points,
                                                           getattr(reader, 'camera', None))
         report = write_outputs(result, stage, config, report_extra, placement=placement,
-                               meta_centres=summary.centres if summary is not None else None)
+                               meta_centres=summary.centres if summary is not None else None, on_tables=draw_early,
+                               on_preview=lambda: early[0].add_mosaic_sections() if early else None)
     if report.get('georeferenced') is None:
         report['not_georeferenced_reason'] = not_georeferenced_reason(result, config,
                                                                       dict(getattr(reader, 'skipped', {})))
@@ -387,9 +419,7 @@ def _process(path: Path, out: Path, stage: Path, config: PipelineConfig, items: 
         report['sr']['wall_s'] = round(time.perf_counter() - t_sr, 3)
         report['wall_s'] = round(time.perf_counter() - t0, 3)
         report['peak_rss_mb'] = round(peak_rss_mb(), 1)
-    _write_reports(stage, report, t0, frame_sizes=[rec.size for rec in result.records],
-                   gnss_latlon=np.array([(f.latitude_deg, f.longitude_deg) for f in result.fixes]).reshape(-1, 2),
-                   warm=warm)
+    _write_reports(stage, report, t0, frame_sizes=frame_sizes, gnss_latlon=gnss_latlon, early=early[0] if early else None)
     if error is not None:
         raise error
     shutil.rmtree(checkpoint_path(out).parent, ignore_errors=True)  # complete: the checkpoint is spent
@@ -500,16 +530,20 @@ def _process_survey(path: Path, out: Path, config: PipelineConfig, reader: Any, 
 
 
 def _write_reports(out: Path, report: dict[str, Any], t0: float, *, frame_sizes: list[tuple[int, int]],
-                   gnss_latlon: np.ndarray, warm: Any = None) -> None:
+                   gnss_latlon: np.ndarray, early: Any = None) -> None:
     """report.html (run_report.py), then report.json with the page's time counted in ``wall_s`` and
-    in ``stage_times.outputs`` (where the run keeps stage times) and the page's figures in
-    ``report_html``."""
+    in ``stage_times.outputs`` (where the run keeps stage times), the page's figures in
+    ``report_html`` and ``startup_s``: the seconds from the process's start to ``t0`` (the input
+    opened), which ``wall_s`` leaves out (Python's and the imports' start-up when `srmosaic process`
+    runs as a program; in a longer-lived process, its age then)."""
     from .run_report import write_run_report
 
-    page = write_run_report(out, report, frame_sizes=frame_sizes, gnss_latlon=gnss_latlon, warm=warm)
+    page = write_run_report(out, report, frame_sizes=frame_sizes, gnss_latlon=gnss_latlon, early=early)
     report['report_html'] = page
     wall = time.perf_counter() - t0
     report['wall_s'] = round(wall, 3)
+    age = process_age_s()  # wall_s leaves out the process's start-up: said beside it
+    report['startup_s'] = round(max(age - wall, 0.0), 3) if age is not None else None
     if report.get('frames_per_s'):  # the frames over the time before SR (as before), the page's added
         report['frames_per_s'] = round(report['frames_in'] / (report['frames_in'] / report['frames_per_s']
                                                               + page['time_s']), 2)

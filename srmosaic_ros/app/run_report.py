@@ -24,7 +24,8 @@ import numpy as np
 from ..io.report_html import ReportFigure, ReportSection, write_report_html
 from . import report_figures as figs
 
-__all__ = ['REPORT_HTML', 'RunFrames', 'read_run_frames', 'start_warm_up', 'write_run_report']
+__all__ = ['EARLY_SECTIONS', 'MOSAIC_SECTIONS', 'REPORT_HTML', 'EarlySections', 'RunFrames', 'read_run_frames', 'start_sections',
+           'start_warm_up', 'write_run_report']
 
 _LOG = logging.getLogger(__name__)
 REPORT_HTML = 'report.html'
@@ -435,38 +436,115 @@ def start_warm_up() -> threading.Thread:
     """report_figures.warm_up on a daemon thread, started: give it to write_run_report (``warm``).
     A failure there is left for the figures themselves to meet and report."""
     def run() -> None:
-        try:
-            figs.warm_up()
-        except Exception as exc:  # noqa: BLE001 -- the figures meet it again, and say so on the page
-            _LOG.debug('report.html warm-up: %s', exc)
+        _warm_up()
 
     thread = threading.Thread(target=run, name='report-figures-warm-up', daemon=True)
     thread.start()
     return thread
 
 
+def _warm_up() -> None:
+    try:
+        figs.warm_up()
+    except Exception as exc:  # noqa: BLE001 -- the figures meet it again, and say so on the page
+        _LOG.debug('report.html warm-up: %s', exc)
+
+
+#: The sections drawn from frames.csv, poses.csv and the report alone, not from the mosaic's images:
+#: start_sections draws them while the mosaic is rendered.
+EARLY_SECTIONS: tuple[Callable[[_Run], ReportSection], ...] = (_registration, _map)
+#: The sections drawn over preview.png (EarlySections.add_mosaic_sections, once it is written).
+MOSAIC_SECTIONS: tuple[Callable[[_Run], ReportSection], ...] = (_coverage, _pair_graph)
+
+
+class EarlySections:
+    """report_figures.warm_up, then the EARLY_SECTIONS of a run, and on add_mosaic_sections() the
+    MOSAIC_SECTIONS, drawn in that order on a daemon thread (start_sections); write_run_report
+    (``early``) waits for them and draws the others."""
+
+    def __init__(self, out: Path, report: dict[str, Any], frame_sizes: np.ndarray | None,
+                 gnss_latlon: np.ndarray | None, warm: threading.Thread | None = None) -> None:
+        import queue
+
+        self.run: _Run | None = None
+        self.drawn: dict[str, tuple[ReportSection, str | None]] = {}  # section function's name -> (section, failed title)
+        self._args = (out, report, frame_sizes, gnss_latlon)
+        self._warm = warm
+        self._todo: queue.SimpleQueue[Callable[[_Run], ReportSection] | None] = queue.SimpleQueue()
+        for build in EARLY_SECTIONS:
+            self._todo.put(build)
+        self.thread = threading.Thread(target=self._draw, name='report-sections', daemon=True)
+        self.thread.start()
+
+    def add_mosaic_sections(self) -> None:
+        """preview.png is written: draw the MOSAIC_SECTIONS too."""
+        for build in MOSAIC_SECTIONS:
+            self._todo.put(build)
+
+    def _draw(self) -> None:
+        if self._warm is not None:
+            self._warm.join()
+        else:
+            _warm_up()
+        try:
+            self.run = _Run(*self._args)
+        except Exception as exc:  # noqa: BLE001 -- write_run_report reads the files again and meets it there
+            _LOG.debug('report.html: the run could not be read ahead: %s', exc)
+        while (build := self._todo.get()) is not None:
+            if self.run is not None:
+                self.drawn[build.__name__] = _draw_section(build, self.run)
+
+    def wait(self) -> _Run | None:
+        """The run the sections were drawn from (None: it could not be read here), once they are drawn."""
+        self._todo.put(None)
+        self.thread.join()
+        return self.run
+
+
+def start_sections(out: Path, report: dict[str, Any], *, frame_sizes: Sequence[Sequence[int]] | np.ndarray | None = None,
+                   gnss_latlon: np.ndarray | None = None, warm: threading.Thread | None = None) -> EarlySections:
+    """Start drawing report.html's EARLY_SECTIONS of the run in ``out`` (frames.csv and poses.csv
+    written) on a thread; ``report`` is report.json's content so far, the same dict that is later
+    given to write_run_report (``early``), which waits for them. Arguments as write_run_report's;
+    ``warm``: start_warm_up()'s thread, started earlier (None: the warm-up is this thread's first work)."""
+    return EarlySections(out, report, None if frame_sizes is None else np.asarray(frame_sizes), gnss_latlon, warm)
+
+
+def _draw_section(build: Callable[[_Run], ReportSection], run: _Run) -> tuple[ReportSection, str | None]:
+    """(the section, None), or when it cannot be drawn (a section saying why, its title)."""
+    try:
+        return build(run), None
+    except Exception as exc:  # noqa: BLE001 -- a report's figure never fails the run it reports
+        name = build.__name__
+        _LOG.warning('report.html: the section %r could not be drawn (%s: %s); the run\'s other outputs are '
+                     'complete.', TITLES[name], type(exc).__name__, exc)
+        return ReportSection(name.strip('_'), TITLES[name], empty=f'This section could not be drawn: '
+                             f'{type(exc).__name__}: {exc}'), TITLES[name]
+
+
 def write_run_report(out: Path, report: dict[str, Any], *, frame_sizes: Sequence[Sequence[int]] | np.ndarray | None = None,
-                     gnss_latlon: np.ndarray | None = None, warm: threading.Thread | None = None) -> dict[str, Any]:
+                     gnss_latlon: np.ndarray | None = None, warm: threading.Thread | None = None,
+                     early: EarlySections | None = None) -> dict[str, Any]:
     """Write ``out``/report.html from the run's files in ``out`` and its ``report`` (report.json's
     content). frame_sizes: (N, 2) (width, height) of each frames.csv row's frame (None: outlines not
     drawn); gnss_latlon: (M, 2) degrees, the input's GNSS fixes; warm: start_warm_up()'s thread, waited
-    for (its wait counted in ``time_s``). Returns report.json's ``report_html``:
-    the file, the figures drawn, the sections that failed and the seconds it took."""
+    for (its wait counted in ``time_s``); early: start_sections()'s, whose sections are taken as drawn
+    (frame_sizes and gnss_latlon then as given to it). Returns report.json's ``report_html``:
+    the file, the figures drawn, the sections that failed and the seconds it took (the wait for
+    ``early``; not its drawing meanwhile)."""
     t0 = time.perf_counter()
     if warm is not None:
         warm.join()
-    run = _Run(out, report, None if frame_sizes is None else np.asarray(frame_sizes), gnss_latlon)
+    run = early.wait() if early is not None else None
+    drawn = early.drawn if early is not None and run is not None else {}
+    if run is None:
+        run = _Run(out, report, None if frame_sizes is None else np.asarray(frame_sizes), gnss_latlon)
     sections, failed = [], []
     for build in SECTIONS:
-        try:
-            sections.append(build(run))
-        except Exception as exc:  # noqa: BLE001 -- a report's figure never fails the run it reports
-            name = build.__name__
-            _LOG.warning('report.html: the section %r could not be drawn (%s: %s); the run\'s other outputs are '
-                         'complete.', TITLES[name], type(exc).__name__, exc)
-            failed.append(TITLES[name])
-            sections.append(ReportSection(name.strip('_'), TITLES[name], empty=f'This section could not be drawn: '
-                                          f'{type(exc).__name__}: {exc}'))
+        section, failure = drawn.get(build.__name__) or _draw_section(build, run)
+        sections.append(section)
+        if failure is not None:
+            failed.append(failure)
     title = f'srmosaic run: {Path(str(report.get("input", out))).name}'
     subtitle = (f'{report.get("input", "?")} ({report.get("input_kind", "?")}); the run\'s files (report.json, '
                 'frames.csv, the mosaic) are beside this page')

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import logging
 import os
+import uuid
 import warnings
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
@@ -49,6 +50,10 @@ GDAL_CACHE_BYTES = 64 * 2**20
 CONVERT_ROWS = 128
 #: zlib level of PNGs made by png_from_geotiff (1: fastest, as OpenCV's default for write_png).
 PNG_ZLEVEL = 1
+#: A COG whose raster holds at most this many bytes (all bands, uncompressed) is staged in memory
+#: (GDAL's /vsimem/), uncompressed, for the COG copy: no stage written to disk, compressed and read
+#: back; larger ones are staged on disk beside the output, so that memory stays bounded.
+STAGE_IN_MEMORY_BYTES = 32 * 2**20
 
 #: One strip of rows: (first row, image (rows, W) / (rows, W, C), coverage (rows, W) bool or None).
 Strip = tuple[int, np.ndarray, 'np.ndarray | None']
@@ -184,19 +189,23 @@ class _GdalErrors(logging.Handler):
 OVERVIEW_ROOM = 0.4
 
 
-def _check_room(tmp: str | os.PathLike[str], path: str | os.PathLike[str], fraction: float) -> None:
-    """OutputError unless the file ``tmp`` can grow by ``fraction`` of its size: free space on its
-    disk and the process's file size limit (RLIMIT_FSIZE). GDAL crashes when an overview block
-    cannot be written, so this is checked before, not found after."""
+def _check_room(tmp: str | os.PathLike[str], path: str | os.PathLike[str], fraction: float, *,
+                size: int | None = None) -> None:
+    """OutputError unless the file ``tmp`` can grow by ``fraction`` of its size, or, with ``size``, a
+    file of ``size`` bytes grown by that fraction can be written beside it: free space on its disk and
+    the process's file size limit (RLIMIT_FSIZE). GDAL crashes when an overview block cannot be
+    written, so this is checked before, not found after."""
     import resource
     import shutil
 
-    size = os.path.getsize(tmp)
+    written = size is None  # the bytes are on the disk already
+    size = os.path.getsize(tmp) if size is None else size
     need = int(size * (1.0 + fraction))
+    new_bytes = need - size if written else need
     free = shutil.disk_usage(os.path.dirname(os.path.abspath(tmp))).free
     limit = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
-    if free < need - size or (limit != resource.RLIM_INFINITY and limit < need):
-        where = 'the disk is full' if free < need - size else f'the file size limit is {limit} bytes'
+    if free < new_bytes or (limit != resource.RLIM_INFINITY and limit < need):
+        where = 'the disk is full' if free < new_bytes else f'the file size limit is {limit} bytes'
         msg = (f'{Path(path).name} needs about {need // 2**20 + 1} MiB with its overviews and {where}; free space, '
                'or give --out elsewhere.')
         raise OutputError(msg)
@@ -316,12 +325,13 @@ def write_geotiff_blocks(path: str | os.PathLike[str], strips: Iterable[Strip], 
     interp = [ColorInterp.red, ColorInterp.green, ColorInterp.blue] if colour == 3 else [ColorInterp.gray] * colour
     if has_alpha:
         interp.append(ColorInterp.alpha)
-    if cog:  # the stage is read once, by the COG copy: the fastest DEFLATE level suffices
+    in_memory = cog and height * width * count <= STAGE_IN_MEMORY_BYTES
+    if cog:  # the stage is read once, by the COG copy: uncompressed in memory, else the fastest DEFLATE level
         profile = _profile(width, height, count, has_alpha, raster, tiled=True, block_px=block_px,
-                           compress='deflate', threads=threads, zlevel=1)
+                           compress='none' if in_memory else 'deflate', threads=threads, zlevel=None if in_memory else 1)
     with atomic_path(path) as tmp, _gdal_env(**options), _gdal_errors(path) as errors:
         os.unlink(tmp)  # GDAL creates the file itself
-        stage = f'{tmp}.stage.tif' if cog else tmp
+        stage = (f'/vsimem/srmosaic-stage-{uuid.uuid4().hex}.tif' if in_memory else f'{tmp}.stage.tif') if cog else tmp
         try:
             with rasterio.open(stage, 'w', **profile) as dst:
                 _write_strips(dst, (head[0], bands), it, height, width, head[2] is not None)
@@ -334,19 +344,33 @@ def write_geotiff_blocks(path: str | os.PathLike[str], strips: Iterable[Strip], 
             errors.check(path)  # the cached blocks and the directory are written on close
             factors = overview_factors(height, width, block_px) if overviews else []
             if factors:
-                _check_room(stage, path, OVERVIEW_ROOM)
+                if not in_memory:
+                    _check_room(stage, path, OVERVIEW_ROOM)
                 with rasterio.open(stage, 'r+') as dst:
                     dst.build_overviews(factors, Resampling.average)
                     dst.update_tags(ns='rio_overview', resampling='average')
                 errors.check(path)
-            if cog:
-                _check_room(stage, path, 1.0 + OVERVIEW_ROOM)
+            if cog:  # an uncompressed stage's size bounds the COG's from above
+                if in_memory:
+                    _check_room(tmp, path, OVERVIEW_ROOM, size=height * width * count)
+                else:
+                    _check_room(stage, path, 1.0 + OVERVIEW_ROOM)
                 _copy_as_cog(stage, tmp, block_px=block_px, compress=compress, threads=threads, zlevel=zlevel,
                              overviews=bool(factors))
                 errors.check(path)
         finally:
-            if cog and os.path.exists(stage):
+            if in_memory:
+                _unlink_vsimem(stage)
+            elif cog and os.path.exists(stage):
                 os.unlink(stage)
+
+
+def _unlink_vsimem(path: str) -> None:
+    """Free an in-memory (/vsimem/) file, if GDAL made it."""
+    from rasterio.shutil import delete, exists
+
+    if exists(path):
+        delete(path)
 
 
 def _copy_as_cog(src: str, dst: str, *, block_px: int, compress: str, threads: int, zlevel: int | None,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 import os
 import resource
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -16,7 +16,7 @@ if TYPE_CHECKING:
     from ..core.mosaic import TiledCanvas
 
 __all__ = ['MOSAIC_TIF_ZLEVEL', 'OUTPUT_THREADS_MAX', 'STRIP_ROWS', 'StripPreview', 'output_threads', 'peak_rss_mb',
-           'preview_image', 'write_canvas']
+           'preview_image', 'process_age_s', 'write_canvas']
 
 #: Most threads that write the mosaic files (write_canvas).
 OUTPUT_THREADS_MAX = 4
@@ -35,6 +35,19 @@ def output_threads() -> int:
 
 def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # Linux: kB
+
+
+def process_age_s() -> float | None:
+    """Seconds since this process started (Linux: /proc/self/stat's start time, in clock ticks
+    since boot, against CLOCK_BOOTTIME; to the tick, 10 ms), None where that is not known."""
+    import time
+
+    try:
+        stat = Path('/proc/self/stat').read_text()
+        start_ticks = int(stat[stat.rindex(')') + 2:].split()[19])  # field 22; the name in () may hold spaces
+        return max(0.0, time.clock_gettime(time.CLOCK_BOOTTIME) - start_ticks / os.sysconf('SC_CLK_TCK'))
+    except (OSError, ValueError, IndexError, AttributeError):
+        return None
 
 
 def preview_image(image: np.ndarray, coverage: np.ndarray, max_side: int) -> np.ndarray:
@@ -139,7 +152,8 @@ STRIP_ROWS = 512
 
 
 def write_canvas(canvas: TiledCanvas, tif: Path | None, png: Path, raster: GeoRaster | None = None,
-                  preview: StripPreview | None = None, *, threads: int = 1, zlevel: int | None = None) -> None:
+                  preview: StripPreview | None = None, *, threads: int = 1, zlevel: int | None = None,
+                  on_rendered: Callable[[], None] | None = None) -> None:
     """Render ``canvas`` (its bounds) strip by strip into a tiled GeoTIFF, then PNG from that.
 
     With ``tif`` (and ``raster``, its grid) that GeoTIFF is an output (mosaic.tif: 512 px tiles,
@@ -153,13 +167,16 @@ def write_canvas(canvas: TiledCanvas, tif: Path | None, png: Path, raster: GeoRa
     it (no TIFF written and read back for it), the GeoTIFF's blocks and overviews compressed by GDAL
     threads at DEFLATE level ``zlevel`` (None: 6). The files' bytes differ from the one-thread
     writer's (filters, block order); their pixels do not.
+
+    ``on_rendered``: called once every strip is rendered (``preview`` complete), while GDAL may still
+    be compressing the GeoTIFF's last blocks and overviews; an exception there fails the write.
     """
     import tempfile
 
     from .geotiff import MOSAIC_BLOCK_PX, png_from_geotiff, write_geotiff_blocks
 
     if threads > 1:
-        _write_canvas_streamed(canvas, tif, png, raster, preview, threads=threads, zlevel=zlevel)
+        _write_canvas_streamed(canvas, tif, png, raster, preview, threads=threads, zlevel=zlevel, on_rendered=on_rendered)
         return
     x0, y0, x1, y1 = canvas.bounds()
 
@@ -172,13 +189,15 @@ def write_canvas(canvas: TiledCanvas, tif: Path | None, png: Path, raster: GeoRa
     if tif is not None:
         write_geotiff_blocks(tif, strips(), raster, y1 - y0, x1 - x0, block_px=MOSAIC_BLOCK_PX)
         png_from_geotiff(tif, png)
-        return
-    png.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(prefix=f'.{png.stem}.', dir=png.parent) as tmp:
-        scratch = Path(tmp) / 'mosaic.tif'
-        write_geotiff_blocks(scratch, strips(), None, y1 - y0, x1 - x0, block_px=MOSAIC_BLOCK_PX, overviews=False,
-                             cog=False)
-        png_from_geotiff(scratch, png)
+    else:
+        png.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryDirectory(prefix=f'.{png.stem}.', dir=png.parent) as tmp:
+            scratch = Path(tmp) / 'mosaic.tif'
+            write_geotiff_blocks(scratch, strips(), None, y1 - y0, x1 - x0, block_px=MOSAIC_BLOCK_PX, overviews=False,
+                                 cog=False)
+            png_from_geotiff(scratch, png)
+    if on_rendered is not None:
+        on_rendered()
 
 
 def _rgba_u8(image: np.ndarray, covered: np.ndarray) -> np.ndarray:
@@ -196,7 +215,8 @@ def _rgba_u8(image: np.ndarray, covered: np.ndarray) -> np.ndarray:
 
 
 def _write_canvas_streamed(canvas: TiledCanvas, tif: Path | None, png: Path, raster: GeoRaster | None,
-                           preview: StripPreview | None, *, threads: int, zlevel: int | None) -> None:
+                           preview: StripPreview | None, *, threads: int, zlevel: int | None,
+                           on_rendered: Callable[[], None] | None = None) -> None:
     """write_canvas on ``threads`` threads: one pass over the rendered strips feeds the preview, the
     PNG (:class:`.png_stream.StreamingPngWriter`, grey + alpha as RGBA with the grey repeated, as
     png_from_geotiff writes it) and, with ``tif``, the GeoTIFF (GDAL compressing on its threads)."""
@@ -240,6 +260,8 @@ def _write_canvas_streamed(canvas: TiledCanvas, tif: Path | None, png: Path, ras
                     tif_strips.put((row, rgba, None))
                 if failure:
                     raise failure[0]
+        if on_rendered is not None:  # while GDAL finishes mosaic.tif
+            on_rendered()
     finally:
         if writer is not None:
             tif_strips.put(None)

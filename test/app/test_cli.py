@@ -50,6 +50,7 @@ def test_process_writes_the_file_contracts(demo_out):
     assert report['frames_in'] == 60
     assert report['frames_registered'] >= 58
     assert 0 < report['wall_s'] < 300
+    assert report['startup_s'] > 0  # the process's start-up, which wall_s leaves out
     mosaic = cv2.imread(str(demo_out / 'mosaic.png'), cv2.IMREAD_UNCHANGED)
     assert mosaic.ndim == 3 and mosaic.shape[2] == 4
     # Every registered frame's footprint lies inside mosaic.png, and its centre pixel is covered.
@@ -253,3 +254,26 @@ def test_the_command_line_starts_without_the_pipeline() -> None:
     run = subprocess.run([sys.executable, '-c', script], capture_output=True, text=True, timeout=120)
     assert run.returncode == 0, run.stderr
     assert run.stdout.split() == ['[]'], run.stdout
+
+
+def test_the_program_ends_after_its_exit_handlers(tmp_path: Path) -> None:
+    """`srmosaic process` as a program (cli.console_main) ends without the interpreter's teardown,
+    but only after the exit handlers ran (a canvas's spill folder is removed by one) and with its
+    output flushed; its exit status is the command's."""
+    marker = tmp_path / 'finalized'
+    script = f'''
+import sys, weakref
+from srmosaic_ros import cli
+class Held: pass
+held = Held()
+weakref.finalize(held, open({str(marker)!r}, 'w').close)  # as TileStore removes its spill folder
+print('before', flush=False)
+sys.argv = ['srmosaic', 'process', {str(tmp_path / 'missing.bag')!r}, '--out', {str(tmp_path / 'out')!r}]
+cli.console_main()
+print('the interpreter went on')
+'''
+    run = subprocess.run([sys.executable, '-c', script], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 2, run.stderr
+    assert run.stdout == 'before\n'  # flushed, and nothing after console_main ran
+    assert 'srmosaic process: error:' in run.stderr and 'missing.bag' in run.stderr
+    assert marker.exists()

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 import rasterio  # a pinned dependency: a missing install must fail, not skip
+import rasterio.shutil
 from rasterio.enums import ColorInterp, Compression
 from rio_cogeo.cogeo import cog_validate  # the field's validator of the COG layout
 
@@ -225,6 +226,37 @@ def test_an_interrupted_write_leaves_no_mosaic_tif(tmp_path: Path) -> None:
         with pytest.raises(ValueError, match=match):
             write_geotiff_blocks(tmp_path / 'bad.tif', bad, RASTER, 600, 700)
     assert [p.name for p in tmp_path.iterdir()] == ['mosaic.tif']
+
+
+@pytest.mark.parametrize(('channels', 'threads'), [(3, 2), (1, 1)])
+def test_a_cog_staged_in_memory_has_the_pixels_of_one_staged_on_disk(channels: int, threads: int, tmp_path: Path,
+                                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    """Up to STAGE_IN_MEMORY_BYTES, mosaic.tif's stage lives in GDAL's memory, uncompressed: the COG has the
+    pixels of every level (full size and overviews) of the one staged on disk, validates, and the
+    in-memory stage is freed, after a complete write as after a failed one."""
+    import srmosaic_ros.io.geotiff as geotiff
+
+    image = _texture(1100, 1300, channels, seed=7)
+    covered = np.ones((1100, 1300), bool)
+    covered[:300, :400] = False
+    stages: list[str] = []
+    unlink = geotiff._unlink_vsimem
+    monkeypatch.setattr(geotiff, '_unlink_vsimem', lambda path: (stages.append(path), unlink(path)))
+    for name, budget in (('disk.tif', 0), ('memory.tif', geotiff.STAGE_IN_MEMORY_BYTES)):
+        monkeypatch.setattr(geotiff, 'STAGE_IN_MEMORY_BYTES', budget)
+        write_geotiff_blocks(tmp_path / name, _strips(image, covered, 512), RASTER, 1100, 1300, threads=threads, zlevel=3)
+        assert cog_validate(tmp_path / name, quiet=True) == (True, [], []), name
+    with pytest.raises(RuntimeError, match='mid-way'):
+        write_geotiff_blocks(tmp_path / 'failed.tif', _strips(image, covered, 512, fail_after=1), RASTER, 1100, 1300)
+    assert len(stages) == 2 and all(s.startswith('/vsimem/') and not rasterio.shutil.exists(s) for s in stages), stages
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['disk.tif', 'memory.tif']
+    with rasterio.open(tmp_path / 'disk.tif') as disk, rasterio.open(tmp_path / 'memory.tif') as memory:
+        assert disk.overviews(1) == memory.overviews(1) == overview_factors(1100, 1300, MOSAIC_BLOCK_PX) == [2, 4]
+        assert disk.count == memory.count == channels + 1
+    for level in (None, 0, 1):
+        kw = {} if level is None else {'OVERVIEW_LEVEL': level}
+        with rasterio.open(tmp_path / 'disk.tif', **kw) as disk, rasterio.open(tmp_path / 'memory.tif', **kw) as memory:
+            assert np.array_equal(disk.read(), memory.read()), level
 
 
 def test_kill_9_while_writing_leaves_no_mosaic_tif(tmp_path: Path) -> None:

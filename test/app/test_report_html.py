@@ -12,7 +12,7 @@ import numpy as np
 
 from demo_bags import rewrite_demo
 from srmosaic_ros.app.process import process_input
-from srmosaic_ros.app.run_report import write_run_report
+from srmosaic_ros.app.run_report import EARLY_SECTIONS, MOSAIC_SECTIONS, start_sections, write_run_report
 from srmosaic_ros.config import pipeline_config
 
 #: Sections drawn for the demo bag (georeferenced, chained, no SR), and those that say they have no data.
@@ -47,6 +47,35 @@ def test_every_run_writes_a_self_contained_report(demo_run) -> None:
     assert saved['stage_times']['outputs']['total_s'] >= report['report_html']['time_s']
     # the map shows the bag's GNSS fixes and the fused poses
     assert re.search(r'data-figure="map" data-tracks="(\d+)"', page).group(1) == '3'
+
+
+def test_sections_drawn_while_the_mosaic_renders_make_the_same_page(demo_run, tmp_path: Path) -> None:
+    """`process` draws the sections of the tables (EARLY_SECTIONS) on a thread while the mosaic renders
+    (start_sections), and those over preview.png (MOSAIC_SECTIONS) once it is written: the page is the
+    one drawn after the run, byte for byte, and a section that cannot be drawn there is reported as
+    one drawn after."""
+    import shutil
+
+    out, report = demo_run
+    frame_sizes = [(640, 480)] * report['frames_in']
+    pages = {}
+    for name, ahead in (('after', False), ('ahead', True)):
+        folder = tmp_path / name
+        shutil.copytree(out, folder)
+        early = start_sections(folder, report, frame_sizes=frame_sizes) if ahead else None
+        if early is not None:
+            early.add_mosaic_sections()
+        figures = write_run_report(folder, report, frame_sizes=frame_sizes, early=early)
+        pages[name] = ((folder / 'report.html').read_bytes(), figures['figures'], figures['sections_failed'])
+    assert {b.__name__.strip('_') for b in EARLY_SECTIONS + MOSAIC_SECTIONS} - {'pair_graph'} <= set(DEMO_FIGURES)
+    assert pages['ahead'] == pages['after'] and pages['after'][1] == len(DEMO_FIGURES)
+    broken = tmp_path / 'broken'  # poses.csv damaged: the map fails ahead as it fails after the run, the rest drawn
+    shutil.copytree(out, broken)
+    (broken / 'poses.csv').write_text('stamp_ns\n1\n')
+    figures = write_run_report(broken, report, frame_sizes=frame_sizes, early=start_sections(broken, report,
+                                                                                             frame_sizes=frame_sizes))
+    plain = write_run_report(broken, report, frame_sizes=frame_sizes)
+    assert figures == {**plain, 'time_s': figures['time_s']} and figures['sections_failed'] == ['Positions on the map']
 
 
 def test_the_report_opens_offline_in_a_browser_with_every_figure(demo_run, chromium) -> None:

@@ -33,7 +33,7 @@ MOSAIC = 'srmosaic: registration and mosaic'
 def test_console_scripts_are_the_node_executables():
     scripts = {ep.name: ep.value for ep in importlib.metadata.entry_points(group='console_scripts')
                if ep.value.startswith('srmosaic_ros.')}
-    assert scripts == {'srmosaic': 'srmosaic_ros.cli:main', **EXECUTABLES}
+    assert scripts == {'srmosaic': 'srmosaic_ros.cli:console_main', **EXECUTABLES}
     for name, target in EXECUTABLES.items():
         module, _, function = target.partition(':')
         assert callable(getattr(importlib.import_module(module), function)), name
