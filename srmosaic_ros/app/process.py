@@ -30,6 +30,8 @@ from ..core.device import cores_left_for_torch
 from ..core.georef.georeferencer import MIN_AXIS_DEPRESSION_DEG
 from ..core.registration import Registration
 from .input_pass import InputPass, feed_input, second_pass_mount, with_mount
+from .map_outputs import map_outputs
+from .ground_control_file import ground_control_file
 from .input_source import open_source  # re-exported: app/psf.py, app/evaluate_real.py and the tests open inputs here
 
 _LOG = logging.getLogger(__name__)
@@ -255,7 +257,7 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
     items, reader, kind = open_source(path, topics=topics, select=select, camera_yaml=camera_yaml,
                                       hfov_deg=hfov_deg, telemetry_csv=telemetry_csv,
                                       stamp_tolerance_s=config.stamp_tolerance_s, deinterlace=deinterlace)
-    gcp_file = _ground_control_file(path, kind, gcp_file, check_points)
+    gcp_file = ground_control_file(path, kind, gcp_file, check_points)
     check_output_dir(out)  # before the work, not after it
     with OutputTransaction(out) as transaction:
         try:
@@ -265,7 +267,7 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
                               sr_factor=sr_factor, progress=progress, overlap=overlap, deinterlace=deinterlace,
                               gcp_file=gcp_file, check_points=check_points)
             if tiles or kmz:
-                report = _map_outputs(transaction.stage, report, t0, tiles=tiles, kmz=kmz)
+                report = map_outputs(transaction.stage, report, t0, tiles=tiles, kmz=kmz)
         except OSError as exc:
             if exc.errno not in FULL_DISK_ERRNOS:
                 raise
@@ -273,36 +275,6 @@ def process_input(path: Path, out: Path, config: PipelineConfig, *, topics: Topi
                    '(the earlier run there is untouched).')
             raise OutputError(msg) from None
     report['stale_outputs_removed'] = transaction.removed
-    return report
-
-
-def _map_outputs(stage: Path, report: dict[str, Any], t0: float, *, tiles: str | None, kmz: bool) -> dict[str, Any]:
-    """--tiles and --kmz into the finished run in ``stage`` (web/offline.py), timed into
-    stage_times.outputs (``tiles_s``, ``kmz_s``, and their total_s); report.json written again."""
-    if not (stage / 'mosaic.tif').is_file():
-        why = ('--tiles and --kmz need a georeferenced mosaic (mosaic.tif), and this one is not: '
-               f'{report.get("not_georeferenced_reason") or "no positions"}')
-        _LOG.warning('%s', why)
-        report['map_outputs'] = {'skipped': why}
-        write_json(stage / 'report.json', report)
-        return report
-    from ..web.offline import write_kmz, write_tiles
-
-    figures: dict[str, Any] = {}
-    outputs = report.setdefault('stage_times', {}).setdefault('outputs', {})
-    for name, wanted, write in (('tiles', tiles, lambda: write_tiles(stage, tiles, threads=output_threads(),
-                                                                     report=report, name=stage.parent.resolve().name)),
-                                ('kmz', kmz, lambda: write_kmz(stage))):
-        if not wanted:
-            continue
-        t = time.perf_counter()
-        figures[name] = write()
-        spent = time.perf_counter() - t
-        outputs[f'{name}_s'] = round(spent, 3)
-        outputs['total_s'] = round(outputs.get('total_s', 0.0) + spent, 3)
-    report['map_outputs'] = figures
-    report['wall_s'] = round(time.perf_counter() - t0, 3)
-    write_json(stage / 'report.json', report)
     return report
 
 
@@ -461,34 +433,6 @@ def _resumed(out: Path, run_id: str, *, overlap: bool) -> tuple[InputPass, dict[
     run = InputPass(pipeline, state.recorder, state.recent or {}, skip_items=state.items_consumed,
                     frames_done=state.frames_consumed)
     return run, state.mount_restart
-
-
-def _ground_control_file(path: Path, kind: str, gcp_file: Path | None, check_points: str | None) -> Path | None:
-    """The GCP file a run uses: ``gcp_file``, else a folder of stills' own gcp_list.txt (io/gcp.py);
-    refuses what cannot be used, before any work."""
-    from ..io.gcp import find_gcp_file
-
-    if kind != 'images':  # a video's or a bag's picks name frames by stamp (app/video_control.py)
-        if check_points and gcp_file is None:
-            msg = f'--check-points {check_points}: a video or a bag has no gcp_list.txt of its own; give it with --gcp FILE.'
-            raise InputError(msg)
-        if gcp_file is not None and not Path(gcp_file).is_file():
-            msg = f'--gcp {gcp_file}: no such file; give the path of an OpenDroneMap gcp_list.txt.'
-            raise InputError(msg)
-        return Path(gcp_file) if gcp_file is not None else None
-    if gcp_file is not None:
-        if not Path(gcp_file).is_file():
-            msg = f'--gcp {gcp_file}: no such file; give the path of an OpenDroneMap gcp_list.txt.'
-            raise InputError(msg)
-        return Path(gcp_file)
-    found = find_gcp_file(path)
-    if found is None and check_points:
-        msg = (f'--check-points {check_points}: {path} has no gcp_list.txt inside or beside it; give the ground '
-               'control points with --gcp FILE.')
-        raise InputError(msg)
-    if found is not None:
-        _LOG.info('ground control points: %s', found)
-    return found
 
 
 def _process_survey(path: Path, out: Path, config: PipelineConfig, reader: Any, t0: float, *,

@@ -56,10 +56,10 @@ def test_kmz_of_a_grey_run(tmp_path):
 
 
 def test_map_outputs_of_a_run_without_georeferencing(tmp_path):
-    from srmosaic_ros.app.process import _map_outputs
+    from srmosaic_ros.app.map_outputs import map_outputs
 
     report = {'frames_in': 3, 'not_georeferenced_reason': 'no fixes'}
-    out = _map_outputs(tmp_path, report, 0.0, tiles='png', kmz=True)
+    out = map_outputs(tmp_path, report, 0.0, tiles='png', kmz=True)
     assert 'no fixes' in out['map_outputs']['skipped'] and 'mosaic.tif' in out['map_outputs']['skipped']
     assert json.loads((tmp_path / 'report.json').read_text())['map_outputs'] == out['map_outputs']
     assert not (tmp_path / 'tiles').exists() and not (tmp_path / 'mosaic.kmz').exists()
