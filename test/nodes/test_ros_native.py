@@ -444,8 +444,14 @@ def test_georef_node_lifecycle(ros_env):
             assert state(name) == State.PRIMARY_STATE_UNCONFIGURED
             transition(name, Transition.TRANSITION_CONFIGURE)
         assert state('georef') == State.PRIMARY_STATE_INACTIVE
-        play(8)  # both inactive: ignored, and taken again when replayed
-        assert listener.wait_for(lambda: int(value('inputs_while_inactive') or 0) >= 50, 30), value('inputs_while_inactive')
+        # both inactive: ignored, and taken again when replayed. A starved host may match the player's
+        # publishers with the node's subscriptions only after the player sent (volatile QoS: those are
+        # lost, not ignored): play again then; a node that does not count them fails all three.
+        for _ in range(3):
+            play(8)
+            if listener.wait_for(lambda: int(value('inputs_while_inactive') or 0) >= 50, 30):
+                break
+        assert int(value('inputs_while_inactive') or 0) >= 50, value('inputs_while_inactive')
         assert listener.got['pose'] == [] and value('frames_fused') == '0'
         for name in procs:
             transition(name, Transition.TRANSITION_ACTIVATE)
