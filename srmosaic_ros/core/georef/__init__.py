@@ -5,8 +5,9 @@ The UKF and the Georeferencer import filterpy (slow to import): they load on fir
 """
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from ..lazy import lazy_attributes
 
 if TYPE_CHECKING:
     from .georeferencer import (
@@ -48,13 +49,4 @@ __all__ = [
     'utm_epsg',
 ]
 
-
-def __getattr__(name: str) -> Any:  # PEP 562 lazy attributes
-    if name in _LAZY:
-        return getattr(importlib.import_module(f'.{_LAZY[name]}', __name__), name)
-    msg = f'module {__name__!r} has no attribute {name!r}'
-    raise AttributeError(msg)
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *_LAZY})
+__getattr__, __dir__ = lazy_attributes(__name__, _LAZY, globals())  # PEP 562

@@ -5,8 +5,9 @@ The torch registrar imports torch (slow to import, hundreds of MB): every name l
 """
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from ..lazy import lazy_attributes
 
 if TYPE_CHECKING:
     from .factory import FallbackFeatures, FallbackRegistrar, make_registrar
@@ -31,13 +32,4 @@ _LAZY = {
 __all__ = ['BACKENDS', 'Features', 'Registrar', 'Registration', 'RegistrationConfig', 'TorchRegistrar', 'TorchRegistrarOptions',
            'FallbackFeatures', 'FallbackRegistrar', 'check_homography', 'make_registrar']
 
-
-def __getattr__(name: str) -> Any:  # PEP 562 lazy attributes
-    if name in _LAZY:
-        return getattr(importlib.import_module(f'.{_LAZY[name]}', __name__), name)
-    msg = f'module {__name__!r} has no attribute {name!r}'
-    raise AttributeError(msg)
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *_LAZY})
+__getattr__, __dir__ = lazy_attributes(__name__, _LAZY, globals())  # PEP 562

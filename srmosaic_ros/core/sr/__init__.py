@@ -7,8 +7,9 @@ so that ``import srmosaic_ros.core.sr.sr_config`` stays light.
 """
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from ..lazy import lazy_attributes
 
 if TYPE_CHECKING:
     from .observation import FrameStack, ObservationOperator, build_frame_stack
@@ -72,13 +73,4 @@ __all__ = [
     'IterationRecord', 'LambdaRule', 'Problem', 'SolveResult', 'solve',
 ]
 
-
-def __getattr__(name: str) -> Any:  # PEP 562 lazy attributes
-    if name in _LAZY:
-        return getattr(importlib.import_module(f'.{_LAZY[name]}', __name__), name)
-    msg = f'module {__name__!r} has no attribute {name!r}'
-    raise AttributeError(msg)
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *_LAZY})
+__getattr__, __dir__ = lazy_attributes(__name__, _LAZY, globals())  # PEP 562
