@@ -134,10 +134,10 @@ def test_graph_with_typed_messages(interfaces_env, ros_env, tmp_path):
         assert got['painted'] >= 55 and got['raster_epsg'] and got['raster_epsg'][-1] > 32600, got
         tiles = tmp_path / 'tiles' / 'sr_tiles'
         deadline = 60
-        while deadline > 0 and not list(tiles.glob('*.tif')):
+        while deadline > 0 and not [p for p in tiles.glob('*.tif') if not p.name.startswith('.')]:
             time.sleep(1.0)
             deadline -= 1
-        written = sorted(tiles.glob('*.tif'))
+        written = sorted(p for p in tiles.glob('*.tif') if not p.name.startswith('.'))  # not a tile being written (.name.tmp.tif)
         assert written, f'no SR tile recorded: {sorted(p.name for p in tiles.iterdir())}'
         with rasterio.open(written[0]) as ds:
             assert ds.crs.to_epsg() == got['raster_epsg'][-1]
